@@ -1,0 +1,85 @@
+"""The benchmark runner behind `sitrelax bench`.
+
+Each entry is timed as the median of several runs after one warm-up run; an entry with a
+baseline (an independent implementation of the same job) is timed in the same session so the
+speed-up is a ratio measured under the same conditions.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from typing import Callable, Iterable
+
+from capture import bench as capture_bench
+from capture.bench import BenchCase
+
+
+def all_cases() -> list[BenchCase]:
+    """Every benchmark entry of every package, in layer order."""
+    return list(capture_bench.cases())
+
+
+class UnknownBenchmarkError(ValueError):
+    """A benchmark name that no package declares."""
+
+
+def _median_time(fn: Callable[[object], object], arg: object, repeats: int) -> float:
+    fn(arg)  # warm-up: imports, caches, page cache
+    times = []
+    for _ in range(max(1, repeats)):
+        start = time.perf_counter()
+        fn(arg)
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def run_benchmarks(
+    names: Iterable[str] = (),
+    repeats: int | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> list[dict]:
+    """Runs the named entries (all when `names` is empty) and returns one dict per entry.
+
+    Keys: name, description, median_s, repeats, and where a baseline exists baseline,
+    baseline_median_s, speedup (baseline median / our median).
+    """
+    cases = all_cases()
+    known = {c.name: c for c in cases}
+    names = list(names)
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise UnknownBenchmarkError(
+            f"Expected benchmark names from {sorted(known)}, got {unknown}"
+        )
+    chosen = [known[n] for n in names] if names else cases
+    results = []
+    for k, case in enumerate(chosen, start=1):
+        if progress:
+            progress(f"[{k}/{len(chosen)}] {case.name}: {case.description}")
+        arg = case.setup()
+        n = repeats or case.repeats
+        row = {"name": case.name, "description": case.description,
+               "median_s": _median_time(case.run, arg, n), "repeats": n}
+        if case.baseline is not None:
+            nb = repeats or case.baseline_repeats
+            if progress:
+                progress(f"[{k}/{len(chosen)}] {case.name}: baseline {case.baseline_name}")
+            base = _median_time(case.baseline, arg, nb)
+            row.update(baseline=case.baseline_name, baseline_median_s=base,
+                       baseline_repeats=nb, speedup=base / row["median_s"])
+        results.append(row)
+    return results
+
+
+def format_table(rows: list[dict]) -> str:
+    """A plain-text table of benchmark results."""
+    head = f"{'name':<14} {'median':>11} {'baseline':<24} {'baseline median':>16} {'speedup':>9}"
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        base = r.get("baseline") or ""
+        bmed = f"{r['baseline_median_s'] * 1e3:.1f} ms" if "baseline_median_s" in r else ""
+        speed = f"{r['speedup']:.1f}x" if "speedup" in r else ""
+        lines.append(f"{r['name']:<14} {r['median_s'] * 1e3:>8.2f} ms {base:<24} {bmed:>16} "
+                     f"{speed:>9}")
+    return "\n".join(lines)

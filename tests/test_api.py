@@ -1,0 +1,31 @@
+"""The public API of each package, snapshotted so a change to it is deliberate."""
+
+import subprocess
+import sys
+
+import capture
+
+
+def test_capture_public_api():
+    assert sorted(capture.__all__) == sorted([
+        "Bvh", "BvhParseError", "CHANNEL_NAMES", "Motion", "PROFILES", "Profile", "Skeleton",
+        "SkeletonError", "UNITS", "UnitError", "UnitUnknownError", "WorldPose",
+        "bundled_recordings", "format_bvh", "forward_kinematics", "identify_profile",
+        "joint_levels", "parse_bvh", "read_bvh", "resolve_path", "resolve_unit", "skeleton_fk",
+        "write_bvh",
+    ])
+    for name in capture.__all__:
+        assert hasattr(capture, name)
+
+
+def test_errors_are_value_errors():
+    for name in ("BvhParseError", "SkeletonError", "UnitError", "UnitUnknownError"):
+        assert issubclass(getattr(capture, name), ValueError)
+
+
+def test_packages_import_without_optional_heavy_modules():
+    # the capture layer must not pull in the solver's dependencies
+    code = ("import sys, capture, posedb; "
+            "bad = [m for m in ('igl', 'trimesh', 'osqp', 'h5py', 'solver') if m in sys.modules]; "
+            "assert not bad, bad")
+    subprocess.run([sys.executable, "-c", code], check=True)

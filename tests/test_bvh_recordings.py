@@ -1,0 +1,106 @@
+"""Real recordings read right: counts, bvhio as an independent oracle, the seated phase."""
+
+import numpy as np
+import pytest
+
+import bvhio
+from scipy.spatial.transform import Rotation
+
+from capture import bundled_recordings, read_bvh
+from capture.recordings import bundled_dir
+
+from .conftest import SHARED_BVH, recording
+
+ALL_FILES = sorted(
+    {p.name for p in SHARED_BVH.glob("*.bvh")} | set(bundled_recordings())
+)
+
+
+@pytest.mark.parametrize("name", ALL_FILES)
+def test_every_recording_reads(name):
+    bvh = read_bvh(recording(name))
+    assert bvh.motion.num_frames > 0
+    assert bvh.motion.channels.shape == (bvh.motion.num_frames, bvh.skeleton.num_channels)
+    assert bvh.profile in ("cmu", "axis_neuron")
+    assert np.isfinite(bvh.world_positions()).all()
+
+
+def test_bundled_copies_are_the_shared_files():
+    if not SHARED_BVH.exists():
+        pytest.skip("shared recordings not beside the repository")
+    for name in bundled_recordings():
+        assert (bundled_dir() / name).read_bytes() == (SHARED_BVH / name).read_bytes()
+
+
+@pytest.mark.parametrize(
+    "name, joints, frames, channels, profile",
+    [
+        ("cmu_75_18_high_sit.bvh", 31, 77, 96, "cmu"),
+        ("axis_neuron_standing_yxz.bvh", 59, 2156, 180, "axis_neuron"),
+        ("cmu_75_17_medium_sit.bvh", 31, 325, 96, "cmu"),
+        ("cmu_82_05_floor_sit_excerpt.bvh", 31, 16, 96, "cmu"),
+    ],
+)
+def test_counts(name, joints, frames, channels, profile):
+    bvh = read_bvh(recording(name))
+    assert bvh.skeleton.num_joints == joints
+    assert bvh.motion.num_frames == frames
+    assert bvh.skeleton.num_channels == channels
+    assert bvh.profile == profile
+
+
+def _bvhio_world_positions(path, unit_m):
+    root = bvhio.readAsHierarchy(str(path))
+    layout = root.layout()
+    frames = len(root.Keyframes)
+    out = np.empty((frames, len(layout), 3))
+    for f in range(frames):
+        root.loadPose(f)
+        out[f] = [tuple(joint.PositionWorld) for joint, _, _ in layout]
+    return [joint.Name for joint, _, _ in layout], out * unit_m
+
+
+@pytest.mark.parametrize("name", ["cmu_75_18_high_sit.bvh", "axis_neuron_standing_yxz.bvh"])
+def test_world_positions_match_bvhio(name):
+    path = recording(name)
+    bvh = read_bvh(path)
+    names, expected = _bvhio_world_positions(path, bvh.skeleton.unit_m)
+    assert names == list(bvh.skeleton.names)
+    ours = bvh.world_positions()
+    assert ours.shape == expected.shape
+    np.testing.assert_allclose(ours, expected, rtol=0, atol=1e-4)
+
+
+def test_world_rotations_match_bvhio_on_sampled_frames(axis_standing):
+    # bvhio's joint frames carry a constant rest orientation per joint (its bones point along
+    # their local Y), so compare motion relative to frame 0: R(f) R(0)^-1 is free of it.
+    bvh = read_bvh(axis_standing)
+    root = bvhio.readAsHierarchy(str(axis_standing))
+    layout = root.layout()
+    ours = Rotation.from_matrix(bvh.fk().rotmats.reshape(-1, 3, 3)).as_quat()
+    ours = ours.reshape(bvh.motion.num_frames, bvh.skeleton.num_joints, 4)
+
+    def theirs(frame):
+        root.loadPose(frame)
+        return Rotation.from_quat([(j.RotationWorld.x, j.RotationWorld.y, j.RotationWorld.z,
+                                    j.RotationWorld.w) for j, _, _ in layout])
+
+    base_theirs = theirs(0)
+    base_ours = Rotation.from_quat(ours[0])
+    for f in (1, 500, 1500, 2155):
+        rel_theirs = theirs(f) * base_theirs.inv()
+        rel_ours = Rotation.from_quat(ours[f]) * base_ours.inv()
+        angle = (rel_ours * rel_theirs.inv()).magnitude()
+        assert angle.max() < 1e-5, (f, angle.max())
+
+
+def test_seated_phase_of_the_high_sit(cmu_high_sit):
+    bvh = read_bvh(cmu_high_sit)
+    hips = bvh.world_positions()[:, bvh.skeleton.index("Hips"), 1]
+    standing = hips[1:8]
+    seated = hips[18:52]
+    assert np.all(np.abs(standing - 1.0) < 0.06), standing
+    assert np.all(np.abs(seated - 0.5) < 0.06), seated
+    # the sit is a clear, held phase: at least 40 cm lower than standing, and nearly still
+    assert standing.mean() - seated.mean() > 0.4
+    assert np.ptp(seated[5:-5]) < 0.05
