@@ -1,0 +1,496 @@
+"""The Perception Neuron BVH broadcast: a codec for its binary and string frames.
+
+Axis Neuron and Axis Studio broadcast one frame per sample, as a 64-byte binary header followed by
+`DataCount` little-endian float32 values, or as a text line `<avatar index> <avatar name> <v0> ...
+<vN-1> ||`. Two binary headers exist: the current one (data version 1.1.0.0, carrying the
+sender's frame index) and the old one (1.0.x, without it). See
+`shared/reference/perception-neuron-stream.md` for the byte layout.
+
+The decoder reads a byte stream in pieces of any size. It resynchronises on the next plausible
+header after garbage, rejects impossible headers (a DataCount over `MAX_DATA_COUNT` is never
+allocated), and, because the format has no checksum, accepts a binary frame only when its
+framing is confirmed: the bytes after it start another frame, the datagram ends exactly there,
+or its DataCount is the one the paired skeleton expects for its flags. A bit flipped inside a
+value cannot be detected by any reader of this format; a flip that makes a value NaN or infinite
+is rejected.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass, field
+from typing import Iterable, NamedTuple
+
+import numpy as np
+
+TOKEN = b"\xff\xdd"
+FOOTER = b"\xff\xee"
+HEADER_SIZE = 64
+MAX_DATA_COUNT = 4096
+VERSION_NEW = (0, 0, 1, 1)  # build, revision, minor, major: data version 1.1.0.0
+VERSION_OLD = (0, 0, 0, 1)  # 1.0.0.0
+NAME_SIZE = 32
+
+FORMATS = ("binary", "binary-old", "string")
+
+# Current header: token, version[4], count u16, displacement u8, reference u8, avatar u32,
+# name[32], frame index u32, reserved u32 x3, footer.
+_NEW = struct.Struct("<2s4BHBBI32sI12s2s")
+# Old header: token, version[4], count u32, displacement u32, reference u32, avatar u32, name[32],
+# reserved u32 x2, footer.
+_OLD = struct.Struct("<2s4BIIII32s8s2s")
+assert _NEW.size == _OLD.size == HEADER_SIZE
+
+_STRING_END = b"||"
+
+
+class NeuronStreamError(ValueError):
+    """Bad input to the Perception Neuron codec (the only error type it raises)."""
+
+
+class NeuronFrame(NamedTuple):
+    """One decoded frame.
+
+    values : (N,) float32 payload as sent (degrees and centimetres, in BVH channel order).
+    frame_index : the sender's frame index (current binary header), else None.
+    avatar_index, avatar_name : which avatar the frame belongs to.
+    with_displacement, with_reference : the header's flags; None for string frames.
+    kind : "binary", "binary-old" or "string".
+    received_at : receive time (seconds, `time.time()` clock) set by the source, else None.
+    """
+
+    values: np.ndarray
+    frame_index: int | None
+    avatar_index: int
+    avatar_name: str
+    with_displacement: bool | None
+    with_reference: bool | None
+    kind: str
+    received_at: float | None = None
+
+
+@dataclass
+class DecoderStats:
+    """Counters of what a decoder met.
+
+    frames : frames returned.
+    dropped : frames missing according to the sender's frame index (index gaps).
+    corrupt : candidate frames rejected (impossible header, unconfirmed framing, non-finite
+        values, unparsable string line, a frame cut short by a disconnect or end of input).
+    resynced : times bytes were skipped to find the next frame.
+    skipped_bytes : bytes skipped in total.
+    restarts : times the frame index went backwards (a restarted sender).
+    """
+
+    frames: int = 0
+    dropped: int = 0
+    corrupt: int = 0
+    resynced: int = 0
+    skipped_bytes: int = 0
+    restarts: int = 0
+    first_index: int | None = None
+    last_index: int | None = None
+    gaps: list[tuple[int, int]] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        return {
+            "frames": self.frames, "dropped": self.dropped, "corrupt": self.corrupt,
+            "resynced": self.resynced, "skipped_bytes": self.skipped_bytes,
+            "restarts": self.restarts, "first_index": self.first_index,
+            "last_index": self.last_index,
+        }
+
+
+# -- encoding --------------------------------------------------------------------------------
+
+
+def _name_bytes(name: str) -> bytes:
+    raw = name.encode("utf-8")
+    if len(raw) > NAME_SIZE:
+        raise NeuronStreamError(f"Expected an avatar name of at most {NAME_SIZE} bytes, got "
+                                f"{len(raw)} ({name!r})")
+    return raw.ljust(NAME_SIZE, b"\0")
+
+
+def _check_values(values: np.ndarray) -> np.ndarray:
+    values = np.ascontiguousarray(values, dtype="<f4")
+    if values.ndim != 1 or not 0 < values.size <= MAX_DATA_COUNT:
+        raise NeuronStreamError(
+            f"Expected 1 to {MAX_DATA_COUNT} values per frame, got shape {values.shape}"
+        )
+    return values
+
+
+def encode_binary(values: np.ndarray, *, frame_index: int = 0, avatar_index: int = 0,
+                  avatar_name: str = "Avatar00", with_displacement: bool = True,
+                  with_reference: bool = False, old_header: bool = False) -> bytes:
+    """One binary frame: header (current or old) and the float32 payload.
+
+    values : (N,) payload, N <= MAX_DATA_COUNT.
+    """
+    values = _check_values(values)
+    name = _name_bytes(avatar_name)
+    if old_header:
+        head = _OLD.pack(TOKEN, *VERSION_OLD, values.size, int(with_displacement),
+                         int(with_reference), avatar_index, name, b"\0" * 8, FOOTER)
+    else:
+        head = _NEW.pack(TOKEN, *VERSION_NEW, values.size, int(with_displacement),
+                         int(with_reference), avatar_index, name, frame_index & 0xFFFFFFFF,
+                         b"\0" * 12, FOOTER)
+    return head + values.tobytes()
+
+
+def encode_string(values: np.ndarray, *, avatar_index: int = 0,
+                  avatar_name: str = "Avatar00") -> bytes:
+    """One string frame: `<avatar index> <avatar name> <v0> ... <vN-1> ||` and CRLF.
+
+    Values are written with 9 significant digits, which float32 reads back exactly.
+    """
+    values = _check_values(values)
+    if not avatar_name or any(c.isspace() for c in avatar_name) or "||" in avatar_name:
+        raise NeuronStreamError(f"Expected an avatar name without spaces, got {avatar_name!r}")
+    body = " ".join(f"{v:.9g}" for v in values.tolist())
+    return f"{avatar_index} {avatar_name} {body} ||\r\n".encode("ascii")
+
+
+def encode_frame(values: np.ndarray, fmt: str, **kw) -> bytes:
+    """Encodes in one of `FORMATS`; keyword arguments as for the format's encoder."""
+    if fmt == "binary":
+        return encode_binary(values, **kw)
+    if fmt == "binary-old":
+        kw.pop("frame_index", None)
+        return encode_binary(values, old_header=True, **kw)
+    if fmt == "string":
+        for key in ("frame_index", "with_displacement", "with_reference"):
+            kw.pop(key, None)
+        return encode_string(values, **kw)
+    raise NeuronStreamError(f"Expected a format from {FORMATS}, got {fmt!r}")
+
+
+# -- decoding --------------------------------------------------------------------------------
+
+
+class _Header(NamedTuple):
+    count: int
+    displacement: bool
+    reference: bool
+    avatar_index: int
+    name: bytes
+    frame_index: int | None
+    kind: str
+
+
+def _parse_header(buf, pos: int) -> _Header | None:
+    """The header at `pos` (64 bytes available), or None when it cannot be a real header."""
+    if buf[pos + 62:pos + 64] != FOOTER:
+        return None
+    major, minor = buf[pos + 5], buf[pos + 4]
+    if major == 1 and minor >= 1:
+        (_, _, _, _, _, count, disp, ref, avatar, name, index, _, _) = _NEW.unpack_from(buf, pos)
+        kind = "binary"
+    elif major == 1 and minor == 0:
+        (_, _, _, _, _, count, disp, ref, avatar, name, _, _) = _OLD.unpack_from(buf, pos)
+        index = None
+        kind = "binary-old"
+    else:
+        return None
+    if not (0 < count <= MAX_DATA_COUNT) or disp > 1 or ref > 1:
+        return None
+    return _Header(count, bool(disp), bool(ref), avatar, name, index, kind)
+
+
+_NAME_CACHE: dict[bytes, str] = {}
+
+
+def _avatar_name(raw: bytes) -> str:
+    name = _NAME_CACHE.get(raw)
+    if name is None:
+        name = raw.split(b"\0", 1)[0].decode("utf-8", "replace")
+        if len(_NAME_CACHE) < 1024:
+            _NAME_CACHE[raw] = name
+    return name
+
+
+_BLANK = b"\r\n\0 \t"
+_MAX_LINE = 65536  # a string frame of 4096 floats fits many times over
+
+
+class StreamDecoder:
+    """Incremental decoder of Perception Neuron frames from bytes of any chunking.
+
+    counts : the DataCount the paired skeleton expects for each (with_displacement,
+        with_reference), e.g. `StreamLayout.counts()`; with it, a frame of any other size is
+        rejected (and remembered in `stats.mismatch` so the caller can name the mismatch).
+        Without it, the decoder learns each flag combination's size from frames whose framing
+        is confirmed by the start of the next frame (or the end of the input or datagram).
+    datagram : each `feed` is one whole datagram (UDP); a binary frame must fill it exactly.
+    fmt : "auto" (the first valid frame fixes the format of the stream), "binary" or "string".
+
+    `feed` returns the frames completed by the new bytes; `flush` settles what is left at the
+    end of input or on a disconnect. Counters are in `stats`.
+    """
+
+    def __init__(self, counts: dict[tuple[bool, bool], int] | None = None,
+                 datagram: bool = False, fmt: str = "auto"):
+        if fmt not in ("auto", "binary", "string"):
+            raise NeuronStreamError(f"Expected fmt 'auto', 'binary' or 'string', got {fmt!r}")
+        self.strict = counts is not None
+        self.counts: dict[tuple[bool, bool], int] = dict(counts or {})
+        self._string_counts = set(self.counts.values())
+        self.datagram = datagram
+        self.mode = None if fmt == "auto" else fmt
+        self.stats = DecoderStats()
+        self.mismatch: tuple[int, bool | None, bool | None] | None = None
+        self._buf = bytearray()
+        self._pos = 0
+        self._last_index: int | None = None
+
+    # -- bookkeeping --------------------------------------------------------------------------
+
+    def _count_index(self, index: int | None) -> None:
+        if index is None:
+            return
+        st = self.stats
+        if st.first_index is None:
+            st.first_index = index
+        last = self._last_index
+        if last is not None:
+            step = (index - last) & 0xFFFFFFFF
+            if step == 0 or step > 0x7FFFFFFF:
+                st.restarts += 1
+            elif step > 1:
+                st.dropped += step - 1
+                st.gaps.append((last, index))
+        self._last_index = index
+        st.last_index = index
+
+    def _skip(self, n: int) -> None:
+        if n > 0:
+            self.stats.resynced += 1
+            self.stats.skipped_bytes += n
+
+    # -- public -------------------------------------------------------------------------------
+
+    def feed(self, data: bytes, received_at: float | None = None) -> list[NeuronFrame]:
+        """Adds received bytes and returns the frames they complete, in order."""
+        out: list[NeuronFrame] = []
+        if self.datagram:
+            self._datagram(bytes(data), out, received_at)
+            return out
+        buf = self._buf
+        if self._pos and self._pos * 2 > len(buf):
+            del buf[:self._pos]
+            self._pos = 0
+        buf += data
+        self._pos = self._scan(buf, self._pos, out, received_at, final=False)
+        return out
+
+    def flush(self, received_at: float | None = None) -> list[NeuronFrame]:
+        """Settles the bytes still held at end of input or on a disconnect.
+
+        A complete frame still waiting for confirmation is accepted when it ends exactly where
+        the input ends; a frame cut short counts as corrupt.
+        """
+        out: list[NeuronFrame] = []
+        if not self.datagram:
+            pos = self._scan(self._buf, self._pos, out, received_at, final=True)
+            if self._buf[pos:].strip(_BLANK):
+                self.stats.corrupt += 1
+            self._buf = bytearray()
+            self._pos = 0
+        return out
+
+    # -- binary -------------------------------------------------------------------------------
+
+    def _accept_count(self, head: _Header) -> bool | None:
+        """True/False when the size is known to be right/wrong for the flags, None if unknown."""
+        known = self.counts.get((head.displacement, head.reference))
+        if known is None:
+            if self.strict:
+                self.mismatch = (head.count, head.displacement, head.reference)
+                return False
+            return None
+        if known != head.count:
+            if self.strict:
+                self.mismatch = (head.count, head.displacement, head.reference)
+            return False
+        return True
+
+    def _emit_binary(self, buf, pos: int, head: _Header, out: list, received_at) -> bool:
+        start = pos + HEADER_SIZE
+        values = np.frombuffer(bytes(buf[start:start + 4 * head.count]), dtype="<f4")
+        if not np.isfinite(values).all():
+            self.stats.corrupt += 1
+            return False
+        if not self.strict:
+            self.counts[(head.displacement, head.reference)] = head.count
+        self.mode = "binary"
+        self._count_index(head.frame_index)
+        self.stats.frames += 1
+        out.append(NeuronFrame(values, head.frame_index, head.avatar_index,
+                               _avatar_name(head.name), head.displacement, head.reference,
+                               head.kind, received_at))
+        return True
+
+    def _datagram(self, data: bytes, out: list, received_at) -> None:
+        if self.mode != "string" and data[:2] == TOKEN:
+            head = _parse_header(data, 0) if len(data) >= HEADER_SIZE else None
+            if (head is not None and len(data) == HEADER_SIZE + 4 * head.count
+                    and self._accept_count(head) is not False):
+                self._emit_binary(data, 0, head, out, received_at)
+            else:
+                self.stats.corrupt += 1
+            return
+        if self.mode == "binary":
+            self.stats.corrupt += 1
+            return
+        buf = bytearray(data)
+        pos = self._scan_strings(buf, 0, out, received_at, final=True)
+        if buf[pos:].strip(_BLANK):
+            self.stats.corrupt += 1
+
+    def _scan(self, buf: bytearray, pos: int, out: list, received_at, final: bool) -> int:
+        if self.mode == "string":
+            return self._scan_strings(buf, pos, out, received_at, final)
+        if self.mode is None:
+            # Until a first frame fixes the format, a "||" before any binary token means text.
+            tok = buf.find(TOKEN, pos)
+            bar = buf.find(_STRING_END, pos)
+            if bar >= 0 and (tok < 0 or bar < tok):
+                start = max(buf.rfind(b"\n", pos, bar), buf.rfind(b"\r", pos, bar)) + 1
+                start = max(start, pos)
+                self._skip(start - pos)
+                pos = self._scan_strings(buf, start, out, received_at, final)
+                if self.mode is None:
+                    return self._scan(buf, pos, out, received_at, final) if pos < len(buf) \
+                        else pos
+                return self._scan(buf, pos, out, received_at, final)
+        return self._scan_binary(buf, pos, out, received_at, final)
+
+    def _scan_binary(self, buf: bytearray, pos: int, out: list, received_at, final: bool) -> int:
+        n = len(buf)
+        while pos < n:
+            if buf[pos:pos + 2] != TOKEN:
+                tok = buf.find(TOKEN, pos + 1)
+                if tok < 0:
+                    # keep a trailing 0xFF: it may be the first half of a token
+                    keep = 1 if (buf[n - 1] == 0xFF and not final) else 0
+                    self._skip(n - keep - pos)
+                    return n - keep
+                self._skip(tok - pos)
+                pos = tok
+            if n - pos < HEADER_SIZE:
+                return n if final and self._cut(n - pos) else pos
+            head = _parse_header(buf, pos)
+            if head is None:
+                self.stats.corrupt += 1
+                self._skip(1)
+                pos += 1
+                continue
+            end = pos + HEADER_SIZE + 4 * head.count
+            size_ok = self._accept_count(head)
+            if size_ok is False:
+                self.stats.corrupt += 1
+                self._skip(1)
+                pos += 1
+                continue
+            if end > n:
+                if final:
+                    self._cut(n - pos)
+                    return n
+                return pos
+            if size_ok is None:  # unknown size: the next bytes must start a frame
+                if end + 2 <= n:
+                    size_ok = buf[end:end + 2] == TOKEN
+                elif final:
+                    size_ok = end == n
+                else:
+                    return pos
+                if not size_ok:
+                    self.stats.corrupt += 1
+                    self._skip(1)
+                    pos += 1
+                    continue
+            if self._emit_binary(buf, pos, head, out, received_at):
+                pos = end
+            else:
+                self._skip(1)
+                pos += 1
+        return pos
+
+    def _cut(self, nbytes: int) -> bool:
+        """Counts a frame cut short by the end of input."""
+        if nbytes:
+            self.stats.corrupt += 1
+        return True
+
+    # -- string -------------------------------------------------------------------------------
+
+    def _scan_strings(self, buf: bytearray, pos: int, out: list, received_at,
+                      final: bool) -> int:
+        n = len(buf)
+        while pos < n:
+            while pos < n and buf[pos] in _BLANK:
+                pos += 1
+            if pos >= n:
+                break
+            bar = buf.find(_STRING_END, pos)
+            eol = _line_end(buf, pos)
+            if eol >= 0 and (bar < 0 or eol < bar):
+                self.stats.corrupt += 1  # a line without a terminator
+                self._skip(eol - pos)
+                pos = eol
+                continue
+            if bar < 0:
+                if final or n - pos > _MAX_LINE:
+                    self.stats.corrupt += 1
+                    self._skip(n - pos)
+                    return n
+                return pos
+            self._emit_string(bytes(buf[pos:bar]), out, received_at)
+            pos = bar + 2
+        return pos
+
+    def _emit_string(self, text: bytes, out: list, received_at) -> None:
+        words = text.split()
+        try:
+            if len(words) < 3:
+                raise ValueError("too few fields")
+            avatar = int(words[0])
+            name = words[1].decode("ascii")
+            values = np.array([float(w) for w in words[2:]], dtype=np.float32)
+        except (ValueError, UnicodeDecodeError):
+            self.stats.corrupt += 1
+            return
+        if avatar < 0 or values.size > MAX_DATA_COUNT or not np.isfinite(values).all():
+            self.stats.corrupt += 1
+            return
+        if self.strict and values.size not in self._string_counts:
+            self.mismatch = (int(values.size), None, None)
+            self.stats.corrupt += 1
+            return
+        self.mode = "string"
+        self.stats.frames += 1
+        out.append(NeuronFrame(values, None, avatar, name, None, None, "string", received_at))
+
+
+def _line_end(buf: bytearray, pos: int) -> int:
+    """Index of the next CR or LF at or after pos, or -1."""
+    cr = buf.find(b"\r", pos)
+    lf = buf.find(b"\n", pos)
+    if cr < 0:
+        return lf
+    if lf < 0:
+        return cr
+    return min(cr, lf)
+
+
+def decode_all(data: bytes | Iterable[bytes], **kw) -> tuple[list[NeuronFrame], DecoderStats]:
+    """Decodes a whole input (bytes, or chunks as received) and settles its end."""
+    dec = StreamDecoder(**kw)
+    frames: list[NeuronFrame] = []
+    chunks = [data] if isinstance(data, (bytes, bytearray, memoryview)) else data
+    for chunk in chunks:
+        frames.extend(dec.feed(chunk))
+    frames.extend(dec.flush())
+    return frames, dec.stats

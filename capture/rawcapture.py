@@ -1,0 +1,194 @@
+"""Raw stream captures: the exact bytes a source received, with receive times.
+
+File format (`.raw`, little-endian), made to be appended to while a stream runs and read back
+even after the writer was killed:
+
+    magic        8 bytes   b"SITRAW\\x00\\x01"  (format version 1)
+    header_len   u32       length of the header that follows
+    header       JSON      UTF-8 object: "source" (URL), "transport" ("stream" or "datagram"),
+                           "time_origin" (Unix seconds of t = 0), "started_at" (ISO 8601 UTC),
+                           optional "skeleton_bvh" (the paired BVH header text) and "note"
+    records      repeated  kind u8, t f64 (seconds since time_origin), length u32, bytes
+
+Record kinds: 0 data (one read from a stream, or one datagram), 1 connected, 2 disconnected
+(the bytes of an event record hold a UTF-8 note). A record cut short at the end of the file (a
+writer killed mid-write) is ignored and reported as `truncated`.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator
+
+MAGIC = b"SITRAW\x00\x01"
+DATA, CONNECTED, DISCONNECTED = 0, 1, 2
+KIND_NAMES = {DATA: "data", CONNECTED: "connected", DISCONNECTED: "disconnected"}
+_RECORD = struct.Struct("<BdI")
+_MAX_RECORD = 64 * 1024 * 1024
+
+
+class RawCaptureError(ValueError):
+    """A file that is not a raw capture, or a damaged one."""
+
+
+@dataclass(frozen=True)
+class RawRecord:
+    kind: int
+    t: float
+    data: bytes
+
+
+@dataclass
+class RawCapture:
+    """A whole raw capture in memory."""
+
+    header: dict
+    records: list[RawRecord] = field(default_factory=list)
+    truncated: bool = False
+
+    @property
+    def transport(self) -> str:
+        return self.header.get("transport", "stream")
+
+    def data_chunks(self) -> list[bytes]:
+        return [r.data for r in self.records if r.kind == DATA]
+
+
+class RawCaptureWriter:
+    """Appends records to a new raw capture file (an existing file is never overwritten).
+
+    Records are written straight through to the operating system, so a killed process loses
+    at most the record being written.
+    """
+
+    def __init__(self, path: str | os.PathLike, *, source: str, transport: str = "stream",
+                 time_origin: float, skeleton_bvh: str | None = None, note: str | None = None):
+        if transport not in ("stream", "datagram"):
+            raise RawCaptureError(f"Expected transport 'stream' or 'datagram', got {transport!r}")
+        self.path = Path(path)
+        self.time_origin = float(time_origin)
+        header = {
+            "source": source,
+            "transport": transport,
+            "time_origin": self.time_origin,
+            "started_at": _dt.datetime.fromtimestamp(self.time_origin, _dt.timezone.utc)
+            .isoformat(),
+        }
+        if skeleton_bvh is not None:
+            header["skeleton_bvh"] = skeleton_bvh
+        if note is not None:
+            header["note"] = note
+        blob = json.dumps(header).encode("utf-8")
+        try:
+            self._fh = open(self.path, "xb", buffering=0)
+        except FileExistsError:
+            raise RawCaptureError(f"Refusing to overwrite existing capture {self.path}") from None
+        self._fh.write(MAGIC + struct.pack("<I", len(blob)) + blob)
+
+    def write(self, kind: int, t_abs: float, data: bytes = b"") -> None:
+        """Appends one record; `t_abs` is a Unix time, stored relative to the time origin."""
+        if kind not in KIND_NAMES:
+            raise RawCaptureError(f"Expected a record kind in {sorted(KIND_NAMES)}, got {kind}")
+        self._fh.write(_RECORD.pack(kind, t_abs - self.time_origin, len(data)) + bytes(data))
+
+    def close(self) -> None:
+        if not self._fh.closed:
+            os.fsync(self._fh.fileno())
+            self._fh.close()
+
+    def __enter__(self) -> "RawCaptureWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _read_header(fh, path) -> dict:
+    magic = fh.read(len(MAGIC))
+    if magic != MAGIC:
+        raise RawCaptureError(
+            f"{path}: expected a raw capture (magic {MAGIC!r}), got {magic[:8]!r}"
+        )
+    size = fh.read(4)
+    if len(size) < 4:
+        raise RawCaptureError(f"{path}: expected a header length, got end of file")
+    (n,) = struct.unpack("<I", size)
+    blob = fh.read(n)
+    if len(blob) < n:
+        raise RawCaptureError(f"{path}: expected a {n}-byte header, got {len(blob)} bytes")
+    try:
+        header = json.loads(blob.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise RawCaptureError(f"{path}: expected a JSON header, got {exc}") from None
+    if not isinstance(header, dict) or header.get("transport", "stream") not in (
+            "stream", "datagram"):
+        raise RawCaptureError(f"{path}: expected a header object with a valid transport")
+    return header
+
+
+class RawRecords:
+    """Lazy iterator over the records of a raw capture; `truncated` is set when it meets a
+    record cut short at the end of the file."""
+
+    def __init__(self, fh, path: Path):
+        self._fh = fh
+        self._path = path
+        self.truncated = False
+
+    def __iter__(self) -> Iterator[RawRecord]:
+        fh = self._fh
+        with fh:
+            while True:
+                head = fh.read(_RECORD.size)
+                if len(head) < _RECORD.size:
+                    self.truncated = len(head) > 0
+                    return
+                kind, t, n = _RECORD.unpack(head)
+                if kind not in KIND_NAMES or n > _MAX_RECORD:
+                    raise RawCaptureError(
+                        f"{self._path}: damaged record at byte {fh.tell() - _RECORD.size} "
+                        f"(kind {kind}, length {n})"
+                    )
+                data = fh.read(n)
+                if len(data) < n:
+                    self.truncated = True
+                    return
+                yield RawRecord(kind, t, data)
+
+
+def iter_raw_capture(path: str | os.PathLike) -> tuple[dict, RawRecords]:
+    """The header and a lazy iterator over the records of a raw capture."""
+    path = Path(path)
+    try:
+        fh = open(path, "rb")
+    except IsADirectoryError:
+        raise RawCaptureError(f"{path}: expected a raw capture file, got a directory") from None
+    try:
+        header = _read_header(fh, path)
+    except BaseException:
+        fh.close()
+        raise
+    return header, RawRecords(fh, path)
+
+
+def read_raw_capture(path: str | os.PathLike) -> RawCapture:
+    """Reads a whole raw capture; `truncated` tells whether its last record was cut short."""
+    header, records = iter_raw_capture(path)
+    return RawCapture(header, list(records), records.truncated)
+
+
+def write_raw_capture(path: str | os.PathLike, capture: RawCapture) -> None:
+    """Writes a whole capture (used to make fixtures); refuses to overwrite."""
+    h = dict(capture.header)
+    origin = float(h.pop("time_origin", 0.0))
+    writer = RawCaptureWriter(path, source=h.pop("source", "unknown"),
+                              transport=h.pop("transport", "stream"), time_origin=origin,
+                              skeleton_bvh=h.pop("skeleton_bvh", None), note=h.pop("note", None))
+    with writer:
+        for r in capture.records:
+            writer.write(r.kind, origin + r.t, r.data)
