@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
+import sys
+import time
 
 import numpy as np
 
@@ -68,8 +71,144 @@ def _cmd_list(args: argparse.Namespace) -> int:
     return 0
 
 
+def _status(line: str, final: bool = False) -> None:
+    """A progress line on stderr, rewritten in place on a terminal."""
+    if sys.stderr.isatty():
+        sys.stderr.write("\r" + line + ("\n" if final else ""))
+    else:
+        sys.stderr.write(line + "\n")
+    sys.stderr.flush()
+
+
+def _event(message: str) -> None:
+    if sys.stderr.isatty():
+        sys.stderr.write("\r\033[K")
+    print(message, file=sys.stderr, flush=True)
+
+
+def listen(source_url: str, skeleton: str, *, duration: float | None = None,
+           frames: int | None = None, save_raw: str | None = None, fmt: str = "auto",
+           on_event=None, on_progress=None, stop=None) -> dict:
+    """Receives a stream until `duration` seconds, `frames` frames, end of input or `stop()`
+    is true; returns the summary (counters, fps, latency, connection events)."""
+    from .monitor import StreamMonitor
+    from .rawcapture import RawCaptureWriter
+    from .sources import open_transport, Source
+    from .stream_layout import StreamLayout
+
+    header_path = resolve_path(skeleton)
+    header = read_bvh(header_path, unit=None)
+    layout = StreamLayout(header.skeleton)
+    transport = open_transport(source_url)
+    raw = None
+    if save_raw is not None:
+        raw = RawCaptureWriter(save_raw, source=source_url,
+                               transport="datagram" if transport.datagram else "stream",
+                               time_origin=time.time(),
+                               skeleton_bvh=header_path.read_text(errors="replace"))
+    monitor = StreamMonitor()
+    start = time.monotonic()
+    next_report = start + 1.0
+    with Source(transport, layout, fmt=fmt, raw=raw, on_event=on_event) as source:
+        while not source.exhausted:
+            left = None if duration is None else duration - (time.monotonic() - start)
+            if left is not None and left <= 0:
+                break
+            if stop is not None and stop():
+                break
+            got = source.read(0.2 if left is None else max(0.0, min(0.2, left)))
+            if frames is not None and monitor.count + len(got) >= frames:
+                got = got[:frames - monitor.count]
+            monitor.add(got)
+            if frames is not None and monitor.count >= frames:
+                break
+            if on_progress is not None and time.monotonic() >= next_report:
+                next_report += 1.0
+                on_progress(monitor.summary(source.stats()))
+        summary = monitor.summary(source.stats())
+        summary["source"] = source.name
+        summary["events"] = [message for _, message in source.events]
+    return summary
+
+
+def _cmd_listen(args: argparse.Namespace) -> int:
+    stopping = {"flag": False}
+
+    def on_sigint(signum, frame):
+        stopping["flag"] = True
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
+
+    def progress(s: dict) -> None:
+        fps = f"{s['fps']:.1f}" if s["fps"] else "-"
+        lat = f"{s['latency_ms']:.1f} ms" if s["latency_ms"] is not None else "-"
+        _status(f"frames {s['frames']}  fps {fps}  dropped {s['dropped']}  corrupt "
+                f"{s['corrupt']}  latency {lat}")
+
+    try:
+        summary = listen(args.source, args.skeleton, duration=args.duration, frames=args.frames,
+                         save_raw=args.save_raw, fmt=args.format, on_event=_event,
+                         on_progress=progress, stop=lambda: stopping["flag"])
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if args.json:
+        print(json.dumps(summary, indent=2))
+        return 0
+    fps = f"{summary['fps']:.1f}" if summary["fps"] else "-"
+    lat = (f"{summary['latency_ms']:.2f} ms mean, {summary['latency_max_ms']:.2f} ms max"
+           if summary["latency_ms"] is not None else "-")
+    print(f"source      {summary['source']}")
+    print(f"frames      {summary['frames']} (indices {summary['first_index']} .. "
+          f"{summary['last_index']})")
+    print(f"fps         {fps} over {summary['duration_s']:.2f} s")
+    print(f"dropped     {summary['dropped']}   corrupt {summary['corrupt']}   resynced "
+          f"{summary['resynced']}   reconnects {summary['reconnects']}")
+    print(f"latency     {lat}")
+    return 0
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from .replay import Replay, open_sink
+
+    path = resolve_path(args.file)
+    if str(path).lower().endswith(".bvh"):
+        replay = Replay.from_bvh(path, fmt=args.format, with_displacement=not args.no_displacement,
+                                 with_reference=args.reference, avatar_name=args.avatar,
+                                 start_index=args.start_index)
+    else:
+        replay = Replay.from_raw(path)
+    sink = open_sink(tcp=args.tcp, udp=args.udp, serial_url=args.serial, on_event=_event)
+    _event(f"replaying {replay.description} to {sink.name} at {args.rate:g}x"
+           + (", looping" if args.loop else ""))
+
+    import threading
+
+    stop = threading.Event()
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: stop.set())
+    try:
+        if args.wait_client and hasattr(sink, "wait_for_client"):
+            _event("waiting for a client")
+            sink.wait_for_client(stop)
+        stats = replay.run(sink, rate=args.rate, loop=args.loop, stop=stop,
+                           max_frames=args.frames,
+                           progress=lambda s: _status(f"sent {s.frames_sent} frames in "
+                                                      f"{s.elapsed_s:.1f} s"))
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        sink.close()
+    result = {"frames_sent": stats.frames_sent, "bytes_sent": stats.bytes_sent,
+              "loops": stats.loops, "elapsed_s": stats.elapsed_s, "target": sink.name}
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        _status(f"sent {stats.frames_sent} frames ({stats.bytes_sent} bytes) in "
+                f"{stats.elapsed_s:.2f} s to {sink.name}", final=True)
+    return 0
+
+
 def register(subparsers) -> None:
-    """Adds the `bvh` command group to the top-level parser."""
+    """Adds the `bvh` and `capture` command groups to the top-level parser."""
+    _register_capture(subparsers)
     bvh = subparsers.add_parser("bvh", help="inspect BVH motion files")
     sub = bvh.add_subparsers(dest="bvh_command", required=True)
     info = sub.add_parser("info", help="summarise a BVH file")
@@ -82,3 +221,47 @@ def register(subparsers) -> None:
     lst = sub.add_parser("list", help="list the bundled recordings")
     lst.add_argument("--json", action="store_true", help="machine-readable output")
     lst.set_defaults(func=_cmd_list)
+
+
+def _register_capture(subparsers) -> None:
+    from .neuron import FORMATS
+
+    cap = subparsers.add_parser("capture", help="Perception Neuron streams: replay and listen")
+    sub = cap.add_subparsers(dest="capture_command", required=True)
+
+    rp = sub.add_parser("replay", help="play a BVH file or raw capture as Axis Neuron would")
+    rp.add_argument("file", help="a .bvh file, bundled:NAME, or a raw capture")
+    to = rp.add_mutually_exclusive_group(required=True)
+    to.add_argument("--tcp", metavar="[HOST]:PORT",
+                    help="serve TCP clients on this address (host defaults to 127.0.0.1)")
+    to.add_argument("--udp", metavar="HOST:PORT", help="send datagrams to this address")
+    to.add_argument("--serial", metavar="URL", help="write to a serial port or pyserial URL")
+    rp.add_argument("--format", choices=FORMATS, default="binary",
+                    help="binary (current header), binary-old or string (default: binary)")
+    rp.add_argument("--rate", type=float, default=1.0,
+                    help="speed relative to real time; 0 sends as fast as possible")
+    rp.add_argument("--loop", action="store_true", help="start over at the end, forever")
+    rp.add_argument("--no-displacement", action="store_true",
+                    help="send rotations only (plus the hips position)")
+    rp.add_argument("--reference", action="store_true", help="send the 6-float reference block")
+    rp.add_argument("--avatar", default="Avatar00", help="avatar name in the frames")
+    rp.add_argument("--start-index", type=int, default=0, help="first frame index")
+    rp.add_argument("--wait-client", action="store_true",
+                    help="with --tcp: start only once a client has connected")
+    rp.add_argument("--frames", type=int, default=None, help="stop after N frames")
+    rp.add_argument("--json", action="store_true", help="machine-readable summary")
+    rp.set_defaults(func=_cmd_replay)
+
+    ls = sub.add_parser("listen", help="receive a stream and report rate, drops and latency")
+    ls.add_argument("source", help="tcp://HOST:PORT, udp://[HOST]:PORT, serial://DEVICE?baudrate=N, "
+                                   "a pyserial URL, or file:PATH (raw capture)")
+    ls.add_argument("--skeleton", required=True,
+                    help="the BVH header paired with the stream (path or bundled:NAME)")
+    ls.add_argument("--duration", type=float, default=None, help="stop after S seconds")
+    ls.add_argument("--frames", type=int, default=None, help="stop after N frames")
+    ls.add_argument("--format", choices=("auto", "binary", "string"), default="auto",
+                    help="stream format (default: detected)")
+    ls.add_argument("--save-raw", metavar="PATH", default=None,
+                    help="also write the exact bytes received to a raw capture")
+    ls.add_argument("--json", action="store_true", help="print one summary object")
+    ls.set_defaults(func=_cmd_listen)

@@ -219,10 +219,11 @@ class StreamDecoder:
     """Incremental decoder of Perception Neuron frames from bytes of any chunking.
 
     counts : the DataCount the paired skeleton expects for each (with_displacement,
-        with_reference), e.g. `StreamLayout.counts()`; with it, a frame of any other size is
-        rejected (and remembered in `stats.mismatch` so the caller can name the mismatch).
-        Without it, the decoder learns each flag combination's size from frames whose framing
-        is confirmed by the start of the next frame (or the end of the input or datagram).
+        with_reference), e.g. `StreamLayout.counts()`. With it, a frame of any other size is
+        rejected (and remembered in `mismatch` so the caller can name the mismatch), and a
+        complete frame is returned at once. Without it, a frame is returned only once the
+        bytes after it start another frame (or the input or datagram ends there), so a frame
+        followed by garbage is counted corrupt.
     datagram : each `feed` is one whole datagram (UDP); a binary frame must fill it exactly.
     fmt : "auto" (the first valid frame fixes the format of the stream), "binary" or "string".
 
@@ -236,6 +237,7 @@ class StreamDecoder:
             raise NeuronStreamError(f"Expected fmt 'auto', 'binary' or 'string', got {fmt!r}")
         self.strict = counts is not None
         self.counts: dict[tuple[bool, bool], int] = dict(counts or {})
+        self._lost = False
         self._string_counts = set(self.counts.values())
         self.datagram = datagram
         self.mode = None if fmt == "auto" else fmt
@@ -266,8 +268,14 @@ class StreamDecoder:
 
     def _skip(self, n: int) -> None:
         if n > 0:
-            self.stats.resynced += 1
+            self._lost = True
             self.stats.skipped_bytes += n
+
+    def _found(self) -> None:
+        """A frame was accepted: if bytes were skipped before it, that was a resynchronisation."""
+        if self._lost:
+            self.stats.resynced += 1
+            self._lost = False
 
     # -- public -------------------------------------------------------------------------------
 
@@ -298,23 +306,19 @@ class StreamDecoder:
                 self.stats.corrupt += 1
             self._buf = bytearray()
             self._pos = 0
+        self._lost = False  # what follows starts clean: nothing was skipped to reach it
         return out
 
     # -- binary -------------------------------------------------------------------------------
 
-    def _accept_count(self, head: _Header) -> bool | None:
-        """True/False when the size is known to be right/wrong for the flags, None if unknown."""
-        known = self.counts.get((head.displacement, head.reference))
-        if known is None:
-            if self.strict:
-                self.mismatch = (head.count, head.displacement, head.reference)
-                return False
-            return None
-        if known != head.count:
-            if self.strict:
-                self.mismatch = (head.count, head.displacement, head.reference)
-            return False
-        return True
+    def _size_fits(self, head: _Header) -> bool:
+        """Whether the frame's size fits the paired skeleton (always true without one)."""
+        if not self.strict:
+            return True
+        if self.counts.get((head.displacement, head.reference)) == head.count:
+            return True
+        self.mismatch = (head.count, head.displacement, head.reference)
+        return False
 
     def _emit_binary(self, buf, pos: int, head: _Header, out: list, received_at) -> bool:
         start = pos + HEADER_SIZE
@@ -322,9 +326,8 @@ class StreamDecoder:
         if not np.isfinite(values).all():
             self.stats.corrupt += 1
             return False
-        if not self.strict:
-            self.counts[(head.displacement, head.reference)] = head.count
         self.mode = "binary"
+        self._found()
         self._count_index(head.frame_index)
         self.stats.frames += 1
         out.append(NeuronFrame(values, head.frame_index, head.avatar_index,
@@ -336,7 +339,7 @@ class StreamDecoder:
         if self.mode != "string" and data[:2] == TOKEN:
             head = _parse_header(data, 0) if len(data) >= HEADER_SIZE else None
             if (head is not None and len(data) == HEADER_SIZE + 4 * head.count
-                    and self._accept_count(head) is not False):
+                    and self._size_fits(head)):
                 self._emit_binary(data, 0, head, out, received_at)
             else:
                 self.stats.corrupt += 1
@@ -352,19 +355,25 @@ class StreamDecoder:
     def _scan(self, buf: bytearray, pos: int, out: list, received_at, final: bool) -> int:
         if self.mode == "string":
             return self._scan_strings(buf, pos, out, received_at, final)
-        if self.mode is None:
+        while self.mode is None and pos < len(buf):
             # Until a first frame fixes the format, a "||" before any binary token means text.
             tok = buf.find(TOKEN, pos)
             bar = buf.find(_STRING_END, pos)
-            if bar >= 0 and (tok < 0 or bar < tok):
-                start = max(buf.rfind(b"\n", pos, bar), buf.rfind(b"\r", pos, bar)) + 1
-                start = max(start, pos)
-                self._skip(start - pos)
-                pos = self._scan_strings(buf, start, out, received_at, final)
-                if self.mode is None:
-                    return self._scan(buf, pos, out, received_at, final) if pos < len(buf) \
-                        else pos
-                return self._scan(buf, pos, out, received_at, final)
+            if tok < 0 and bar < 0:
+                if final or len(buf) - pos > _MAX_LINE:
+                    if buf[pos:].strip(_BLANK):
+                        self.stats.corrupt += 1
+                    self._skip(len(buf) - pos)
+                    return len(buf)
+                return pos  # wait for a marker
+            if tok >= 0 and (bar < 0 or tok < bar):
+                break
+            start = max(pos, buf.rfind(b"\n", pos, bar) + 1, buf.rfind(b"\r", pos, bar) + 1)
+            self._skip(start - pos)
+            line_end = bar + 2
+            pos = self._scan_strings(buf[:line_end], start, out, received_at, final=True)
+        if self.mode == "string":
+            return self._scan_strings(buf, pos, out, received_at, final)
         return self._scan_binary(buf, pos, out, received_at, final)
 
     def _scan_binary(self, buf: bytearray, pos: int, out: list, received_at, final: bool) -> int:
@@ -380,33 +389,41 @@ class StreamDecoder:
                 self._skip(tok - pos)
                 pos = tok
             if n - pos < HEADER_SIZE:
-                return n if final and self._cut(n - pos) else pos
+                if final:
+                    self.stats.corrupt += 1  # cut short by the end of input
+                    self._skip(n - pos)
+                    return n
+                return pos
             head = _parse_header(buf, pos)
-            if head is None:
+            if head is None or not self._size_fits(head):
                 self.stats.corrupt += 1
                 self._skip(1)
                 pos += 1
                 continue
             end = pos + HEADER_SIZE + 4 * head.count
-            size_ok = self._accept_count(head)
-            if size_ok is False:
+            inner = _embedded_header(buf, pos + 2, min(end, n))
+            if inner == _UNDECIDED and not final:
+                return pos
+            if inner >= 0:
+                # this frame was cut short and another one began inside it
                 self.stats.corrupt += 1
-                self._skip(1)
-                pos += 1
+                self._skip(inner - pos)
+                pos = inner
                 continue
             if end > n:
                 if final:
-                    self._cut(n - pos)
+                    self.stats.corrupt += 1
+                    self._skip(n - pos)
                     return n
                 return pos
-            if size_ok is None:  # unknown size: the next bytes must start a frame
+            if not self.strict:  # unknown size: the next bytes must start a frame
                 if end + 2 <= n:
-                    size_ok = buf[end:end + 2] == TOKEN
+                    confirmed = buf[end:end + 2] == TOKEN
                 elif final:
-                    size_ok = end == n
+                    confirmed = end == n
                 else:
                     return pos
-                if not size_ok:
+                if not confirmed:
                     self.stats.corrupt += 1
                     self._skip(1)
                     pos += 1
@@ -417,12 +434,6 @@ class StreamDecoder:
                 self._skip(1)
                 pos += 1
         return pos
-
-    def _cut(self, nbytes: int) -> bool:
-        """Counts a frame cut short by the end of input."""
-        if nbytes:
-            self.stats.corrupt += 1
-        return True
 
     # -- string -------------------------------------------------------------------------------
 
@@ -470,8 +481,25 @@ class StreamDecoder:
             self.stats.corrupt += 1
             return
         self.mode = "string"
+        self._found()
         self.stats.frames += 1
         out.append(NeuronFrame(values, None, avatar, name, None, None, "string", received_at))
+
+
+_UNDECIDED = -2
+
+
+def _embedded_header(buf: bytearray, start: int, stop: int) -> int:
+    """Position of a valid header starting in buf[start:stop], -1 if none, or _UNDECIDED if a
+    token there cannot be judged yet because its header has not fully arrived."""
+    k = buf.find(TOKEN, start, stop + 1 if stop < len(buf) else stop)
+    while 0 <= k < stop:
+        if k + HEADER_SIZE > len(buf):
+            return _UNDECIDED
+        if _parse_header(buf, k) is not None:
+            return k
+        k = buf.find(TOKEN, k + 1, stop + 1 if stop < len(buf) else stop)
+    return -1
 
 
 def _line_end(buf: bytearray, pos: int) -> int:
