@@ -10,9 +10,10 @@ The decoder reads a byte stream in pieces of any size. It resynchronises on the 
 header after garbage, rejects impossible headers (a DataCount over `MAX_DATA_COUNT` is never
 allocated), and, because the format has no checksum, accepts a binary frame only when its
 framing is confirmed: the bytes after it start another frame, the datagram ends exactly there,
-or its DataCount is the one the paired skeleton expects for its flags. A bit flipped inside a
-value cannot be detected by any reader of this format; a flip that makes a value NaN or infinite
-is rejected.
+or its DataCount is the one the paired skeleton expects for its flags, and no valid header
+begins inside it (which would mean it was cut short). A bit flipped inside a value, or a frame
+cut short and followed by exactly as many stray bytes as it lost, cannot be detected by any
+reader of this format; a value made NaN or infinite is rejected.
 """
 
 from __future__ import annotations
@@ -353,30 +354,28 @@ class StreamDecoder:
             self.stats.corrupt += 1
 
     def _scan(self, buf: bytearray, pos: int, out: list, received_at, final: bool) -> int:
-        if self.mode == "string":
-            return self._scan_strings(buf, pos, out, received_at, final)
+        """Decodes frames from buf[pos:]; returns the position of the first unsettled byte."""
         while self.mode is None and pos < len(buf):
-            # Until a first frame fixes the format, a "||" before any binary token means text.
+            # Until a first frame fixes the format, try whichever marker comes first: a binary
+            # token, or the "||" that ends a string frame.
             tok = buf.find(TOKEN, pos)
             bar = buf.find(_STRING_END, pos)
             if tok < 0 and bar < 0:
                 if final or len(buf) - pos > _MAX_LINE:
-                    if buf[pos:].strip(_BLANK):
-                        self.stats.corrupt += 1
-                    self._skip(len(buf) - pos)
+                    self._skip(len(buf) - pos)  # no frame in it: garbage
                     return len(buf)
                 return pos  # wait for a marker
             if tok >= 0 and (bar < 0 or tok < bar):
-                break
+                self._skip(tok - pos)
+                pos, status = self._binary_at(buf, tok, out, received_at, final)
+                if status == _WAIT:
+                    return pos
+                continue
             start = max(pos, buf.rfind(b"\n", pos, bar) + 1, buf.rfind(b"\r", pos, bar) + 1)
             self._skip(start - pos)
-            line_end = bar + 2
-            pos = self._scan_strings(buf[:line_end], start, out, received_at, final=True)
+            pos = self._scan_strings(buf[:bar + 2], start, out, received_at, final=True)
         if self.mode == "string":
             return self._scan_strings(buf, pos, out, received_at, final)
-        return self._scan_binary(buf, pos, out, received_at, final)
-
-    def _scan_binary(self, buf: bytearray, pos: int, out: list, received_at, final: bool) -> int:
         n = len(buf)
         while pos < n:
             if buf[pos:pos + 2] != TOKEN:
@@ -388,52 +387,57 @@ class StreamDecoder:
                     return n - keep
                 self._skip(tok - pos)
                 pos = tok
-            if n - pos < HEADER_SIZE:
-                if final:
-                    self.stats.corrupt += 1  # cut short by the end of input
-                    self._skip(n - pos)
-                    return n
+            pos, status = self._binary_at(buf, pos, out, received_at, final)
+            if status == _WAIT:
                 return pos
-            head = _parse_header(buf, pos)
-            if head is None or not self._size_fits(head):
-                self.stats.corrupt += 1
-                self._skip(1)
-                pos += 1
-                continue
-            end = pos + HEADER_SIZE + 4 * head.count
-            inner = _embedded_header(buf, pos + 2, min(end, n))
-            if inner == _UNDECIDED and not final:
-                return pos
-            if inner >= 0:
-                # this frame was cut short and another one began inside it
-                self.stats.corrupt += 1
-                self._skip(inner - pos)
-                pos = inner
-                continue
-            if end > n:
-                if final:
-                    self.stats.corrupt += 1
-                    self._skip(n - pos)
-                    return n
-                return pos
-            if not self.strict:  # unknown size: the next bytes must start a frame
-                if end + 2 <= n:
-                    confirmed = buf[end:end + 2] == TOKEN
-                elif final:
-                    confirmed = end == n
-                else:
-                    return pos
-                if not confirmed:
-                    self.stats.corrupt += 1
-                    self._skip(1)
-                    pos += 1
-                    continue
-            if self._emit_binary(buf, pos, head, out, received_at):
-                pos = end
-            else:
-                self._skip(1)
-                pos += 1
         return pos
+
+    def _binary_at(self, buf: bytearray, pos: int, out: list, received_at,
+                   final: bool) -> tuple[int, int]:
+        """Tries the binary frame whose token is at `pos`: returns the position to go on from
+        and _FRAME (one was emitted), _REJECT (bytes were skipped) or _WAIT (need more)."""
+        n = len(buf)
+        if n - pos < HEADER_SIZE:
+            if final:
+                self.stats.corrupt += 1  # cut short by the end of input
+                self._skip(n - pos)
+                return n, _REJECT
+            return pos, _WAIT
+        head = _parse_header(buf, pos)
+        if head is None or not self._size_fits(head):
+            self.stats.corrupt += 1
+            self._skip(1)
+            return pos + 1, _REJECT
+        end = pos + HEADER_SIZE + 4 * head.count
+        inner = _embedded_header(buf, pos + 2, min(end, n))
+        if inner == _UNDECIDED and not final:
+            return pos, _WAIT
+        if inner >= 0:
+            # this frame was cut short and another one began inside it
+            self.stats.corrupt += 1
+            self._skip(inner - pos)
+            return inner, _REJECT
+        if end > n:
+            if final:
+                self.stats.corrupt += 1
+                self._skip(n - pos)
+                return n, _REJECT
+            return pos, _WAIT
+        if not self.strict:  # unknown size: the next bytes must start a frame
+            if end + 2 <= n:
+                confirmed = buf[end:end + 2] == TOKEN
+            elif final:
+                confirmed = end == n
+            else:
+                return pos, _WAIT
+            if not confirmed:
+                self.stats.corrupt += 1
+                self._skip(1)
+                return pos + 1, _REJECT
+        if self._emit_binary(buf, pos, head, out, received_at):
+            return end, _FRAME
+        self._skip(1)
+        return pos + 1, _REJECT
 
     # -- string -------------------------------------------------------------------------------
 
@@ -487,6 +491,7 @@ class StreamDecoder:
 
 
 _UNDECIDED = -2
+_FRAME, _REJECT, _WAIT = 0, 1, 2
 
 
 def _embedded_header(buf: bytearray, start: int, stop: int) -> int:

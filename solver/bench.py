@@ -61,6 +61,8 @@ def run_benchmarks(
         n = repeats or case.repeats
         row = {"name": case.name, "description": case.description,
                "median_s": _median_time(case.run, arg, n), "repeats": n}
+        if case.per_second is not None:
+            row["per_second"] = case.per_second / row["median_s"]
         if case.baseline is not None:
             nb = repeats or case.baseline_repeats
             if progress:
@@ -74,12 +76,14 @@ def run_benchmarks(
 
 def format_table(rows: list[dict]) -> str:
     """A plain-text table of benchmark results."""
-    head = f"{'name':<14} {'median':>11} {'baseline':<24} {'baseline median':>16} {'speedup':>9}"
+    head = (f"{'name':<14} {'median':>11} {'per second':>12} {'baseline':<24} "
+            f"{'baseline median':>16} {'speedup':>9}")
     lines = [head, "-" * len(head)]
     for r in rows:
         base = r.get("baseline") or ""
         bmed = f"{r['baseline_median_s'] * 1e3:.1f} ms" if "baseline_median_s" in r else ""
         speed = f"{r['speedup']:.1f}x" if "speedup" in r else ""
-        lines.append(f"{r['name']:<14} {r['median_s'] * 1e3:>8.2f} ms {base:<24} {bmed:>16} "
-                     f"{speed:>9}")
+        rate = f"{r['per_second']:,.0f}" if "per_second" in r else ""
+        lines.append(f"{r['name']:<14} {r['median_s'] * 1e3:>8.2f} ms {rate:>12} {base:<24} "
+                     f"{bmed:>16} {speed:>9}")
     return "\n".join(lines)

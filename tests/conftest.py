@@ -25,3 +25,12 @@ def cmu_high_sit() -> Path:
 @pytest.fixture
 def axis_standing() -> Path:
     return recording("axis_neuron_standing_yxz.bvh")
+
+
+# Property tests: 300 examples each by default; `pytest --hypothesis-profile=deep` for a search
+# of 5,000.
+from hypothesis import settings  # noqa: E402
+
+settings.register_profile("default", max_examples=300)
+settings.register_profile("deep", max_examples=5000)
+settings.load_profile("default")

@@ -8,18 +8,23 @@ import capture
 
 def test_capture_public_api():
     assert sorted(capture.__all__) == sorted([
-        "Bvh", "BvhParseError", "CHANNEL_NAMES", "Motion", "PROFILES", "Profile", "Skeleton",
-        "SkeletonError", "UNITS", "UnitError", "UnitUnknownError", "WorldPose",
-        "bundled_recordings", "format_bvh", "forward_kinematics", "identify_profile",
-        "joint_levels", "parse_bvh", "read_bvh", "resolve_path", "resolve_unit", "skeleton_fk",
-        "write_bvh",
+        "Bvh", "BvhParseError", "CHANNEL_NAMES", "LayoutMismatchError", "Motion",
+        "NeuronFrame", "NeuronStreamError", "PROFILES", "Profile", "RawCaptureError",
+        "RawCaptureWriter", "Replay", "ReplayError", "ReplayThread", "Skeleton", "SkeletonError",
+        "Source", "StreamDecoder", "StreamLayout", "StreamSourceError", "UNITS", "UnitError",
+        "UnitUnknownError", "WorldPose", "bundled_recordings", "decode_all", "encode_frame",
+        "format_bvh", "forward_kinematics", "identify_profile", "joint_levels", "open_source",
+        "parse_bvh", "read_bvh", "read_raw_capture", "resolve_path", "resolve_unit",
+        "skeleton_fk", "write_bvh",
     ])
     for name in capture.__all__:
         assert hasattr(capture, name)
 
 
 def test_errors_are_value_errors():
-    for name in ("BvhParseError", "SkeletonError", "UnitError", "UnitUnknownError"):
+    for name in ("BvhParseError", "SkeletonError", "UnitError", "UnitUnknownError",
+                 "NeuronStreamError", "LayoutMismatchError", "RawCaptureError", "ReplayError",
+                 "StreamSourceError"):
         assert issubclass(getattr(capture, name), ValueError)
 
 

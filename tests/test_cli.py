@@ -77,3 +77,74 @@ def test_bench_entry_shape():
     rows = run_benchmarks(["bvh_fk"], repeats=1)
     assert [r["name"] for r in rows] == ["bvh_fk"]
     assert rows[0]["median_s"] > 0 and "speedup" not in rows[0]
+
+
+def test_replay_and_listen_commands(tmp_path):
+    import socket
+    import time
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = subprocess.Popen(
+        [sys.executable, "-m", "solver.cli", "capture", "replay",
+         "bundled:cmu_75_18_high_sit.bvh", "--tcp", f"127.0.0.1:{port}", "--rate", "10",
+         "--wait-client", "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    raw = tmp_path / "session.raw"
+    try:
+        time.sleep(0.3)
+        out = subprocess.run(
+            [sys.executable, "-m", "solver.cli", "capture", "listen", f"tcp://127.0.0.1:{port}",
+             "--skeleton", "bundled:cmu_75_18_high_sit.bvh", "--frames", "77", "--duration",
+             "20", "--json", "--save-raw", str(raw)],
+            capture_output=True, text=True, timeout=60, check=True)
+    finally:
+        sent, _ = server.communicate(timeout=30)
+    summary = json.loads(out.stdout)
+    assert summary["frames"] == 77 and summary["dropped"] == 0 and summary["corrupt"] == 0
+    assert summary["first_index"] == 0 and summary["last_index"] == 76
+    assert 200 < summary["fps"] < 400  # 30 fps at 10x
+    assert json.loads(sent)["frames_sent"] == 77
+    # the raw capture replays to the same frames
+    again = subprocess.run(
+        [sys.executable, "-m", "solver.cli", "capture", "listen", f"file:{raw}",
+         "--skeleton", "bundled:cmu_75_18_high_sit.bvh", "--json"],
+        capture_output=True, text=True, timeout=60, check=True)
+    assert json.loads(again.stdout)["frames"] == 77
+
+
+def test_listen_names_a_skeleton_mismatch(tmp_path):
+    from capture import read_bvh
+    from capture.neuron import encode_binary
+    from capture.rawcapture import DATA, RawCaptureWriter
+    from capture.stream_layout import StreamLayout
+
+    from .conftest import recording
+
+    axis = read_bvh(recording("axis_neuron_standing_yxz.bvh"))
+    payload = StreamLayout(axis.skeleton).to_payload(axis.motion.channels[:5])
+    raw = tmp_path / "axis.raw"
+    with RawCaptureWriter(raw, source="test", time_origin=0.0) as w:
+        for k in range(5):
+            w.write(DATA, k * 0.01, encode_binary(payload[k], frame_index=k))
+    out = subprocess.run(
+        [sys.executable, "-m", "solver.cli", "capture", "listen", f"file:{raw}",
+         "--skeleton", "bundled:cmu_75_18_high_sit.bvh"], capture_output=True, text=True)
+    assert out.returncode == 2
+    assert "31-joint skeleton header" in out.stderr and "got 354 floats" in out.stderr
+    assert out.stderr.count("\n") == 1
+
+
+def test_replay_port_in_use_is_one_line():
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        out = subprocess.run(
+            [sys.executable, "-m", "solver.cli", "capture", "replay",
+             "bundled:cmu_75_18_high_sit.bvh", "--tcp", f"127.0.0.1:{port}"],
+            capture_output=True, text=True, timeout=30)
+    assert out.returncode == 2
+    assert out.stderr.strip() == f"sitrelax: error: TCP port {port} on 127.0.0.1 is in use"
