@@ -206,9 +206,10 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(subparsers) -> None:
-    """Adds the `bvh` and `capture` command groups to the top-level parser."""
-    _register_capture(subparsers)
+def register(subparsers) -> dict:
+    """Adds the `bvh` and `capture` command groups to the top-level parser; returns the groups'
+    subparsers so packages above can add their own commands to them."""
+    groups = {"capture": _register_capture(subparsers)}
     bvh = subparsers.add_parser("bvh", help="inspect BVH motion files")
     sub = bvh.add_subparsers(dest="bvh_command", required=True)
     info = sub.add_parser("info", help="summarise a BVH file")
@@ -221,6 +222,7 @@ def register(subparsers) -> None:
     lst = sub.add_parser("list", help="list the bundled recordings")
     lst.add_argument("--json", action="store_true", help="machine-readable output")
     lst.set_defaults(func=_cmd_list)
+    return groups
 
 
 def _register_capture(subparsers) -> None:
@@ -265,3 +267,4 @@ def _register_capture(subparsers) -> None:
                     help="also write the exact bytes received to a raw capture")
     ls.add_argument("--json", action="store_true", help="print one summary object")
     ls.set_defaults(func=_cmd_listen)
+    return sub

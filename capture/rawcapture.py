@@ -7,7 +7,8 @@ even after the writer was killed:
     header_len   u32       length of the header that follows
     header       JSON      UTF-8 object: "source" (URL), "transport" ("stream" or "datagram"),
                            "time_origin" (Unix seconds of t = 0), "started_at" (ISO 8601 UTC),
-                           optional "skeleton_bvh" (the paired BVH header text) and "note"
+                           optional "skeleton_bvh" (the paired BVH header text), "note" and
+                           fields of the program that wrote it (a recording's take)
     records      repeated  kind u8, t f64 (seconds since time_origin), length u32, bytes
 
 Record kinds: 0 data (one read from a stream, or one datagram), 1 connected, 2 disconnected
@@ -67,7 +68,8 @@ class RawCaptureWriter:
     """
 
     def __init__(self, path: str | os.PathLike, *, source: str, transport: str = "stream",
-                 time_origin: float, skeleton_bvh: str | None = None, note: str | None = None):
+                 time_origin: float, skeleton_bvh: str | None = None, note: str | None = None,
+                 extra: dict | None = None):
         if transport not in ("stream", "datagram"):
             raise RawCaptureError(f"Expected transport 'stream' or 'datagram', got {transport!r}")
         self.path = Path(path)
@@ -83,6 +85,8 @@ class RawCaptureWriter:
             header["skeleton_bvh"] = skeleton_bvh
         if note is not None:
             header["note"] = note
+        for key, value in (extra or {}).items():
+            header.setdefault(key, value)
         blob = json.dumps(header).encode("utf-8")
         try:
             self._fh = open(self.path, "xb", buffering=0)
@@ -95,6 +99,14 @@ class RawCaptureWriter:
         if kind not in KIND_NAMES:
             raise RawCaptureError(f"Expected a record kind in {sorted(KIND_NAMES)}, got {kind}")
         self._fh.write(_RECORD.pack(kind, t_abs - self.time_origin, len(data)) + bytes(data))
+
+    def fileno(self) -> int:
+        return self._fh.fileno()
+
+    def sync(self) -> None:
+        """Forces what was written onto the disk (a killed process loses nothing written
+        anyway; this guards against a machine going down)."""
+        os.fsync(self._fh.fileno())
 
     def close(self) -> None:
         if not self._fh.closed:

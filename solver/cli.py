@@ -7,6 +7,7 @@ import json
 import sys
 
 from capture import cli as capture_cli
+from posedb import cli as posedb_cli
 
 from .bench import format_table, run_benchmarks
 
@@ -27,7 +28,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     sub = parser.add_subparsers(dest="command", required=True)
-    capture_cli.register(sub)
+    groups = capture_cli.register(sub)
+    posedb_cli.register(sub, groups)
     bench = sub.add_parser("bench", help="run the benchmarks (medians, speed-ups)")
     bench.add_argument("names", nargs="*", help="entries to run (default: all)")
     bench.add_argument("--repeats", type=int, default=None,

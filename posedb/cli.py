@@ -1,0 +1,279 @@
+"""`sitrelax db ...` and `sitrelax capture record`: the pose library from the command line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+
+from capture import resolve_path, write_bvh
+from capture.cli import _event, _status
+
+from .library import PoseLibrary
+from .record import record, recordings, recover
+from .schema import SUPPORT_PARTS
+from .suggest import DEFAULT_MAX_SPEED, DEFAULT_MIN_DURATION, held_postures
+
+DEFAULT_DB = os.environ.get("SITRELAX_DB", "poses.h5")
+
+
+def _print(obj, as_json: bool, text: str) -> None:
+    print(json.dumps(obj, indent=2) if as_json else text)
+
+
+def _cmd_import(args) -> int:
+    lib = PoseLibrary(args.db, create=True)
+    names = []
+    with lib.edit() as ed:
+        for k, spec in enumerate(args.files):
+            name = args.name if (args.name and len(args.files) == 1) else None
+            tid = ed.import_bvh(resolve_path(spec), name=name, subject=args.subject,
+                                tags=args.tag, notes=args.notes, unit=args.unit)
+            names.append(tid)
+    takes = [lib.take(t).as_dict() for t in names]
+    _print(takes, args.json, "\n".join(f"imported {t['name']} ({t['id']}): {t['frames']} frames, "
+                                      f"{t['duration']:.2f} s" for t in takes))
+    return 0
+
+
+def _cmd_list(args) -> int:
+    lib = PoseLibrary(args.db)
+    rows: list[dict] = []
+    if args.kind in (None, "take"):
+        rows += [t.as_dict() for t in lib.find_takes(args.tag, subject=args.subject)
+                 if args.take is None or args.take in (t.id, t.name)]
+    if args.kind in (None, "pose"):
+        names = {t.id: t.name for t in lib.takes()}
+        rows += [p.as_dict(names[p.take]) for p in lib.find_poses(args.tag, take=args.take,
+                                                                   subject=args.subject)]
+    if args.kind in (None, "recording") and not args.tag:
+        rows += [r.as_dict() for r in recordings(args.db)]
+    if args.json:
+        print(json.dumps(rows, indent=2))
+        return 0
+    for r in rows:
+        tags = " ".join(r.get("tags", []))
+        if r["kind"] == "take":
+            print(f"take  {r['name']:<32} {r['frames']:>7} frames {r['duration']:>8.2f} s  {tags}")
+        elif r["kind"] == "pose":
+            print(f"pose  {r['name']:<32} {r['take']}#{r['frame']:<6} "
+                  f"[{','.join(r['supports'])}]  {tags}")
+        else:
+            print(f"rec   {r['name']:<32} {r['state']}")
+    return 0
+
+
+def _cmd_show(args) -> int:
+    lib = PoseLibrary(args.db)
+    try:
+        info = lib.pose(args.name).as_dict(None)
+        info["take"] = lib.take(info["take_id"]).name
+    except ValueError:
+        info = lib.take(args.name).as_dict()
+    _print(info, args.json, "\n".join(f"{k:<12} {v}" for k, v in info.items()))
+    return 0
+
+
+def _cmd_tag(args) -> int:
+    lib = PoseLibrary(args.db)
+    with lib.edit() as ed:
+        tags = ed.tag(args.name, add=args.tags if not args.remove else (),
+                      remove=args.tags if args.remove else ())
+    _print({"name": args.name, "tags": list(tags)}, args.json, f"{args.name}: {' '.join(tags)}")
+    return 0
+
+
+def _cmd_pose_add(args) -> int:
+    lib = PoseLibrary(args.db)
+    pose = lib.add_pose(args.take, args.frame, args.name, tags=args.tag,
+                        supports=args.support, notes=args.notes)
+    _print(pose.as_dict(lib.take(pose.take).name), args.json,
+           f"added pose {pose.name} ({pose.id}) at frame {pose.frame}")
+    return 0
+
+
+def _cmd_pose_rename(args) -> int:
+    lib = PoseLibrary(args.db)
+    with lib.edit() as ed:
+        ed.rename(args.name, args.new_name)
+    print(f"renamed {args.name} to {args.new_name}")
+    return 0
+
+
+def _cmd_pose_delete(args) -> int:
+    lib = PoseLibrary(args.db)
+    with lib.edit() as ed:
+        ed.delete_pose(args.name)
+    print(f"deleted pose {args.name}")
+    return 0
+
+
+def _cmd_suggest(args) -> int:
+    lib = PoseLibrary(args.db)
+    take = lib.take(args.take)
+    data = lib.take_data(take.id)
+    from capture import identify_profile
+
+    held = held_postures(data.skeleton, data.motion().channels, take.frame_time,
+                         identify_profile(data.skeleton.names), max_speed=args.max_speed,
+                         min_duration=args.min_duration)
+    rows = [h.as_dict() for h in held]
+    if args.accept:
+        with lib.edit() as ed:
+            for row in rows:
+                row["pose"] = ed.add_pose(take.id, row["frame"],
+                                          f"{take.name}-f{row['frame']:05d}", tags=args.tag,
+                                          supports=args.support)
+    text = "\n".join(
+        f"frames {r['start']}-{r['end']} ({(r['end'] - r['start'] + 1) * take.frame_time:.2f} s):"
+        f" propose frame {r['frame']}" + (f" -> {r['pose']}" if "pose" in r else "")
+        for r in rows) or "no held posture found"
+    _print(rows, args.json, text)
+    return 0
+
+
+def _cmd_export(args) -> int:
+    lib = PoseLibrary(args.db)
+    take = lib.take(args.name)
+    stop = None if args.end is None else args.end + 1
+    bvh = lib.take_bvh(take.id, args.start, stop)
+    write_bvh(args.out, bvh.skeleton, bvh.motion)
+    print(f"wrote {bvh.motion.num_frames} frames of {take.name} to {args.out}")
+    return 0
+
+
+def _cmd_recover(args) -> int:
+    rows = recover(args.db)
+    _print(rows, args.json, "\n".join(f"{r['take']}: {r['status']}" for r in rows)
+           or "nothing to recover")
+    return 0
+
+
+def _cmd_stats(args) -> int:
+    stats = PoseLibrary(args.db).stats()
+    stats["recordings"] = [r.as_dict() for r in recordings(args.db)]
+    _print(stats, args.json, "\n".join(f"{k:<15} {v}" for k, v in stats.items()
+                                      if k != "recordings"))
+    return 0
+
+
+def _cmd_record(args) -> int:
+    stopping = {"flag": False}
+    previous = signal.signal(signal.SIGINT, lambda s, f: stopping.__setitem__("flag", True))
+
+    def progress(s: dict) -> None:
+        fps = f"{s['fps']:.1f}" if s["fps"] else "-"
+        _status(f"recording {args.take}: {s['frames']} frames  fps {fps}  dropped "
+                f"{s['dropped']}  corrupt {s['corrupt']}")
+
+    try:
+        summary = record(args.source, args.db, args.take, args.skeleton, duration=args.duration,
+                         frames=args.frames, subject=args.subject, tags=args.tag,
+                         notes=args.notes, unit=args.unit, on_event=_event,
+                         on_progress=progress, stop=lambda: stopping["flag"])
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    take = summary["take"]
+    text = (f"recorded {summary['frames']} frames ({summary['dropped']} dropped, "
+            f"{summary['corrupt']} corrupt) into take {args.take}" if take else
+            "no frame received; no take stored")
+    _print(summary, args.json, text)
+    return 0
+
+
+def register(subparsers, groups: dict) -> None:
+    """Adds `db` and `capture record` to the top-level parser."""
+    db = subparsers.add_parser("db", help="the pose library: takes, poses, tags")
+    sub = db.add_subparsers(dest="db_command", required=True)
+
+    def common(p, json_flag=True):
+        p.add_argument("--db", default=DEFAULT_DB,
+                       help=f"the pose library file (default: $SITRELAX_DB or {DEFAULT_DB})")
+        if json_flag:
+            p.add_argument("--json", action="store_true", help="machine-readable output")
+        return p
+
+    p = common(sub.add_parser("import", help="import BVH files as takes"))
+    p.add_argument("files", nargs="+", help=".bvh paths or bundled:NAME")
+    p.add_argument("--name", help="take name (one file only; default: the file name)")
+    p.add_argument("--subject", default="", help="who was recorded")
+    p.add_argument("--tag", action="append", default=[], help="a tag (repeatable)")
+    p.add_argument("--notes", default="")
+    p.add_argument("--unit", default="auto", help="length unit of the files (default: auto)")
+    p.set_defaults(func=_cmd_import)
+
+    p = common(sub.add_parser("list", help="list takes, poses and recordings"))
+    p.add_argument("--tag", help="tag expression, e.g. 'sit and not floor'")
+    p.add_argument("--take", help="only poses of this take")
+    p.add_argument("--subject", help="only this subject")
+    p.add_argument("--kind", choices=("take", "pose", "recording"))
+    p.set_defaults(func=_cmd_list)
+
+    p = common(sub.add_parser("show", help="show a take or pose"))
+    p.add_argument("name")
+    p.set_defaults(func=_cmd_show)
+
+    p = common(sub.add_parser("tag", help="add (or with --remove, remove) tags"))
+    p.add_argument("name", help="pose or take")
+    p.add_argument("tags", nargs="+")
+    p.add_argument("--remove", action="store_true")
+    p.set_defaults(func=_cmd_tag)
+
+    pose = sub.add_parser("pose", help="add, rename or delete poses")
+    psub = pose.add_subparsers(dest="pose_command", required=True)
+    p = common(psub.add_parser("add", help="name a frame of a take as a pose"))
+    p.add_argument("take")
+    p.add_argument("frame", type=int, help="0-based frame of the take")
+    p.add_argument("--name", required=True)
+    p.add_argument("--tag", action="append", default=[])
+    p.add_argument("--support", nargs="+", default=["torso", "legs"], choices=SUPPORT_PARTS,
+                   help="body parts the pose needs supported (default: torso legs)")
+    p.add_argument("--notes", default="")
+    p.set_defaults(func=_cmd_pose_add)
+    p = common(psub.add_parser("rename"), json_flag=False)
+    p.add_argument("name")
+    p.add_argument("new_name")
+    p.set_defaults(func=_cmd_pose_rename)
+    p = common(psub.add_parser("delete"), json_flag=False)
+    p.add_argument("name")
+    p.set_defaults(func=_cmd_pose_delete)
+
+    p = common(sub.add_parser("suggest", help="propose poses where the body holds still"))
+    p.add_argument("take")
+    p.add_argument("--accept", action="store_true", help="store the proposals as poses")
+    p.add_argument("--tag", action="append", default=[], help="tags for accepted poses")
+    p.add_argument("--support", nargs="+", default=["torso", "legs"], choices=SUPPORT_PARTS)
+    p.add_argument("--max-speed", type=float, default=DEFAULT_MAX_SPEED,
+                   help=f"stillness threshold, m/s (default {DEFAULT_MAX_SPEED})")
+    p.add_argument("--min-duration", type=float, default=DEFAULT_MIN_DURATION,
+                   help=f"shortest held posture, s (default {DEFAULT_MIN_DURATION})")
+    p.set_defaults(func=_cmd_suggest)
+
+    p = common(sub.add_parser("export", help="write a take (or a frame range) as BVH"),
+               json_flag=False)
+    p.add_argument("name")
+    p.add_argument("--out", required=True)
+    p.add_argument("--start", type=int, default=0, help="first frame (0-based)")
+    p.add_argument("--end", type=int, default=None, help="last frame, inclusive")
+    p.set_defaults(func=_cmd_export)
+
+    p = common(sub.add_parser("recover", help="turn interrupted recordings into takes"))
+    p.set_defaults(func=_cmd_recover)
+
+    p = common(sub.add_parser("stats", help="what the library holds"))
+    p.set_defaults(func=_cmd_stats)
+
+    rec = groups["capture"].add_parser("record", help="record a stream into a new take")
+    rec.add_argument("source", help="stream source URL (see `capture listen`)")
+    common(rec)
+    rec.add_argument("--take", required=True, help="name of the new take")
+    rec.add_argument("--skeleton", required=True, help="the BVH header paired with the stream")
+    rec.add_argument("--duration", type=float, default=None)
+    rec.add_argument("--frames", type=int, default=None)
+    rec.add_argument("--subject", default="")
+    rec.add_argument("--tag", action="append", default=[])
+    rec.add_argument("--notes", default="")
+    rec.add_argument("--unit", default="auto", help="length unit of the skeleton header")
+    rec.set_defaults(func=_cmd_record)

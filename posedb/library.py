@@ -1,0 +1,702 @@
+"""The pose library: one HDF5 file of skeletons, takes and poses (schema in `posedb.schema`).
+
+Reading opens the file read-only and returns numpy arrays and plain records, never live HDF5
+handles. Writing is copy-on-write: every change (or batch of changes in `edit()`) is made on a
+copy of the file, which replaces the original in one rename only when the whole change has
+succeeded. A failed or killed writer therefore leaves the library exactly as it was, and readers
+never see half a change. Writers take a lock file (`<library>.lock`) so they queue instead of
+losing each other's changes.
+"""
+
+from __future__ import annotations
+
+import errno
+import fcntl
+import hashlib
+import json
+import os
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Iterable, Iterator, Sequence
+
+import h5py
+import numpy as np
+
+from capture import Bvh, Motion, Skeleton, identify_profile, read_bvh
+
+from . import schema
+from .schema import LibraryError, NotFoundError, decode_supports, encode_supports
+from .tags import compile_expression, membership, normalise_tags
+
+_STR = h5py.string_dtype()
+_LOCK_WAIT = 10.0
+
+
+class DuplicateNameError(LibraryError):
+    """A name already used by another take or pose."""
+
+
+class LockedError(LibraryError):
+    """Another process holds the library's write lock for too long."""
+
+
+@dataclass(frozen=True)
+class TakeInfo:
+    """A take's metadata (its arrays come from `PoseLibrary.take_data`)."""
+
+    id: str
+    name: str
+    skeleton: str
+    frames: int
+    frame_time: float
+    source: str
+    subject: str
+    recorded_at: str
+    tags: tuple[str, ...]
+    notes: str
+    kind: str  # "bvh" or "stream"
+
+    @property
+    def duration(self) -> float:
+        return self.frames * self.frame_time
+
+    def as_dict(self) -> dict:
+        return {"id": self.id, "kind": "take", "name": self.name, "tags": list(self.tags),
+                "skeleton": self.skeleton, "frames": self.frames, "frame_time": self.frame_time,
+                "duration": self.duration, "source": self.source, "subject": self.subject,
+                "recorded_at": self.recorded_at, "notes": self.notes, "origin": self.kind}
+
+
+@dataclass(frozen=True)
+class PoseInfo:
+    """A pose: a named frame of a take, with tags, the body parts it needs supported and notes."""
+
+    id: str
+    name: str
+    take: str  # take id
+    frame: int
+    tags: tuple[str, ...]
+    supports: tuple[str, ...]
+    notes: str
+    created_at: float
+
+    def as_dict(self, take_name: str | None = None) -> dict:
+        return {"id": self.id, "kind": "pose", "name": self.name, "tags": list(self.tags),
+                "take": take_name if take_name is not None else self.take,
+                "take_id": self.take, "frame": self.frame, "supports": list(self.supports),
+                "notes": self.notes, "created_at": self.created_at}
+
+
+@dataclass(frozen=True, eq=False)
+class TakeData:
+    """A take's arrays.
+
+    channels : (T, C) raw channels as stored (float64 for BVH imports, float32 as streamed).
+    local_rotations : (T, J, 4) float32 quaternions (x, y, z, w).
+    root_positions : (T, 3) float32 metres.
+    frame_indices : (T,) int64 (the sender's indices for a stream, else 0..T-1 of the source).
+    received_at : (T,) float64 Unix times for a streamed take, else None.
+    """
+
+    take: TakeInfo
+    skeleton: Skeleton
+    channels: np.ndarray
+    local_rotations: np.ndarray
+    root_positions: np.ndarray
+    frame_indices: np.ndarray
+    received_at: np.ndarray | None
+    start: int = 0
+
+    def motion(self) -> Motion:
+        return Motion(np.asarray(self.channels, dtype=np.float64), self.take.frame_time)
+
+
+@dataclass
+class _PoseTable:
+    """All poses, column by column, in memory (rotations stay on disk until asked for)."""
+
+    ids: list[int] = field(default_factory=list)
+    names: list[str] = field(default_factory=list)
+    takes: list[int] = field(default_factory=list)
+    frames: list[int] = field(default_factory=list)
+    tags: list[tuple[str, ...]] = field(default_factory=list)
+    supports: list[int] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    created: list[float] = field(default_factory=list)
+    rot_start: list[int] = field(default_factory=list)
+    rot_count: list[int] = field(default_factory=list)
+    root: list[tuple[float, float, float]] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def copy(self) -> "_PoseTable":
+        return _PoseTable(*(list(getattr(self, f)) for f in self.__dataclass_fields__))
+
+    def drop(self, rows: Sequence[int]) -> None:
+        keep = sorted(set(range(len(self))) - set(rows))
+        for f in self.__dataclass_fields__:
+            col = getattr(self, f)
+            setattr(self, f, [col[k] for k in keep])
+
+
+def _take_id(n: int) -> str:
+    return f"take-{n:05d}"
+
+
+def _pose_id(n: int) -> str:
+    return f"pose-{n:06d}"
+
+
+def _parse_id(text: str, prefix: str) -> int | None:
+    if text.startswith(prefix) and text[len(prefix):].isdigit():
+        return int(text[len(prefix):])
+    return None
+
+
+def skeleton_key(sk: Skeleton) -> str:
+    """A content hash naming a distinct skeleton (names, hierarchy, offsets, channels, unit)."""
+    h = hashlib.sha1()
+    h.update(json.dumps([sk.names, sk.channels, sk.unit_m]).encode())
+    for arr in (sk.parents, np.round(sk.offsets, 9), np.round(sk.end_sites, 9),
+                sk.end_site_parents):
+        h.update(np.ascontiguousarray(arr).tobytes())
+    return "skel-" + h.hexdigest()[:12]
+
+
+class PoseLibrary:
+    """A pose library file. `PoseLibrary(path)` opens an existing one; `create=True` makes one.
+
+    The index of takes and poses is read once on open and refreshed after each edit.
+    """
+
+    def __init__(self, path: str | os.PathLike, *, create: bool = False):
+        self.path = Path(path)
+        if not self.path.exists():
+            if not create:
+                raise NotFoundError(f"No pose library at {self.path} (import a take to make one)")
+            with self._writer_lock():
+                if not self.path.exists():
+                    self._create()
+        self._load()
+
+    # -- opening ------------------------------------------------------------------------------
+
+    def _create(self) -> None:
+        tmp = self._tmp_path()
+        try:
+            with h5py.File(tmp, "w") as f:
+                schema.initialise(f)
+            _fsync_path(tmp)
+            os.replace(tmp, self.path)
+            _fsync_dir(self.path.parent)
+        except BaseException:
+            _unlink(tmp)
+            raise
+
+    def _load(self) -> None:
+        with schema.open_checked(self.path) as f:
+            self.schema_version = int(f.attrs[schema.VERSION_ATTR])
+            self._next_take = int(f.attrs.get("next_take_id", 1))
+            self._next_pose = int(f.attrs.get("next_pose_id", 1))
+            self._takes = {}
+            for key in sorted(f["takes"]):
+                g = f["takes"][key]
+                a = g.attrs
+                self._takes[key] = TakeInfo(
+                    id=key, name=str(a["name"]), skeleton=str(a["skeleton"]),
+                    frames=int(g["channels"].shape[0]), frame_time=float(a["frame_time"]),
+                    source=str(a.get("source", "")), subject=str(a.get("subject", "")),
+                    recorded_at=str(a.get("recorded_at", "")),
+                    tags=tuple(str(a.get("tags", "")).split()), notes=str(a.get("notes", "")),
+                    kind=str(a.get("origin", "bvh")),
+                )
+            self._table = _read_pose_table(f["poses"])
+        self._index = None
+
+    def _tmp_path(self) -> Path:
+        return self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+
+    @contextmanager
+    def _writer_lock(self) -> Iterator[None]:
+        lock_path = self.path.with_name(self.path.name + ".lock")
+        fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            end = time.monotonic() + _LOCK_WAIT
+            while True:
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                    break
+                except OSError as exc:
+                    if exc.errno not in (errno.EAGAIN, errno.EACCES):
+                        raise
+                    if time.monotonic() > end:
+                        raise LockedError(
+                            f"The pose library {self.path} is locked by another writer "
+                            f"(waited {_LOCK_WAIT:.0f} s)"
+                        ) from None
+                    time.sleep(0.05)
+            yield
+        finally:
+            os.close(fd)
+
+    # -- reading ------------------------------------------------------------------------------
+
+    def takes(self) -> list[TakeInfo]:
+        return list(self._takes.values())
+
+    def take(self, ref: str) -> TakeInfo:
+        """A take by id or name."""
+        if ref in self._takes:
+            return self._takes[ref]
+        for t in self._takes.values():
+            if t.name == ref:
+                return t
+        raise NotFoundError(f"No take {ref!r} in {self.path}")
+
+    def skeleton(self, key: str) -> Skeleton:
+        with schema.open_checked(self.path) as f:
+            return schema.read_skeleton(f["skeletons"][key])
+
+    def take_data(self, ref: str, start: int = 0, stop: int | None = None) -> TakeData:
+        """A take's arrays for frames [start, stop) (0-based)."""
+        info = self.take(ref)
+        stop = info.frames if stop is None else stop
+        if not (0 <= start < stop <= info.frames):
+            raise ValueError(
+                f"Expected a frame range within 0..{info.frames} of take {info.name!r}, got "
+                f"{start}..{stop}"
+            )
+        with schema.open_checked(self.path) as f:
+            g = f["takes"][info.id]
+            sk = schema.read_skeleton(f["skeletons"][info.skeleton])
+            return TakeData(
+                info, sk, g["channels"][start:stop], g["local_rotations"][start:stop],
+                g["root_positions"][start:stop], g["frame_indices"][start:stop],
+                g["received_at"][start:stop] if "received_at" in g else None, start,
+            )
+
+    def take_bvh(self, ref: str, start: int = 0, stop: int | None = None) -> Bvh:
+        data = self.take_data(ref, start, stop)
+        return Bvh(data.skeleton, data.motion(), identify_profile(data.skeleton.names))
+
+    def _pose_info(self, row: int) -> PoseInfo:
+        t = self._table
+        return PoseInfo(_pose_id(t.ids[row]), t.names[row], _take_id(t.takes[row]),
+                        t.frames[row], t.tags[row], decode_supports(t.supports[row]),
+                        t.notes[row], t.created[row])
+
+    def _pose_row(self, ref: str) -> int:
+        t = self._table
+        num = _parse_id(ref, "pose-")
+        if num is not None and num in t.ids:
+            return t.ids.index(num)
+        try:
+            return t.names.index(ref)
+        except ValueError:
+            raise NotFoundError(f"No pose {ref!r} in {self.path}") from None
+
+    def pose(self, ref: str) -> PoseInfo:
+        """A pose by id or name."""
+        return self._pose_info(self._pose_row(ref))
+
+    def pose_data(self, ref: str) -> tuple[PoseInfo, Skeleton, np.ndarray, np.ndarray]:
+        """A pose with its skeleton, local rotations (J, 4) xyzw and root position (3,) m."""
+        row = self._pose_row(ref)
+        info = self._pose_info(row)
+        t = self._table
+        with schema.open_checked(self.path) as f:
+            rot = f["poses"]["rotations"][t.rot_start[row]:t.rot_start[row] + t.rot_count[row]]
+            sk = schema.read_skeleton(f["skeletons"][self.take(info.take).skeleton])
+        return info, sk, np.asarray(rot, dtype=np.float64), np.array(t.root[row])
+
+    def _tag_index(self):
+        if self._index is None:
+            self._index = membership(self._table.tags)
+        return self._index
+
+    def find_poses(self, expr: str | None = None, *, take: str | None = None,
+                   subject: str | None = None) -> list[PoseInfo]:
+        """Poses matching a tag expression (see `posedb.tags`), a take and/or a subject."""
+        t = self._table
+        mask = np.ones(len(t), dtype=bool)
+        if expr:
+            matrix, vocab = self._tag_index()
+            mask &= compile_expression(expr)(matrix, vocab)
+        if take is not None:
+            tid = _parse_id(self.take(take).id, "take-")
+            mask &= np.asarray(t.takes, dtype=np.int64) == tid
+        if subject is not None:
+            wanted = {_parse_id(k, "take-") for k, v in self._takes.items() if v.subject == subject}
+            mask &= np.isin(np.asarray(t.takes, dtype=np.int64), list(wanted))
+        return [self._pose_info(int(r)) for r in np.flatnonzero(mask)]
+
+    def find_takes(self, expr: str | None = None, *, subject: str | None = None
+                   ) -> list[TakeInfo]:
+        takes = self.takes()
+        if subject is not None:
+            takes = [t for t in takes if t.subject == subject]
+        if expr:
+            matrix, vocab = membership([t.tags for t in takes])
+            keep = compile_expression(expr)(matrix, vocab)
+            takes = [t for t, k in zip(takes, keep) if k]
+        return takes
+
+    def poses(self) -> list[PoseInfo]:
+        return [self._pose_info(r) for r in range(len(self._table))]
+
+    def stats(self) -> dict:
+        with schema.open_checked(self.path) as f:
+            skeletons = len(f["skeletons"])
+        tags = sorted({t for tt in self._table.tags for t in tt}
+                      | {t for take in self._takes.values() for t in take.tags})
+        return {
+            "path": str(self.path), "schema_version": self.schema_version,
+            "size_bytes": self.path.stat().st_size, "skeletons": skeletons,
+            "takes": len(self._takes), "poses": len(self._table),
+            "frames": sum(t.frames for t in self._takes.values()),
+            "duration_s": sum(t.duration for t in self._takes.values()),
+            "subjects": sorted({t.subject for t in self._takes.values() if t.subject}),
+            "tags": tags,
+        }
+
+    # -- writing ------------------------------------------------------------------------------
+
+    @contextmanager
+    def edit(self) -> Iterator["Editor"]:
+        """A batch of changes committed together, or not at all."""
+        with self._writer_lock():
+            self._load()  # another writer may have committed since we read
+            tmp = self._tmp_path()
+            _copy_file(self.path, tmp)
+            try:
+                with h5py.File(tmp, "r+") as f:
+                    editor = Editor(self, f)
+                    yield editor
+                    editor._commit()
+                _fsync_path(tmp)
+                os.replace(tmp, self.path)
+                _fsync_dir(self.path.parent)
+            except BaseException:
+                _unlink(tmp)
+                raise
+            finally:
+                self._load()
+
+    # single-change conveniences, each its own commit
+
+    def import_bvh(self, path: str | os.PathLike, **kw) -> TakeInfo:
+        with self.edit() as ed:
+            tid = ed.import_bvh(path, **kw)
+        return self.take(tid)
+
+    def add_pose(self, take: str, frame: int, name: str, **kw) -> PoseInfo:
+        with self.edit() as ed:
+            pid = ed.add_pose(take, frame, name, **kw)
+        return self.pose(pid)
+
+
+class Editor:
+    """Changes to a library inside `PoseLibrary.edit()`; names are checked before anything is
+    written, and nothing reaches the library unless the whole batch succeeds."""
+
+    def __init__(self, lib: PoseLibrary, f: h5py.File):
+        self.lib = lib
+        self.f = f
+        self.table = lib._table.copy()
+        self.takes = dict(lib._takes)
+        self.next_take = lib._next_take
+        self.next_pose = lib._next_pose
+        self._table_dirty = False
+        self._new_rotations: list[np.ndarray] = []
+        self._rot_end = int(f["poses"]["rotations"].shape[0])
+
+    # -- names ----------------------------------------------------------------------------
+
+    def _check_name(self, name: str, kind: str) -> str:
+        name = str(name).strip()
+        if not name or any(c in name for c in "\n\r\t/") or len(name) > 200:
+            raise LibraryError(f"Expected a {kind} name without '/', tabs or line breaks, got "
+                               f"{name!r}")
+        if kind == "take" and any(t.name == name for t in self.takes.values()):
+            raise DuplicateNameError(f"A take named {name!r} already exists in {self.lib.path}")
+        if kind == "pose" and name in self.table.names:
+            raise DuplicateNameError(f"A pose named {name!r} already exists in {self.lib.path}")
+        return name
+
+    def _take(self, ref: str) -> TakeInfo:
+        if ref in self.takes:
+            return self.takes[ref]
+        for t in self.takes.values():
+            if t.name == ref:
+                return t
+        raise NotFoundError(f"No take {ref!r} in {self.lib.path}")
+
+    def _pose_row(self, ref: str) -> int:
+        num = _parse_id(ref, "pose-")
+        if num is not None and num in self.table.ids:
+            return self.table.ids.index(num)
+        try:
+            return self.table.names.index(ref)
+        except ValueError:
+            raise NotFoundError(f"No pose {ref!r} in {self.lib.path}") from None
+
+    # -- takes ----------------------------------------------------------------------------
+
+    def _store_skeleton(self, sk: Skeleton) -> str:
+        key = skeleton_key(sk)
+        if key not in self.f["skeletons"]:
+            schema.write_skeleton(self.f["skeletons"].create_group(key), sk)
+        return key
+
+    def add_take(self, skeleton: Skeleton, channels: np.ndarray, frame_time: float, *,
+                 name: str, source: str = "", subject: str = "", tags: Iterable[str] = (),
+                 notes: str = "", recorded_at: str | None = None, origin: str = "bvh",
+                 frame_indices: np.ndarray | None = None,
+                 received_at: np.ndarray | None = None) -> str:
+        """Stores a take; returns its id. channels : (T, C) raw channels of `skeleton`."""
+        name = self._check_name(name, "take")
+        tags = normalise_tags(tags)
+        if skeleton.unit_m is None:
+            raise LibraryError(
+                f"Expected a skeleton with a known length unit for take {name!r}: give the unit "
+                "when importing (for example --unit cm)"
+            )
+        channels = np.asarray(channels)
+        if channels.ndim != 2 or channels.shape[1] != skeleton.num_channels or not len(channels):
+            raise LibraryError(f"Expected channels (T > 0, {skeleton.num_channels}), got "
+                               f"{channels.shape}")
+        if not np.isfinite(channels).all():
+            raise LibraryError(f"Expected finite channels for take {name!r}")
+        sk_key = self._store_skeleton(skeleton)
+        tid = _take_id(self.next_take)
+        self.next_take += 1
+        g = self.f["takes"].create_group(tid)
+        recorded_at = recorded_at or time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+        for key, value in dict(name=name, skeleton=sk_key, frame_time=float(frame_time),
+                               source=source, subject=subject, tags=" ".join(tags), notes=notes,
+                               recorded_at=recorded_at, origin=origin).items():
+            g.attrs[key] = value
+        t = channels.shape[0]
+        chunk = min(t, 256)
+        opts = dict(compression="gzip", compression_opts=4, shuffle=True)
+        g.create_dataset("channels", data=channels, chunks=(chunk, channels.shape[1]), **opts)
+        g.create_dataset("local_rotations",
+                         data=skeleton.local_rotations(channels).astype(np.float32),
+                         chunks=(chunk, skeleton.num_joints, 4), **opts)
+        g.create_dataset("root_positions",
+                         data=skeleton.root_positions(channels).astype(np.float32),
+                         chunks=(chunk, 3), **opts)
+        idx = np.arange(t) if frame_indices is None else np.asarray(frame_indices)
+        g.create_dataset("frame_indices", data=idx.astype(np.int64), chunks=(chunk,), **opts)
+        if received_at is not None:
+            g.create_dataset("received_at", data=np.asarray(received_at, dtype=np.float64),
+                             chunks=(chunk,), **opts)
+        self.takes[tid] = TakeInfo(tid, name, sk_key, t, float(frame_time), source, subject,
+                                   recorded_at, tags, notes, origin)
+        return tid
+
+    def import_bvh(self, path: str | os.PathLike | Bvh, *, name: str | None = None,
+                   subject: str = "", tags: Iterable[str] = (), notes: str = "",
+                   unit: str | float = "auto") -> str:
+        """Imports a BVH file (or a parsed `Bvh`) as a take; returns its id."""
+        bvh = path if isinstance(path, Bvh) else read_bvh(path, unit=unit)
+        source = bvh.path or ""
+        default = Path(source).stem if source else "take"
+        return self.add_take(bvh.skeleton, bvh.motion.channels, bvh.motion.frame_time,
+                             name=name or default, source=source, subject=subject, tags=tags,
+                             notes=notes, origin="bvh")
+
+    def delete_take(self, ref: str) -> None:
+        """Deletes a take and the poses made from it."""
+        take = self._take(ref)
+        num = _parse_id(take.id, "take-")
+        rows = [r for r, t in enumerate(self.table.takes) if t == num]
+        if rows:
+            self.table.drop(rows)
+            self._table_dirty = True
+        del self.f["takes"][take.id]
+        del self.takes[take.id]
+
+    # -- poses ----------------------------------------------------------------------------
+
+    def add_pose(self, take: str, frame: int, name: str, *, tags: Iterable[str] = (),
+                 supports: Iterable[str] = ("torso", "legs"), notes: str = "") -> str:
+        """Adds a pose at `frame` (0-based) of `take`; returns its id."""
+        info = self._take(take)
+        name = self._check_name(name, "pose")
+        frame = int(frame)
+        if not 0 <= frame < info.frames:
+            raise LibraryError(f"Expected a frame in 0..{info.frames - 1} of take "
+                               f"{info.name!r}, got {frame}")
+        tags = normalise_tags(tags)
+        mask = encode_supports(supports)
+        g = self.f["takes"][info.id]
+        rot = np.asarray(g["local_rotations"][frame], dtype=np.float32)
+        root = tuple(float(x) for x in g["root_positions"][frame])
+        pid = self.next_pose
+        self.next_pose += 1
+        t = self.table
+        t.ids.append(pid)
+        t.names.append(name)
+        t.takes.append(_parse_id(info.id, "take-"))
+        t.frames.append(frame)
+        t.tags.append(tags)
+        t.supports.append(mask)
+        t.notes.append(notes)
+        t.created.append(time.time())
+        t.rot_start.append(self._rot_end)
+        t.rot_count.append(rot.shape[0])
+        t.root.append(root)
+        self._rot_end += rot.shape[0]
+        self._new_rotations.append(rot)
+        self._table_dirty = True
+        return _pose_id(pid)
+
+    def rename(self, ref: str, new_name: str) -> None:
+        """Renames a pose or, failing that, a take."""
+        try:
+            row = self._pose_row(ref)
+        except NotFoundError:
+            take = self._take(ref)
+            new_name = self._check_name(new_name, "take")
+            self.f["takes"][take.id].attrs["name"] = new_name
+            self.takes[take.id] = replace(take, name=new_name)
+            return
+        self.table.names[row] = self._check_name(new_name, "pose")
+        self._table_dirty = True
+
+    def tag(self, ref: str, add: Iterable[str] = (), remove: Iterable[str] = ()) -> tuple:
+        """Adds and removes tags of a pose or take; returns the new tags."""
+        add = set(normalise_tags(add))
+        remove = set(normalise_tags(remove))
+        try:
+            row = self._pose_row(ref)
+        except NotFoundError:
+            take = self._take(ref)
+            tags = tuple(sorted((set(take.tags) | add) - remove))
+            self.f["takes"][take.id].attrs["tags"] = " ".join(tags)
+            self.takes[take.id] = replace(take, tags=tags)
+            return tags
+        tags = tuple(sorted((set(self.table.tags[row]) | add) - remove))
+        self.table.tags[row] = tags
+        self._table_dirty = True
+        return tags
+
+    def set_pose(self, ref: str, *, supports: Iterable[str] | None = None,
+                 notes: str | None = None) -> None:
+        row = self._pose_row(ref)
+        if supports is not None:
+            self.table.supports[row] = encode_supports(supports)
+        if notes is not None:
+            self.table.notes[row] = notes
+        self._table_dirty = True
+
+    def delete_pose(self, ref: str) -> None:
+        self.table.drop([self._pose_row(ref)])
+        self._table_dirty = True
+
+    # -- commit ---------------------------------------------------------------------------
+
+    def _commit(self) -> None:
+        f = self.f
+        f.attrs["next_take_id"] = self.next_take
+        f.attrs["next_pose_id"] = self.next_pose
+        if self._new_rotations:
+            rot = f["poses"]["rotations"]
+            new = np.concatenate(self._new_rotations)
+            start = rot.shape[0]
+            rot.resize((start + new.shape[0], 4))
+            rot[start:] = new
+        if self._table_dirty:
+            _write_pose_table(f["poses"], self.table)
+
+
+def _read_pose_table(g: h5py.Group) -> _PoseTable:
+    if "id" not in g:
+        return _PoseTable()
+    n = g["id"].shape[0]
+    if n == 0:
+        return _PoseTable()
+    return _PoseTable(
+        ids=g["id"][:].tolist(),
+        names=[s.decode("utf-8") for s in g["name"][:]],
+        takes=g["take"][:].tolist(),
+        frames=g["frame"][:].tolist(),
+        tags=[tuple(s.decode("utf-8").split()) for s in g["tags"][:]],
+        supports=g["supports"][:].tolist(),
+        notes=[s.decode("utf-8") for s in g["notes"][:]],
+        created=g["created_at"][:].tolist(),
+        rot_start=g["rotation_start"][:].tolist(),
+        rot_count=g["rotation_count"][:].tolist(),
+        root=[tuple(r) for r in g["root_position"][:].tolist()],
+    )
+
+
+def _write_pose_table(g: h5py.Group, t: _PoseTable) -> None:
+    columns = {
+        "id": (np.asarray(t.ids, dtype=np.int64), None),
+        "name": (t.names, _STR),
+        "take": (np.asarray(t.takes, dtype=np.int64), None),
+        "frame": (np.asarray(t.frames, dtype=np.int64), None),
+        "tags": ([" ".join(x) for x in t.tags], _STR),
+        "supports": (np.asarray(t.supports, dtype=np.uint8), None),
+        "notes": (t.notes, _STR),
+        "created_at": (np.asarray(t.created, dtype=np.float64), None),
+        "rotation_start": (np.asarray(t.rot_start, dtype=np.int64), None),
+        "rotation_count": (np.asarray(t.rot_count, dtype=np.int64), None),
+        "root_position": (np.asarray(t.root, dtype=np.float64).reshape(-1, 3), None),
+    }
+    for key, (data, dtype) in columns.items():
+        if key in g:
+            del g[key]
+        if dtype is not None:
+            g.create_dataset(key, data=np.array(data, dtype=object).reshape(-1), dtype=dtype)
+        else:
+            g.create_dataset(key, data=data)
+
+
+# -- files ------------------------------------------------------------------------------------
+
+
+def _copy_file(src: Path, dst: Path) -> None:
+    """Copies a file, in the kernel (or as a reflink where the filesystem shares blocks)."""
+    with open(src, "rb") as fin, open(dst, "wb") as fout:
+        size = os.fstat(fin.fileno()).st_size
+        copied = 0
+        try:
+            while copied < size:
+                n = os.copy_file_range(fin.fileno(), fout.fileno(), size - copied)
+                if n == 0:
+                    break
+                copied += n
+        except OSError:
+            fin.seek(copied)
+            fout.seek(copied)
+            while chunk := fin.read(1 << 20):
+                fout.write(chunk)
+
+
+def _fsync_path(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_dir(path: Path) -> None:
+    fd = os.open(path or ".", os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _unlink(path: Path) -> None:
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        pass

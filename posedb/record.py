@@ -1,0 +1,241 @@
+"""Live recording of a stream into the pose library, safe against a killed recorder.
+
+The stream is written as it arrives to a journal, a raw capture (see `capture.rawcapture`) in the
+folder `<library>.recordings/` next to the library, with each read going straight to the
+operating system and the file forced to disk every half second. When the recording ends, the
+journal becomes a take in one library commit and is then removed. A recorder killed at any
+moment leaves the library untouched and the journal holding everything received up to the
+kill; `recover` turns such journals into takes. The library itself is never held open during a
+recording, so other processes can list and read it, and several streams can be recorded at once.
+"""
+
+from __future__ import annotations
+
+import errno
+import fcntl
+import os
+import re
+import time
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterable
+
+import numpy as np
+
+from capture import parse_bvh, read_bvh, resolve_path
+from capture.monitor import StreamMonitor
+from capture.rawcapture import RawCaptureError, RawCaptureWriter, iter_raw_capture
+from capture.sources import RawFileTransport, Source, open_transport
+from capture.stream_layout import StreamLayout
+
+from .library import DuplicateNameError, PoseLibrary, TakeInfo
+from .schema import LibraryError, NotFoundError
+
+_SYNC_EVERY = 0.5  # seconds between fsyncs of the journal
+_COMMON_RATES = (24, 25, 30, 48, 50, 60, 90, 96, 100, 120, 125, 200, 240, 250)
+
+
+def journal_dir(library: str | os.PathLike) -> Path:
+    library = Path(library)
+    return library.with_name(library.name + ".recordings")
+
+
+def _journal_name(take: str) -> str:
+    slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", take)[:80] or "take"
+    return f"{slug}-{uuid.uuid4().hex[:8]}.raw"
+
+
+def _locked_by_someone(path: Path) -> bool:
+    """Whether a live recorder holds the journal's lock."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as exc:
+        if exc.errno in (errno.EAGAIN, errno.EACCES):
+            return True
+        raise
+    finally:
+        os.close(fd)
+    return False
+
+
+@dataclass(frozen=True)
+class Recording:
+    """A journal in `<library>.recordings/`: a recording running, or one a killed recorder left."""
+
+    path: Path
+    take: str
+    source: str
+    started_at: str
+    size_bytes: int
+    running: bool
+
+    def as_dict(self) -> dict:
+        return {"kind": "recording", "name": self.take, "journal": str(self.path),
+                "source": self.source, "started_at": self.started_at,
+                "size_bytes": self.size_bytes, "state": "recording" if self.running
+                else "interrupted (run `sitrelax db recover`)", "tags": []}
+
+
+def recordings(library: str | os.PathLike) -> list[Recording]:
+    """Journals of recordings running or interrupted, oldest first."""
+    folder = journal_dir(library)
+    out = []
+    for path in sorted(folder.glob("*.raw")) if folder.is_dir() else []:
+        try:
+            header, _ = iter_raw_capture(path)
+        except (RawCaptureError, OSError):
+            continue
+        take = header.get("take", {}).get("name", path.stem)
+        out.append(Recording(path, take, header.get("source", ""), header.get("started_at", ""),
+                             path.stat().st_size, _locked_by_someone(path)))
+    return out
+
+
+def _frame_time(frames, header_frame_time: float) -> float:
+    """The stream's frame period: from the sender's indices and arrival times, snapped to a
+    common rate within 2 %; the header's frame time when the stream cannot tell."""
+    idx = np.array([f.frame_index for f in frames if f.frame_index is not None], dtype=float)
+    t = np.array([f.received_at for f in frames if f.frame_index is not None], dtype=float)
+    if len(idx) >= 2 and idx[-1] > idx[0]:
+        period = (t[-1] - t[0]) / (idx[-1] - idx[0])
+    elif len(frames) >= 2:
+        period = float(np.median(np.diff([f.received_at for f in frames])))
+    else:
+        return header_frame_time
+    if period <= 0:
+        return header_frame_time
+    rate = 1.0 / period
+    best = min(_COMMON_RATES, key=lambda r: abs(r - rate))
+    return 1.0 / best if abs(best - rate) <= 0.02 * best else period
+
+
+def import_journal(lib: PoseLibrary, path: Path) -> TakeInfo | None:
+    """Turns a journal into a take (or finds the take it already became) and removes it.
+
+    Returns None for a journal that holds no frame (it is removed too).
+    """
+    header, _ = iter_raw_capture(path)
+    meta = header.get("take", {})
+    recording_id = meta.get("recording_id", "")
+    for take in lib.takes():
+        if recording_id and take.source.endswith(f"#recording={recording_id}"):
+            path.unlink()  # the take was stored; only the journal's removal was missed
+            return take
+    unit = meta.get("unit_m")
+    skeleton = parse_bvh(header["skeleton_bvh"], unit=unit if unit else "auto").skeleton
+    layout = StreamLayout(skeleton)
+    source = Source(RawFileTransport(path), layout)
+    frames = list(source)
+    if not frames:
+        path.unlink()
+        return None
+    channels = np.array([source.channels(f) for f in frames], dtype=np.float32)
+    indices = np.array([f.frame_index if f.frame_index is not None else k
+                        for k, f in enumerate(frames)], dtype=np.int64)
+    received = np.array([f.received_at for f in frames], dtype=np.float64)
+    stats = source.stats()
+    notes = meta.get("notes", "")
+    summary = (f"recorded from {header.get('source', '?')}: {len(frames)} frames, "
+               f"{stats['dropped']} dropped, {stats['corrupt']} corrupt")
+    with lib.edit() as ed:
+        tid = ed.add_take(
+            skeleton, channels, _frame_time(frames, float(meta.get("frame_time", 1 / 120))),
+            name=meta.get("name", path.stem), subject=meta.get("subject", ""),
+            tags=meta.get("tags", ()), notes=(notes + "\n" if notes else "") + summary,
+            source=f"{header.get('source', '')}#recording={recording_id}",
+            recorded_at=header.get("started_at"), origin="stream", frame_indices=indices,
+            received_at=received,
+        )
+    path.unlink()
+    return lib.take(tid)
+
+
+def recover(library: str | os.PathLike) -> list[dict]:
+    """Imports the journals that killed recorders left; skips those still being written."""
+    lib = PoseLibrary(library)
+    out = []
+    for rec in recordings(library):
+        if rec.running:
+            out.append({"journal": str(rec.path), "take": rec.take, "status": "still recording"})
+            continue
+        try:
+            take = import_journal(lib, rec.path)
+        except (LibraryError, RawCaptureError, ValueError) as exc:
+            out.append({"journal": str(rec.path), "take": rec.take, "status": f"failed: {exc}"})
+            continue
+        out.append({"journal": str(rec.path), "take": rec.take,
+                    "status": "empty, removed" if take is None else "recovered",
+                    "frames": 0 if take is None else take.frames})
+    return out
+
+
+def record(source_url: str, library: str | os.PathLike, take: str, skeleton: str, *,
+           duration: float | None = None, frames: int | None = None, subject: str = "",
+           tags: Iterable[str] = (), notes: str = "", unit: str | float = "auto",
+           fmt: str = "auto", on_event: Callable[[str], None] | None = None,
+           on_progress: Callable[[dict], None] | None = None,
+           stop: Callable[[], bool] | None = None) -> dict:
+    """Records a stream into a new take; returns the listener's summary plus the take.
+
+    Stops after `duration` seconds, `frames` frames, the end of a `file:` source, or when
+    `stop()` returns true.
+    """
+    from .tags import normalise_tags
+
+    lib = PoseLibrary(library, create=True)
+    try:
+        lib.take(take)
+    except NotFoundError:
+        pass
+    else:
+        raise DuplicateNameError(f"A take named {take!r} already exists in {lib.path}")
+    if any(r.take == take for r in recordings(library)):
+        raise DuplicateNameError(f"A recording of take {take!r} is already running or waiting "
+                                 "for `sitrelax db recover`")
+    tags = normalise_tags(tags)
+    header_path = resolve_path(skeleton)
+    header = read_bvh(header_path, unit=unit)
+    if header.skeleton.unit_m is None:
+        raise LibraryError(f"{header_path}: the skeleton's length unit is unknown; pass --unit")
+    layout = StreamLayout(header.skeleton)
+    transport = open_transport(source_url)
+    folder = journal_dir(library)
+    folder.mkdir(exist_ok=True)
+    journal = folder / _journal_name(take)
+    meta = {"name": take, "subject": subject, "tags": list(tags), "notes": notes,
+            "recording_id": uuid.uuid4().hex, "unit_m": header.skeleton.unit_m,
+            "frame_time": header.motion.frame_time, "pid": os.getpid()}
+    writer = RawCaptureWriter(journal, source=source_url, time_origin=time.time(),
+                              transport="datagram" if transport.datagram else "stream",
+                              skeleton_bvh=header_path.read_text(errors="replace"),
+                              extra={"take": meta})
+    fcntl.flock(writer.fileno(), fcntl.LOCK_EX)  # tells `recover` this journal is alive
+    monitor = StreamMonitor()
+    start = time.monotonic()
+    next_sync = start + _SYNC_EVERY
+    next_report = start + 1.0
+    with Source(transport, layout, fmt=fmt, raw=writer, on_event=on_event) as src:
+        while not src.exhausted:
+            left = None if duration is None else duration - (time.monotonic() - start)
+            if (left is not None and left <= 0) or (stop is not None and stop()):
+                break
+            got = src.read(0.1 if left is None else max(0.0, min(0.1, left)))
+            monitor.add(got)
+            now = time.monotonic()
+            if now >= next_sync:
+                writer.sync()
+                next_sync = now + _SYNC_EVERY
+            if on_progress is not None and now >= next_report:
+                next_report += 1.0
+                on_progress(monitor.summary(src.stats()))
+            if frames is not None and monitor.count >= frames:
+                break
+        summary = monitor.summary(src.stats())
+        summary["events"] = [m for _, m in src.events]
+    # the source closed the journal; now it becomes a take
+    stored = import_journal(lib, journal)
+    summary["take"] = None if stored is None else stored.as_dict()
+    summary["library"] = str(lib.path)
+    return summary

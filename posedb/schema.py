@@ -1,0 +1,162 @@
+"""The pose library's HDF5 layout, version 1.
+
+    /                       attrs: sitrelax_kind = "pose-library", sitrelax_schema = 1,
+                                   created_at, next_take_id, next_pose_id
+    /skeletons/<skel-hash>  datasets: names (J,) str, parents (J,) int32, offsets (J, 3) float64
+                            (file units), channels (J,) str (space-separated channel names per
+                            joint), end_sites (E, 3) float64, end_site_parents (E,) int32;
+                            attrs: unit_m (metres per file unit), profile
+    /takes/<take-NNNNN>     attrs: name, skeleton, frame_time, source, subject, recorded_at,
+                            tags (space-separated), notes, origin ("bvh" or "stream");
+                            datasets, chunked along frames and gzip-compressed:
+                            channels (T, C) raw channels (float64 from BVH text, float32 as
+                            streamed), local_rotations (T, J, 4) float32 xyzw, root_positions
+                            (T, 3) float32 metres, frame_indices (T,) int64, and for streamed
+                            takes received_at (T,) float64 Unix seconds
+    /poses                  one column per dataset, a row per pose: id int64, name str,
+                            take int64, frame int64 (0-based in the take), tags str
+                            (space-separated), supports uint8 (bit k: SUPPORT_PARTS[k]),
+                            notes str, created_at float64, root_position (P, 3) float64 metres,
+                            rotation_start / rotation_count int64 into rotations (R, 4) float32
+                            (each pose's own copy of its local rotations, xyzw)
+    /bodies, /scenarios     reserved for body shapes and scenarios
+
+A file of a newer schema is refused; an older one would be migrated by the functions in
+`MIGRATIONS` (none exist yet: 1 is the first version).
+"""
+
+from __future__ import annotations
+
+import time
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Callable, Iterable, Iterator
+
+import h5py
+import numpy as np
+
+from capture import Skeleton
+
+KIND_ATTR = "sitrelax_kind"
+KIND = "pose-library"
+VERSION_ATTR = "sitrelax_schema"
+SCHEMA_VERSION = 1
+SUPPORT_PARTS = ("head", "torso", "arms", "hands", "legs", "feet")
+MIGRATIONS: dict[int, Callable[[h5py.File], None]] = {}
+
+_STR = h5py.string_dtype()
+
+
+class LibraryError(ValueError):
+    """A pose library that cannot be used as asked."""
+
+
+class NotFoundError(LibraryError):
+    """No such library, take or pose."""
+
+
+class SchemaError(LibraryError):
+    """A file that is not a pose library of a schema this version can read."""
+
+
+def initialise(f: h5py.File) -> None:
+    """Lays out an empty library in a new file."""
+    f.attrs[KIND_ATTR] = KIND
+    f.attrs[VERSION_ATTR] = SCHEMA_VERSION
+    f.attrs["created_at"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+    f.attrs["next_take_id"] = 1
+    f.attrs["next_pose_id"] = 1
+    for name in ("skeletons", "takes", "bodies", "scenarios"):
+        f.create_group(name)
+    poses = f.create_group("poses")
+    poses.create_dataset("rotations", shape=(0, 4), maxshape=(None, 4), dtype=np.float32,
+                         chunks=(4096, 4), compression="gzip", compression_opts=4)
+
+
+def check(f: h5py.File, path: Path) -> None:
+    kind = f.attrs.get(KIND_ATTR)
+    if isinstance(kind, bytes):
+        kind = kind.decode()
+    if kind != KIND:
+        raise SchemaError(f"{path} is an HDF5 file but not a sitrelax pose library")
+    version = f.attrs.get(VERSION_ATTR)
+    try:
+        version = int(version)
+    except (TypeError, ValueError):
+        raise SchemaError(f"{path} has an unreadable schema version {version!r}") from None
+    if version > SCHEMA_VERSION:
+        raise SchemaError(
+            f"{path} has schema version {version}, newer than this sitrelax reads "
+            f"({SCHEMA_VERSION}): upgrade sitrelax"
+        )
+    if version < SCHEMA_VERSION and version not in MIGRATIONS:
+        raise SchemaError(
+            f"{path} has schema version {version}, which this sitrelax cannot migrate to "
+            f"{SCHEMA_VERSION}"
+        )
+    for name in ("skeletons", "takes", "poses"):
+        if name not in f:
+            raise SchemaError(f"{path} is a damaged pose library: its /{name} group is missing")
+
+
+@contextmanager
+def open_checked(path: Path) -> Iterator[h5py.File]:
+    """Opens a library read-only after checking it is one, of a schema this version reads."""
+    path = Path(path)
+    if not path.exists():
+        raise NotFoundError(f"No pose library at {path}")
+    if path.is_dir():
+        raise LibraryError(f"{path} is a directory, not a pose library")
+    if not h5py.is_hdf5(path):
+        raise SchemaError(f"{path} is not an HDF5 file, so not a pose library")
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise SchemaError(f"{path} is damaged or truncated and cannot be opened ({exc})") from None
+    try:
+        check(f, path)
+        yield f
+    finally:
+        f.close()
+
+
+def write_skeleton(g: h5py.Group, sk: Skeleton) -> None:
+    from capture import identify_profile
+
+    g.create_dataset("names", data=np.array(sk.names, dtype=object), dtype=_STR)
+    g.create_dataset("parents", data=sk.parents.astype(np.int32))
+    g.create_dataset("offsets", data=sk.offsets)
+    g.create_dataset("channels", data=np.array([" ".join(c) for c in sk.channels], dtype=object),
+                     dtype=_STR)
+    g.create_dataset("end_sites", data=sk.end_sites.reshape(-1, 3))
+    g.create_dataset("end_site_parents", data=sk.end_site_parents.astype(np.int32))
+    g.attrs["unit_m"] = np.nan if sk.unit_m is None else float(sk.unit_m)
+    g.attrs["profile"] = identify_profile(sk.names) or ""
+
+
+def read_skeleton(g: h5py.Group) -> Skeleton:
+    unit = float(g.attrs["unit_m"])
+    return Skeleton(
+        names=tuple(s.decode("utf-8") for s in g["names"][:]),
+        parents=g["parents"][:],
+        offsets=g["offsets"][:],
+        channels=tuple(tuple(s.decode("utf-8").split()) for s in g["channels"][:]),
+        end_sites=g["end_sites"][:],
+        end_site_parents=g["end_site_parents"][:],
+        unit_m=None if np.isnan(unit) else unit,
+    )
+
+
+def encode_supports(parts: Iterable[str]) -> int:
+    """Bit mask of supported body parts; raises LibraryError naming an unknown part."""
+    mask = 0
+    for p in parts:
+        key = str(p).strip().lower()
+        if key not in SUPPORT_PARTS:
+            raise LibraryError(f"Expected body parts from {SUPPORT_PARTS}, got {p!r}")
+        mask |= 1 << SUPPORT_PARTS.index(key)
+    return mask
+
+
+def decode_supports(mask: int) -> tuple[str, ...]:
+    return tuple(p for k, p in enumerate(SUPPORT_PARTS) if mask >> k & 1)

@@ -1,0 +1,138 @@
+"""Tags and tag expressions.
+
+A tag is a lower-case word of letters, digits, `_`, `-`, `.` or `:` (`sit`, `high-seat`,
+`session:2026-11`). An expression combines tags with `and`, `or`, `not` and parentheses
+(`sit and not floor`, `lean or lounge`, `not (sit or lie)`); `and` binds tighter than `or`.
+Expressions compile to a function over a boolean membership matrix (items x vocabulary), so a
+search over a whole library is a handful of vectorised operations.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Callable, Iterable, Sequence
+
+import numpy as np
+
+_TAG = re.compile(r"[a-z0-9_][a-z0-9_.:\-]*")
+_TOKEN = re.compile(r"\s*(\(|\)|[^\s()]+)")
+KEYWORDS = ("and", "or", "not")
+
+
+class TagError(ValueError):
+    """A tag or tag expression that cannot be used."""
+
+
+def normalise_tag(tag: str) -> str:
+    """The canonical form of a tag (lower case); raises TagError for anything else."""
+    text = str(tag).strip().lower()
+    if not _TAG.fullmatch(text) or text in KEYWORDS:
+        raise TagError(
+            f"Expected a tag of letters, digits, '_', '-', '.' or ':' (not and/or/not), "
+            f"got {tag!r}"
+        )
+    return text
+
+
+def normalise_tags(tags: Iterable[str]) -> tuple[str, ...]:
+    """Sorted, de-duplicated canonical tags."""
+    return tuple(sorted({normalise_tag(t) for t in tags}))
+
+
+Matcher = Callable[[np.ndarray, dict[str, int]], np.ndarray]
+
+
+def compile_expression(expr: str) -> Matcher:
+    """Compiles a tag expression into `match(membership, vocabulary) -> (N,) bool`.
+
+    membership : (N, K) bool, item n carries tag k; vocabulary : tag -> column k.
+    """
+    tokens = []
+    pos = 0
+    text = expr.strip()
+    if not text:
+        raise TagError("Expected a tag expression, got an empty one")
+    while pos < len(text):
+        m = _TOKEN.match(text, pos)
+        if m is None:
+            break
+        tokens.append((m.group(1), m.start(1)))
+        pos = m.end()
+    at = 0
+
+    def peek() -> str | None:
+        return tokens[at][0].lower() if at < len(tokens) else None
+
+    def fail(what: str) -> TagError:
+        got = repr(tokens[at][0]) if at < len(tokens) else "the end"
+        col = tokens[at][1] + 1 if at < len(tokens) else len(text) + 1
+        return TagError(f"In tag expression {expr!r} at column {col}: expected {what}, got {got}")
+
+    def parse_or() -> Matcher:
+        nonlocal at
+        left = parse_and()
+        while peek() == "or":
+            at += 1
+            right = parse_and()
+            left = (lambda a, b: lambda m, v: a(m, v) | b(m, v))(left, right)
+        return left
+
+    def parse_and() -> Matcher:
+        nonlocal at
+        left = parse_not()
+        while peek() == "and":
+            at += 1
+            right = parse_not()
+            left = (lambda a, b: lambda m, v: a(m, v) & b(m, v))(left, right)
+        return left
+
+    def parse_not() -> Matcher:
+        nonlocal at
+        if peek() == "not":
+            at += 1
+            inner = parse_not()
+            return lambda m, v: ~inner(m, v)
+        return parse_atom()
+
+    def parse_atom() -> Matcher:
+        nonlocal at
+        tok = peek()
+        if tok == "(":
+            at += 1
+            inner = parse_or()
+            if peek() != ")":
+                raise fail("')'")
+            at += 1
+            return inner
+        if tok is None or tok in KEYWORDS or tok == ")":
+            raise fail("a tag or '('")
+        try:
+            tag = normalise_tag(tokens[at][0])
+        except TagError:
+            raise fail("a tag") from None
+        at += 1
+
+        def match(m: np.ndarray, vocab: dict[str, int]) -> np.ndarray:
+            k = vocab.get(tag)
+            return np.zeros(m.shape[0], dtype=bool) if k is None else m[:, k].copy()
+
+        return match
+
+    result = parse_or()
+    if at != len(tokens):
+        raise fail("'and', 'or' or the end")
+    return result
+
+
+def membership(tag_lists: Sequence[Sequence[str]]) -> tuple[np.ndarray, dict[str, int]]:
+    """(N, K) bool membership matrix and vocabulary for items' tag lists."""
+    vocab: dict[str, int] = {}
+    rows, cols = [], []
+    for n, tags in enumerate(tag_lists):
+        for t in tags:
+            rows.append(n)
+            cols.append(vocab.setdefault(t, len(vocab)))
+    m = np.zeros((len(tag_lists), len(vocab)), dtype=bool)
+    if rows:
+        m[np.array(rows), np.array(cols)] = True
+    return m, vocab
