@@ -226,6 +226,10 @@ class Replay:
     def __len__(self) -> int:
         return len(self.times)
 
+    def item(self, k: int, loop: int = 0) -> tuple[int, bytes]:
+        """The k-th record of the programme (its kind and bytes) on pass `loop`."""
+        return self._make(k, loop)
+
     @classmethod
     def from_bvh(cls, path: str | Path, *, fmt: str = "binary", with_displacement: bool = True,
                  with_reference: bool = False, avatar_name: str = "Avatar00",

@@ -17,9 +17,9 @@ import json
 import os
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Iterable, Iterator, Sequence
+from typing import Iterable, Iterator
 
 import h5py
 import numpy as np
@@ -28,9 +28,9 @@ from capture import Bvh, Motion, Skeleton, identify_profile, read_bvh
 
 from . import schema
 from .schema import LibraryError, NotFoundError, decode_supports, encode_supports
+from .posetable import PoseTable
 from .tags import compile_expression, membership, normalise_tags
 
-_STR = h5py.string_dtype()
 _LOCK_WAIT = 10.0
 
 
@@ -113,35 +113,6 @@ class TakeData:
         return Motion(np.asarray(self.channels, dtype=np.float64), self.take.frame_time)
 
 
-@dataclass
-class _PoseTable:
-    """All poses, column by column, in memory (rotations stay on disk until asked for)."""
-
-    ids: list[int] = field(default_factory=list)
-    names: list[str] = field(default_factory=list)
-    takes: list[int] = field(default_factory=list)
-    frames: list[int] = field(default_factory=list)
-    tags: list[tuple[str, ...]] = field(default_factory=list)
-    supports: list[int] = field(default_factory=list)
-    notes: list[str] = field(default_factory=list)
-    created: list[float] = field(default_factory=list)
-    rot_start: list[int] = field(default_factory=list)
-    rot_count: list[int] = field(default_factory=list)
-    root: list[tuple[float, float, float]] = field(default_factory=list)
-
-    def __len__(self) -> int:
-        return len(self.ids)
-
-    def copy(self) -> "_PoseTable":
-        return _PoseTable(*(list(getattr(self, f)) for f in self.__dataclass_fields__))
-
-    def drop(self, rows: Sequence[int]) -> None:
-        keep = sorted(set(range(len(self))) - set(rows))
-        for f in self.__dataclass_fields__:
-            col = getattr(self, f)
-            setattr(self, f, [col[k] for k in keep])
-
-
 def _take_id(n: int) -> str:
     return f"take-{n:05d}"
 
@@ -213,8 +184,7 @@ class PoseLibrary:
                     tags=tuple(str(a.get("tags", "")).split()), notes=str(a.get("notes", "")),
                     kind=str(a.get("origin", "bvh")),
                 )
-            self._table = _read_pose_table(f["poses"])
-        self._index = None
+            self._table = PoseTable.read(f["poses"])
 
     def _tmp_path(self) -> Path:
         return self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
@@ -284,19 +254,16 @@ class PoseLibrary:
 
     def _pose_info(self, row: int) -> PoseInfo:
         t = self._table
-        return PoseInfo(_pose_id(t.ids[row]), t.names[row], _take_id(t.takes[row]),
-                        t.frames[row], t.tags[row], decode_supports(t.supports[row]),
-                        t.notes[row], t.created[row])
+        return PoseInfo(_pose_id(t.value("id", row)), t.names[row],
+                        _take_id(t.value("take", row)), t.value("frame", row), t.tags(row),
+                        decode_supports(t.value("supports", row)), t.notes(row),
+                        t.value("created_at", row))
 
     def _pose_row(self, ref: str) -> int:
-        t = self._table
-        num = _parse_id(ref, "pose-")
-        if num is not None and num in t.ids:
-            return t.ids.index(num)
-        try:
-            return t.names.index(ref)
-        except ValueError:
-            raise NotFoundError(f"No pose {ref!r} in {self.path}") from None
+        row = self._table.row_of(ref)
+        if row is None:
+            raise NotFoundError(f"No pose {ref!r} in {self.path}")
+        return row
 
     def pose(self, ref: str) -> PoseInfo:
         """A pose by id or name."""
@@ -307,31 +274,33 @@ class PoseLibrary:
         row = self._pose_row(ref)
         info = self._pose_info(row)
         t = self._table
+        start, count = t.value("rotation_start", row), t.value("rotation_count", row)
         with schema.open_checked(self.path) as f:
-            rot = f["poses"]["rotations"][t.rot_start[row]:t.rot_start[row] + t.rot_count[row]]
+            rot = f["poses"]["rotations"][start:start + count]
             sk = schema.read_skeleton(f["skeletons"][self.take(info.take).skeleton])
-        return info, sk, np.asarray(rot, dtype=np.float64), np.array(t.root[row])
-
-    def _tag_index(self):
-        if self._index is None:
-            self._index = membership(self._table.tags)
-        return self._index
+        return info, sk, np.asarray(rot, dtype=np.float64), t.root[row].copy()
 
     def find_poses(self, expr: str | None = None, *, take: str | None = None,
                    subject: str | None = None) -> list[PoseInfo]:
         """Poses matching a tag expression (see `posedb.tags`), a take and/or a subject."""
+        rows = self._matching_rows(expr, take, subject)
+        return [self._pose_info(int(r)) for r in rows]
+
+    def search_poses(self, expr: str | None = None, *, take: str | None = None,
+                     subject: str | None = None) -> list[str]:
+        """Names of the poses matching, as `find_poses` selects them (the fast path)."""
+        names = self._table.names
+        return [names[r] for r in self._matching_rows(expr, take, subject).tolist()]
+
+    def _matching_rows(self, expr, take, subject) -> np.ndarray:
         t = self._table
-        mask = np.ones(len(t), dtype=bool)
-        if expr:
-            matrix, vocab = self._tag_index()
-            mask &= compile_expression(expr)(matrix, vocab)
+        mask = t.mask(expr)
         if take is not None:
-            tid = _parse_id(self.take(take).id, "take-")
-            mask &= np.asarray(t.takes, dtype=np.int64) == tid
+            mask &= t.cols["take"] == _parse_id(self.take(take).id, "take-")
         if subject is not None:
-            wanted = {_parse_id(k, "take-") for k, v in self._takes.items() if v.subject == subject}
-            mask &= np.isin(np.asarray(t.takes, dtype=np.int64), list(wanted))
-        return [self._pose_info(int(r)) for r in np.flatnonzero(mask)]
+            wanted = [_parse_id(k, "take-") for k, v in self._takes.items() if v.subject == subject]
+            mask &= np.isin(t.cols["take"], wanted)
+        return np.flatnonzero(mask)
 
     def find_takes(self, expr: str | None = None, *, subject: str | None = None
                    ) -> list[TakeInfo]:
@@ -350,7 +319,7 @@ class PoseLibrary:
     def stats(self) -> dict:
         with schema.open_checked(self.path) as f:
             skeletons = len(f["skeletons"])
-        tags = sorted({t for tt in self._table.tags for t in tt}
+        tags = sorted(set(self._table.all_tags())
                       | {t for take in self._takes.values() for t in take.tags})
         return {
             "path": str(self.path), "schema_version": self.schema_version,
@@ -412,6 +381,7 @@ class Editor:
         self._table_dirty = False
         self._new_rotations: list[np.ndarray] = []
         self._rot_end = int(f["poses"]["rotations"].shape[0])
+        self._frames_cache: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
     # -- names ----------------------------------------------------------------------------
 
@@ -422,7 +392,7 @@ class Editor:
                                f"{name!r}")
         if kind == "take" and any(t.name == name for t in self.takes.values()):
             raise DuplicateNameError(f"A take named {name!r} already exists in {self.lib.path}")
-        if kind == "pose" and name in self.table.names:
+        if kind == "pose" and self.table.row_of(name) is not None:
             raise DuplicateNameError(f"A pose named {name!r} already exists in {self.lib.path}")
         return name
 
@@ -435,13 +405,23 @@ class Editor:
         raise NotFoundError(f"No take {ref!r} in {self.lib.path}")
 
     def _pose_row(self, ref: str) -> int:
-        num = _parse_id(ref, "pose-")
-        if num is not None and num in self.table.ids:
-            return self.table.ids.index(num)
-        try:
-            return self.table.names.index(ref)
-        except ValueError:
-            raise NotFoundError(f"No pose {ref!r} in {self.lib.path}") from None
+        row = self.table.row_of(ref)
+        if row is None:
+            raise NotFoundError(f"No pose {ref!r} in {self.lib.path}")
+        return row
+
+    def _frame_arrays(self, take: TakeInfo, frame: int) -> tuple[np.ndarray, tuple]:
+        """A frame's local rotations and root position, reading small takes only once."""
+        g = self.f["takes"][take.id]
+        cached = self._frames_cache.get(take.id)
+        if cached is None and g["local_rotations"].nbytes <= 64 << 20:
+            cached = (g["local_rotations"][:], g["root_positions"][:])
+            self._frames_cache[take.id] = cached
+        if cached is not None:
+            rot, root = cached[0][frame], cached[1][frame]
+        else:
+            rot, root = g["local_rotations"][frame], g["root_positions"][frame]
+        return np.asarray(rot, dtype=np.float32), tuple(float(x) for x in root)
 
     # -- takes ----------------------------------------------------------------------------
 
@@ -513,7 +493,7 @@ class Editor:
         """Deletes a take and the poses made from it."""
         take = self._take(ref)
         num = _parse_id(take.id, "take-")
-        rows = [r for r, t in enumerate(self.table.takes) if t == num]
+        rows = np.flatnonzero(self.table.mask(None) & (self.table.cols["take"] == num)).tolist()
         if rows:
             self.table.drop(rows)
             self._table_dirty = True
@@ -533,23 +513,12 @@ class Editor:
                                f"{info.name!r}, got {frame}")
         tags = normalise_tags(tags)
         mask = encode_supports(supports)
-        g = self.f["takes"][info.id]
-        rot = np.asarray(g["local_rotations"][frame], dtype=np.float32)
-        root = tuple(float(x) for x in g["root_positions"][frame])
+        rot, root = self._frame_arrays(info, frame)
         pid = self.next_pose
         self.next_pose += 1
-        t = self.table
-        t.ids.append(pid)
-        t.names.append(name)
-        t.takes.append(_parse_id(info.id, "take-"))
-        t.frames.append(frame)
-        t.tags.append(tags)
-        t.supports.append(mask)
-        t.notes.append(notes)
-        t.created.append(time.time())
-        t.rot_start.append(self._rot_end)
-        t.rot_count.append(rot.shape[0])
-        t.root.append(root)
+        self.table.append(id=pid, name=name, take=_parse_id(info.id, "take-"), frame=frame,
+                          tags=tags, supports=mask, notes=notes, created_at=time.time(),
+                          rotation_start=self._rot_end, rotation_count=rot.shape[0], root=root)
         self._rot_end += rot.shape[0]
         self._new_rotations.append(rot)
         self._table_dirty = True
@@ -565,7 +534,7 @@ class Editor:
             self.f["takes"][take.id].attrs["name"] = new_name
             self.takes[take.id] = replace(take, name=new_name)
             return
-        self.table.names[row] = self._check_name(new_name, "pose")
+        self.table.rename(row, self._check_name(new_name, "pose"))
         self._table_dirty = True
 
     def tag(self, ref: str, add: Iterable[str] = (), remove: Iterable[str] = ()) -> tuple:
@@ -580,8 +549,8 @@ class Editor:
             self.f["takes"][take.id].attrs["tags"] = " ".join(tags)
             self.takes[take.id] = replace(take, tags=tags)
             return tags
-        tags = tuple(sorted((set(self.table.tags[row]) | add) - remove))
-        self.table.tags[row] = tags
+        tags = tuple(sorted((set(self.table.tags(row)) | add) - remove))
+        self.table.set_tags(row, tags)
         self._table_dirty = True
         return tags
 
@@ -589,9 +558,9 @@ class Editor:
                  notes: str | None = None) -> None:
         row = self._pose_row(ref)
         if supports is not None:
-            self.table.supports[row] = encode_supports(supports)
+            self.table.set(row, "supports", encode_supports(supports))
         if notes is not None:
-            self.table.notes[row] = notes
+            self.table.set_notes(row, notes)
         self._table_dirty = True
 
     def delete_pose(self, ref: str) -> None:
@@ -611,51 +580,7 @@ class Editor:
             rot.resize((start + new.shape[0], 4))
             rot[start:] = new
         if self._table_dirty:
-            _write_pose_table(f["poses"], self.table)
-
-
-def _read_pose_table(g: h5py.Group) -> _PoseTable:
-    if "id" not in g:
-        return _PoseTable()
-    n = g["id"].shape[0]
-    if n == 0:
-        return _PoseTable()
-    return _PoseTable(
-        ids=g["id"][:].tolist(),
-        names=[s.decode("utf-8") for s in g["name"][:]],
-        takes=g["take"][:].tolist(),
-        frames=g["frame"][:].tolist(),
-        tags=[tuple(s.decode("utf-8").split()) for s in g["tags"][:]],
-        supports=g["supports"][:].tolist(),
-        notes=[s.decode("utf-8") for s in g["notes"][:]],
-        created=g["created_at"][:].tolist(),
-        rot_start=g["rotation_start"][:].tolist(),
-        rot_count=g["rotation_count"][:].tolist(),
-        root=[tuple(r) for r in g["root_position"][:].tolist()],
-    )
-
-
-def _write_pose_table(g: h5py.Group, t: _PoseTable) -> None:
-    columns = {
-        "id": (np.asarray(t.ids, dtype=np.int64), None),
-        "name": (t.names, _STR),
-        "take": (np.asarray(t.takes, dtype=np.int64), None),
-        "frame": (np.asarray(t.frames, dtype=np.int64), None),
-        "tags": ([" ".join(x) for x in t.tags], _STR),
-        "supports": (np.asarray(t.supports, dtype=np.uint8), None),
-        "notes": (t.notes, _STR),
-        "created_at": (np.asarray(t.created, dtype=np.float64), None),
-        "rotation_start": (np.asarray(t.rot_start, dtype=np.int64), None),
-        "rotation_count": (np.asarray(t.rot_count, dtype=np.int64), None),
-        "root_position": (np.asarray(t.root, dtype=np.float64).reshape(-1, 3), None),
-    }
-    for key, (data, dtype) in columns.items():
-        if key in g:
-            del g[key]
-        if dtype is not None:
-            g.create_dataset(key, data=np.array(data, dtype=object).reshape(-1), dtype=dtype)
-        else:
-            g.create_dataset(key, data=data)
+            self.table.write(f["poses"])
 
 
 # -- files ------------------------------------------------------------------------------------

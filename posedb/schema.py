@@ -13,12 +13,14 @@
                             streamed), local_rotations (T, J, 4) float32 xyzw, root_positions
                             (T, 3) float32 metres, frame_indices (T,) int64, and for streamed
                             takes received_at (T,) float64 Unix seconds
-    /poses                  one column per dataset, a row per pose: id int64, name str,
-                            take int64, frame int64 (0-based in the take), tags str
-                            (space-separated), supports uint8 (bit k: SUPPORT_PARTS[k]),
-                            notes str, created_at float64, root_position (P, 3) float64 metres,
-                            rotation_start / rotation_count int64 into rotations (R, 4) float32
-                            (each pose's own copy of its local rotations, xyzw)
+    /poses                  the pose table, one column per dataset (see `posedb.posetable`):
+                            id, take, frame (0-based in the take), rotation_start,
+                            rotation_count int64; supports uint8 (bit k: SUPPORT_PARTS[k]);
+                            created_at float64; root_position (P, 3) float64 metres;
+                            names_utf8 (names joined by line breaks); notes_utf8 +
+                            notes_offsets; tag_vocabulary (K,) str + tag_matrix (P, K) uint8;
+                            rotations (R, 4) float32: each pose's own copy of its local
+                            rotations (xyzw)
     /bodies, /scenarios     reserved for body shapes and scenarios
 
 A file of a newer schema is refused; an older one would be migrated by the functions in

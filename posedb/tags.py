@@ -14,12 +14,14 @@ from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
+from .schema import LibraryError
+
 _TAG = re.compile(r"[a-z0-9_][a-z0-9_.:\-]*")
 _TOKEN = re.compile(r"\s*(\(|\)|[^\s()]+)")
 KEYWORDS = ("and", "or", "not")
 
 
-class TagError(ValueError):
+class TagError(LibraryError):
     """A tag or tag expression that cannot be used."""
 
 

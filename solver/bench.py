@@ -13,11 +13,12 @@ from typing import Callable, Iterable
 
 from capture import bench as capture_bench
 from capture.bench import BenchCase
+from posedb import bench as posedb_bench
 
 
 def all_cases() -> list[BenchCase]:
     """Every benchmark entry of every package, in layer order."""
-    return list(capture_bench.cases())
+    return list(capture_bench.cases()) + list(posedb_bench.cases())
 
 
 class UnknownBenchmarkError(ValueError):

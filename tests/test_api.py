@@ -21,6 +21,21 @@ def test_capture_public_api():
         assert hasattr(capture, name)
 
 
+def test_posedb_public_api():
+    import posedb
+
+    assert sorted(posedb.__all__) == sorted([
+        "DuplicateNameError", "Editor", "HeldPosture", "LibraryError", "LockedError",
+        "NotFoundError", "PoseInfo", "PoseLibrary", "SCHEMA_VERSION", "SUPPORT_PARTS",
+        "SchemaError", "TagError", "TakeData", "TakeInfo", "compile_expression",
+        "held_postures", "record", "recordings", "recover",
+    ])
+    for name in ("DuplicateNameError", "LockedError", "NotFoundError", "SchemaError",
+                 "TagError"):
+        assert issubclass(getattr(posedb, name), posedb.LibraryError)
+    assert issubclass(posedb.LibraryError, ValueError)
+
+
 def test_errors_are_value_errors():
     for name in ("BvhParseError", "SkeletonError", "UnitError", "UnitUnknownError",
                  "NeuronStreamError", "LayoutMismatchError", "RawCaptureError", "ReplayError",
@@ -30,7 +45,9 @@ def test_errors_are_value_errors():
 
 def test_packages_import_without_optional_heavy_modules():
     # the capture layer must not pull in the solver's dependencies
-    code = ("import sys, capture, posedb; "
-            "bad = [m for m in ('igl', 'trimesh', 'osqp', 'h5py', 'solver') if m in sys.modules]; "
-            "assert not bad, bad")
+    code = ("import sys, capture; "
+            "bad = [m for m in ('igl', 'trimesh', 'osqp', 'h5py', 'posedb', 'solver') "
+            "if m in sys.modules]; assert not bad, bad; "
+            "import posedb; bad = [m for m in ('igl', 'trimesh', 'osqp', 'solver') "
+            "if m in sys.modules]; assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)
