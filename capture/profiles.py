@@ -47,12 +47,17 @@ _PN_ROLES = {
     "left_shoulder": "LeftShoulder", "left_upper_arm": "LeftArm", "left_forearm": "LeftForeArm",
     "left_hand": "LeftHand", "right_shoulder": "RightShoulder", "right_upper_arm": "RightArm",
     "right_forearm": "RightForeArm", "right_hand": "RightHand",
+    "left_toe": "end:LeftFoot", "right_toe": "end:RightFoot",
+    "left_fingers": "LeftHandMiddle1", "right_fingers": "RightHandMiddle1", "head_top": "end:Head",
 }
 
 
 @dataclass(frozen=True)
 class Profile:
-    """A known skeleton: its joints, its file length unit and its joints' anatomical roles."""
+    """A known skeleton: its joints, its file length unit and its joints' anatomical roles.
+
+    A role names a joint, or `end:JOINT` for the first End Site of that joint.
+    """
 
     name: str
     description: str
@@ -82,6 +87,9 @@ PROFILES: dict[str, Profile] = {
             "left_forearm": "LeftForeArm", "left_hand": "LeftHand",
             "right_shoulder": "RightShoulder", "right_upper_arm": "RightArm",
             "right_forearm": "RightForeArm", "right_hand": "RightHand",
+            "left_toe": "LeftToeBase", "right_toe": "RightToeBase",
+            "left_fingers": "LeftHandIndex1", "right_fingers": "RightHandIndex1",
+            "head_top": "end:Head",
         },
     ),
 }

@@ -1,0 +1,242 @@
+"""Bodies of any shape, from the MakeHuman CC0 base mesh, macro targets and CMU-MB rig.
+
+A body is made from shape parameters in [0, 1] that follow MakeHuman's macro modifiers: gender
+(0 female .. 1 male), age (0 baby, 0.1875 child, 0.5 young adult, 1 old), muscle, weight, height
+and proportions (0.5 each is average), and race weights. Each macro target moves the base mesh by
+its offsets times the product of the weights its states get from the parameters (for example
+`universal-male-young-maxmuscle-averageweight` by male x young x maxmuscle x averageweight).
+
+The body is in metres, Y up, facing +Z, standing with its feet on y = 0 and its pelvis over the
+origin. Its rig's joints sit at the centres of the joint cubes of the shaped mesh, so they follow
+the shape. Mass is the enclosed volume times `BODY_DENSITY`.
+"""
+
+from __future__ import annotations
+
+import io
+import lzma
+from dataclasses import dataclass, field, fields
+from functools import cached_property, lru_cache
+from importlib import resources
+
+import numpy as np
+import scipy.sparse as sp
+
+BODY_DENSITY = 1010.0  # kg/m^3: whole-body density with air in the lungs
+DM = 0.1  # metres per asset unit (decimetres)
+BODY_PARTS = ("head", "torso", "arms", "hands", "legs", "feet")
+
+# Which part each CMU-MB bone's weights belong to.
+_BONE_PART = {
+    "Head": "head", "Neck": "head", "Neck1": "head",
+    "Hips": "torso", "LowerBack": "torso", "Spine": "torso", "Spine1": "torso",
+    "LHipJoint": "torso", "RHipJoint": "torso", "LeftShoulder": "torso", "RightShoulder": "torso",
+    "LeftArm": "arms", "LeftForeArm": "arms", "RightArm": "arms", "RightForeArm": "arms",
+    "LeftHand": "hands", "LeftFingerBase": "hands", "LeftHandFinger1": "hands", "LThumb": "hands",
+    "RightHand": "hands", "RightFingerBase": "hands", "RightHandFinger1": "hands",
+    "RThumb": "hands",
+    "LeftUpLeg": "legs", "LeftLeg": "legs", "RightUpLeg": "legs", "RightLeg": "legs",
+    "LeftFoot": "feet", "LeftToeBase": "feet", "RightFoot": "feet", "RightToeBase": "feet",
+}
+
+
+class BodyShapeError(ValueError):
+    """Shape parameters outside what the body model accepts."""
+
+
+@dataclass(frozen=True)
+class BodyShape:
+    """Shape parameters, each in [0, 1]; the defaults give MakeHuman's average adult."""
+
+    gender: float = 0.5
+    age: float = 0.5
+    muscle: float = 0.5
+    weight: float = 0.5
+    height: float = 0.5
+    proportions: float = 0.5
+    african: float = 1 / 3
+    asian: float = 1 / 3
+    caucasian: float = 1 / 3
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            try:
+                value = float(value)
+            except (TypeError, ValueError):
+                raise BodyShapeError(f"Expected a number for body {f.name}, got {value!r}") from None
+            if not (0.0 <= value <= 1.0):
+                raise BodyShapeError(f"Expected body {f.name} in [0, 1], got {value}")
+            object.__setattr__(self, f.name, value)
+        if self.african + self.asian + self.caucasian <= 0:
+            raise BodyShapeError("Expected race weights that are not all zero")
+
+    @classmethod
+    def from_mapping(cls, values: dict) -> "BodyShape":
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise BodyShapeError(f"Expected body parameters from {sorted(known)}, got {unknown}")
+        return cls(**values)
+
+    def as_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    @property
+    def age_years(self) -> float:
+        """MakeHuman's age scale: 1 year at 0, 11 at 0.1875, 25 at 0.5, 90 at 1."""
+        a = self.age
+        if a < 0.1875:
+            return 1 + a / 0.1875 * 10
+        if a < 0.5:
+            return 11 + (a - 0.1875) / 0.3125 * 14
+        return 25 + (a - 0.5) / 0.5 * 65
+
+    def state_weights(self) -> dict[str, float]:
+        """Weight of every named macro state (female, young, maxweight, asian, ...)."""
+        g, a, m, w, h, p = self.gender, self.age, self.muscle, self.weight, self.height, \
+            self.proportions
+        s = {"female": 1 - g, "male": g}
+        if a < 0.5:
+            baby = max(0.0, 1 - a / 0.1875)
+            young = max(0.0, (a - 0.1875) / 0.3125)
+            s.update(baby=baby, child=max(0.0, min(1.0, a / 0.1875) - young), young=young, old=0)
+        else:
+            s.update(baby=0, child=0, old=2 * a - 1, young=2 - 2 * a)
+        for name, v in (("muscle", m), ("weight", w)):
+            if v < 0.5:
+                s.update({f"min{name}": 1 - 2 * v, f"average{name}": 2 * v, f"max{name}": 0})
+            else:
+                s.update({f"min{name}": 0, f"average{name}": 2 - 2 * v, f"max{name}": 2 * v - 1})
+        s.update(minheight=max(0.0, 1 - 2 * h), maxheight=max(0.0, 2 * h - 1))
+        s.update(uncommonproportions=max(0.0, 1 - 2 * p), idealproportions=max(0.0, 2 * p - 1))
+        total = self.african + self.asian + self.caucasian
+        s.update(african=self.african / total, asian=self.asian / total,
+                 caucasian=self.caucasian / total)
+        return s
+
+
+@lru_cache(maxsize=1)
+def _assets() -> dict:
+    blob = (resources.files("solver") / "data" / "makehuman_body.npz.xz").read_bytes()
+    with np.load(io.BytesIO(lzma.decompress(blob))) as data:
+        assets = {k: data[k] for k in data.files}
+    names = [str(n) for n in assets["target_names"]]
+    # each target's states: "height/female-young-averagemuscle-minweight-maxheight" ->
+    # female, young, averagemuscle, minweight, maxheight ("universal" is no state)
+    assets["target_states"] = [
+        [s for s in n.rsplit("/", 1)[-1].split("-") if s != "universal"] for n in names
+    ]
+    return assets
+
+
+def _mean_rows(points: np.ndarray, index: np.ndarray, ptr: np.ndarray) -> np.ndarray:
+    sums = np.add.reduceat(points[index], ptr[:-1], axis=0)
+    return sums / np.diff(ptr)[:, None]
+
+
+@dataclass(frozen=True, eq=False)
+class Body:
+    """A shaped body in its rest pose, with its rig.
+
+    vertices : (V, 3) float metres, the skin (no helper geometry).
+    faces : (F, 4) int quads; `triangles` (2F, 3) splits each along its first diagonal.
+    joint_names, parents : the rig (CMU-MB: names match CMU BVH files), parents first.
+    joints : (J, 3) rest positions of the joints (bone heads), metres.
+    tails : (J, 3) rest positions of the bone tails (where a leaf bone ends).
+    weights : (V, J) scipy.sparse CSR skinning weights, non-negative, rows summing to 1.
+    parts : (V,) int index into BODY_PARTS: the part whose bones weigh most on the vertex.
+    """
+
+    shape: BodyShape
+    vertices: np.ndarray
+    faces: np.ndarray
+    joint_names: tuple[str, ...]
+    parents: np.ndarray
+    joints: np.ndarray
+    tails: np.ndarray
+    weights: sp.csr_matrix
+    parts: np.ndarray = field(repr=False)
+
+    @cached_property
+    def triangles(self) -> np.ndarray:
+        return np.concatenate([self.faces[:, [0, 1, 2]], self.faces[:, [0, 2, 3]]])
+
+    @cached_property
+    def normals(self) -> np.ndarray:
+        """(V, 3) rest-pose unit normals, area-weighted over the incident triangles."""
+        import igl
+
+        return igl.per_vertex_normals(self.vertices, self.triangles,
+                                      igl.PER_VERTEX_NORMALS_WEIGHTING_TYPE_AREA)
+
+    @cached_property
+    def height_m(self) -> float:
+        return float(np.ptp(self.vertices[:, 1]))
+
+    @cached_property
+    def volume_m3(self) -> float:
+        """Enclosed volume (divergence theorem over the closed skin)."""
+        v = self.vertices[self.triangles]
+        return float(np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6.0)
+
+    @cached_property
+    def mass_kg(self) -> float:
+        return self.volume_m3 * BODY_DENSITY
+
+    def joint_index(self, name: str) -> int:
+        try:
+            return self.joint_names.index(name)
+        except ValueError:
+            raise KeyError(f"No joint {name!r}; joints are {list(self.joint_names)}") from None
+
+    def part_mask(self, parts) -> np.ndarray:
+        """(V,) bool: vertices of the named body parts."""
+        wanted = []
+        for p in parts:
+            if p not in BODY_PARTS:
+                raise BodyShapeError(f"Expected body parts from {BODY_PARTS}, got {p!r}")
+            wanted.append(BODY_PARTS.index(p))
+        return np.isin(self.parts, wanted)
+
+    def summary(self) -> dict:
+        return {"shape": self.shape.as_dict(), "age_years": self.shape.age_years,
+                "height_m": self.height_m, "mass_kg": self.mass_kg,
+                "volume_m3": self.volume_m3, "vertices": int(len(self.vertices)),
+                "faces": int(len(self.faces)), "joints": int(len(self.joint_names))}
+
+
+@lru_cache(maxsize=32)
+def make_body(shape: BodyShape = BodyShape()) -> Body:
+    """The body of a shape (cached: bodies are immutable)."""
+    assets = _assets()
+    weights = shape.state_weights()
+    factors = np.array([np.prod([weights[s] for s in states])
+                        for states in assets["target_states"]])
+    active = np.flatnonzero(factors)
+    points = assets["base_dm"].astype(np.float64)
+    if active.size:
+        deltas = assets["target_deltas"][active].astype(np.float64)
+        points = points + np.tensordot(factors[active], deltas, axes=1) * assets["delta_unit_dm"]
+    points *= DM
+    n_skin = int(assets["skin_vertices"])
+    joints = _mean_rows(points, assets["head_index"], assets["head_ptr"])
+    tails = _mean_rows(points, assets["tail_index"], assets["tail_ptr"])
+    skin = points[:n_skin]
+    # stand on the floor with the pelvis over the origin
+    offset = np.array([joints[0, 0], skin[:, 1].min(), joints[0, 2]])
+    skin, joints, tails = skin - offset, joints - offset, tails - offset
+    names = tuple(str(n) for n in assets["bone_names"])
+    w = sp.csr_matrix(
+        (assets["weight_values"].astype(np.float64),
+         (assets["weight_rows"], assets["weight_cols"].astype(np.int64))),
+        shape=(n_skin, len(names)),
+    )
+    part_of_bone = np.array([BODY_PARTS.index(_BONE_PART[n]) for n in names])
+    per_part = (w @ sp.csr_matrix((np.ones(len(names)), (np.arange(len(names)), part_of_bone)),
+                                  shape=(len(names), len(BODY_PARTS)))).toarray()
+    for arr in (skin, joints, tails):
+        arr.setflags(write=False)
+    return Body(shape, skin, assets["faces"].astype(np.int64), names,
+                assets["bone_parents"].astype(np.int64), joints, tails, w,
+                per_part.argmax(axis=1).astype(np.int8))

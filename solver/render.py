@@ -1,0 +1,117 @@
+"""Headless PNG pictures of meshes (no display, no GPU): matplotlib's Agg canvas.
+
+Meshes are projected orthographically, faces turned away from the camera are culled, and the
+rest are drawn far to near (painter's algorithm) with flat Lambert shading. That suffices for
+bodies and smooth surfaces seen from outside, which is all the pictures show.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+VIEWS = {
+    # direction from the scene towards the camera (Y up, bodies face +Z)
+    "front": (0.0, 0.15, 1.0),
+    "side": (1.0, 0.15, 0.0),
+    "three-quarter": (0.8, 0.45, 1.0),
+    "top": (0.0, 1.0, 0.05),
+}
+SKIN = (0.86, 0.72, 0.62)
+SURFACE = (0.55, 0.68, 0.82)
+
+
+@dataclass
+class MeshView:
+    """A mesh to draw: vertices (V, 3), faces (F, 3) or (F, 4), and a colour: one RGB, or
+    per-face (F, 3) or per-vertex (V, 3) RGB values in [0, 1]."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    color: Sequence[float] | np.ndarray = SKIN
+    edges: bool = False
+
+
+def _camera(view: str | Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    d = np.asarray(VIEWS[view] if isinstance(view, str) else view, dtype=float)
+    if isinstance(view, str) and view not in VIEWS:
+        raise ValueError(f"Expected a view from {sorted(VIEWS)} or a direction, got {view!r}")
+    back = d / np.linalg.norm(d)  # towards the camera
+    up = np.array([0.0, 1.0, 0.0]) if abs(back[1]) < 0.95 else np.array([0.0, 0.0, -1.0])
+    right = np.cross(up, back)
+    right /= np.linalg.norm(right)
+    return right, np.cross(back, right), back
+
+
+def render_png(path: str | os.PathLike, meshes: Sequence[MeshView], *,
+               view: str | Sequence[float] = "three-quarter", size: tuple[int, int] = (800, 800),
+               title: str | None = None, light: Sequence[float] = (0.4, 0.8, 0.6),
+               colorbar: tuple[str, float, float] | None = None) -> Path:
+    """Renders meshes to a PNG file and returns its path.
+
+    colorbar : optional (label, low, high) drawn with the viridis scale the caller coloured by.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.collections import PolyCollection
+    from matplotlib.figure import Figure
+
+    right, up, back = _camera(view)
+    light = np.asarray(light, dtype=float)
+    light /= np.linalg.norm(light)
+    polys, colors, depths = [], [], []
+    for mesh in meshes:
+        v = np.asarray(mesh.vertices, dtype=float)
+        f = np.asarray(mesh.faces)
+        corners = v[f]  # (F, k, 3)
+        normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        if f.shape[1] == 4:
+            normal += np.cross(corners[:, 2] - corners[:, 0], corners[:, 3] - corners[:, 0])
+        normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+        facing = normal @ back > 0
+        col = np.asarray(mesh.color, dtype=float)
+        if col.ndim == 1:
+            col = np.broadcast_to(col, (len(f), 3))
+        elif len(col) == len(v) and len(v) != len(f):
+            col = col[f].mean(axis=1)
+        shade = 0.35 + 0.65 * np.clip(normal @ light, 0, 1)
+        keep = np.flatnonzero(facing)
+        xy = np.stack([corners @ right, corners @ up], axis=-1)[keep]
+        polys.extend(xy)
+        colors.append(np.clip(col[keep] * shade[keep, None], 0, 1))
+        depths.append((corners @ back).mean(axis=1)[keep])
+    order = np.argsort(np.concatenate(depths)) if depths else np.zeros(0, dtype=int)
+    colors_all = np.concatenate(colors)[order] if colors else np.zeros((0, 3))
+    polys = [polys[k] for k in order]
+
+    fig = Figure(figsize=(size[0] / 100, size[1] / 100), dpi=100)
+    FigureCanvasAgg(fig)
+    ax = fig.add_axes([0.02, 0.02, 0.96, 0.9 if title else 0.96])
+    ax.add_collection(PolyCollection(polys, facecolors=colors_all, edgecolors="none",
+                                     antialiased=False))
+    if polys:
+        pts = np.concatenate(polys)
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        pad = 0.05 * (hi - lo).max()
+        ax.set_xlim(lo[0] - pad, hi[0] + pad)
+        ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    ax.set_aspect("equal")
+    ax.axis("off")
+    if title:
+        fig.suptitle(title, fontsize=12)
+    if colorbar is not None:
+        from matplotlib import cm
+        from matplotlib.colors import Normalize
+
+        label, low, high = colorbar
+        sm = cm.ScalarMappable(norm=Normalize(low, high), cmap="viridis")
+        fig.colorbar(sm, ax=ax, fraction=0.03, pad=0.01, label=label)
+    path = Path(path)
+    fig.savefig(path, facecolor="white")
+    return path

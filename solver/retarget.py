@@ -1,0 +1,312 @@
+"""Retargeting captured skeletons onto a body's rig.
+
+The captured posture is transferred by bone directions, so rest poses (T-pose or A-pose), bone
+lengths and joint counts may all differ. For every rig joint a target point is taken from the
+captured joints: the joint playing the same anatomical role (see `capture.profiles`), or, along
+the spine and neck, the point at the same fraction of the captured chain's length. Then, parents
+first, each rig joint turns so that its bones point at the targets of its children: by the
+smallest rotation when it has one such child, and by the best-fitting rotation (Kabsch) when it
+has several (the pelvis: both hips and the spine; the chest: the neck and both shoulders), which
+also fixes its twist. Joints with no target keep their rest pose relative to their parent.
+
+The root moves as the captured hips do, scaled by the ratio of leg lengths, so a seat height
+scales with the body; `place` can then put the lowest skin point or the pelvis at a height.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+from capture import PROFILES, Skeleton, WorldPose, skeleton_fk
+from capture.profiles import strip_namespace
+
+from .body import Body
+from .skinning import skin
+
+# Rig joint -> role it takes its target from.
+RIG_ROLES = {
+    "Hips": "hips", "LeftUpLeg": "left_upper_leg", "LeftLeg": "left_lower_leg",
+    "LeftFoot": "left_foot", "LeftToeBase": "left_toe", "RightUpLeg": "right_upper_leg",
+    "RightLeg": "right_lower_leg", "RightFoot": "right_foot", "RightToeBase": "right_toe",
+    "Neck": "neck", "Head": "head", "LeftShoulder": "left_shoulder", "LeftArm": "left_upper_arm",
+    "LeftForeArm": "left_forearm", "LeftHand": "left_hand", "LeftFingerBase": "left_fingers",
+    "RightShoulder": "right_shoulder", "RightArm": "right_upper_arm",
+    "RightForeArm": "right_forearm", "RightHand": "right_hand",
+    "RightFingerBase": "right_fingers",
+}
+# Rig joints placed along a captured chain: (chain start role, chain end role, joints).
+RIG_CHAINS = (("hips", "neck", ("LowerBack", "Spine", "Spine1")), ("neck", "head", ("Neck1",)))
+# A leaf joint aims its bone's tail at this role.
+RIG_TAILS = {"Head": "head_top"}
+# Joints oriented by the best fit (Kabsch) to several targets, which fixes their twist, and then
+# turned to point exactly along the first, the chain that carries the posture. The chest aims
+# at the shoulder joints, not at the clavicles' roots, which some skeletons put at the neck.
+FIT_AIMS = {"Hips": ("LowerBack", "LeftUpLeg", "RightUpLeg"),
+            "Spine1": ("Neck", "LeftArm", "RightArm")}
+REQUIRED_ROLES = ("hips", "neck", "head", "left_upper_leg", "left_lower_leg", "left_foot",
+                  "right_upper_leg", "right_lower_leg", "right_foot", "left_upper_arm",
+                  "left_forearm", "left_hand", "right_upper_arm", "right_forearm", "right_hand")
+
+
+class RetargetError(ValueError):
+    """A skeleton that cannot be retargeted as given (unknown joints, missing roles)."""
+
+
+def joint_map_for(skeleton: Skeleton, profile: str | None = None,
+                  joint_map: Mapping[str, str] | None = None) -> dict[str, str]:
+    """Role -> joint name for a captured skeleton: the profile's, overridden by `joint_map`."""
+    from capture import identify_profile
+
+    roles: dict[str, str] = {}
+    profile = profile or identify_profile(skeleton.names)
+    if profile is not None:
+        by_plain = {strip_namespace(n): n for n in skeleton.names}
+        for role, name in PROFILES[profile].roles.items():
+            end = name.startswith("end:")
+            plain = name.removeprefix("end:")
+            if plain in by_plain:
+                roles[role] = ("end:" if end else "") + by_plain[plain]
+    roles.update(joint_map or {})
+    missing = [r for r in REQUIRED_ROLES if r not in roles]
+    if missing:
+        raise RetargetError(
+            f"Expected a joint for each of the roles {missing}: the skeleton matches no known "
+            "profile, so give a joint map (role -> joint name)"
+        )
+    for role, name in roles.items():
+        if name.removeprefix("end:") not in skeleton.names:
+            raise RetargetError(f"Joint map names {name!r} for role {role!r}, but the skeleton "
+                                f"has no such joint")
+    return roles
+
+
+def role_positions(skeleton: Skeleton, pose: WorldPose, roles: Mapping[str, str]
+                   ) -> dict[str, np.ndarray]:
+    """(..., 3) world position of each role's joint (or end site) in metres."""
+    out = {}
+    unit = skeleton.require_unit()
+    for role, name in roles.items():
+        if name.startswith("end:"):
+            j = skeleton.index(name[4:])
+            sites = np.flatnonzero(skeleton.end_site_parents == j)
+            if not sites.size:
+                continue
+            off = skeleton.end_sites[sites[0]] * unit
+            out[role] = pose.positions[..., j, :] + pose.rotmats[..., j, :, :] @ off
+        else:
+            out[role] = pose.positions[..., skeleton.index(name), :]
+    return out
+
+
+def _chain(skeleton: Skeleton, start: str, end: str) -> list[int]:
+    """Joint indices from `start` down to `end` (end's ancestors up to start)."""
+    s, e = skeleton.index(start), skeleton.index(end)
+    path = [e]
+    while path[-1] != s:
+        p = int(skeleton.parents[path[-1]])
+        if p < 0:
+            raise RetargetError(f"Joint {end!r} does not descend from {start!r}")
+        path.append(p)
+    return path[::-1]
+
+
+def _along(points: np.ndarray, fractions: np.ndarray) -> np.ndarray:
+    """Points at arc-length fractions along polylines. points (..., K, 3) -> (..., F, 3)."""
+    seg = np.linalg.norm(np.diff(points, axis=-2), axis=-1)  # (..., K-1)
+    cum = np.concatenate([np.zeros(seg.shape[:-1] + (1,)), np.cumsum(seg, axis=-1)], axis=-1)
+    total = np.maximum(cum[..., -1:], 1e-12)
+    rel = cum / total  # (..., K)
+    out = np.empty(points.shape[:-2] + (len(fractions), 3))
+    for i, f in enumerate(fractions):
+        k = np.clip((rel < f).sum(axis=-1) - 1, 0, points.shape[-2] - 2)  # segment index
+        r0 = np.take_along_axis(rel, k[..., None], -1)[..., 0]
+        r1 = np.take_along_axis(rel, k[..., None] + 1, -1)[..., 0]
+        t = np.clip((f - r0) / np.maximum(r1 - r0, 1e-12), 0, 1)[..., None]
+        p0 = np.take_along_axis(points, k[..., None, None].repeat(3, -1), -2)[..., 0, :]
+        p1 = np.take_along_axis(points, k[..., None, None].repeat(3, -1) + 1, -2)[..., 0, :]
+        out[..., i, :] = p0 + t * (p1 - p0)
+    return out
+
+
+def _swing(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) the smallest rotation turning direction a onto direction b (the identity
+    where b is shorter than a tenth of a millimetre: no direction to follow)."""
+    from scipy.spatial.transform import Rotation
+
+    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    length = np.linalg.norm(b, axis=-1, keepdims=True)
+    b = np.where(length > 1e-4, b / np.maximum(length, 1e-300), a)
+    axis = np.cross(a, b)
+    sin = np.linalg.norm(axis, axis=-1, keepdims=True)
+    cos = np.sum(a * b, axis=-1, keepdims=True)
+    angle = np.arctan2(sin, cos)
+    # opposite directions: any axis perpendicular to a
+    perp = np.cross(a, np.where(np.abs(a[..., :1]) < 0.9, [1.0, 0, 0], [0, 1.0, 0]))
+    axis = np.where(sin > 1e-9, axis / np.maximum(sin, 1e-300),
+                    perp / np.linalg.norm(perp, axis=-1, keepdims=True))
+    rotvec = (axis * angle).reshape(-1, 3)
+    return Rotation.from_rotvec(rotvec).as_matrix().reshape(a.shape + (3,))
+
+
+def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotation R minimising sum |R src_k - dst_k|^2; src, dst (..., K, 3)."""
+    h = np.swapaxes(src, -1, -2) @ dst  # (..., 3, 3) = sum_k src_k dst_k^T
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(np.swapaxes(vt, -1, -2) @ np.swapaxes(u, -1, -2)))
+    fix = np.ones(d.shape + (3,))
+    fix[..., 2] = d
+    return np.swapaxes(vt, -1, -2) @ (fix[..., :, None] * np.swapaxes(u, -1, -2))
+
+
+@dataclass(frozen=True, eq=False)
+class RigMotion:
+    """A body's rig posed over frames: local rotations and root positions, and world frames.
+
+    local_rotmats : (T, J, 3, 3); root_positions : (T, 3) metres; world : WorldPose (T, J).
+    """
+
+    body: Body
+    local_rotmats: np.ndarray
+    root_positions: np.ndarray
+    world: WorldPose
+
+    def frame(self, t: int) -> WorldPose:
+        return WorldPose(self.world.positions[t], self.world.rotmats[t])
+
+
+def _targets(body: Body, roles_pos: dict[str, np.ndarray], batch: tuple) -> dict[int, np.ndarray]:
+    """Target point of each rig joint that has one, (..., 3)."""
+    names = body.joint_names
+    targets = {}
+    for joint, role in RIG_ROLES.items():
+        if joint in names and role in roles_pos:
+            targets[names.index(joint)] = roles_pos[role]
+    for start, end, joints in RIG_CHAINS:
+        if start not in roles_pos or end not in roles_pos:
+            continue
+        rig_path = [RIG_ROLES_INV[start]] + list(joints) + [RIG_ROLES_INV[end]]
+        pts = body.joints[[names.index(n) for n in rig_path]]
+        seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        fractions = np.cumsum(seg)[:-1] / seg.sum()
+        src = roles_pos.get(f"_chain:{start}:{end}")
+        if src is None:
+            src = np.stack([roles_pos[start], roles_pos[end]], axis=-2)
+        placed = _along(src, fractions)
+        for k, joint in enumerate(joints):
+            targets[names.index(joint)] = placed[..., k, :]
+    return targets
+
+
+RIG_ROLES_INV = {v: k for k, v in RIG_ROLES.items()}
+
+
+def solve_rig(body: Body, roles_pos: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """World rotations (..., J, 3, 3) of the rig that point its bones at the role targets, and
+    the local rotations (..., J, 3, 3) they amount to."""
+    batch = roles_pos["hips"].shape[:-1]
+    targets = _targets(body, roles_pos, batch)
+    names, parents, rest = body.joint_names, body.parents, body.joints
+    n = len(names)
+    children = {j: [c for c in range(n) if parents[c] == j] for j in range(n)}
+    world = np.empty(batch + (n, 3, 3))
+    local = np.empty(batch + (n, 3, 3))
+    eye = np.broadcast_to(np.eye(3), batch + (3, 3))
+    for j in range(n):
+        p = int(parents[j])
+        inherited = eye if p < 0 else world[..., p, :, :]
+        base = targets.get(j)
+        if base is None and p >= 0 and p in targets and np.linalg.norm(rest[j] - rest[p]) < 1e-6:
+            base = targets[p]  # a zero-length bone sits where its parent does
+            targets[j] = base
+        fit = [names.index(a) for a in FIT_AIMS.get(names[j], ()) if a in names]
+        if base is not None and fit and all(c in targets for c in fit):
+            src = np.stack([(rest[c] - rest[j]) / np.linalg.norm(rest[c] - rest[j]) for c in fit])
+            dst = np.stack([targets[c] - base for c in fit], axis=-2)
+            dst = dst / np.maximum(np.linalg.norm(dst, axis=-1, keepdims=True), 1e-12)
+            best = _kabsch(np.broadcast_to(src, dst.shape), dst)
+            c = fit[0]
+            world[..., j, :, :] = _swing(best @ (rest[c] - rest[j]), targets[c] - base) @ best
+        else:
+            aim = None  # the first child (or grandchild past a zero-length bone) with a target
+            for c in children[j]:
+                if np.linalg.norm(rest[c] - rest[j]) < 1e-6:
+                    grand = [g for g in children[c] if g in targets]
+                    if grand:
+                        aim = grand[0]
+                        break
+                elif c in targets:
+                    aim = c
+                    break
+            tail_role = RIG_TAILS.get(names[j])
+            if base is not None and aim is not None:
+                cur = inherited @ (rest[aim] - rest[j])
+                world[..., j, :, :] = _swing(cur, targets[aim] - base) @ inherited
+            elif base is not None and tail_role in roles_pos:
+                cur = inherited @ (body.tails[j] - rest[j])
+                world[..., j, :, :] = _swing(cur, roles_pos[tail_role] - base) @ inherited
+            else:
+                world[..., j, :, :] = inherited
+        local[..., j, :, :] = world[..., j, :, :] if p < 0 else \
+            np.swapaxes(world[..., p, :, :], -1, -2) @ world[..., j, :, :]
+    return world, local
+
+
+def leg_length(positions: Mapping[str, np.ndarray]) -> float:
+    """Mean of the two legs' hip-knee plus knee-ankle lengths."""
+    total = 0.0
+    for side in ("left", "right"):
+        hip, knee, ankle = (np.asarray(positions[f"{side}_{r}"])
+                            for r in ("upper_leg", "lower_leg", "foot"))
+        total += np.linalg.norm(knee - hip) + np.linalg.norm(ankle - knee)
+    return total / 2
+
+
+def retarget(skeleton: Skeleton, channels: np.ndarray, body: Body, *,
+             profile: str | None = None, joint_map: Mapping[str, str] | None = None
+             ) -> RigMotion:
+    """The body's rig in the captured posture for every frame.
+
+    channels : (T, C) raw channels of `skeleton` (its unit must be known).
+    """
+    channels = np.atleast_2d(np.asarray(channels, dtype=np.float64))
+    roles = joint_map_for(skeleton, profile, joint_map)
+    pose = skeleton_fk(skeleton, channels)
+    pos = role_positions(skeleton, pose, roles)
+    # the captured spine as a polyline, for placing the rig's spine joints along it
+    for start, end, _ in RIG_CHAINS:
+        if not (roles[start].startswith("end:") or roles[end].startswith("end:")):
+            path = _chain(skeleton, roles[start], roles[end])
+            pos[f"_chain:{start}:{end}"] = pose.positions[:, path, :]
+    rest = skeleton_fk(skeleton, np.zeros(skeleton.num_channels)[None])  # offsets only
+    rest_pos = role_positions(skeleton, WorldPose(rest.positions[0], rest.rotmats[0]),
+                              {k: v for k, v in roles.items() if not v.startswith("end:")})
+    rig_rest = {role: body.joints[body.joint_index(j)] for j, role in RIG_ROLES.items()
+                if j in body.joint_names}
+    scale = leg_length(rig_rest) / leg_length(rest_pos)
+    world, local = solve_rig(body, pos)
+    root = pos["hips"] * scale
+    from .skinning import rig_pose
+
+    return RigMotion(body, local, root, rig_pose(body, local, root))
+
+
+def place(motion: RigMotion, *, lowest: float | None = None, pelvis: float | None = None
+          ) -> RigMotion:
+    """Moves each frame vertically: its lowest skin point, or its pelvis, to the given height."""
+    if (lowest is None) == (pelvis is None):
+        raise ValueError("Expected exactly one of lowest= or pelvis=")
+    root = motion.root_positions.copy()
+    for t in range(len(root)):
+        if pelvis is not None:
+            dy = pelvis - motion.world.positions[t, 0, 1]
+        else:
+            verts, _ = skin(motion.body, motion.frame(t), normals=False)
+            dy = lowest - verts[:, 1].min()
+        root[t, 1] += dy
+    from .skinning import rig_pose
+
+    return RigMotion(motion.body, motion.local_rotmats, root,
+                     rig_pose(motion.body, motion.local_rotmats, root))
