@@ -1,5 +1,37 @@
-"""Body model, pressure, Catmull-Clark fitting, relaxation, evaluation and export.
+"""Body model, retargeting, skinning, pressure, Catmull-Clark fitting, relaxation, evaluation,
+export and batch runs. Depends on `capture` and `posedb`.
 
-Depends on `capture` and `posedb`. For now it holds the `sitrelax` command and the benchmark
-runner; the solving stages arrive with their issues.
+Conventions as everywhere: metres, Y up, gravity along -Y, bodies face +Z.
 """
+
+from .body import BODY_PARTS, Body, BodyShape, BodyShapeError, make_body
+from .export import ExportError, write_mesh
+from .poses import CapturedPose, PoseSourceError, load_pose, pose_body
+from .render import MeshView, render_png
+from .retarget import RetargetError, RigMotion, joint_map_for, place, retarget, retarget_pose
+from .skinning import rest_pose, rig_pose, skin
+
+__all__ = [
+    "BODY_PARTS",
+    "Body",
+    "BodyShape",
+    "BodyShapeError",
+    "CapturedPose",
+    "ExportError",
+    "MeshView",
+    "PoseSourceError",
+    "RetargetError",
+    "RigMotion",
+    "joint_map_for",
+    "load_pose",
+    "make_body",
+    "place",
+    "pose_body",
+    "render_png",
+    "rest_pose",
+    "retarget",
+    "retarget_pose",
+    "rig_pose",
+    "skin",
+    "write_mesh",
+]

@@ -16,9 +16,32 @@ from capture.bench import BenchCase
 from posedb import bench as posedb_bench
 
 
+def _skinning_setup():
+    from .body import make_body
+    from .poses import load_pose, pose_body
+
+    body = make_body()
+    motion = pose_body(load_pose("bundled:cmu_75_18_high_sit.bvh#frame=39"), body)
+    return body, motion.frame(0)
+
+
+def _skinning(arg):
+    from .skinning import skin
+
+    body, pose = arg
+    return skin(body, pose)
+
+
+def solver_cases() -> list[BenchCase]:
+    return [
+        BenchCase("skinning", "pose the 13,380-vertex body (vertices and normals), one frame",
+                  _skinning_setup, _skinning, repeats=50),
+    ]
+
+
 def all_cases() -> list[BenchCase]:
     """Every benchmark entry of every package, in layer order."""
-    return list(capture_bench.cases()) + list(posedb_bench.cases())
+    return list(capture_bench.cases()) + list(posedb_bench.cases()) + solver_cases()
 
 
 class UnknownBenchmarkError(ValueError):

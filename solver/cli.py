@@ -21,6 +21,77 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+SHAPE_PARAMS = ("gender", "age", "muscle", "weight", "height", "proportions")
+
+
+def add_shape_args(parser: argparse.ArgumentParser) -> None:
+    """Body shape options, each in [0, 1] (MakeHuman's macro sliders; 0.5 is average)."""
+    for name in SHAPE_PARAMS:
+        parser.add_argument(f"--{name}", type=float, default=0.5, metavar="X",
+                            help=f"body {name} in [0, 1] (default 0.5)")
+
+
+def shape_from_args(args: argparse.Namespace):
+    from .body import BodyShape
+
+    return BodyShape(**{k: getattr(args, k) for k in SHAPE_PARAMS})
+
+
+def _save_mesh_or_picture(out: str, vertices, faces, title: str, view: str) -> None:
+    from .export import write_mesh
+
+    if out.lower().endswith(".png"):
+        from .render import MeshView, render_png
+
+        render_png(out, [MeshView(vertices, faces)], title=title, view=view)
+    else:
+        write_mesh(out, vertices, faces, comment=title)
+
+
+def _cmd_body_make(args: argparse.Namespace) -> int:
+    from .body import make_body
+
+    body = make_body(shape_from_args(args))
+    summary = body.summary()
+    summary.update(height_m=body.height_m, mass_kg=body.mass_kg,
+                   vertices=len(body.vertices), faces=len(body.faces),
+                   joints=len(body.joint_names), joint_names=list(body.joint_names))
+    if args.out:
+        _save_mesh_or_picture(args.out, body.vertices, body.faces,
+                              f"body: height {body.height_m:.2f} m, mass {body.mass_kg:.1f} kg",
+                              args.view)
+        summary["out"] = args.out
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print(f"body: {body.height_m:.3f} m tall, {body.mass_kg:.1f} kg "
+              f"({body.volume_m3 * 1000:.1f} l), {len(body.vertices)} vertices, "
+              f"{len(body.faces)} quads, {len(body.joint_names)} joints"
+              + (f" -> {args.out}" if args.out else ""))
+    return 0
+
+
+def _cmd_pose_show(args: argparse.Namespace) -> int:
+    from .body import make_body
+    from .poses import load_pose, pose_body
+    from .skinning import skin
+
+    body = make_body(shape_from_args(args))
+    captured = load_pose(args.source, args.db)
+    lowest = None if args.as_captured or args.pelvis is not None else args.lowest
+    motion = pose_body(captured, body, lowest=lowest, pelvis=args.pelvis)
+    verts, _ = skin(body, motion.frame(0), normals=False)
+    _save_mesh_or_picture(args.out, verts, body.faces, captured.label, args.view)
+    result = {"source": args.source, "pose": captured.label, "out": args.out,
+              "height_m": body.height_m, "mass_kg": body.mass_kg,
+              "pelvis_height_m": float(motion.world.positions[0, 0, 1]),
+              "lowest_m": float(verts[:, 1].min())}
+    print(json.dumps(result, indent=2) if args.json else
+          f"posed {captured.label} on a {body.height_m:.2f} m, {body.mass_kg:.1f} kg body "
+          f"-> {args.out}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="sitrelax",
@@ -30,6 +101,34 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     groups = capture_cli.register(sub)
     posedb_cli.register(sub, groups)
+    from .render import VIEWS
+
+    body = sub.add_parser("body", help="bodies of any shape")
+    bsub = body.add_subparsers(dest="body_command", required=True)
+    make = bsub.add_parser("make", help="make a body and write it (OBJ, PLY, GLB or PNG)")
+    add_shape_args(make)
+    make.add_argument("--out", help="body.obj|.ply|.glb or a .png picture")
+    make.add_argument("--view", choices=sorted(VIEWS), default="front")
+    make.add_argument("--json", action="store_true", help="machine-readable output")
+    make.set_defaults(func=_cmd_body_make)
+
+    pose = sub.add_parser("pose", help="captured poses on bodies")
+    psub = pose.add_subparsers(dest="pose_command", required=True)
+    show = psub.add_parser("show", help="pose a body and write it (mesh or PNG)")
+    show.add_argument("source", help="db:NAME (with --db) or [bvh:]FILE.bvh#frame=N")
+    show.add_argument("--db", default=None, help="pose library for db: sources")
+    add_shape_args(show)
+    show.add_argument("--out", required=True, help="posed.obj|.ply|.glb or a .png picture")
+    show.add_argument("--lowest", type=float, default=0.0,
+                      help="put the lowest skin point at this height, m (default 0: the floor)")
+    show.add_argument("--pelvis", type=float, default=None,
+                      help="put the pelvis at this height instead, m")
+    show.add_argument("--as-captured", action="store_true",
+                      help="keep the captured height (scaled by leg length)")
+    show.add_argument("--view", choices=sorted(VIEWS), default="three-quarter")
+    show.add_argument("--json", action="store_true", help="machine-readable output")
+    show.set_defaults(func=_cmd_pose_show)
+
     bench = sub.add_parser("bench", help="run the benchmarks (medians, speed-ups)")
     bench.add_argument("names", nargs="*", help="entries to run (default: all)")
     bench.add_argument("--repeats", type=int, default=None,

@@ -26,14 +26,15 @@ from capture.profiles import strip_namespace
 from .body import Body
 from .skinning import skin
 
-# Rig joint -> role it takes its target from.
+# Rig joint -> role it takes its target from. The clavicles have none: skeletons disagree on
+# where a clavicle starts (CMU's start at the neck), so they keep their rest pose on the chest.
 RIG_ROLES = {
     "Hips": "hips", "LeftUpLeg": "left_upper_leg", "LeftLeg": "left_lower_leg",
     "LeftFoot": "left_foot", "LeftToeBase": "left_toe", "RightUpLeg": "right_upper_leg",
     "RightLeg": "right_lower_leg", "RightFoot": "right_foot", "RightToeBase": "right_toe",
-    "Neck": "neck", "Head": "head", "LeftShoulder": "left_shoulder", "LeftArm": "left_upper_arm",
+    "Neck": "neck", "Head": "head", "LeftArm": "left_upper_arm",
     "LeftForeArm": "left_forearm", "LeftHand": "left_hand", "LeftFingerBase": "left_fingers",
-    "RightShoulder": "right_shoulder", "RightArm": "right_upper_arm",
+    "RightArm": "right_upper_arm",
     "RightForeArm": "right_forearm", "RightHand": "right_hand",
     "RightFingerBase": "right_fingers",
 }
@@ -272,24 +273,31 @@ def retarget(skeleton: Skeleton, channels: np.ndarray, body: Body, *,
     channels : (T, C) raw channels of `skeleton` (its unit must be known).
     """
     channels = np.atleast_2d(np.asarray(channels, dtype=np.float64))
+    return retarget_pose(skeleton, skeleton_fk(skeleton, channels), body, profile=profile,
+                         joint_map=joint_map)
+
+
+def retarget_pose(skeleton: Skeleton, pose: WorldPose, body: Body, *,
+                  profile: str | None = None, joint_map: Mapping[str, str] | None = None
+                  ) -> RigMotion:
+    """As `retarget`, from the captured skeleton's world frames (T, J) in metres."""
+    from .skinning import rig_pose
+
     roles = joint_map_for(skeleton, profile, joint_map)
-    pose = skeleton_fk(skeleton, channels)
     pos = role_positions(skeleton, pose, roles)
-    # the captured spine as a polyline, for placing the rig's spine joints along it
+    # the captured spine and neck as polylines, for placing the rig's joints along them
     for start, end, _ in RIG_CHAINS:
         if not (roles[start].startswith("end:") or roles[end].startswith("end:")):
             path = _chain(skeleton, roles[start], roles[end])
             pos[f"_chain:{start}:{end}"] = pose.positions[:, path, :]
-    rest = skeleton_fk(skeleton, np.zeros(skeleton.num_channels)[None])  # offsets only
-    rest_pos = role_positions(skeleton, WorldPose(rest.positions[0], rest.rotmats[0]),
+    rest = skeleton_fk(skeleton, np.zeros(skeleton.num_channels))  # offsets only
+    rest_pos = role_positions(skeleton, rest,
                               {k: v for k, v in roles.items() if not v.startswith("end:")})
     rig_rest = {role: body.joints[body.joint_index(j)] for j, role in RIG_ROLES.items()
                 if j in body.joint_names}
     scale = leg_length(rig_rest) / leg_length(rest_pos)
-    world, local = solve_rig(body, pos)
+    _, local = solve_rig(body, pos)
     root = pos["hips"] * scale
-    from .skinning import rig_pose
-
     return RigMotion(body, local, root, rig_pose(body, local, root))
 
 
@@ -298,6 +306,8 @@ def place(motion: RigMotion, *, lowest: float | None = None, pelvis: float | Non
     """Moves each frame vertically: its lowest skin point, or its pelvis, to the given height."""
     if (lowest is None) == (pelvis is None):
         raise ValueError("Expected exactly one of lowest= or pelvis=")
+    from .skinning import rig_pose
+
     root = motion.root_positions.copy()
     for t in range(len(root)):
         if pelvis is not None:
@@ -306,7 +316,6 @@ def place(motion: RigMotion, *, lowest: float | None = None, pelvis: float | Non
             verts, _ = skin(motion.body, motion.frame(t), normals=False)
             dy = lowest - verts[:, 1].min()
         root[t, 1] += dy
-    from .skinning import rig_pose
 
     return RigMotion(motion.body, motion.local_rotmats, root,
                      rig_pose(motion.body, motion.local_rotmats, root))

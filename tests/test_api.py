@@ -36,6 +36,19 @@ def test_posedb_public_api():
     assert issubclass(posedb.LibraryError, ValueError)
 
 
+def test_solver_public_api():
+    import solver
+
+    assert sorted(solver.__all__) == sorted([
+        "BODY_PARTS", "Body", "BodyShape", "BodyShapeError", "CapturedPose", "ExportError",
+        "MeshView", "PoseSourceError", "RetargetError", "RigMotion", "joint_map_for",
+        "load_pose", "make_body", "place", "pose_body", "render_png", "rest_pose", "retarget",
+        "retarget_pose", "rig_pose", "skin", "write_mesh",
+    ])
+    for name in ("BodyShapeError", "ExportError", "PoseSourceError", "RetargetError"):
+        assert issubclass(getattr(solver, name), ValueError)
+
+
 def test_errors_are_value_errors():
     for name in ("BvhParseError", "SkeletonError", "UnitError", "UnitUnknownError",
                  "NeuronStreamError", "LayoutMismatchError", "RawCaptureError", "ReplayError",

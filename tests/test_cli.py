@@ -148,3 +148,38 @@ def test_replay_port_in_use_is_one_line():
             capture_output=True, text=True, timeout=30)
     assert out.returncode == 2
     assert out.stderr.strip() == f"sitrelax: error: TCP port {port} on 127.0.0.1 is in use"
+
+
+def test_body_make_json_and_files(tmp_path, capsys):
+    out = tmp_path / "body.obj"
+    assert main(["body", "make", "--weight", "0.7", "--out", str(out), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert {"height_m", "mass_kg", "vertices", "faces", "joints"} <= set(info)
+    assert info["vertices"] == 13380 and info["faces"] == 13378 and info["joints"] == 31
+    text = out.read_text().splitlines()
+    assert sum(line.startswith("v ") for line in text) == 13380
+    assert sum(line.startswith("f ") and len(line.split()) == 5 for line in text) == 13378
+    import trimesh
+
+    mesh = trimesh.load(out, process=False)
+    assert mesh.vertices[:, 1].max() == pytest.approx(info["height_m"], abs=1e-5)
+    assert main(["body", "make", "--weight", "2"]) == 2
+    assert "weight in [0, 1], got 2.0" in capsys.readouterr().err
+
+
+def test_pose_show_writes_a_picture_and_a_mesh(tmp_path, capsys):
+    import matplotlib.image
+
+    png = tmp_path / "posed.png"
+    spec = "bundled:cmu_75_18_high_sit.bvh#frame=39"
+    assert main(["pose", "show", spec, "--out", str(png), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["lowest_m"] == pytest.approx(0.0, abs=1e-9)
+    assert 0.35 < info["pelvis_height_m"] < 0.6
+    image = matplotlib.image.imread(png)
+    assert image.shape[:2] == (800, 800)
+    drawn = (image[..., :3] < 0.95).any(axis=-1)
+    assert 0.05 < drawn.mean() < 0.6  # a figure, not an empty or filled frame
+    obj = tmp_path / "posed.obj"
+    assert main(["pose", "show", spec, "--out", str(obj), "--pelvis", "0.5"]) == 0
+    assert obj.read_text().count("\nf ") == 13378

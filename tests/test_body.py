@@ -1,0 +1,131 @@
+"""Bodies of any shape: size, mass, parts, weights, and linear blend skinning."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from capture import WorldPose
+from solver.body import BODY_PARTS, Body, BodyShape, BodyShapeError, make_body
+from solver.skinning import rest_pose, rig_pose, skin
+
+
+@pytest.fixture(scope="module")
+def body():
+    return make_body()
+
+
+def test_default_body_is_an_adult(body):
+    assert 1.55 <= body.height_m <= 1.95
+    assert 55 <= body.mass_kg <= 95
+    assert body.vertices.shape == (13380, 3) and body.faces.shape == (13378, 4)
+    assert len(body.joint_names) == 31 and body.joint_names[0] == "Hips"
+
+
+def test_volume_against_trimesh(body):
+    mesh = trimesh.Trimesh(body.vertices, body.triangles, process=False)
+    assert mesh.is_watertight
+    assert body.volume_m3 == pytest.approx(mesh.volume, rel=1e-9)
+
+
+def test_weight_raises_volume_and_mass_monotonically():
+    masses = [make_body(BodyShape(weight=w)).mass_kg for w in np.linspace(0, 1, 6)]
+    assert all(b > a for a, b in zip(masses, masses[1:])), masses
+    assert masses[-1] - masses[0] > 10
+
+
+def test_gender_differs_visibly():
+    female, male = make_body(BodyShape(gender=0)), make_body(BodyShape(gender=1))
+    moved = np.linalg.norm(female.vertices - male.vertices, axis=1)
+    assert np.median(moved) > 0.02  # most of the skin moves by more than 2 cm
+    assert male.height_m - female.height_m > 0.05
+
+
+def test_frame_conventions(body):
+    assert body.vertices[:, 1].min() == pytest.approx(0.0, abs=1e-12)  # on the floor
+    hips = body.joints[body.joint_index("Hips")]
+    assert abs(hips[0]) < 1e-12 and abs(hips[2]) < 1e-12  # over the origin
+    # facing +Z: toes ahead of the ankles, the left side at +X
+    for side in ("Left", "Right"):
+        ankle = body.joints[body.joint_index(f"{side}Foot")]
+        toe = body.joints[body.joint_index(f"{side}ToeBase")]
+        assert toe[2] - ankle[2] > 0.08
+    assert body.joints[body.joint_index("LeftArm"), 0] > 0.1
+    # head above the pelvis above the knees
+    y = lambda name: body.joints[body.joint_index(name), 1]  # noqa: E731
+    assert y("Head") > y("Neck") > y("Spine1") > y("Hips") > y("LeftLeg") > y("LeftFoot")
+
+
+def test_joints_follow_the_shape():
+    short, tall = make_body(BodyShape(height=0.2)), make_body(BodyShape(height=0.8))
+    head = lambda b: b.joints[b.joint_index("Head"), 1]  # noqa: E731
+    assert tall.height_m > short.height_m
+    assert head(tall) / tall.height_m == pytest.approx(head(short) / short.height_m, rel=0.03)
+
+
+def test_weights_and_parts(body):
+    w = body.weights
+    assert sp.issparse(w) and w.shape == (13380, 31)
+    assert w.data.min() >= 0
+    np.testing.assert_allclose(np.asarray(w.sum(axis=1)).ravel(), 1.0, atol=1e-9)
+    counts = np.bincount(body.parts, minlength=len(BODY_PARTS))
+    assert (counts > 200).all(), dict(zip(BODY_PARTS, counts))
+    feet = body.vertices[body.part_mask(["feet"])]
+    head = body.vertices[body.part_mask(["head"])]
+    assert feet[:, 1].max() < 0.2 and head[:, 1].min() > 1.2
+
+
+def test_rest_pose_skins_to_the_rest_mesh_exactly(body):
+    verts, normals = skin(body, rest_pose(body))
+    np.testing.assert_allclose(verts, body.vertices, atol=1e-12)
+    np.testing.assert_allclose(normals, body.normals, atol=1e-12)
+    # and the same through local rotations
+    n = len(body.joint_names)
+    pose = rig_pose(body, np.broadcast_to(np.eye(3), (n, 3, 3)), body.joints[0])
+    np.testing.assert_allclose(skin(body, pose)[0], body.vertices, atol=1e-12)
+
+
+def test_rigid_motion_moves_every_vertex_rigidly(body):
+    n = len(body.joint_names)
+    rot = Rotation.from_euler("y", 90, degrees=True).as_matrix()
+    local = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+    local[0] = rot
+    pose = rig_pose(body, local, body.joints[0] + [1.0, 0.5, 0.0])
+    verts, normals = skin(body, pose)
+    expected = (body.vertices - body.joints[0]) @ rot.T + body.joints[0] + [1.0, 0.5, 0.0]
+    np.testing.assert_allclose(verts, expected, atol=1e-12)
+    np.testing.assert_allclose(normals, body.normals @ rot.T, atol=1e-12)
+
+
+def test_blend_of_two_bones_by_hand():
+    """Two joints, one vertex weighted half to each: the blend of the two bone transforms."""
+    base = make_body()
+    tiny = Body(base.shape, np.array([[0.0, 2.0, 0.0]]), np.zeros((0, 4), dtype=int),
+                ("a", "b"), np.array([-1, 0]), np.array([[0.0, 0, 0], [0.0, 1, 0]]),
+                np.array([[0.0, 1, 0], [0.0, 2, 0]]),
+                sp.csr_matrix(np.array([[0.5, 0.5]])), np.zeros(1, dtype=np.int8))
+    turn = Rotation.from_euler("z", 90, degrees=True).as_matrix()
+    pose = WorldPose(np.array([[0.0, 0, 0], [0.0, 1, 0]]), np.stack([np.eye(3), turn]))
+    verts, _ = skin(tiny, pose, normals=False)
+    # joint a leaves the vertex at (0, 2, 0); joint b turns it about (0, 1, 0) to (-1, 1, 0)
+    np.testing.assert_allclose(verts, [[-0.5, 1.5, 0.0]], atol=1e-12)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(weight=1.2), r"weight in \[0, 1\], got 1.2"),
+    (dict(gender="heavy"), "Expected a number for body gender"),
+    (dict(african=0, asian=0, caucasian=0), "race weights"),
+])
+def test_bad_shapes_are_named(kwargs, message):
+    with pytest.raises(BodyShapeError, match=message):
+        BodyShape(**kwargs)
+    with pytest.raises(BodyShapeError, match="Expected body parameters"):
+        BodyShape.from_mapping({"wieght": 0.5})
+
+
+def test_package_data_is_compact():
+    from importlib import resources
+
+    data = resources.files("solver") / "data" / "makehuman_body.npz.xz"
+    assert len(data.read_bytes()) < 10e6
