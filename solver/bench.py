@@ -32,10 +32,49 @@ def _skinning(arg):
     return skin(body, pose)
 
 
+def _posed_setup():
+    from .skinning import skin
+
+    body, pose = _skinning_setup()
+    return skin(body, pose, normals=False)[0], body.triangles
+
+
+def _pressure(arg):
+    from .pressure import pressure_field
+
+    return pressure_field(*arg)
+
+
+def _pressure_reference(arg):
+    from .pressure_reference import rigid_contact
+
+    return rigid_contact(*arg)
+
+
+def _grid_setup():
+    from .subdivision import grid_mesh
+
+    return grid_mesh(resolution=(8, 6))
+
+
+def _subdivide_fresh(arg):
+    from . import subdivision as sd
+
+    verts, quads = arg
+    sd._CACHE.clear()  # built from scratch every time
+    return sd.subdivision(len(verts), quads, 3).apply(verts)
+
+
 def solver_cases() -> list[BenchCase]:
     return [
         BenchCase("skinning", "pose the 13,380-vertex body (vertices and normals), one frame",
                   _skinning_setup, _skinning, repeats=50),
+        BenchCase("pressure", "pressure field of the seated 13,380-vertex body (areas, normals, "
+                  "importance)", _posed_setup, _pressure, repeats=50),
+        BenchCase("pressure_reference", "rigid-contact physics reference on the same body",
+                  _posed_setup, _pressure_reference, repeats=5),
+        BenchCase("subdivision", "Catmull-Clark operator of an 8x6 grid to level 3, from "
+                  "scratch, applied", _grid_setup, _subdivide_fresh, repeats=30),
     ]
 
 

@@ -92,6 +92,21 @@ def _cmd_pose_show(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_validate_pressure(args: argparse.Namespace) -> int:
+    from .validate import validate_pressure
+
+    rows = validate_pressure(args.out)
+    if args.json:
+        print(json.dumps(rows, indent=2))
+        return 0
+    for r in rows:
+        print(f"{r['pose']:<14} RMSE reaction {r['rmse_reaction']:.4f}  RMSE normal "
+              f"{r['rmse_normal']:.4f}  model {r['model_s'] * 1e3:.1f} ms  reference "
+              f"{r['reference_s'] * 1e3:.0f} ms  ({r['contact_vertices']} contact vertices)"
+              + (f"  -> {r['picture']}" if "picture" in r else ""))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="sitrelax",
@@ -128,6 +143,13 @@ def build_parser() -> argparse.ArgumentParser:
     show.add_argument("--view", choices=sorted(VIEWS), default="three-quarter")
     show.add_argument("--json", action="store_true", help="machine-readable output")
     show.set_defaults(func=_cmd_pose_show)
+
+    validate = sub.add_parser("validate", help="check models against physical references")
+    vsub = validate.add_subparsers(dest="validate_command", required=True)
+    vp = vsub.add_parser("pressure", help="the pressure model against a rigid-contact reference")
+    vp.add_argument("--out", help="folder for the side-by-side pictures")
+    vp.add_argument("--json", action="store_true", help="machine-readable output")
+    vp.set_defaults(func=_cmd_validate_pressure)
 
     bench = sub.add_parser("bench", help="run the benchmarks (medians, speed-ups)")
     bench.add_argument("names", nargs="*", help="entries to run (default: all)")

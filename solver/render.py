@@ -20,6 +20,8 @@ VIEWS = {
     "side": (1.0, 0.15, 0.0),
     "three-quarter": (0.8, 0.45, 1.0),
     "top": (0.0, 1.0, 0.05),
+    "back": (0.3, 0.2, -1.0),
+    "below": (0.0, -1.0, -0.45),
 }
 SKIN = (0.86, 0.72, 0.62)
 SURFACE = (0.55, 0.68, 0.82)
@@ -47,20 +49,8 @@ def _camera(view: str | Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.nda
     return right, np.cross(back, right), back
 
 
-def render_png(path: str | os.PathLike, meshes: Sequence[MeshView], *,
-               view: str | Sequence[float] = "three-quarter", size: tuple[int, int] = (800, 800),
-               title: str | None = None, light: Sequence[float] = (0.4, 0.8, 0.6),
-               colorbar: tuple[str, float, float] | None = None) -> Path:
-    """Renders meshes to a PNG file and returns its path.
-
-    colorbar : optional (label, low, high) drawn with the viridis scale the caller coloured by.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
+def _draw(ax, meshes: Sequence[MeshView], view, light) -> None:
     from matplotlib.collections import PolyCollection
-    from matplotlib.figure import Figure
 
     right, up, back = _camera(view)
     light = np.asarray(light, dtype=float)
@@ -80,7 +70,7 @@ def render_png(path: str | os.PathLike, meshes: Sequence[MeshView], *,
             col = np.broadcast_to(col, (len(f), 3))
         elif len(col) == len(v) and len(v) != len(f):
             col = col[f].mean(axis=1)
-        shade = 0.35 + 0.65 * np.clip(normal @ light, 0, 1)
+        shade = 0.35 + 0.65 * np.clip(np.abs(normal @ light), 0, 1)
         keep = np.flatnonzero(facing)
         xy = np.stack([corners @ right, corners @ up], axis=-1)[keep]
         polys.extend(xy)
@@ -89,10 +79,6 @@ def render_png(path: str | os.PathLike, meshes: Sequence[MeshView], *,
     order = np.argsort(np.concatenate(depths)) if depths else np.zeros(0, dtype=int)
     colors_all = np.concatenate(colors)[order] if colors else np.zeros((0, 3))
     polys = [polys[k] for k in order]
-
-    fig = Figure(figsize=(size[0] / 100, size[1] / 100), dpi=100)
-    FigureCanvasAgg(fig)
-    ax = fig.add_axes([0.02, 0.02, 0.96, 0.9 if title else 0.96])
     ax.add_collection(PolyCollection(polys, facecolors=colors_all, edgecolors="none",
                                      antialiased=False))
     if polys:
@@ -103,15 +89,85 @@ def render_png(path: str | os.PathLike, meshes: Sequence[MeshView], *,
         ax.set_ylim(lo[1] - pad, hi[1] + pad)
     ax.set_aspect("equal")
     ax.axis("off")
+
+
+@dataclass
+class Panel:
+    """One picture in a grid: meshes seen from a view, with an optional title."""
+
+    meshes: Sequence[MeshView]
+    view: str | Sequence[float] = "three-quarter"
+    title: str | None = None
+
+
+def render_panels(path: str | os.PathLike, panels: Sequence[Panel], *, columns: int = 3,
+                  panel_size: tuple[int, int] = (400, 500), title: str | None = None,
+                  light: Sequence[float] = (0.4, 0.8, 0.6),
+                  colorbar: tuple[str, float, float] | None = None) -> Path:
+    """Renders a grid of panels into one PNG and returns its path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    rows = -(-len(panels) // columns)
+    fig = Figure(figsize=(panel_size[0] * columns / 100, panel_size[1] * rows / 100 + 0.5),
+                 dpi=100)
+    FigureCanvasAgg(fig)
+    for k, panel in enumerate(panels):
+        ax = fig.add_subplot(rows, columns, k + 1)
+        _draw(ax, panel.meshes, panel.view, light)
+        if panel.title:
+            ax.set_title(panel.title, fontsize=10)
     if title:
         fig.suptitle(title, fontsize=12)
     if colorbar is not None:
-        from matplotlib import cm
-        from matplotlib.colors import Normalize
+        _colorbar(fig, fig.axes, colorbar)
+    path = Path(path)
+    fig.savefig(path, facecolor="white")
+    return path
 
-        label, low, high = colorbar
-        sm = cm.ScalarMappable(norm=Normalize(low, high), cmap="viridis")
-        fig.colorbar(sm, ax=ax, fraction=0.03, pad=0.01, label=label)
+
+def _colorbar(fig, axes, colorbar) -> None:
+    from matplotlib import cm
+    from matplotlib.colors import Normalize
+
+    label, low, high = colorbar
+    sm = cm.ScalarMappable(norm=Normalize(low, high), cmap="viridis")
+    fig.colorbar(sm, ax=axes, fraction=0.03, pad=0.01, label=label)
+
+
+def field_colors(values: np.ndarray, low: float = 0.0, high: float = 1.0) -> np.ndarray:
+    """(N, 3) viridis RGB of values scaled from [low, high]."""
+    from matplotlib import colormaps
+
+    t = np.clip((np.asarray(values, dtype=float) - low) / max(high - low, 1e-300), 0, 1)
+    return colormaps["viridis"](t)[:, :3]
+
+
+def render_png(path: str | os.PathLike, meshes: Sequence[MeshView], *,
+               view: str | Sequence[float] = "three-quarter", size: tuple[int, int] = (800, 800),
+               title: str | None = None, light: Sequence[float] = (0.4, 0.8, 0.6),
+               colorbar: tuple[str, float, float] | None = None) -> Path:
+    """Renders meshes to a PNG file and returns its path.
+
+    colorbar : optional (label, low, high) drawn with the viridis scale the caller coloured by.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(size[0] / 100, size[1] / 100), dpi=100)
+    FigureCanvasAgg(fig)
+    ax = fig.add_axes([0.02, 0.02, 0.96, 0.9 if title else 0.96])
+    _draw(ax, meshes, view, light)
+    if title:
+        fig.suptitle(title, fontsize=12)
+    if colorbar is not None:
+        _colorbar(fig, [ax], colorbar)
     path = Path(path)
     fig.savefig(path, facecolor="white")
     return path

@@ -183,3 +183,13 @@ def test_pose_show_writes_a_picture_and_a_mesh(tmp_path, capsys):
     obj = tmp_path / "posed.obj"
     assert main(["pose", "show", spec, "--out", str(obj), "--pelvis", "0.5"]) == 0
     assert obj.read_text().count("\nf ") == 13378
+
+
+def test_validate_pressure_command(tmp_path, capsys):
+    assert main(["validate", "pressure", "--json", "--out", str(tmp_path)]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [r["pose"] for r in rows] == ["seated", "lying T-pose"]
+    for r in rows:
+        assert {"pose", "rmse_reaction", "rmse_normal", "model_s", "reference_s"} <= set(r)
+        assert r["rmse_reaction"] <= 0.07 and r["model_s"] < r["reference_s"]
+        assert (tmp_path / r["picture"].rsplit("/", 1)[-1]).stat().st_size > 10_000
