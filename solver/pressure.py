@@ -140,3 +140,26 @@ def pressure_field(vertices: np.ndarray, triangles: np.ndarray, *,
     peak = supported.max(initial=0.0)
     importance = supported / peak if peak > 0 else np.zeros_like(supported)
     return PressureField(pressure, a, reaction, importance)
+
+
+REACH_STEPS = (0.01, 0.02, 0.04, 0.08, 0.16)  # metres along the normal
+
+
+def reachable(vertices: np.ndarray, triangles: np.ndarray, normals: np.ndarray,
+              candidates: np.ndarray) -> np.ndarray:
+    """(V,) bool: vertices a support could touch, those whose outward normal does not run
+    straight back into the body within 16 cm (the underside of a belly over the thighs, the
+    inner side of a thigh against the other). Only `candidates` (V,) bool are tested."""
+    import igl
+
+    out = np.zeros(len(vertices), dtype=bool)
+    idx = np.flatnonzero(candidates)
+    if not idx.size:
+        return out
+    steps = np.asarray(REACH_STEPS)
+    probes = (vertices[idx, None, :] + steps[None, :, None] * normals[idx, None, :]).reshape(-1, 3)
+    wn = igl.fast_winding_number(np.asarray(vertices, dtype=np.float64),
+                                 np.asarray(triangles, dtype=np.int64), probes)
+    blocked = (wn.reshape(len(idx), len(steps)) > 0.5).any(axis=1)
+    out[idx] = ~blocked
+    return out

@@ -1,0 +1,313 @@
+"""Fitting the supporting surface: the paper's section 5 and appendix A.
+
+Given posed bodies (their vertices, normals and importance) and a quad control mesh V0, find the
+control mesh whose level-s Catmull-Clark surface S V supports each body where it needs support,
+smoothly, without cutting into it. Each iteration:
+
+1. subdivides (the operator S is built once) and takes the surface normals;
+2. pairs every important body vertex b_k with its closest surface vertex s(k) (a KD-tree);
+3. minimises, as a quadratic programme solved by OSQP,
+
+   E = (1 / sum rho) sum_k rho_k [(1 - tau) |b_k - v_s(k)|^2 + tau (n_s(k) . (b_k - v_s(k)))^2]
+       + (sigma / n0) |L V|^2 + gamma sum_fixed |v_j - v0_j|^2
+
+       + anchor sum_all |v_j - v0_j|^2
+
+   where L is the cotangent Laplacian of the control mesh, tau rises from 0 to tau_max over the
+   first iterations, subject to every surface vertex near a body staying on the outer side of the
+   tangent plane at its closest body vertex, less the softness margin:
+   n_b . (v_s - b) >= -margin. "Closest" weighs the body vertex's normal too: the search runs in
+   (position, FACING_SCALE x normal) space for (v_s, -n_s), so a surface vertex pairs with the
+   body side that faces it. Without that, a surface that starts inside a body (a grid through
+   the thighs) would be pushed out through the top of the thigh, to the wrong side.
+
+   The last term is ours: the smoothness term leaves planes free (tilting the whole surface costs
+   nothing), so parts of the surface that no body touches would drift; a weak pull of every
+   control vertex to its start (anchor = 0.001 by default, 0 to turn it off) keeps them where the
+   designer put them without holding the supported parts back.
+
+The data terms are gathered per surface vertex (the weighted mean of the body points it serves),
+so the programme's size depends on the control mesh, not on the bodies. Non-penetration rows are
+kept for the surface vertices within CONSTRAINT_RADIUS of a body; OSQP is set up again only when
+that set changes and is otherwise updated in place, warm-started from the last solution, and its
+status is checked every time. The loop stops once tau has reached tau_max and the energy has not
+improved by `tolerance` (relative) in PATIENCE iterations, or after `max_iterations`; the best
+iterate is kept.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
+
+from .subdivision import Subdivision, subdivision
+
+REACH = 0.5  # metres: a person whose supported points are all farther from the surface is an error
+CONSTRAINT_RADIUS = 0.12  # metres: surface vertices this close to a body get a non-penetration row
+FACING_SCALE = 0.1  # metres a body normal's turn away from the surface counts as, in the search
+EXIT_SCALE = 1.0  # the same, for a surface vertex inside a body: it leaves through the skin
+                  # facing against the surface's normal, behind the body (below a seated one)
+TAU_RAMP = 5  # iterations over which tau rises from 0 to tau_max
+PATIENCE = 3  # iterations without improvement before the loop stops
+PROXIMAL = 0.01  # weight of the pull to the current control mesh (per coordinate)
+
+
+class FitError(ValueError):
+    """A fit that cannot run or cannot go on (and why)."""
+
+
+@dataclass(frozen=True)
+class FitParams:
+    level: int = 3
+    sigma: float = 0.1
+    tau_max: float = 0.5
+    margin: float = 0.03
+    fixed: tuple[int, ...] = ()
+    gamma: float = 10.0
+    creases: tuple[tuple[int, int], ...] = ()
+    max_iterations: int = 50
+    tolerance: float = 1e-3
+    anchor: float = 1e-3
+
+
+@dataclass(frozen=True, eq=False)
+class BodyTarget:
+    """One posed body as the fit sees it: vertices (V, 3) m, unit normals (V, 3), importance
+    (V,) in [0, 1] (zero outside the supported parts), and a label for messages."""
+
+    vertices: np.ndarray
+    normals: np.ndarray
+    importance: np.ndarray
+    label: str = "person"
+
+
+@dataclass
+class FitResult:
+    control: np.ndarray  # (n0, 3) fitted control vertices
+    faces: np.ndarray  # (F0, 4) control quads
+    surface: np.ndarray  # (ns, 3) level-s vertices
+    surface_faces: np.ndarray  # (Fs, 4)
+    iterations: int
+    stop_reason: str
+    energies: list[float]
+    energy_terms: dict
+    seconds: float
+    qp_statuses: list[str] = field(default_factory=list)
+    subdivision: Subdivision | None = None
+
+
+def control_laplacian(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
+    """(n, n) cotangent Laplacian of a polygon control mesh (libigl's polygon Laplacian)."""
+    import igl
+
+    corners, sizes = igl.polygon_corners(np.asarray(faces, dtype=np.int64))
+    lap, _, _ = igl.cotmatrix(np.asarray(vertices, dtype=np.float64), corners, sizes)
+    return sp.csr_matrix(lap)
+
+
+class _Programme:
+    """The QP: the objective's pattern is fixed for the whole fit; the constraint rows are the
+    surface vertices near a body, and OSQP is set up again only when that set changes."""
+
+    def __init__(self, sub: Subdivision, lap: sp.csr_matrix, n0: int):
+        import osqp
+
+        self._osqp = osqp
+        self.n0 = n0
+        s = sub.matrix.tocsr()
+        self.s = s
+        coupling = (s.T @ s).tocsr() + (lap.T @ lap) + sp.identity(n0)
+        coupling.data[:] = 1.0
+        block = sp.kron(sp.csr_matrix(np.ones((3, 3))), coupling).tocsc()
+        upper = sp.triu(block, format="csc")
+        upper.sort_indices()
+        self.p_pattern = upper
+        self.p_rows, self.p_cols = _coo_of(upper)
+        self.rows: np.ndarray | None = None
+        self.solver = None
+        self.setups = 0
+
+    def _constraint_pattern(self, rows: np.ndarray):
+        sub = self.s[rows]
+        a = sp.hstack([sub, sub, sub], format="csc")
+        a.sort_indices()
+        r, c = _coo_of(a)
+        values = np.asarray(sub[r, c % self.n0]).ravel()
+        return a, r, c // self.n0, values
+
+    def solve(self, p_dense: np.ndarray, q: np.ndarray, rows: np.ndarray, normals: np.ndarray,
+              lower: np.ndarray, x0: np.ndarray) -> tuple[np.ndarray, str]:
+        p_values = p_dense[self.p_rows, self.p_cols]
+        if self.rows is None or not np.array_equal(rows, self.rows):
+            self.rows = rows
+            self.a, self.a_rows, self.a_axis, self.a_s = self._constraint_pattern(rows)
+            a = self.a.copy()
+            a.data = self.a_s * normals[self.a_rows, self.a_axis]
+            p = self.p_pattern.copy()
+            p.data = p_values
+            self.solver = self._osqp.OSQP()
+            self.solver.setup(p, q, a, lower, np.full(len(rows), np.inf), verbose=False,
+                              warm_starting=True, polishing=False, eps_abs=1e-5, eps_rel=1e-4,
+                              max_iter=20000, adaptive_rho=True)
+            self.setups += 1
+        else:
+            self.solver.update(Px=p_values, q=q, Ax=self.a_s * normals[self.a_rows, self.a_axis],
+                               l=lower, u=np.full(len(rows), np.inf))
+        self.solver.warm_start(x=x0)
+        res = self.solver.solve(raise_error=False)
+        status = str(res.info.status)
+        if status not in ("solved", "solved inaccurate"):
+            raise FitError(f"The surface's quadratic programme failed: OSQP says {status!r} "
+                           "(the bodies may overlap the surface in a way no surface can avoid)")
+        return res.x, status
+
+
+def _coo_of(m: sp.csc_matrix) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column of each stored entry, in the matrix's own data order (CSC)."""
+    cols = np.repeat(np.arange(m.shape[1]), np.diff(m.indptr))
+    return m.indices.copy(), cols
+
+
+def _stack(targets: Sequence[BodyTarget]):
+    points = np.concatenate([t.vertices for t in targets])
+    normals = np.concatenate([t.normals for t in targets])
+    rho = np.concatenate([t.importance for t in targets])
+    owner = np.concatenate([np.full(len(t.vertices), k) for k, t in enumerate(targets)])
+    return points, normals, rho, owner
+
+
+def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTarget],
+                params: FitParams = FitParams(),
+                progress: Callable[[int, float, float], None] | None = None) -> FitResult:
+    """Fits the control mesh to the bodies (see the module docstring).
+
+    progress : optional callback (iteration, energy, tau).
+    """
+    start = time.perf_counter()
+    v0 = np.asarray(control, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    n0 = len(v0)
+    if not targets:
+        raise FitError("Expected at least one body to support, got none")
+    for j in params.fixed:
+        if not 0 <= j < n0:
+            raise FitError(f"Expected fixed control vertices in 0..{n0 - 1}, got {j}")
+    sub = subdivision(n0, faces, params.level, params.creases or None)
+    s = sub.matrix
+    lap = control_laplacian(v0, faces)
+    points, normals, rho, owner = _stack(targets)
+    important = np.flatnonzero(rho > 1e-3)
+    surface0 = s @ v0
+    near, _ = cKDTree(surface0).query(points[important])
+    for k, t in enumerate(targets):
+        mine = owner[important] == k
+        if not mine.any():
+            raise FitError(f"{t.label}: no body part to support faces the surface (nothing has "
+                           "importance)")
+        if near[mine].min() > REACH:
+            raise FitError(f"{t.label} is entirely outside the surface's reach: its nearest "
+                           f"supported point is {near[mine].min():.2f} m from the surface "
+                           f"(reach {REACH} m); move the person or the surface")
+    b_imp, w_imp = points[important], rho[important]
+    total = w_imp.sum()
+    body_tree = cKDTree(np.concatenate([points, FACING_SCALE * normals], axis=1))
+    body_tree3 = cKDTree(points)
+    exit_tree = cKDTree(np.concatenate([points, EXIT_SCALE * normals], axis=1))
+    fixed = np.full(n0, params.anchor / n0)
+    fixed[list(params.fixed)] += params.gamma
+    smooth = (params.sigma / n0) * (lap.T @ lap)
+    smooth_dense = smooth.toarray()
+    prog = _Programme(sub, lap, n0)
+    v = v0.copy()
+    energies: list[float] = []
+    statuses: list[str] = []
+    best = None
+    terms: dict = {}
+    stop = f"reached the iteration limit ({params.max_iterations})"
+    iteration = 0
+    for iteration in range(1, params.max_iterations + 1):
+        tau = params.tau_max * min(1.0, (iteration - 1) / TAU_RAMP)
+        surf = s @ v
+        surf_n = sub.normals(surf)
+        # data: each important body point pulls its closest surface vertex
+        _, pair = cKDTree(surf).query(b_imp)
+        w = np.bincount(pair, w_imp, minlength=len(surf))
+        target = np.stack([np.bincount(pair, w_imp * b_imp[:, a], minlength=len(surf))
+                           for a in range(3)], axis=1)
+        used = w > 0
+        target[used] /= w[used, None]
+        h = np.zeros((3 * n0, 3 * n0))
+        g = np.zeros(3 * n0)
+        nt = np.einsum("ij,ij->i", surf_n, target)  # n . p per surface vertex
+        for a in range(3):
+            for b in range(a, 3):
+                c = w * (tau * surf_n[:, a] * surf_n[:, b] + ((1 - tau) if a == b else 0.0))
+                blk = (s.T @ sp.diags(c / total) @ s).toarray()
+                h[a * n0:(a + 1) * n0, b * n0:(b + 1) * n0] = blk
+                if a != b:
+                    h[b * n0:(b + 1) * n0, a * n0:(a + 1) * n0] = blk.T
+            ga = w * ((1 - tau) * target[:, a] + tau * surf_n[:, a] * nt) / total
+            g[a * n0:(a + 1) * n0] = s.T @ ga + fixed * v0[:, a]
+            h[a * n0:(a + 1) * n0, a * n0:(a + 1) * n0] += smooth_dense + np.diag(fixed)
+        # non-penetration: stay outside the tangent plane at the closest body vertex
+        query = np.concatenate([surf, -FACING_SCALE * surf_n], axis=1)
+        _, closest = body_tree.query(query)
+        dist = np.linalg.norm(points[closest] - surf, axis=1)
+        # a surface vertex inside a body (behind its nearest skin vertex) is always constrained,
+        # however far the skin it faces: it must get out
+        _, nearest = body_tree3.query(surf)
+        inside = np.einsum("ij,ij->i", surf - points[nearest], normals[nearest]) < 0
+        if inside.any():
+            _, exits = exit_tree.query(np.concatenate([surf[inside], -EXIT_SCALE * surf_n[inside]],
+                                                      axis=1))
+            closest[inside] = exits
+        rows = np.flatnonzero((dist <= CONSTRAINT_RADIUS) | inside)
+        cn = np.zeros((len(surf), 3))
+        cn[rows] = normals[closest[rows]]
+        lower = np.einsum("ij,ij->i", cn[rows], points[closest[rows]]) - params.margin
+        x0 = v.T.reshape(-1)
+        # a proximal pull to the current control mesh damps the alternation between pairing
+        # and solving (which otherwise oscillates once the surface nears the bodies)
+        h[np.diag_indices_from(h)] += PROXIMAL
+        g += PROXIMAL * x0
+        x, status = prog.solve(2 * h, -2 * g, rows, cn[rows], lower, x0)
+        statuses.append(status)
+        v = x.reshape(3, n0).T
+        energy, terms = _energy(s @ v, v, v0, pair, b_imp, w_imp, surf_n, tau, smooth, fixed)
+        terms["laplacian_m2"] = float(np.mean(np.sum((lap @ v) ** 2, axis=1)))
+        energies.append(energy)
+        if best is None or energy < best[0] or iteration <= TAU_RAMP:
+            best = (energy, v.copy(), dict(terms), iteration)
+        if progress is not None:
+            progress(iteration, energy, tau)
+        if iteration > TAU_RAMP:
+            # stop once the best energy has not improved by `tolerance` for PATIENCE iterations
+            recent = energies[-PATIENCE - 1:]
+            if len(recent) > PATIENCE and min(recent[1:]) > recent[0] * (1 - params.tolerance):
+                stop = (f"converged: the energy has not improved by {100 * params.tolerance:g} % "
+                        f"in {PATIENCE} iterations (best {best[0]:.6g} at iteration {best[3]})")
+                break
+    _, v, terms, best_iteration = best
+    surface = s @ v
+    terms["best_iteration"] = best_iteration
+    terms["qp_setups"] = prog.setups
+    return FitResult(v, faces, surface, sub.faces, iteration, stop, energies, terms,
+                     time.perf_counter() - start, statuses, sub)
+
+
+def _energy(surf, v, v0, pair, b, w, surf_n, tau, smooth, fixed) -> tuple[float, dict]:
+    """The fit energy at control vertices v for the iteration's pairing."""
+    diff = b - surf[pair]
+    total = w.sum()
+    point = float(np.sum(w * np.einsum("ij,ij->i", diff, diff)) / total)
+    plane = float(np.sum(w * np.einsum("ij,ij->i", diff, surf_n[pair]) ** 2) / total)
+    smooth_e = float(sum(v[:, a] @ (smooth @ v[:, a]) for a in range(3)))
+    fixed_e = float(np.sum(fixed[:, None] * (v - v0) ** 2))  # gamma on fixed, anchor on all
+    data = (1 - tau) * point + tau * plane
+    return data + smooth_e + fixed_e, {"point_to_point_m2": point, "point_to_plane_m2": plane,
+                                       "smoothness": smooth_e, "fixed": fixed_e, "tau": tau}

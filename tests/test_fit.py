@@ -1,0 +1,120 @@
+"""The surface fit on a shape whose answer is known (a ball resting on a seat), and scenarios."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from solver.evaluate import SurfaceMesh, evaluate_person
+from solver.fit import BodyTarget, FitError, FitParams, fit_surface
+from solver.pressure import pressure_field, triangle_mesh
+from solver.scenario import ScenarioError, load_scenario, parse_scenario
+from solver.subdivision import grid_mesh
+
+
+@pytest.fixture(scope="module")
+def ball():
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.2)
+    v = np.asarray(sphere.vertices) + [0.0, 0.62, 0.0]
+    t = np.asarray(sphere.faces)
+    areas, normals = triangle_mesh(t, len(v)).measures(v)
+    importance = pressure_field(v, t, normals=normals, areas=areas).importance
+    return v, t, normals, areas, importance
+
+
+def _fit(ball, **kw):
+    v, t, normals, areas, importance = ball
+    grid_v, grid_f = grid_mesh((1.2, 0.8), (8, 6), 0.45)
+    params = FitParams(**{"margin": 0.02, "max_iterations": 25, **kw})
+    result = fit_surface(grid_v, grid_f, [BodyTarget(v, normals, importance, "ball")], params)
+    figures, _ = evaluate_person(SurfaceMesh.from_quads(result.surface, result.surface_faces), v,
+                                 normals, areas, importance, 30.0, params.margin, 200.0, t)
+    return grid_v, result, figures
+
+
+def test_ball_is_cradled_without_being_cut(ball):
+    start, result, figures = _fit(ball, sigma=0.01)
+    assert figures["coverage"] > 0.9
+    assert figures["max_penetration_m"] <= 0.02 + 0.005
+    assert result.surface[:, 1].min() < 0.45  # a bowl formed under the ball
+    assert all(s in ("solved", "solved inaccurate") for s in result.qp_statuses)
+
+
+def test_sigma_trades_smoothness_for_coverage(ball):
+    runs = [_fit(ball, sigma=s) for s in (0.001, 0.1, 1.0)]
+    laplacian = [r.energy_terms["laplacian_m2"] for _, r, _ in runs]
+    coverage = [f["coverage"] for _, _, f in runs]
+    assert laplacian[0] > laplacian[1] > laplacian[2]
+    assert coverage[0] > coverage[1] > coverage[2]
+
+
+def test_fixed_vertices_move_less_than_free_ones(ball):
+    fixed = (30, 31, 32, 38, 39)  # under the ball, where the pull is strongest
+    start, free_run, _ = _fit(ball, sigma=0.01)
+    _, fixed_run, _ = _fit(ball, sigma=0.01, fixed=fixed, gamma=100.0)
+    moved_free = np.linalg.norm(free_run.control - start, axis=1)
+    moved_fixed = np.linalg.norm(fixed_run.control - start, axis=1)
+    assert moved_fixed[list(fixed)].max() < 0.25 * moved_free[list(fixed)].max()
+
+
+@pytest.mark.parametrize("tau_max", [0.0, 1.0])
+def test_tau_extremes_converge(ball, tau_max):
+    _, result, figures = _fit(ball, sigma=0.01, tau_max=tau_max, max_iterations=40)
+    assert np.isfinite(result.energies).all()
+    assert figures["max_penetration_m"] <= 0.025
+
+
+def test_person_out_of_reach_is_named(ball):
+    v, t, normals, areas, importance = ball
+    grid_v, grid_f = grid_mesh()
+    with pytest.raises(FitError, match="entirely outside the surface's reach"):
+        fit_surface(grid_v, grid_f, [BodyTarget(v + [5.0, 0, 0], normals, importance, "ball")])
+
+
+SCENARIO = """
+[surface]
+grid = { size = [1.2, 0.8], resolution = [8, 6], height = 0.45 }
+sigma = 0.1
+
+[[person]]
+pose = "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"
+"""
+
+
+@pytest.mark.parametrize("edit, message", [
+    (("sigma = 0.1", "sigma = -1"), r"surface.sigma: expected a number >= 0, got -1"),
+    (("sigma = 0.1", "sigma = 'high'"), r"surface.sigma: expected a number"),
+    (("sigma = 0.1", "tau_max = 2"), r"surface.tau_max: expected a number <= 1"),
+    (("sigma = 0.1", "fixed = [99]"), r"surface.fixed\[0\]: expected a whole number in 0..62"),
+    (("sigma = 0.1", "smoothness = 1"), r"surface.smoothness: unknown field"),
+    (("pose = ", "posture = "), r"person\[0\].posture: unknown field"),
+    (("#frame=39\"", "#frame=39\"\nbody = { weight = 3 }"), r"person\[0\].body: .*weight"),
+    (("#frame=39\"", "#frame=39\"\nsupport = ['tail']"), r"person\[0\].support"),
+    (("grid = { size = [1.2, 0.8], resolution = [8, 6], height = 0.45 }",
+      "control_mesh = 'missing.obj'"), r"surface.control_mesh: no such file"),
+])
+def test_bad_scenarios_name_the_field(tmp_path, edit, message):
+    path = tmp_path / "s.toml"
+    path.write_text(SCENARIO.replace(*edit))
+    with pytest.raises(ScenarioError, match=message):
+        load_scenario(path)
+
+
+def test_non_quad_control_mesh_is_refused(tmp_path):
+    (tmp_path / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 0 1\nf 1 2 3\n")
+    path = tmp_path / "s.toml"
+    path.write_text(SCENARIO.replace(
+        "grid = { size = [1.2, 0.8], resolution = [8, 6], height = 0.45 }",
+        "control_mesh = 'tri.obj'"))
+    with pytest.raises(ScenarioError, match="tri.obj:4: expected a quad control mesh"):
+        load_scenario(path)
+
+
+def test_missing_scenario_and_unknown_pose(tmp_path):
+    with pytest.raises(ScenarioError, match="No scenario file"):
+        load_scenario(tmp_path / "none.toml")
+    scenario = parse_scenario({"surface": {"grid": {}}, "person": [{"pose": "db:nobody"}]})
+    from solver.scene import place_person
+    from solver.poses import PoseSourceError
+
+    with pytest.raises(PoseSourceError, match="needs a pose library"):
+        place_person(scenario.persons[0])
