@@ -92,6 +92,30 @@ def _cmd_pose_show(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_fit(args: argparse.Namespace) -> int:
+    import sys
+
+    from .run import run_fit
+
+    def progress(message: str) -> None:
+        print(f"fit: {message}", file=sys.stderr, flush=True)
+
+    report = run_fit(args.scenario, args.out, db=args.db, progress=progress)
+    if args.json:
+        print(json.dumps(report, indent=2))
+        return 0
+    print(f"{report['iterations']} iterations in {report['timing']['total_s']:.2f} s: "
+          f"{report['stop_reason']}")
+    for p in report["persons"]:
+        flat = p["flat"]
+        print(f"{p['name']}: coverage {p['coverage']:.2f}, penetration "
+              f"{p['max_penetration_m'] * 1000:.0f} mm, peak {p['peak_pressure_kpa']:.1f} kPa "
+              f"(flat seat {flat['peak_pressure_kpa']:.1f} kPa), contact "
+              f"{p['contact_area_m2']:.3f} m^2")
+    print(f"wrote {args.out}/report.json and the surface, control mesh, bodies and pictures")
+    return 0
+
+
 def _cmd_validate_pressure(args: argparse.Namespace) -> int:
     from .validate import validate_pressure
 
@@ -143,6 +167,13 @@ def build_parser() -> argparse.ArgumentParser:
     show.add_argument("--view", choices=sorted(VIEWS), default="three-quarter")
     show.add_argument("--json", action="store_true", help="machine-readable output")
     show.set_defaults(func=_cmd_pose_show)
+
+    fit = sub.add_parser("fit", help="fit a supporting surface to a scenario")
+    fit.add_argument("scenario", help="scenario file (TOML)")
+    fit.add_argument("--db", default=None, help="pose library for db: poses")
+    fit.add_argument("--out", required=True, help="output folder")
+    fit.add_argument("--json", action="store_true", help="print the report")
+    fit.set_defaults(func=_cmd_fit)
 
     validate = sub.add_parser("validate", help="check models against physical references")
     vsub = validate.add_subparsers(dest="validate_command", required=True)

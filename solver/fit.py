@@ -11,7 +11,7 @@ smoothly, without cutting into it. Each iteration:
    E = (1 / sum rho) sum_k rho_k [(1 - tau) |b_k - v_s(k)|^2 + tau (n_s(k) . (b_k - v_s(k)))^2]
        + (sigma / n0) |L V|^2 + gamma sum_fixed |v_j - v0_j|^2
 
-       + anchor sum_all |v_j - v0_j|^2
+       + (anchor / n0) sum_all |v_j - v0_j|^2
 
    where L is the cotangent Laplacian of the control mesh, tau rises from 0 to tau_max over the
    first iterations, subject to every surface vertex near a body staying on the outer side of the
@@ -24,7 +24,10 @@ smoothly, without cutting into it. Each iteration:
    The last term is ours: the smoothness term leaves planes free (tilting the whole surface costs
    nothing), so parts of the surface that no body touches would drift; a weak pull of every
    control vertex to its start (anchor = 0.001 by default, 0 to turn it off) keeps them where the
-   designer put them without holding the supported parts back.
+   designer put them without holding the supported parts back. Two more of ours: body points
+   farther than `pull_range` from the surface do not pull yet (the surface grows towards the
+   bodies from where it starts instead of reaching across the scene), and a proximal pull to the
+   previous iterate (PROXIMAL) damps the alternation between pairing and solving.
 
 The data terms are gathered per surface vertex (the weighted mean of the body points it serves),
 so the programme's size depends on the control mesh, not on the bodies. Non-penetration rows are
@@ -73,6 +76,7 @@ class FitParams:
     max_iterations: int = 50
     tolerance: float = 1e-3
     anchor: float = 1e-3
+    pull_range: float = 0.25
 
 
 @dataclass(frozen=True, eq=False)
@@ -235,9 +239,12 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
         surf = s @ v
         surf_n = sub.normals(surf)
         # data: each important body point pulls its closest surface vertex
-        _, pair = cKDTree(surf).query(b_imp)
-        w = np.bincount(pair, w_imp, minlength=len(surf))
-        target = np.stack([np.bincount(pair, w_imp * b_imp[:, a], minlength=len(surf))
+        gap, pair = cKDTree(surf).query(b_imp)
+        # body points farther than the pull range do not pull (yet): the surface grows towards
+        # the bodies from where the designer put it, instead of reaching across the scene
+        w_now = np.where(gap <= params.pull_range, w_imp, 0.0)
+        w = np.bincount(pair, w_now, minlength=len(surf))
+        target = np.stack([np.bincount(pair, w_now * b_imp[:, a], minlength=len(surf))
                            for a in range(3)], axis=1)
         used = w > 0
         target[used] /= w[used, None]
@@ -278,7 +285,7 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
         x, status = prog.solve(2 * h, -2 * g, rows, cn[rows], lower, x0)
         statuses.append(status)
         v = x.reshape(3, n0).T
-        energy, terms = _energy(s @ v, v, v0, pair, b_imp, w_imp, surf_n, tau, smooth, fixed)
+        energy, terms = _energy(s @ v, v, v0, pair, b_imp, w_now, surf_n, tau, smooth, fixed)
         terms["laplacian_m2"] = float(np.mean(np.sum((lap @ v) ** 2, axis=1)))
         energies.append(energy)
         if best is None or energy < best[0] or iteration <= TAU_RAMP:
@@ -303,7 +310,7 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
 def _energy(surf, v, v0, pair, b, w, surf_n, tau, smooth, fixed) -> tuple[float, dict]:
     """The fit energy at control vertices v for the iteration's pairing."""
     diff = b - surf[pair]
-    total = w.sum()
+    total = max(w.sum(), 1e-300)
     point = float(np.sum(w * np.einsum("ij,ij->i", diff, diff)) / total)
     plane = float(np.sum(w * np.einsum("ij,ij->i", diff, surf_n[pair]) ** 2) / total)
     smooth_e = float(sum(v[:, a] @ (smooth @ v[:, a]) for a in range(3)))

@@ -118,3 +118,37 @@ def test_missing_scenario_and_unknown_pose(tmp_path):
 
     with pytest.raises(PoseSourceError, match="needs a pose library"):
         place_person(scenario.persons[0])
+
+
+def test_fit_command_writes_files_that_open_again(tmp_path):
+    import json
+
+    import trimesh
+
+    from solver.cli import main
+
+    scenario = tmp_path / "ball.toml"
+    scenario.write_text(SCENARIO)
+    out = tmp_path / "out"
+    assert main(["fit", str(scenario), "--out", str(out), "--json"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert {"iterations", "stop_reason", "timing", "persons", "parameters"} <= set(report)
+    assert report["timing"]["total_s"] > 0
+    person = report["persons"][0]
+    for key in ("coverage", "max_penetration_m", "contact_area_m2", "peak_pressure_kpa",
+                "mean_pressure_kpa", "flat"):
+        assert key in person
+    assert {"coverage", "peak_pressure_kpa"} <= set(person["flat"])
+    control = trimesh.load(out / "control.obj", process=False)
+    text = (out / "control.obj").read_text().splitlines()
+    faces = [line for line in text if line.startswith("f ")]
+    assert len(faces) == 48 and all(len(f.split()) == 5 for f in faces)  # all quads
+    assert len(control.vertices) == report["control_vertices"] == 63
+    for name in ("surface.obj", "surface.ply", "surface.glb"):
+        mesh = trimesh.load(out / name, process=False, force="mesh")
+        assert len(mesh.vertices) == report["surface_vertices"]
+        assert len(mesh.faces) in (3072, 2 * 3072)  # quads, or quads as triangle pairs
+    body = trimesh.load(out / "person_1.ply", process=False)
+    assert len(body.vertices) == 13380 and len(body.faces) == 2 * 13378
+    assert (out / "scene.png").stat().st_size > 10_000
+    assert (out / "pressure.png").stat().st_size > 10_000

@@ -1,0 +1,144 @@
+"""`sitrelax fit`: a scenario from file to fitted surface, evaluation, exports and report."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from capture.bvh import write_atomic
+
+from .evaluate import SurfaceMesh, evaluate_person, flat_seat_height, flat_surface
+from .export import write_mesh
+from .fit import FitParams, FitResult, fit_surface
+from .render import SURFACE, MeshView, Panel, field_colors, render_panels
+from .scenario import Scenario, load_scenario
+from .scene import PlacedPerson, place_person
+
+
+def fit_params(scenario: Scenario) -> FitParams:
+    s = scenario.surface
+    return FitParams(s.level, s.sigma, s.tau_max, s.margin, s.fixed, s.gamma, s.creases,
+                     s.max_iterations, s.tolerance)
+
+
+def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.ndarray,
+                   faces: np.ndarray) -> tuple[list[dict], list[np.ndarray]]:
+    """Per person: the fitted surface's figures (with `flat`, the flat-seat baseline) and the
+    pressure (kPa) per body vertex."""
+    mesh = SurfaceMesh.from_quads(surface, faces)
+    margin = scenario.surface.margin
+    rows, maps = [], []
+    for p in people:
+        mask = p.body.part_mask(p.spec.support)
+        figures, pm = evaluate_person(mesh, p.vertices, p.normals, p.areas, p.importance,
+                                      p.body.mass_kg, margin, scenario.foam_stiffness,
+                                      p.body.triangles, mask)
+        height = flat_seat_height(mesh, p.vertices, p.importance)
+        flat, _ = evaluate_person(flat_surface(height, p.vertices.mean(axis=0)), p.vertices,
+                                  p.normals, p.areas, p.importance, p.body.mass_kg, margin,
+                                  scenario.foam_stiffness, p.body.triangles, mask)
+        flat["height_m"] = height
+        rows.append({"name": p.label, "body": p.spec.body.as_dict(),
+                     "height_m": p.body.height_m, "mass_kg": p.body.mass_kg,
+                     "support": list(p.spec.support), **figures, "flat": flat})
+        maps.append(pm.pressure_kpa)
+    return rows, maps
+
+
+def run_fit(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
+            db: str | os.PathLike | None = None,
+            progress: Callable[[str], None] | None = None) -> dict:
+    """Fits a scenario and writes everything into `out_dir`; returns the report."""
+    say = progress or (lambda message: None)
+    timing = {}
+    start = time.perf_counter()
+    scenario = load_scenario(scenario_path)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    t = time.perf_counter()
+    people = [place_person(p, db, k) for k, p in enumerate(scenario.persons)]
+    timing["pose_s"] = time.perf_counter() - t
+    say(f"posed {len(people)} person(s) in {timing['pose_s']:.2f} s")
+    t = time.perf_counter()
+    result = fit_surface(scenario.surface.vertices, scenario.surface.faces,
+                         [p.target() for p in people], fit_params(scenario),
+                         lambda i, e, tau: say(f"iteration {i}: energy {e:.6g} (tau {tau:.2f})"))
+    timing["fit_s"] = time.perf_counter() - t
+    say(f"fitted in {result.iterations} iterations, {timing['fit_s']:.2f} s: {result.stop_reason}")
+    t = time.perf_counter()
+    persons, maps = evaluate_scene(scenario, people, result.surface, result.surface_faces)
+    timing["evaluate_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    files = export_scene(out, result, people, maps)
+    timing["export_s"] = time.perf_counter() - t
+    timing["total_s"] = time.perf_counter() - start
+    report = {
+        "scenario": str(scenario_path),
+        "parameters": {**fit_params(scenario).__dict__,
+                       "fixed": list(scenario.surface.fixed),
+                       "creases": [list(c) for c in scenario.surface.creases],
+                       "foam_stiffness_kpa_per_m": scenario.foam_stiffness,
+                       "control_mesh": scenario.surface.source},
+        "iterations": result.iterations,
+        "stop_reason": result.stop_reason,
+        "energies": result.energies,
+        "energy_terms": result.energy_terms,
+        "timing": timing,
+        "control_vertices": int(len(result.control)),
+        "surface_vertices": int(len(result.surface)),
+        "persons": persons,
+        "files": files,
+    }
+    write_atomic(out / "report.json", json.dumps(report, indent=2).encode())
+    return report
+
+
+def export_scene(out: Path, result: FitResult, people: list[PlacedPerson],
+                 maps: list[np.ndarray]) -> dict:
+    """Surface, control mesh, posed bodies and pictures; returns the file names."""
+    files = {}
+    files["control_obj"] = write_mesh(out / "control.obj", result.control, result.faces,
+                                      comment="sitrelax control mesh (quads): Rhino ToSubD "
+                                              "gives the same Catmull-Clark surface").name
+    contact = _contact_colors(result.surface, people)
+    for suffix in (".obj", ".ply", ".glb"):
+        name = f"surface{suffix}"
+        write_mesh(out / name, result.surface, result.surface_faces,
+                   vertex_colors=None if suffix == ".obj" else contact)
+        files[f"surface_{suffix[1:]}"] = name
+    peak = max([float(m.max()) for m in maps] + [1.0])
+    bodies = []
+    for k, (p, pressure) in enumerate(zip(people, maps), start=1):
+        colors = field_colors(pressure, 0.0, peak)
+        write_mesh(out / f"person_{k}.ply", p.vertices, p.body.faces, vertex_colors=colors)
+        write_mesh(out / f"person_{k}.obj", p.vertices, p.body.faces)
+        bodies.append(f"person_{k}.ply")
+    files["bodies"] = bodies
+    scene = [MeshView(result.surface, result.surface_faces, SURFACE)] + [
+        MeshView(p.vertices, p.body.faces) for p in people]
+    render_panels(out / "scene.png", [Panel(scene, "three-quarter", "fitted surface"),
+                                      Panel(scene, "side", "side")], columns=2)
+    files["scene_png"] = "scene.png"
+    panels = [Panel([MeshView(p.vertices, p.body.faces, field_colors(m, 0.0, peak))], "below",
+                    f"{p.label}: peak {float(m.max()):.1f} kPa") for p, m in zip(people, maps)]
+    render_panels(out / "pressure.png", panels, columns=min(3, len(panels)),
+                  colorbar=("pressure, kPa", 0.0, peak))
+    files["pressure_png"] = "pressure.png"
+    return files
+
+
+def _contact_colors(surface: np.ndarray, people: list[PlacedPerson]) -> np.ndarray:
+    """Per surface vertex: blue where no body is near, warm where a body rests (within 3 cm)."""
+    from scipy.spatial import cKDTree
+
+    points = np.concatenate([p.vertices for p in people])
+    dist, _ = cKDTree(points).query(surface)
+    near = np.clip(1.0 - dist / 0.03, 0.0, 1.0)
+    base = np.array(SURFACE)
+    warm = np.array([0.95, 0.55, 0.2])
+    return base[None, :] * (1 - near[:, None]) + warm[None, :] * near[:, None]
