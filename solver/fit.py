@@ -88,6 +88,7 @@ class BodyTarget:
     normals: np.ndarray
     importance: np.ndarray
     label: str = "person"
+    triangles: np.ndarray | None = None  # the closed skin
 
 
 @dataclass

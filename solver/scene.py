@@ -33,7 +33,8 @@ class PlacedPerson:
     label: str
 
     def target(self) -> BodyTarget:
-        return BodyTarget(self.vertices, self.normals, self.importance, self.label)
+        return BodyTarget(self.vertices, self.normals, self.importance, self.label,
+                          self.body.triangles)
 
 
 def placement(position, rotation_deg) -> np.ndarray:
