@@ -65,6 +65,31 @@ def _subdivide_fresh(arg):
     return sd.subdivision(len(verts), quads, 3).apply(verts)
 
 
+SEATED_SCENARIO = {
+    "surface": {"grid": {"size": [0.7, 0.8], "resolution": [8, 6], "height": 0.42},
+                "level": 3, "sigma": 0.003, "tau_max": 0.5, "margin": 0.03},
+    "person": [{"pose": "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39",
+                "position": [0.0, 0.0, -0.15], "support": ["torso", "legs"]}],
+}
+
+
+def _fit_setup():
+    from .run import fit_params
+    from .scenario import parse_scenario
+    from .scene import place_person
+
+    scenario = parse_scenario(SEATED_SCENARIO, "bench")
+    people = [place_person(p, None, k) for k, p in enumerate(scenario.persons)]
+    return scenario, [p.target() for p in people], fit_params(scenario)
+
+
+def _fit(arg):
+    from .fit import fit_surface
+
+    scenario, targets, params = arg
+    return fit_surface(scenario.surface.vertices, scenario.surface.faces, targets, params)
+
+
 def solver_cases() -> list[BenchCase]:
     return [
         BenchCase("skinning", "pose the 13,380-vertex body (vertices and normals), one frame",
@@ -75,6 +100,8 @@ def solver_cases() -> list[BenchCase]:
                   _posed_setup, _pressure_reference, repeats=5),
         BenchCase("subdivision", "Catmull-Clark operator of an 8x6 grid to level 3, from "
                   "scratch, applied", _grid_setup, _subdivide_fresh, repeats=30),
+        BenchCase("fit_single", "fit an 8x6 grid, level 3, to one seated person, to the "
+                  "loop's stop", _fit_setup, _fit, repeats=5),
     ]
 
 
