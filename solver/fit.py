@@ -27,7 +27,10 @@ smoothly, without cutting into it. Each iteration:
    designer put them without holding the supported parts back. Two more of ours: body points
    farther than `pull_range` from the surface do not pull yet (the surface grows towards the
    bodies from where it starts instead of reaching across the scene), and a proximal pull to the
-   previous iterate (PROXIMAL) damps the alternation between pairing and solving.
+   previous iterate (PROXIMAL) damps the alternation between pairing and solving. Each
+   iteration is also a trust region: no control vertex moves more than `step` per coordinate
+   (so the tangent planes stay valid), and a violated non-penetration row need only improve
+   by most of a step.
 
 The data terms are gathered per surface vertex (the weighted mean of the body points it serves),
 so the programme's size depends on the control mesh, not on the bodies. Non-penetration rows are
@@ -77,6 +80,7 @@ class FitParams:
     tolerance: float = 1e-3
     anchor: float = 1e-3
     pull_range: float = 0.25
+    step: float = 0.05  # metres a control vertex may move per iteration (a trust region)
 
 
 @dataclass(frozen=True, eq=False)
@@ -134,35 +138,46 @@ class _Programme:
         self.p_pattern = upper
         self.p_rows, self.p_cols = _coo_of(upper)
         self.rows: np.ndarray | None = None
+        self.setup_rows: np.ndarray | None = None
         self.solver = None
         self.setups = 0
 
     def _constraint_pattern(self, rows: np.ndarray):
         sub = self.s[rows]
-        a = sp.hstack([sub, sub, sub], format="csc")
+        a = sp.vstack([sp.hstack([sub, sub, sub]), sp.identity(3 * self.n0)], format="csc")
         a.sort_indices()
         r, c = _coo_of(a)
-        values = np.asarray(sub[r, c % self.n0]).ravel()
-        return a, r, c // self.n0, values
+        values = np.ones(len(r))
+        plane = r < len(rows)
+        values[plane] = np.asarray(sub[r[plane], c[plane] % self.n0]).ravel()
+        axis = np.where(plane, c // self.n0, 0)
+        return a, r, axis, values, plane
 
     def solve(self, p_dense: np.ndarray, q: np.ndarray, rows: np.ndarray, normals: np.ndarray,
-              lower: np.ndarray, x0: np.ndarray) -> tuple[np.ndarray, str]:
+              lower: np.ndarray, x0: np.ndarray, step: float) -> tuple[np.ndarray, str]:
         p_values = p_dense[self.p_rows, self.p_cols]
+        low = np.concatenate([lower, x0 - step])
+        high = np.concatenate([np.full(len(rows), np.inf), x0 + step])
+        padded = np.concatenate([normals, np.zeros((1, 3))])
         if self.rows is None or not np.array_equal(rows, self.rows):
             self.rows = rows
-            self.a, self.a_rows, self.a_axis, self.a_s = self._constraint_pattern(rows)
+            self.a, self.a_rows, self.a_axis, self.a_s, self.a_plane = \
+                self._constraint_pattern(rows)
+        rows_idx = np.where(self.a_plane, self.a_rows, len(normals))
+        a_values = np.where(self.a_plane, self.a_s * padded[rows_idx, self.a_axis], 1.0)
+        if self.solver is None or self.setup_rows is not self.rows:
             a = self.a.copy()
-            a.data = self.a_s * normals[self.a_rows, self.a_axis]
+            a.data = a_values
             p = self.p_pattern.copy()
             p.data = p_values
             self.solver = self._osqp.OSQP()
-            self.solver.setup(p, q, a, lower, np.full(len(rows), np.inf), verbose=False,
-                              warm_starting=True, polishing=False, eps_abs=1e-5, eps_rel=1e-4,
-                              max_iter=20000, adaptive_rho=True)
+            self.solver.setup(p, q, a, low, high, verbose=False, warm_starting=True,
+                              polishing=False, eps_abs=1e-5, eps_rel=1e-4, max_iter=20000,
+                              adaptive_rho=True)
+            self.setup_rows = self.rows
             self.setups += 1
         else:
-            self.solver.update(Px=p_values, q=q, Ax=self.a_s * normals[self.a_rows, self.a_axis],
-                               l=lower, u=np.full(len(rows), np.inf))
+            self.solver.update(Px=p_values, q=q, Ax=a_values, l=low, u=high)
         self.solver.warm_start(x=x0)
         res = self.solver.solve(raise_error=False)
         status = str(res.info.status)
@@ -278,12 +293,16 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
         cn = np.zeros((len(surf), 3))
         cn[rows] = normals[closest[rows]]
         lower = np.einsum("ij,ij->i", cn[rows], points[closest[rows]]) - params.margin
+        # a violated row need only improve by most of a step per iteration (it stays feasible
+        # within the trust region)
+        now = np.einsum("ij,ij->i", cn[rows], surf[rows])
+        lower = np.minimum(lower, now + 0.8 * params.step)
         x0 = v.T.reshape(-1)
         # a proximal pull to the current control mesh damps the alternation between pairing
         # and solving (which otherwise oscillates once the surface nears the bodies)
         h[np.diag_indices_from(h)] += PROXIMAL
         g += PROXIMAL * x0
-        x, status = prog.solve(2 * h, -2 * g, rows, cn[rows], lower, x0)
+        x, status = prog.solve(2 * h, -2 * g, rows, cn[rows], lower, x0, params.step)
         statuses.append(status)
         v = x.reshape(3, n0).T
         energy, terms = _energy(s @ v, v, v0, pair, b_imp, w_now, surf_n, tau, smooth, fixed)
