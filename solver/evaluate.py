@@ -26,6 +26,7 @@ import numpy as np
 
 G = 9.81
 FOAM_DEPTH = 0.05  # metres: a body vertex deeper than this behind the surface is not in contact
+MAX_SINK = 0.2  # metres: a body that needs to sink deeper than this is reported unsupported
 
 
 @dataclass(frozen=True, eq=False)
@@ -127,9 +128,9 @@ def pressure_map(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, m
         return float(np.sum(k * np.maximum(0.0, t * u - d) * a * u))
 
     zeros = np.zeros(len(vertices))
-    if not candidate.any() or lift(FOAM_DEPTH) < weight:
-        return PressureMap(zeros, 0.0, 0.0, 0.0, None, FOAM_DEPTH, False)
-    lo, hi = -FOAM_DEPTH, FOAM_DEPTH
+    if not candidate.any() or lift(MAX_SINK) < weight:
+        return PressureMap(zeros, 0.0, 0.0, 0.0, None, MAX_SINK, False)
+    lo, hi = -MAX_SINK, MAX_SINK
     for _ in range(80):
         mid = 0.5 * (lo + hi)
         if lift(mid) < weight:

@@ -59,7 +59,8 @@ FACING_SCALE = 0.1  # metres a body normal's turn away from the surface counts a
 EXIT_SCALE = 1.0  # the same, for a surface vertex inside a body: it leaves through the skin
                   # facing against the surface's normal, behind the body (below a seated one)
 TAU_RAMP = 5  # iterations over which tau rises from 0 to tau_max
-PATIENCE = 3  # iterations without improvement before the loop stops
+PATIENCE = 6  # iterations without improvement before the loop stops
+SLACK_WEIGHT = 1e3  # cost per m^2 of a non-penetration row left unmet (soft constraints)
 PROXIMAL = 0.01  # weight of the pull to the current control mesh (per coordinate)
 
 
@@ -120,8 +121,13 @@ def control_laplacian(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
 
 
 class _Programme:
-    """The QP: the objective's pattern is fixed for the whole fit; the constraint rows are the
-    surface vertices near a body, and OSQP is set up again only when that set changes."""
+    """The QP over the control vertices x (3 n0) and one slack per non-penetration row.
+
+    Rows are soft: n . (S x)_r + slack_r >= lower_r with slack_r >= 0 costing SLACK_WEIGHT
+    slack^2, so overlapping bodies that no surface can clear at once leave a measured residual
+    instead of an infeasible programme. The objective's pattern for x is fixed for the whole
+    fit; OSQP is set up again only when the set of rows changes, and updated in place otherwise.
+    """
 
     def __init__(self, sub: Subdivision, lap: sp.csr_matrix, n0: int):
         import osqp
@@ -133,58 +139,74 @@ class _Programme:
         coupling = (s.T @ s).tocsr() + (lap.T @ lap) + sp.identity(n0)
         coupling.data[:] = 1.0
         block = sp.kron(sp.csr_matrix(np.ones((3, 3))), coupling).tocsc()
-        upper = sp.triu(block, format="csc")
-        upper.sort_indices()
-        self.p_pattern = upper
-        self.p_rows, self.p_cols = _coo_of(upper)
+        self.x_pattern = sp.triu(block, format="csc")
+        self.x_pattern.sort_indices()
         self.rows: np.ndarray | None = None
-        self.setup_rows: np.ndarray | None = None
         self.solver = None
         self.setups = 0
 
-    def _constraint_pattern(self, rows: np.ndarray):
+    def _setup_patterns(self, rows: np.ndarray) -> None:
+        n, r = 3 * self.n0, len(rows)
+        # objective: [P_x 0; 0 2 w I_r]
+        p = sp.block_diag([self.x_pattern, sp.identity(r)], format="csc")
+        p.sort_indices()
+        self.p_pattern = p
+        self.p_rows, self.p_cols = _coo_of(p)
+        self.p_is_x = self.p_cols < n
+        # constraints: [n.S  I_r; I_x 0; 0 I_r]
         sub = self.s[rows]
-        a = sp.vstack([sp.hstack([sub, sub, sub]), sp.identity(3 * self.n0)], format="csc")
+        a = sp.vstack([
+            sp.hstack([sub, sub, sub, sp.identity(r)]),
+            sp.hstack([sp.identity(n), sp.csr_matrix((n, r))]),
+            sp.hstack([sp.csr_matrix((r, n)), sp.identity(r)]),
+        ], format="csc")
         a.sort_indices()
-        r, c = _coo_of(a)
-        values = np.ones(len(r))
-        plane = r < len(rows)
-        values[plane] = np.asarray(sub[r[plane], c[plane] % self.n0]).ravel()
-        axis = np.where(plane, c // self.n0, 0)
-        return a, r, axis, values, plane
+        self.a_pattern = a
+        ar, ac = _coo_of(a)
+        plane = (ar < r) & (ac < n)
+        self.a_plane = plane
+        self.a_row = np.where(plane, ar, 0)
+        self.a_axis = np.where(plane, ac // self.n0, 0)
+        self.a_s = np.ones(len(ar))
+        self.a_s[plane] = np.asarray(sub[ar[plane], ac[plane] % self.n0]).ravel()
 
     def solve(self, p_dense: np.ndarray, q: np.ndarray, rows: np.ndarray, normals: np.ndarray,
-              lower: np.ndarray, x0: np.ndarray, step: float) -> tuple[np.ndarray, str]:
-        p_values = p_dense[self.p_rows, self.p_cols]
-        low = np.concatenate([lower, x0 - step])
-        high = np.concatenate([np.full(len(rows), np.inf), x0 + step])
-        padded = np.concatenate([normals, np.zeros((1, 3))])
-        if self.rows is None or not np.array_equal(rows, self.rows):
+              lower: np.ndarray, x0: np.ndarray, step: float) -> tuple[np.ndarray, str, float]:
+        n, r = 3 * self.n0, len(rows)
+        fresh = self.rows is None or not np.array_equal(rows, self.rows)
+        if fresh:
             self.rows = rows
-            self.a, self.a_rows, self.a_axis, self.a_s, self.a_plane = \
-                self._constraint_pattern(rows)
-        rows_idx = np.where(self.a_plane, self.a_rows, len(normals))
-        a_values = np.where(self.a_plane, self.a_s * padded[rows_idx, self.a_axis], 1.0)
-        if self.solver is None or self.setup_rows is not self.rows:
-            a = self.a.copy()
-            a.data = a_values
+            self._setup_patterns(rows)
+        xr, xc = self.p_rows[self.p_is_x], self.p_cols[self.p_is_x]
+        p_values = np.full(len(self.p_rows), 2 * SLACK_WEIGHT)
+        p_values[self.p_is_x] = p_dense[xr, xc]
+        a_values = np.where(self.a_plane, self.a_s * normals[self.a_row, self.a_axis], 1.0)
+        q_full = np.concatenate([q, np.zeros(r)])
+        low = np.concatenate([lower, x0 - step, np.zeros(r)])
+        high = np.concatenate([np.full(r, np.inf), x0 + step, np.full(r, np.inf)])
+        if fresh:
             p = self.p_pattern.copy()
             p.data = p_values
+            a = self.a_pattern.copy()
+            a.data = a_values
             self.solver = self._osqp.OSQP()
-            self.solver.setup(p, q, a, low, high, verbose=False, warm_starting=True,
+            self.solver.setup(p, q_full, a, low, high, verbose=False, warm_starting=True,
                               polishing=False, eps_abs=1e-5, eps_rel=1e-4, max_iter=20000,
                               adaptive_rho=True)
-            self.setup_rows = self.rows
             self.setups += 1
         else:
-            self.solver.update(Px=p_values, q=q, Ax=a_values, l=low, u=high)
-        self.solver.warm_start(x=x0)
+            self.solver.update(Px=p_values, q=q_full, Ax=a_values, l=low, u=high)
+        slack0 = np.maximum(0.0, lower - normals_dot(normals, self.s[rows] @ x0.reshape(3, -1).T))
+        self.solver.warm_start(x=np.concatenate([x0, slack0]))
         res = self.solver.solve(raise_error=False)
         status = str(res.info.status)
         if status not in ("solved", "solved inaccurate"):
-            raise FitError(f"The surface's quadratic programme failed: OSQP says {status!r} "
-                           "(the bodies may overlap the surface in a way no surface can avoid)")
-        return res.x, status
+            raise FitError(f"The surface's quadratic programme failed: OSQP says {status!r}")
+        return res.x[:n], status, float(res.x[n:].max(initial=0.0))
+
+
+def normals_dot(normals: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,ij->i", normals, points)
 
 
 def _coo_of(m: sp.csc_matrix) -> tuple[np.ndarray, np.ndarray]:
@@ -246,6 +268,7 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
     v = v0.copy()
     energies: list[float] = []
     statuses: list[str] = []
+    residuals: list[float] = []
     best = None
     terms: dict = {}
     stop = f"reached the iteration limit ({params.max_iterations})"
@@ -302,27 +325,29 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
         # and solving (which otherwise oscillates once the surface nears the bodies)
         h[np.diag_indices_from(h)] += PROXIMAL
         g += PROXIMAL * x0
-        x, status = prog.solve(2 * h, -2 * g, rows, cn[rows], lower, x0, params.step)
+        x, status, residual = prog.solve(2 * h, -2 * g, rows, cn[rows], lower, x0, params.step)
         statuses.append(status)
+        residuals.append(residual)
         v = x.reshape(3, n0).T
         energy, terms = _energy(s @ v, v, v0, pair, b_imp, w_now, surf_n, tau, smooth, fixed)
         terms["laplacian_m2"] = float(np.mean(np.sum((lap @ v) ** 2, axis=1)))
         energies.append(energy)
-        if best is None or energy < best[0] or iteration <= TAU_RAMP:
+        # energies are comparable only at the same tau: keep and judge those after the ramp
+        if best is None or energy < best[0] or iteration <= TAU_RAMP + 1:
             best = (energy, v.copy(), dict(terms), iteration)
         if progress is not None:
             progress(iteration, energy, tau)
-        if iteration > TAU_RAMP:
-            # stop once the best energy has not improved by `tolerance` for PATIENCE iterations
-            recent = energies[-PATIENCE - 1:]
-            if len(recent) > PATIENCE and min(recent[1:]) > recent[0] * (1 - params.tolerance):
-                stop = (f"converged: the energy has not improved by {100 * params.tolerance:g} % "
-                        f"in {PATIENCE} iterations (best {best[0]:.6g} at iteration {best[3]})")
-                break
+        post = energies[TAU_RAMP:]
+        if len(post) > PATIENCE and min(post[-PATIENCE:]) > post[-PATIENCE - 1] * (
+                1 - params.tolerance):
+            stop = (f"converged: the energy has not improved by {100 * params.tolerance:g} % "
+                    f"in {PATIENCE} iterations (best {best[0]:.6g} at iteration {best[3]})")
+            break
     _, v, terms, best_iteration = best
     surface = s @ v
     terms["best_iteration"] = best_iteration
     terms["qp_setups"] = prog.setups
+    terms["largest_row_residual_m"] = residuals[best_iteration - 1] if residuals else 0.0
     return FitResult(v, faces, surface, sub.faces, iteration, stop, energies, terms,
                      time.perf_counter() - start, statuses, sub)
 
