@@ -62,7 +62,7 @@ class SurfaceSpec:
     gamma: float = 10.0
     creases: tuple[tuple[int, int], ...] = ()
     max_iterations: int = 50
-    tolerance: float = 1e-3
+    tolerance: float = 0.01
     source: str = "grid"
 
 
@@ -206,7 +206,7 @@ def parse_scenario(data: dict, where: str = "<scenario>", base: Path | None = No
         creases=creases,
         max_iterations=_int(surf.get("max_iterations", 50), where, "surface.max_iterations", 1,
                             10_000),
-        tolerance=_number(surf.get("tolerance", 1e-3), where, "surface.tolerance", 0.0),
+        tolerance=_number(surf.get("tolerance", 0.01), where, "surface.tolerance", 0.0),
         source=source,
     )
     if creases:

@@ -1,5 +1,7 @@
 """The surface fit on a shape whose answer is known (a ball resting on a seat), and scenarios."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import trimesh
@@ -152,3 +154,20 @@ def test_fit_command_writes_files_that_open_again(tmp_path):
     assert len(body.vertices) == 13380 and len(body.faces) == 2 * 13378
     assert (out / "scene.png").stat().st_size > 10_000
     assert (out / "pressure.png").stat().st_size > 10_000
+
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "fixtures" / "scenarios"
+
+
+@pytest.mark.parametrize("name", ["single_seated", "reclining"])
+def test_example_scenarios_meet_the_bar(name, tmp_path):
+    """Coverage at least 0.9, no cut deeper than the margin plus 5 mm, and a peak pressure at
+    most 60 % of the flat seat's at the same height."""
+    from solver.run import run_fit
+
+    report = run_fit(EXAMPLES / f"{name}.toml", tmp_path)
+    margin = report["parameters"]["margin"]
+    for person in report["persons"]:
+        assert person["coverage"] >= 0.9, person
+        assert person["max_penetration_m"] <= margin + 0.005, person
+        assert person["peak_pressure_kpa"] <= 0.6 * person["flat"]["peak_pressure_kpa"], person
