@@ -127,6 +127,24 @@ def _parse_id(text: str, prefix: str) -> int | None:
     return None
 
 
+def _find_take(takes: dict[str, TakeInfo], ref: str, path: Path) -> TakeInfo:
+    """A take by id or name."""
+    if ref in takes:
+        return takes[ref]
+    for t in takes.values():
+        if t.name == ref:
+            return t
+    raise NotFoundError(f"No take {ref!r} in {path}")
+
+
+def _find_pose(table: PoseTable, ref: str, path: Path) -> int:
+    """The table row of a pose given by id or name."""
+    row = table.row_of(ref)
+    if row is None:
+        raise NotFoundError(f"No pose {ref!r} in {path}")
+    return row
+
+
 def skeleton_key(sk: Skeleton) -> str:
     """A content hash naming a distinct skeleton (names, hierarchy, offsets, channels, unit)."""
     h = hashlib.sha1()
@@ -219,12 +237,7 @@ class PoseLibrary:
 
     def take(self, ref: str) -> TakeInfo:
         """A take by id or name."""
-        if ref in self._takes:
-            return self._takes[ref]
-        for t in self._takes.values():
-            if t.name == ref:
-                return t
-        raise NotFoundError(f"No take {ref!r} in {self.path}")
+        return _find_take(self._takes, ref, self.path)
 
     def skeleton(self, key: str) -> Skeleton:
         with schema.open_checked(self.path) as f:
@@ -260,10 +273,7 @@ class PoseLibrary:
                         t.value("created_at", row))
 
     def _pose_row(self, ref: str) -> int:
-        row = self._table.row_of(ref)
-        if row is None:
-            raise NotFoundError(f"No pose {ref!r} in {self.path}")
-        return row
+        return _find_pose(self._table, ref, self.path)
 
     def pose(self, ref: str) -> PoseInfo:
         """A pose by id or name."""
@@ -397,18 +407,10 @@ class Editor:
         return name
 
     def _take(self, ref: str) -> TakeInfo:
-        if ref in self.takes:
-            return self.takes[ref]
-        for t in self.takes.values():
-            if t.name == ref:
-                return t
-        raise NotFoundError(f"No take {ref!r} in {self.lib.path}")
+        return _find_take(self.takes, ref, self.lib.path)
 
     def _pose_row(self, ref: str) -> int:
-        row = self.table.row_of(ref)
-        if row is None:
-            raise NotFoundError(f"No pose {ref!r} in {self.lib.path}")
-        return row
+        return _find_pose(self.table, ref, self.lib.path)
 
     def _frame_arrays(self, take: TakeInfo, frame: int) -> tuple[np.ndarray, tuple]:
         """A frame's local rotations and root position, reading small takes only once."""

@@ -196,7 +196,7 @@ class _Programme:
             self.setups += 1
         else:
             self.solver.update(Px=p_values, q=q_full, Ax=a_values, l=low, u=high)
-        slack0 = np.maximum(0.0, lower - normals_dot(normals, self.s[rows] @ x0.reshape(3, -1).T))
+        slack0 = np.maximum(0.0, lower - _normals_dot(normals, self.s[rows] @ x0.reshape(3, -1).T))
         self.solver.warm_start(x=np.concatenate([x0, slack0]))
         res = self.solver.solve(raise_error=False)
         status = str(res.info.status)
@@ -205,7 +205,7 @@ class _Programme:
         return res.x[:n], status, float(res.x[n:].max(initial=0.0))
 
 
-def normals_dot(normals: np.ndarray, points: np.ndarray) -> np.ndarray:
+def _normals_dot(normals: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", normals, points)
 
 

@@ -21,9 +21,7 @@ from .scene import PlacedPerson, place_person
 
 
 def fit_params(scenario: Scenario) -> FitParams:
-    s = scenario.surface
-    return FitParams(s.level, s.sigma, s.tau_max, s.margin, s.fixed, s.gamma, s.creases,
-                     s.max_iterations, s.tolerance)
+    return scenario.surface.params
 
 
 def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.ndarray,
@@ -31,7 +29,7 @@ def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.n
     """Per person: the fitted surface's figures (with `flat`, the flat-seat baseline) and the
     pressure (kPa) per body vertex."""
     mesh = SurfaceMesh.from_quads(surface, faces)
-    margin = scenario.surface.margin
+    margin = scenario.surface.params.margin
     rows, maps = [], []
     for p in people:
         mask = p.body.part_mask(p.spec.support)
@@ -80,8 +78,8 @@ def run_fit(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
     report = {
         "scenario": str(scenario_path),
         "parameters": {**fit_params(scenario).__dict__,
-                       "fixed": list(scenario.surface.fixed),
-                       "creases": [list(c) for c in scenario.surface.creases],
+                       "fixed": list(scenario.surface.params.fixed),
+                       "creases": [list(c) for c in scenario.surface.params.creases],
                        "foam_stiffness_kpa_per_m": scenario.foam_stiffness,
                        "control_mesh": scenario.surface.source},
         "iterations": result.iterations,

@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from .body import BODY_PARTS, BodyShape, BodyShapeError
+from .fit import FitParams
 from .subdivision import grid_mesh
 
 SURFACE_KEYS = {"grid", "control_mesh", "level", "sigma", "tau_max", "margin", "fixed", "gamma",
@@ -48,21 +49,13 @@ class ScenarioError(ValueError):
     """A scenario that cannot be used; the message names the file and the field."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class SurfaceSpec:
-    """The control mesh and the fit's parameters."""
+    """The control mesh (vertices (n, 3), quads (F, 4)) and the fit's parameters."""
 
     vertices: np.ndarray
     faces: np.ndarray
-    level: int = 3
-    sigma: float = 0.1
-    tau_max: float = 0.5
-    margin: float = 0.03
-    fixed: tuple[int, ...] = ()
-    gamma: float = 10.0
-    creases: tuple[tuple[int, int], ...] = ()
-    max_iterations: int = 50
-    tolerance: float = 0.01
+    params: FitParams = field(default_factory=FitParams)
     source: str = "grid"
 
 
@@ -195,8 +188,7 @@ def parse_scenario(data: dict, where: str = "<scenario>", base: Path | None = No
         raise _fail(where, "surface.creases", f"expected a list of [i, j] pairs, got {creases!r}")
     creases = tuple((_int(a, where, "surface.creases", 0, n - 1),
                      _int(b, where, "surface.creases", 0, n - 1)) for a, b in creases)
-    spec = SurfaceSpec(
-        verts, faces,
+    spec = SurfaceSpec(verts, faces, FitParams(
         level=_int(surf.get("level", 3), where, "surface.level", 1, 5),
         sigma=_number(surf.get("sigma", 0.1), where, "surface.sigma", 0.0),
         tau_max=_number(surf.get("tau_max", 0.5), where, "surface.tau_max", 0.0, 1.0),
@@ -207,8 +199,7 @@ def parse_scenario(data: dict, where: str = "<scenario>", base: Path | None = No
         max_iterations=_int(surf.get("max_iterations", 50), where, "surface.max_iterations", 1,
                             10_000),
         tolerance=_number(surf.get("tolerance", 0.01), where, "surface.tolerance", 0.0),
-        source=source,
-    )
+    ), source)
     if creases:
         from .subdivision import MeshError, subdivide_once
 
