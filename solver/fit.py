@@ -60,6 +60,7 @@ EXIT_SCALE = 1.0  # the same, for a surface vertex inside a body: it leaves thro
                   # facing against the surface's normal, behind the body (below a seated one)
 TAU_RAMP = 5  # iterations over which tau rises from 0 to tau_max
 PATIENCE = 5  # iterations without improvement before the loop stops
+EPS_ABS, EPS_REL = 1e-5, 1e-4  # OSQP tolerances (metres for the constraints)
 SLACK_WEIGHT = 1e3  # cost per m^2 of a non-penetration row left unmet (soft constraints)
 PROXIMAL = 0.01  # weight of the pull to the current control mesh (per coordinate)
 
@@ -191,7 +192,7 @@ class _Programme:
             a.data = a_values
             self.solver = self._osqp.OSQP()
             self.solver.setup(p, q_full, a, low, high, verbose=False, warm_starting=True,
-                              polishing=False, eps_abs=1e-5, eps_rel=1e-4, max_iter=20000,
+                              polishing=False, eps_abs=EPS_ABS, eps_rel=EPS_REL, max_iter=20000,
                               adaptive_rho=True)
             self.setups += 1
         else:
