@@ -116,6 +116,26 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_relax(args: argparse.Namespace) -> int:
+    import sys
+
+    from .run import run_relax
+
+    report = run_relax(args.scenario, args.out, surface_dir=args.surface, person=args.person,
+                       db=args.db,
+                       progress=lambda m: print(f"relax: {m}", file=sys.stderr, flush=True))
+    if args.json:
+        print(json.dumps(report, indent=2))
+        return 0
+    for p in report["persons"]:
+        b, a = p["before"], p["after"]
+        print(f"{p['name']}: support distance {b['mean_support_distance_m'] * 100:.1f} -> "
+              f"{a['mean_support_distance_m'] * 100:.1f} cm, coverage {b['coverage']:.2f} -> "
+              f"{a['coverage']:.2f}, peak {b['peak_pressure_kpa']:.1f} -> "
+              f"{a['peak_pressure_kpa']:.1f} kPa ({p['seconds']:.2f} s)")
+    return 0
+
+
 def _cmd_validate_pressure(args: argparse.Namespace) -> int:
     from .validate import validate_pressure
 
@@ -174,6 +194,15 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--out", required=True, help="output folder")
     fit.add_argument("--json", action="store_true", help="print the report")
     fit.set_defaults(func=_cmd_fit)
+
+    rx = sub.add_parser("relax", help="let the scenario's people settle onto the surface")
+    rx.add_argument("scenario", help="scenario file (TOML)")
+    rx.add_argument("--surface", help="folder of a `sitrelax fit` result (default: fit now)")
+    rx.add_argument("--person", type=int, help="only this person (1-based)")
+    rx.add_argument("--db", default=None, help="pose library for db: poses")
+    rx.add_argument("--out", required=True, help="output folder")
+    rx.add_argument("--json", action="store_true", help="print the report")
+    rx.set_defaults(func=_cmd_relax)
 
     validate = sub.add_parser("validate", help="check models against physical references")
     vsub = validate.add_subparsers(dest="validate_command", required=True)

@@ -140,3 +140,77 @@ def _contact_colors(surface: np.ndarray, people: list[PlacedPerson]) -> np.ndarr
     base = np.array(SURFACE)
     warm = np.array([0.95, 0.55, 0.2])
     return base[None, :] * (1 - near[:, None]) + warm[None, :] * near[:, None]
+
+
+def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
+              surface_dir: str | os.PathLike | None = None, person: int | None = None,
+              db: str | os.PathLike | None = None,
+              progress: Callable[[str], None] | None = None) -> dict:
+    """Relaxes the scenario's people onto a surface (fitted before into `surface_dir`, or now)
+    and writes the relaxed bodies, BVH poses, a picture and report.json into `out_dir`."""
+    from capture import Motion, write_bvh
+
+    from .pressure import triangle_mesh
+    from .relax import RelaxError, pose_channels, problem_for, relax, rig_skeleton
+    from .scenario import read_control_mesh
+
+    say = progress or (lambda message: None)
+    start = time.perf_counter()
+    scenario = load_scenario(scenario_path)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    people = [place_person(p, db, k) for k, p in enumerate(scenario.persons)]
+    if surface_dir is not None:
+        surface, faces = read_control_mesh(Path(surface_dir) / "surface.obj", str(surface_dir))
+        say(f"surface from {surface_dir}")
+    else:
+        result = fit_surface(scenario.surface.vertices, scenario.surface.faces,
+                             [p.target() for p in people], fit_params(scenario))
+        surface, faces = result.surface, result.surface_faces
+        say(f"fitted the surface in {result.iterations} iterations")
+    tris = np.concatenate([faces[:, [0, 1, 2]], faces[:, [0, 2, 3]]])
+    mesh = SurfaceMesh.from_quads(surface, faces)
+    chosen = range(len(people)) if person is None else [person - 1]
+    if person is not None and not 1 <= person <= len(people):
+        raise RelaxError(f"Expected --person in 1..{len(people)}, got {person}")
+    keys = ("mean_support_distance_m", "max_penetration_m", "coverage", "peak_pressure_kpa")
+    rows, meshes_before, meshes_after = [], [], []
+    for k in chosen:
+        p = people[k]
+        t = time.perf_counter()
+        res = relax(problem_for(p, surface, tris))
+        seconds = time.perf_counter() - t
+        mask = p.body.part_mask(p.spec.support)
+        margin = scenario.surface.params.margin
+        before, _ = evaluate_person(mesh, p.vertices, p.normals, p.areas, p.importance,
+                                    p.body.mass_kg, margin, scenario.foam_stiffness,
+                                    p.body.triangles, mask)
+        areas, normals = triangle_mesh(p.body.triangles, len(res.vertices)).measures(
+            res.vertices)
+        after, _ = evaluate_person(mesh, res.vertices, normals, areas, p.importance,
+                                   p.body.mass_kg, margin, scenario.foam_stiffness,
+                                   p.body.triangles, mask)
+        name = f"person_{k + 1}_relaxed"
+        write_mesh(out / f"{name}.obj", res.vertices, p.body.faces)
+        skeleton, _ = rig_skeleton(p.body)
+        write_bvh(out / f"{name}.bvh", skeleton,
+                  Motion(pose_channels(p.body, res.local, res.world.positions[0])[None], 1 / 30))
+        rows.append({"name": p.label, "seconds": seconds, "evaluations": res.evaluations,
+                     "parameters_at_limit": res.at_limit,
+                     "before": {key: before[key] for key in keys},
+                     "after": {key: after[key] for key in keys},
+                     "files": [f"{name}.obj", f"{name}.bvh"]})
+        meshes_before.append(MeshView(p.vertices, p.body.faces))
+        meshes_after.append(MeshView(res.vertices, p.body.faces, (0.62, 0.78, 0.62)))
+        say(f"{p.label}: relaxed in {seconds:.2f} s; mean support distance "
+            f"{before['mean_support_distance_m'] * 100:.1f} -> "
+            f"{after['mean_support_distance_m'] * 100:.1f} cm")
+    surf_view = MeshView(surface, faces, SURFACE)
+    render_panels(out / "relax.png", [Panel([surf_view] + meshes_before, "side", "before"),
+                                      Panel([surf_view] + meshes_after, "side", "after")],
+                  columns=2)
+    report = {"scenario": str(scenario_path), "surface": str(surface_dir or "fitted"),
+              "persons": rows, "timing": {"total_s": time.perf_counter() - start},
+              "files": ["relax.png"]}
+    write_atomic(out / "report.json", json.dumps(report, indent=2).encode())
+    return report

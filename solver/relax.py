@@ -1,0 +1,298 @@
+"""Pose relaxation: the paper's section 6 and appendix B.
+
+The rig's pose is moved so that the supportable skin comes to rest on a surface without
+cutting into it, while staying close to the captured pose. Parameters: three angles per joint,
+a rotation relative to the captured local rotation (L_j = L0_j Rx(a) Ry(b) Rz(c), so the start
+is all zeros and far from gimbal lock), and the root translation. Residuals, each weighted by
+sqrt(lambda) and by the importance r_i of supportable vertex i:
+
+    point-to-point   r_i (v_i - c_i)                       (c_i: closest surface point)
+    point-to-plane   r_i (n_i . v_i - d_i)                 (the surface's tangent plane)
+    penetration      r_i (1/2 - arctan(a (n_i . v_i - d_i) + b) / pi)
+    similarity       theta - theta0
+
+The penetration term is a smooth step of the signed distance s = n . v - d from the surface: 1
+well behind it, 0 well in front. The paper's a = 1000 and b = 10 are in metres (its meshes came
+from Blender in metres): the step is about 1/a = 1 mm wide and its middle sits at s = -b/a =
+-1 cm, slightly into the surface. Here they are `PENETRATION_WIDTH` = 1 mm and
+`PENETRATION_SHIFT` = 1 cm, so a = 1 / width and b = shift / width.
+
+Jacobians are analytic, as in appendix B: d v_i / d theta_k = a_k x sum_{j below k} w_ij
+(u_ij - p_k), with a_k the world axis of the angle, p_k its joint, u_ij the point joint j moves
+vertex i to and w_ij the skinning weight; d v_i / d t = I for the root translation. The problem
+is solved by scipy's trust-region reflective least squares with box constraints (`JOINT_LIMITS`,
+in degrees from the captured pose), re-pairing with the surface between solves.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from capture import WorldPose
+
+from .body import Body
+from .skinning import rig_pose
+
+LAMBDAS = (0.2, 0.2, 0.5, 0.1)  # point-to-point, point-to-plane, penetration, similarity
+PENETRATION_WIDTH = 0.001  # metres: 1 / a
+PENETRATION_SHIFT = 0.01  # metres: b / a, how far behind the surface the step's middle lies
+ROOT_RANGE = 0.15  # metres the root may move
+
+# How far (degrees, per axis) each joint may turn from the captured pose: loose where joints
+# are mobile, tight along the spine; fingers and toes hardly move.
+JOINT_LIMITS = {
+    "Hips": 10, "LowerBack": 15, "Spine": 15, "Spine1": 15, "Neck": 20, "Neck1": 20,
+    "Head": 20, "LHipJoint": 0, "RHipJoint": 0, "LeftUpLeg": 30, "RightUpLeg": 30,
+    "LeftLeg": 30, "RightLeg": 30, "LeftFoot": 20, "RightFoot": 20, "LeftToeBase": 5,
+    "RightToeBase": 5, "LeftShoulder": 10, "RightShoulder": 10, "LeftArm": 45, "RightArm": 45,
+    "LeftForeArm": 45, "RightForeArm": 45, "LeftHand": 30, "RightHand": 30,
+}
+DEFAULT_LIMIT = 5
+
+
+class RelaxError(ValueError):
+    """A relaxation that cannot run as asked."""
+
+
+@dataclass(frozen=True, eq=False)
+class RelaxProblem:
+    """A body in a captured pose, its supportable vertices and a surface to settle on.
+
+    local0 : (J, 3, 3) captured local rotations; root0 : (3,) captured root position (m);
+    vertex_ids : (m,) the supportable vertices; importance : (m,) their r_i;
+    surface_vertices (N, 3), surface_triangles (F, 3): the surface (normals towards the body).
+    """
+
+    body: Body
+    local0: np.ndarray
+    root0: np.ndarray
+    vertex_ids: np.ndarray
+    importance: np.ndarray
+    surface_vertices: np.ndarray
+    surface_triangles: np.ndarray
+    lambdas: tuple[float, float, float, float] = LAMBDAS
+
+
+def _descendants(parents: np.ndarray) -> np.ndarray:
+    """(J, J) D[j, m] = 1 when joint j is m or below it."""
+    n = len(parents)
+    d = np.eye(n)
+    for j in range(n):
+        p = parents[j]
+        while p >= 0:
+            d[j, p] = 1.0
+            p = parents[p]
+    return d
+
+
+class _Model:
+    """Forward model and analytic Jacobian of the supportable vertices."""
+
+    def __init__(self, problem: RelaxProblem):
+        self.p = problem
+        body = problem.body
+        self.n = len(body.joint_names)
+        w = body.weights[problem.vertex_ids].tocoo()
+        self.wi, self.wj, self.wv = w.row, w.col, w.data
+        self.m = len(problem.vertex_ids)
+        self.x = body.vertices[problem.vertex_ids]
+        self.desc = _descendants(body.parents)
+
+    def pose(self, theta: np.ndarray) -> tuple[np.ndarray, WorldPose]:
+        angles = theta[:3 * self.n].reshape(self.n, 3)
+        delta = Rotation.from_euler("XYZ", angles).as_matrix()
+        local = self.p.local0 @ delta
+        return local, rig_pose(self.p.body, local, self.p.root0 + theta[3 * self.n:])
+
+    def vertices(self, theta: np.ndarray):
+        local, world = self.pose(theta)
+        q, pos = world.rotmats, world.positions
+        body = self.p.body
+        u = np.einsum("kab,kb->ka", q[self.wj], self.x[self.wi] - body.joints[self.wj]) + \
+            pos[self.wj]
+        v = np.zeros((self.m, 3))
+        np.add.at(v, self.wi, self.wv[:, None] * u)
+        return v, u, local, world
+
+    def jacobian_vertices(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Vertices (m, 3) and d v / d theta (m, 3, P), P = 3 J + 3."""
+        v, u, local, world = self.vertices(theta)
+        n, m = self.n, self.m
+        angles = theta[:3 * n].reshape(n, 3)
+        parents = self.p.body.parents
+        # world axes of each joint's three angles: L = L0 Rx Ry Rz under the parent's frame
+        base = np.where(parents[:, None, None] >= 0, world.rotmats[np.maximum(parents, 0)],
+                        np.eye(3)) @ self.p.local0
+        rx = Rotation.from_euler("X", angles[:, :1]).as_matrix()
+        ry = Rotation.from_euler("Y", angles[:, 1:2]).as_matrix()
+        axes = np.stack([base[:, :, 0], (base @ rx)[:, :, 1], (base @ rx @ ry)[:, :, 2]], axis=1)
+        # per vertex and joint m: sum over joints j below m of w_ij (u_ij - p_m)
+        cu = np.zeros((m, n, 3))
+        wsum = np.zeros((m, n))
+        np.add.at(cu, (self.wi, self.wj), self.wv[:, None] * u)
+        np.add.at(wsum, (self.wi, self.wj), self.wv)
+        below = np.einsum("ijc,jk->ikc", cu, self.desc) - \
+            np.einsum("ij,jk->ik", wsum, self.desc)[:, :, None] * world.positions[None]
+        jac = np.zeros((m, 3, 3 * n + 3))
+        for k in range(3):
+            jac[:, :, k:3 * n:3] = np.swapaxes(np.cross(axes[None, :, k, :], below), 1, 2)
+        jac[:, :, 3 * n:] = np.eye(3)[None]
+        return v, jac
+
+
+def joint_bounds(body: Body) -> tuple[np.ndarray, np.ndarray]:
+    """Box constraints on the parameters (radians, metres)."""
+    lim = np.radians([max(JOINT_LIMITS.get(name, DEFAULT_LIMIT), 1e-6)
+                      for name in body.joint_names])
+    hi = np.concatenate([np.repeat(lim, 3), np.full(3, ROOT_RANGE)])
+    return -hi, hi
+
+
+def _surface_frames(points: np.ndarray, sv: np.ndarray, st: np.ndarray):
+    """Closest surface points (m, 3) and unit normals (m, 3) of their faces."""
+    import igl
+
+    _, face, closest = igl.point_mesh_squared_distance(points, sv, st)
+    fn = np.cross(sv[st[face, 1]] - sv[st[face, 0]], sv[st[face, 2]] - sv[st[face, 0]])
+    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+    return closest, fn
+
+
+def residuals(theta: np.ndarray, model: _Model, closest: np.ndarray, normals: np.ndarray
+              ) -> np.ndarray:
+    lp, lt, lpen, ls = (np.sqrt(x) for x in model.p.lambdas)
+    r = model.p.importance
+    v = model.vertices(theta)[0]
+    d = np.einsum("ij,ij->i", normals, closest)
+    s = np.einsum("ij,ij->i", normals, v) - d
+    a, b = 1.0 / PENETRATION_WIDTH, PENETRATION_SHIFT / PENETRATION_WIDTH
+    return np.concatenate([
+        lp * (r[:, None] * (v - closest)).ravel(),
+        lt * r * s,
+        lpen * r * (0.5 - np.arctan(a * s + b) / np.pi),
+        ls * theta,
+    ])
+
+
+def residual_jacobian(theta: np.ndarray, model: _Model, closest: np.ndarray,
+                      normals: np.ndarray) -> np.ndarray:
+    lp, lt, lpen, ls = (np.sqrt(x) for x in model.p.lambdas)
+    r = model.p.importance
+    v, jv = model.jacobian_vertices(theta)  # (m, 3), (m, 3, P)
+    s = np.einsum("ij,ij->i", normals, v) - np.einsum("ij,ij->i", normals, closest)
+    a, b = 1.0 / PENETRATION_WIDTH, PENETRATION_SHIFT / PENETRATION_WIDTH
+    jn = np.einsum("ic,icp->ip", normals, jv)  # (m, P): d s / d theta
+    dpen = -(a / np.pi) / (1.0 + (a * s + b) ** 2)
+    return np.concatenate([
+        lp * (r[:, None, None] * jv).reshape(-1, jv.shape[2]),
+        lt * r[:, None] * jn,
+        lpen * (r * dpen)[:, None] * jn,
+        ls * np.eye(jv.shape[2]),
+    ])
+
+
+@dataclass
+class RelaxResult:
+    theta: np.ndarray
+    local: np.ndarray
+    world: WorldPose
+    vertices: np.ndarray  # (V, 3) the whole relaxed body
+    cost: float
+    evaluations: int
+    rounds: int
+    at_limit: int  # parameters on their box limit
+
+
+def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 60) -> RelaxResult:
+    """Relaxes the pose: `rounds` of pairing with the surface, each a bounded least squares."""
+    from .skinning import skin
+
+    model = _Model(problem)
+    lo, hi = joint_bounds(problem.body)
+    theta = np.zeros(3 * model.n + 3)
+    sv = np.asarray(problem.surface_vertices, dtype=np.float64)
+    st = np.asarray(problem.surface_triangles, dtype=np.int64)
+    evaluations = 0
+    cost = 0.0
+    for _ in range(rounds):
+        v = model.vertices(theta)[0]
+        closest, normals = _surface_frames(v, sv, st)
+        sol = least_squares(residuals, theta, jac=residual_jacobian, bounds=(lo, hi),
+                            method="trf", tr_solver="lsmr", max_nfev=max_evaluations,
+                            x_scale="jac",
+                            args=(model, closest, normals))
+        theta, cost = sol.x, float(sol.cost)
+        evaluations += sol.nfev
+    local, world = model.pose(theta)
+    verts, _ = skin(problem.body, WorldPose(world.positions, world.rotmats), normals=False)
+    at_limit = int(np.sum((theta <= lo + 1e-9) | (theta >= hi - 1e-9)))
+    return RelaxResult(theta, local, world, verts, cost, evaluations, rounds, at_limit)
+
+
+def problem_for(person, surface_vertices: np.ndarray, surface_triangles: np.ndarray,
+                threshold: float = 0.02) -> RelaxProblem:
+    """The relaxation problem of a placed person (see `solver.scene.PlacedPerson`): its rig in
+    the scene frame, its vertices of importance above `threshold`, and the surface."""
+    ids = np.flatnonzero(person.importance > threshold)
+    if not ids.size:
+        raise RelaxError(f"{person.label}: nothing to support (no importance above "
+                         f"{threshold})")
+    rot, shift = person.transform[:3, :3], person.transform[:3, 3]
+    local0 = person.motion.local_rotmats[0].copy()
+    local0[0] = rot @ local0[0]
+    root0 = rot @ person.motion.root_positions[0] + shift
+    return RelaxProblem(person.body, local0, root0, ids, person.importance[ids],
+                        np.asarray(surface_vertices, dtype=np.float64),
+                        np.asarray(surface_triangles, dtype=np.int64))
+
+
+def _depth_first(parents: np.ndarray) -> np.ndarray:
+    """Joint indices in depth-first order (the order a BVH file lists them)."""
+    children = {j: [c for c in range(len(parents)) if parents[c] == j]
+                for j in range(len(parents))}
+    order, stack = [], [int(j) for j in np.flatnonzero(parents < 0)][::-1]
+    while stack:
+        j = stack.pop()
+        order.append(j)
+        stack.extend(children[j][::-1])
+    return np.array(order)
+
+
+def rig_skeleton(body: Body):
+    """The body's rig as a BVH skeleton in depth-first order (centimetres; the root with
+    position channels, every joint with ZXY rotations), and the rig joint of each BVH joint."""
+    from capture import Skeleton
+
+    from .skinning import rest_offsets
+
+    order = _depth_first(body.parents)
+    new_index = np.empty(len(order), dtype=np.int64)
+    new_index[order] = np.arange(len(order))
+    parents = np.array([new_index[body.parents[j]] if body.parents[j] >= 0 else -1
+                        for j in order])
+    rot = ("Zrotation", "Xrotation", "Yrotation")
+    channels = tuple((("Xposition", "Yposition", "Zposition") + rot) if p < 0 else rot
+                     for p in parents)
+    leaves = [k for k in range(len(order)) if k not in set(parents)]
+    ends = np.array([(body.tails[order[k]] - body.joints[order[k]]) * 100
+                     for k in leaves]).reshape(-1, 3)
+    names = tuple(body.joint_names[j] for j in order)
+    return Skeleton(names, parents, rest_offsets(body)[order] * 100, channels, ends,
+                    np.array(leaves, dtype=np.int64), unit_m=0.01), order
+
+
+def pose_channels(body: Body, local: np.ndarray, root: np.ndarray) -> np.ndarray:
+    """(C,) BVH channels of one rig pose for `rig_skeleton(body)`."""
+    from .skinning import rest_offsets
+
+    sk, order = rig_skeleton(body)
+    quats = Rotation.from_matrix(local[order]).as_quat()
+    trans = rest_offsets(body)[order].copy()
+    trans[0] = root
+    return sk.channels_from_pose(quats, trans)

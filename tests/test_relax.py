@@ -1,0 +1,99 @@
+"""Pose relaxation: analytic Jacobians, settling onto a surface, and BVH of relaxed poses."""
+
+import numpy as np
+import pytest
+
+from capture import Motion, read_bvh, write_bvh
+from solver.body import make_body
+from solver.evaluate import SurfaceMesh, evaluate_person
+from solver.poses import load_pose, pose_body
+from solver.pressure import pressure_field, triangle_mesh
+from solver.relax import (
+    RelaxProblem,
+    _Model,
+    joint_bounds,
+    pose_channels,
+    relax,
+    residual_jacobian,
+    residuals,
+    rig_skeleton,
+)
+from solver.skinning import skin
+from solver.subdivision import grid_mesh
+
+
+@pytest.fixture(scope="module")
+def hovering():
+    """A seated body 5 cm above a flat seat under its thighs."""
+    body = make_body()
+    motion = pose_body(load_pose("bundled:cmu_75_18_high_sit.bvh#frame=39"), body)
+    verts, _ = skin(body, motion.frame(0), normals=False)
+    mask = body.part_mask(["torso", "legs"])
+    field = pressure_field(verts, body.triangles, mask=mask)
+    ids = np.flatnonzero(field.importance > 0.02)
+    seat_y = np.quantile(verts[ids, 1], 0.05) - 0.05
+    gv, gf = grid_mesh((1.0, 1.0), (10, 10), seat_y)
+    gv[:, 2] += verts[ids, 2].mean()
+    tris = np.concatenate([gf[:, [0, 1, 2]], gf[:, [0, 2, 3]]])
+    problem = RelaxProblem(body, motion.local_rotmats[0], motion.root_positions[0], ids,
+                           field.importance[ids], gv, tris)
+    return body, verts, field, mask, problem, gv, gf
+
+
+def test_analytic_jacobian_matches_finite_differences(hovering):
+    *_, problem, gv, gf = hovering
+    model = _Model(problem)
+    rng = np.random.default_rng(4)
+    for _ in range(3):
+        theta = rng.normal(scale=0.15, size=3 * model.n + 3)
+        _, jac = model.jacobian_vertices(theta)
+        num = np.zeros_like(jac)
+        for k in range(jac.shape[2]):
+            step = np.zeros_like(theta)
+            step[k] = 1e-6
+            num[:, :, k] = (model.vertices(theta + step)[0] - model.vertices(theta - step)[0]) / 2e-6
+        assert np.abs(jac - num).max() / np.abs(num).max() < 1e-5
+    # and the full residual Jacobian, penetration term included
+    theta = rng.normal(scale=0.1, size=3 * model.n + 3)
+    v = model.vertices(theta)[0]
+    closest = v - [0.0, 0.004, 0.0]  # points just under the skin: the arctan term is steep
+    normals = np.tile([0.0, 1.0, 0.0], (len(v), 1))
+    jac = residual_jacobian(theta, model, closest, normals)
+    num = np.zeros_like(jac)
+    for k in range(len(theta)):
+        step = np.zeros_like(theta)
+        step[k] = 1e-7
+        num[:, k] = (residuals(theta + step, model, closest, normals)
+                     - residuals(theta - step, model, closest, normals)) / 2e-7
+    assert np.abs(jac - num).max() / np.abs(num).max() < 1e-5
+
+
+def test_hovering_body_settles_onto_the_seat(hovering):
+    body, verts, field, mask, problem, gv, gf = hovering
+    result = relax(problem)
+    surface = SurfaceMesh.from_quads(gv, gf)
+    before, _ = evaluate_person(surface, verts, *_measures(body, verts), field.importance,
+                                body.mass_kg, 0.03, 200.0, body.triangles, mask)
+    after, _ = evaluate_person(surface, result.vertices, *_measures(body, result.vertices),
+                               field.importance, body.mass_kg, 0.03, 200.0, body.triangles,
+                               mask)
+    assert after["mean_support_distance_m"] <= 0.5 * before["mean_support_distance_m"]
+    assert after["max_penetration_m"] <= 0.03
+    lo, hi = joint_bounds(body)
+    assert np.all(result.theta >= lo - 1e-9) and np.all(result.theta <= hi + 1e-9)
+
+
+def _measures(body, verts):
+    areas, normals = triangle_mesh(body.triangles, len(verts)).measures(verts)
+    return normals, areas
+
+
+def test_relaxed_pose_as_bvh(hovering, tmp_path):
+    body, *_ = hovering
+    motion = pose_body(load_pose("bundled:cmu_75_18_high_sit.bvh#frame=39"), body)
+    skeleton, order = rig_skeleton(body)
+    channels = pose_channels(body, motion.local_rotmats[0], motion.root_positions[0])
+    write_bvh(tmp_path / "relaxed.bvh", skeleton, Motion(channels[None], 1 / 30))
+    again = read_bvh(tmp_path / "relaxed.bvh", unit="cm")
+    np.testing.assert_allclose(again.world_positions()[0], motion.world.positions[0][order],
+                               atol=1e-6)
