@@ -41,8 +41,10 @@ from .skinning import rig_pose
 
 LAMBDAS = (0.2, 0.2, 0.5, 0.1)  # point-to-point, point-to-plane, penetration, similarity
 PENETRATION_WIDTH = 0.001  # metres: 1 / a
+FACING_TOLERANCE = 1e-6  # metres off the perpendicular foot that still counts as facing
 PENETRATION_SHIFT = 0.01  # metres: b / a, how far behind the surface the step's middle lies
 ROOT_RANGE = 0.15  # metres the root may move
+FTOL = 1e-5  # relative cost change at which a round stops
 
 # How far (degrees, per axis) each joint may turn from the captured pose: loose where joints
 # are mobile, tight along the spine; fingers and toes hardly move.
@@ -98,7 +100,9 @@ class _Model:
         self.p = problem
         body = problem.body
         self.n = len(body.joint_names)
-        w = body.weights[problem.vertex_ids].tocoo()
+        w = body.weights[problem.vertex_ids].tocsr()
+        w.sum_duplicates()  # one entry per (vertex, joint): the Jacobian assigns, not adds
+        w = w.tocoo()
         self.wi, self.wj, self.wv = w.row, w.col, w.data
         self.m = len(problem.vertex_ids)
         self.x = body.vertices[problem.vertex_ids]
@@ -132,16 +136,21 @@ class _Model:
         rx = Rotation.from_euler("X", angles[:, :1]).as_matrix()
         ry = Rotation.from_euler("Y", angles[:, 1:2]).as_matrix()
         axes = np.stack([base[:, :, 0], (base @ rx)[:, :, 1], (base @ rx @ ry)[:, :, 2]], axis=1)
-        # per vertex and joint m: sum over joints j below m of w_ij (u_ij - p_m)
-        cu = np.zeros((m, n, 3))
+        # per vertex i and joint k: the sum over the joints j at or below k of
+        # w_ij (u_ij - p_k), the lever arm the rotation at k turns
+        cu = np.zeros((m, 3, n))
         wsum = np.zeros((m, n))
-        np.add.at(cu, (self.wi, self.wj), self.wv[:, None] * u)
-        np.add.at(wsum, (self.wi, self.wj), self.wv)
-        below = np.einsum("ijc,jk->ikc", cu, self.desc) - \
-            np.einsum("ij,jk->ik", wsum, self.desc)[:, :, None] * world.positions[None]
+        cu[self.wi, :, self.wj] = self.wv[:, None] * u
+        wsum[self.wi, self.wj] = self.wv
+        below = (cu.reshape(3 * m, n) @ self.desc).reshape(m, 3, n) - \
+            (wsum @ self.desc)[:, None, :] * world.positions.T[None]
+        bx, by, bz = below[:, 0], below[:, 1], below[:, 2]  # (m, n) each
         jac = np.zeros((m, 3, 3 * n + 3))
         for k in range(3):
-            jac[:, :, k:3 * n:3] = np.swapaxes(np.cross(axes[None, :, k, :], below), 1, 2)
+            ax, ay, az = axes[:, k, 0], axes[:, k, 1], axes[:, k, 2]  # (n,) each
+            jac[:, 0, k:3 * n:3] = ay * bz - az * by
+            jac[:, 1, k:3 * n:3] = az * bx - ax * bz
+            jac[:, 2, k:3 * n:3] = ax * by - ay * bx
         jac[:, :, 3 * n:] = np.eye(3)[None]
         return v, jac
 
@@ -155,17 +164,26 @@ def joint_bounds(body: Body) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _surface_frames(points: np.ndarray, sv: np.ndarray, st: np.ndarray):
-    """Closest surface points (m, 3) and unit normals (m, 3) of their faces."""
+    """Closest surface points (m, 3), unit normals (m, 3) of their faces, and whether each
+    point faces its surface point (m,): its closest point is the foot of the perpendicular,
+    not a point on the surface's border that the point lies beside.
+
+    Only a facing point can be behind the surface; one beside the border and below its
+    plane has not cut into anything, and the penetration term leaves it alone."""
     import igl
 
     _, face, closest = igl.point_mesh_squared_distance(points, sv, st)
     fn = np.cross(sv[st[face, 1]] - sv[st[face, 0]], sv[st[face, 2]] - sv[st[face, 0]])
     fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
-    return closest, fn
+    offset = points - closest
+    along = np.einsum("ij,ij->i", offset, fn)
+    sideways = np.linalg.norm(offset - along[:, None] * fn, axis=1)
+    facing = sideways <= FACING_TOLERANCE + 1e-3 * np.abs(along)
+    return closest, fn, facing.astype(np.float64)
 
 
-def residuals(theta: np.ndarray, model: _Model, closest: np.ndarray, normals: np.ndarray
-              ) -> np.ndarray:
+def residuals(theta: np.ndarray, model: _Model, closest: np.ndarray, normals: np.ndarray,
+              facing: np.ndarray) -> np.ndarray:
     lp, lt, lpen, ls = (np.sqrt(x) for x in model.p.lambdas)
     r = model.p.importance
     v = model.vertices(theta)[0]
@@ -175,13 +193,13 @@ def residuals(theta: np.ndarray, model: _Model, closest: np.ndarray, normals: np
     return np.concatenate([
         lp * (r[:, None] * (v - closest)).ravel(),
         lt * r * s,
-        lpen * r * (0.5 - np.arctan(a * s + b) / np.pi),
+        lpen * r * facing * (0.5 - np.arctan(a * s + b) / np.pi),
         ls * theta,
     ])
 
 
 def residual_jacobian(theta: np.ndarray, model: _Model, closest: np.ndarray,
-                      normals: np.ndarray) -> np.ndarray:
+                      normals: np.ndarray, facing: np.ndarray) -> np.ndarray:
     lp, lt, lpen, ls = (np.sqrt(x) for x in model.p.lambdas)
     r = model.p.importance
     v, jv = model.jacobian_vertices(theta)  # (m, 3), (m, 3, P)
@@ -192,7 +210,7 @@ def residual_jacobian(theta: np.ndarray, model: _Model, closest: np.ndarray,
     return np.concatenate([
         lp * (r[:, None, None] * jv).reshape(-1, jv.shape[2]),
         lt * r[:, None] * jn,
-        lpen * (r * dpen)[:, None] * jn,
+        lpen * (r * facing * dpen)[:, None] * jn,
         ls * np.eye(jv.shape[2]),
     ])
 
@@ -222,11 +240,11 @@ def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 60) -> 
     cost = 0.0
     for _ in range(rounds):
         v = model.vertices(theta)[0]
-        closest, normals = _surface_frames(v, sv, st)
+        pairing = _surface_frames(v, sv, st)
         sol = least_squares(residuals, theta, jac=residual_jacobian, bounds=(lo, hi),
-                            method="trf", tr_solver="lsmr", max_nfev=max_evaluations,
+                            method="trf", tr_solver="lsmr", max_nfev=max_evaluations, ftol=FTOL, xtol=1e-8,
                             x_scale="jac",
-                            args=(model, closest, normals))
+                            args=(model, *pairing))
         theta, cost = sol.x, float(sol.cost)
         evaluations += sol.nfev
     local, world = model.pose(theta)

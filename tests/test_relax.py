@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from capture import Motion, read_bvh, write_bvh
 from solver.body import make_body
@@ -9,6 +10,8 @@ from solver.evaluate import SurfaceMesh, evaluate_person
 from solver.poses import load_pose, pose_body
 from solver.pressure import pressure_field, triangle_mesh
 from solver.relax import (
+    DEFAULT_LIMIT,
+    JOINT_LIMITS,
     RelaxProblem,
     _Model,
     joint_bounds,
@@ -18,7 +21,7 @@ from solver.relax import (
     residuals,
     rig_skeleton,
 )
-from solver.skinning import skin
+from solver.skinning import rig_pose, skin
 from solver.subdivision import grid_mesh
 
 
@@ -58,13 +61,14 @@ def test_analytic_jacobian_matches_finite_differences(hovering):
     v = model.vertices(theta)[0]
     closest = v - [0.0, 0.004, 0.0]  # points just under the skin: the arctan term is steep
     normals = np.tile([0.0, 1.0, 0.0], (len(v), 1))
-    jac = residual_jacobian(theta, model, closest, normals)
+    facing = np.ones(len(v))
+    jac = residual_jacobian(theta, model, closest, normals, facing)
     num = np.zeros_like(jac)
     for k in range(len(theta)):
         step = np.zeros_like(theta)
         step[k] = 1e-7
-        num[:, k] = (residuals(theta + step, model, closest, normals)
-                     - residuals(theta - step, model, closest, normals)) / 2e-7
+        num[:, k] = (residuals(theta + step, model, closest, normals, facing)
+                     - residuals(theta - step, model, closest, normals, facing)) / 2e-7
     assert np.abs(jac - num).max() / np.abs(num).max() < 1e-5
 
 
@@ -97,3 +101,68 @@ def test_relaxed_pose_as_bvh(hovering, tmp_path):
     again = read_bvh(tmp_path / "relaxed.bvh", unit="cm")
     np.testing.assert_allclose(again.world_positions()[0], motion.world.positions[0][order],
                                atol=1e-6)
+
+
+def _joined_quads(*meshes):
+    verts, quads, offset = [], [], 0
+    for v, q in meshes:
+        verts.append(v)
+        quads.append(q + offset)
+        offset += len(v)
+    return np.concatenate(verts), np.concatenate(quads)
+
+
+def test_forearms_hovering_over_armrests_come_down_onto_them():
+    """Arms held out to the sides, 5 cm above two armrests; the seat is under the buttocks."""
+    body = make_body()
+    motion = pose_body(load_pose("bundled:cmu_75_18_high_sit.bvh#frame=39"), body)
+    names = body.joint_names
+    local, root = motion.local_rotmats[0].copy(), motion.root_positions[0]
+    for side, degrees in (("Left", 30.0), ("Right", -30.0)):  # abduct clear of the thighs
+        j = names.index(side + "Arm")
+        parent = motion.world.rotmats[0][body.parents[j]]
+        turn = Rotation.from_euler("z", degrees, degrees=True).as_matrix()
+        local[j] = parent.T @ turn @ parent @ local[j]
+    world = rig_pose(body, local, root)
+    verts, _ = skin(body, world, normals=False)
+    mask = body.part_mask(["torso", "legs", "arms"])
+    field = pressure_field(verts, body.triangles, mask=mask)
+    ids = np.flatnonzero(field.importance > 0.02)
+    joints = world.positions
+    seat = grid_mesh((0.6, 0.7), (8, 8), verts[ids[body.part_mask(["torso"])[ids]], 1].min())
+    seat[0][:, [0, 2]] += joints[0, [0, 2]] + [0.0, 0.2]
+    dominant = np.asarray(body.weights.argmax(axis=1)).ravel()
+    forearms = np.isin(dominant, [names.index("LeftForeArm"), names.index("RightForeArm")])
+    rests = []
+    for side in ("Left", "Right"):
+        elbow, hand = joints[names.index(side + "ForeArm")], joints[names.index(side + "Hand")]
+        near = ids[forearms[ids] & (np.linalg.norm(verts[ids] - elbow, axis=1) < 0.3)]
+        rest = grid_mesh((0.14, 0.45), (2, 6), verts[near, 1].min() - 0.05)
+        rest[0][:, [0, 2]] += (elbow[[0, 2]] + hand[[0, 2]]) / 2
+        rests.append(rest)
+    sv, sq = _joined_quads(seat, *rests)
+    tris = np.concatenate([sq[:, [0, 1, 2]], sq[:, [0, 2, 3]]])
+    result = relax(RelaxProblem(body, local, root, ids, field.importance[ids], sv, tris))
+
+    surface = SurfaceMesh.from_quads(sv, sq)
+    margin = 0.03
+
+    def evaluate(v, part):
+        return evaluate_person(surface, v, *_measures(body, v), field.importance * part,
+                               body.mass_kg, margin, 200.0, body.triangles, mask)[0]
+
+    before, after = evaluate(verts, forearms), evaluate(result.vertices, forearms)
+    # the forearms hovered: nothing of them touched before
+    assert before["mean_support_distance_m"] >= 0.05 and before["coverage"] == 0.0
+    assert after["mean_support_distance_m"] <= 0.5 * before["mean_support_distance_m"]
+    assert after["coverage"] > 0.3
+    everything = evaluate(result.vertices, np.ones(len(verts)))
+    assert everything["max_penetration_m"] <= margin
+    lo, hi = joint_bounds(body)
+    assert np.all(result.theta >= lo - 1e-9) and np.all(result.theta <= hi + 1e-9)
+    # the limits hold on the relaxed rotations too: three turns of at most L each compose to
+    # at most 3 L (triangle inequality of the rotation angle)
+    turned = np.degrees(Rotation.from_matrix(
+        np.swapaxes(local, 1, 2) @ result.local).magnitude())
+    allowed = np.array([JOINT_LIMITS.get(n, DEFAULT_LIMIT) for n in names])
+    assert np.all(turned <= 3 * allowed + 1e-3)
