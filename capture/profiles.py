@@ -1,8 +1,9 @@
 """Joint-name profiles of the skeletons met in the wild.
 
-Three are known: Perception Neuron as written by Axis Neuron (spine ends in Spine3, then Neck),
-by Axis Studio (Spine2 carries Neck -> Neck1 -> Head and the shoulders; no Spine3), and the CMU
-BVH conversion (31 joints). A profile also states the file's length unit and which joint plays
+Four are known: Perception Neuron as written by Axis Neuron (spine ends in Spine3, then Neck),
+by Axis Studio (Spine2 carries Neck -> Neck1 -> Head and the shoulders; no Spine3), the CMU
+BVH conversion (31 joints), and the rig of sitrelax's own bodies (the CMU names but for one
+finger joint a hand, in centimetres), which relaxed poses are written in. A profile also states the file's length unit and which joint plays
 each anatomical role, so later stages can retarget any of them onto a body rig.
 
 Names are compared after dropping a namespace prefix ("Take1:Hips" -> "Hips").
@@ -40,15 +41,27 @@ CMU_JOINTS = (
     "RightHandIndex1", "RThumb",
 )
 
-_PN_ROLES = {
-    "hips": "Hips", "spine": "Spine", "chest": "Spine2", "head": "Head",
+#: The rig of sitrelax bodies (MakeHuman's CMU-MB rig), as relaxed poses are written.
+RIG_JOINTS = tuple(n.replace("HandIndex1", "HandFinger1") for n in CMU_JOINTS)
+
+# Both Perception Neuron and CMU name their limbs alike.
+_LIMB_ROLES = {
+    "hips": "Hips", "head": "Head", "head_top": "end:Head",
     "left_upper_leg": "LeftUpLeg", "left_lower_leg": "LeftLeg", "left_foot": "LeftFoot",
     "right_upper_leg": "RightUpLeg", "right_lower_leg": "RightLeg", "right_foot": "RightFoot",
     "left_shoulder": "LeftShoulder", "left_upper_arm": "LeftArm", "left_forearm": "LeftForeArm",
     "left_hand": "LeftHand", "right_shoulder": "RightShoulder", "right_upper_arm": "RightArm",
     "right_forearm": "RightForeArm", "right_hand": "RightHand",
+}
+_PN_ROLES = {
+    **_LIMB_ROLES, "spine": "Spine", "chest": "Spine2",
     "left_toe": "end:LeftFoot", "right_toe": "end:RightFoot",
-    "left_fingers": "LeftHandMiddle1", "right_fingers": "RightHandMiddle1", "head_top": "end:Head",
+    "left_fingers": "LeftHandMiddle1", "right_fingers": "RightHandMiddle1",
+}
+_CMU_ROLES = {
+    **_LIMB_ROLES, "spine": "LowerBack", "chest": "Spine1", "neck": "Neck",
+    "left_toe": "LeftToeBase", "right_toe": "RightToeBase",
+    "left_fingers": "LeftHandIndex1", "right_fingers": "RightHandIndex1",
 }
 
 
@@ -76,21 +89,11 @@ PROFILES: dict[str, Profile] = {
         {**_PN_ROLES, "neck": "Neck"},
     ),
     "cmu": Profile(
-        "cmu", "CMU motion capture database (31 joints)", CMU_JOINTS, 0.056444,
-        {
-            "hips": "Hips", "spine": "LowerBack", "chest": "Spine1", "neck": "Neck",
-            "head": "Head",
-            "left_upper_leg": "LeftUpLeg", "left_lower_leg": "LeftLeg", "left_foot": "LeftFoot",
-            "right_upper_leg": "RightUpLeg", "right_lower_leg": "RightLeg",
-            "right_foot": "RightFoot",
-            "left_shoulder": "LeftShoulder", "left_upper_arm": "LeftArm",
-            "left_forearm": "LeftForeArm", "left_hand": "LeftHand",
-            "right_shoulder": "RightShoulder", "right_upper_arm": "RightArm",
-            "right_forearm": "RightForeArm", "right_hand": "RightHand",
-            "left_toe": "LeftToeBase", "right_toe": "RightToeBase",
-            "left_fingers": "LeftHandIndex1", "right_fingers": "RightHandIndex1",
-            "head_top": "end:Head",
-        },
+        "cmu", "CMU motion capture database (31 joints)", CMU_JOINTS, 0.056444, _CMU_ROLES,
+    ),
+    "sitrelax_rig": Profile(
+        "sitrelax_rig", "sitrelax body rig (relaxed poses)", RIG_JOINTS, 0.01,
+        {**_CMU_ROLES, "left_fingers": "LeftHandFinger1", "right_fingers": "RightHandFinger1"},
     ),
 }
 

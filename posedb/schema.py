@@ -7,7 +7,10 @@
                             joint), end_sites (E, 3) float64, end_site_parents (E,) int32;
                             attrs: unit_m (metres per file unit), profile
     /takes/<take-NNNNN>     attrs: name, skeleton, frame_time, source, subject, recorded_at,
-                            tags (space-separated), notes, origin ("bvh" or "stream");
+                            tags (space-separated), notes, origin ("bvh", "stream", or
+                            "relaxed": a pose relaxed onto a surface, in the body rig's
+                            skeleton, whose source is the pose id or BVH reference it came
+                            from);
                             datasets, chunked along frames and gzip-compressed:
                             channels (T, C) raw channels (float64 from BVH text, float32 as
                             streamed), local_rotations (T, J, 4) float32 xyzw, root_positions

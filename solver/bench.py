@@ -96,6 +96,35 @@ def _fit(arg):
     return fit_surface(scenario.surface.vertices, scenario.surface.faces, targets, params)
 
 
+def _relax_setup():
+    """The overweight body on the seat fitted for the thin one (the paper's figure 8)."""
+    import numpy as np
+
+    from .fit import fit_surface
+    from .relax import problem_for
+    from .scene import place_person
+
+    thin, targets, params = _example("seat_for_thin")
+    heavy, _, _ = _example("seat_for_heavy")
+    fit = fit_surface(thin.surface.vertices, thin.surface.faces, targets, params)
+    quads = fit.surface_faces
+    tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    person = place_person(heavy.persons[0], None, 0)
+    return problem_for(person, fit.surface, tris, margin=params.margin)
+
+
+def _relax(problem):
+    from .relax import relax
+
+    return relax(problem)
+
+
+def _relax_numeric(problem):
+    from .relax import relax
+
+    return relax(problem, numeric_jacobian=True)
+
+
 def solver_cases() -> list[BenchCase]:
     return [
         BenchCase("skinning", "pose the 13,380-vertex body (vertices and normals), one frame",
@@ -110,6 +139,9 @@ def solver_cases() -> list[BenchCase]:
                   "loop's stop", _fit_setup, _fit, repeats=5),
         BenchCase("fit_six", "fit a 30x6 grid, level 3, to six seated people, to the loop's "
                   "stop", _fit_six_setup, _fit, repeats=3),
+        BenchCase("relax", "relax one pose (the overweight body onto the thin body's seat) "
+                  "with the analytic Jacobian", _relax_setup, _relax, _relax_numeric,
+                  "finite-difference Jacobian", repeats=7, baseline_repeats=1),
     ]
 
 

@@ -122,7 +122,7 @@ def _cmd_relax(args: argparse.Namespace) -> int:
     from .run import run_relax
 
     report = run_relax(args.scenario, args.out, surface_dir=args.surface, person=args.person,
-                       db=args.db,
+                       db=args.db, save=args.save,
                        progress=lambda m: print(f"relax: {m}", file=sys.stderr, flush=True))
     if args.json:
         print(json.dumps(report, indent=2))
@@ -133,6 +133,8 @@ def _cmd_relax(args: argparse.Namespace) -> int:
               f"{a['mean_support_distance_m'] * 100:.1f} cm, coverage {b['coverage']:.2f} -> "
               f"{a['coverage']:.2f}, peak {b['peak_pressure_kpa']:.1f} -> "
               f"{a['peak_pressure_kpa']:.1f} kPa ({p['seconds']:.2f} s)")
+        if "saved_pose" in p:
+            print(f"  saved as pose {p['saved_pose']['name']!r} ({p['saved_pose']['id']})")
     return 0
 
 
@@ -200,6 +202,8 @@ def build_parser() -> argparse.ArgumentParser:
     rx.add_argument("--surface", help="folder of a `sitrelax fit` result (default: fit now)")
     rx.add_argument("--person", type=int, help="only this person (1-based)")
     rx.add_argument("--db", default=None, help="pose library for db: poses")
+    rx.add_argument("--save", action="store_true",
+                    help="store the relaxed poses in the --db library, linked to their origin")
     rx.add_argument("--out", required=True, help="output folder")
     rx.add_argument("--json", action="store_true", help="print the report")
     rx.set_defaults(func=_cmd_relax)

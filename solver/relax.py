@@ -15,7 +15,14 @@ The penetration term is a smooth step of the signed distance s = n . v - d from 
 well behind it, 0 well in front. The paper's a = 1000 and b = 10 are in metres (its meshes came
 from Blender in metres): the step is about 1/a = 1 mm wide and its middle sits at s = -b/a =
 -1 cm, slightly into the surface. Here they are `PENETRATION_WIDTH` = 1 mm and
-`PENETRATION_SHIFT` = 1 cm, so a = 1 / width and b = shift / width.
+`PENETRATION_SHIFT` = 1 cm, so a = 1 / width and b = shift / width. A surface fitted with a
+softness margin m (the fit lets skin sink m into the foam) is relaxed onto with the step's middle
+two widths short of m, so the penalty is nearly full at the margin and absent well inside it
+(`problem_for`); otherwise the paper's 1 cm holds.
+
+Only the vertices facing the surface (their closest point is the foot of the perpendicular, not a
+point on a border they lie beside) can be behind it: a thigh below the level of an armrest's
+edge has not cut into the armrest.
 
 Jacobians are analytic, as in appendix B: d v_i / d theta_k = a_k x sum_{j below k} w_ij
 (u_ij - p_k), with a_k the world axis of the angle, p_k its joint, u_ij the point joint j moves
@@ -79,6 +86,7 @@ class RelaxProblem:
     surface_vertices: np.ndarray
     surface_triangles: np.ndarray
     lambdas: tuple[float, float, float, float] = LAMBDAS
+    penetration_shift: float = PENETRATION_SHIFT  # metres behind the surface: the step's middle
 
 
 def _descendants(parents: np.ndarray) -> np.ndarray:
@@ -189,7 +197,7 @@ def residuals(theta: np.ndarray, model: _Model, closest: np.ndarray, normals: np
     v = model.vertices(theta)[0]
     d = np.einsum("ij,ij->i", normals, closest)
     s = np.einsum("ij,ij->i", normals, v) - d
-    a, b = 1.0 / PENETRATION_WIDTH, PENETRATION_SHIFT / PENETRATION_WIDTH
+    a, b = 1.0 / PENETRATION_WIDTH, model.p.penetration_shift / PENETRATION_WIDTH
     return np.concatenate([
         lp * (r[:, None] * (v - closest)).ravel(),
         lt * r * s,
@@ -204,7 +212,7 @@ def residual_jacobian(theta: np.ndarray, model: _Model, closest: np.ndarray,
     r = model.p.importance
     v, jv = model.jacobian_vertices(theta)  # (m, 3), (m, 3, P)
     s = np.einsum("ij,ij->i", normals, v) - np.einsum("ij,ij->i", normals, closest)
-    a, b = 1.0 / PENETRATION_WIDTH, PENETRATION_SHIFT / PENETRATION_WIDTH
+    a, b = 1.0 / PENETRATION_WIDTH, model.p.penetration_shift / PENETRATION_WIDTH
     jn = np.einsum("ic,icp->ip", normals, jv)  # (m, P): d s / d theta
     dpen = -(a / np.pi) / (1.0 + (a * s + b) ** 2)
     return np.concatenate([
@@ -227,8 +235,10 @@ class RelaxResult:
     at_limit: int  # parameters on their box limit
 
 
-def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 60) -> RelaxResult:
-    """Relaxes the pose: `rounds` of pairing with the surface, each a bounded least squares."""
+def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 60, *,
+          numeric_jacobian: bool = False) -> RelaxResult:
+    """Relaxes the pose: `rounds` of pairing with the surface, each a bounded least squares.
+    `numeric_jacobian` swaps the analytic Jacobian for finite differences (a reference)."""
     from .skinning import skin
 
     model = _Model(problem)
@@ -241,7 +251,9 @@ def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 60) -> 
     for _ in range(rounds):
         v = model.vertices(theta)[0]
         pairing = _surface_frames(v, sv, st)
-        sol = least_squares(residuals, theta, jac=residual_jacobian, bounds=(lo, hi),
+        sol = least_squares(residuals, theta,
+                            jac="2-point" if numeric_jacobian else residual_jacobian,
+                            bounds=(lo, hi),
                             method="trf", tr_solver="lsmr", max_nfev=max_evaluations, ftol=FTOL, xtol=1e-8,
                             x_scale="jac",
                             args=(model, *pairing))
@@ -254,9 +266,10 @@ def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 60) -> 
 
 
 def problem_for(person, surface_vertices: np.ndarray, surface_triangles: np.ndarray,
-                threshold: float = 0.02) -> RelaxProblem:
+                threshold: float = 0.02, margin: float | None = None) -> RelaxProblem:
     """The relaxation problem of a placed person (see `solver.scene.PlacedPerson`): its rig in
-    the scene frame, its vertices of importance above `threshold`, and the surface."""
+    the scene frame, its vertices of importance above `threshold`, and the surface, fitted with
+    softness `margin` (metres; None: the paper's step)."""
     ids = np.flatnonzero(person.importance > threshold)
     if not ids.size:
         raise RelaxError(f"{person.label}: nothing to support (no importance above "
@@ -265,9 +278,11 @@ def problem_for(person, surface_vertices: np.ndarray, surface_triangles: np.ndar
     local0 = person.motion.local_rotmats[0].copy()
     local0[0] = rot @ local0[0]
     root0 = rot @ person.motion.root_positions[0] + shift
+    middle = PENETRATION_SHIFT if margin is None else max(margin - 2 * PENETRATION_WIDTH, 0.0)
     return RelaxProblem(person.body, local0, root0, ids, person.importance[ids],
                         np.asarray(surface_vertices, dtype=np.float64),
-                        np.asarray(surface_triangles, dtype=np.int64))
+                        np.asarray(surface_triangles, dtype=np.int64),
+                        penetration_shift=middle)
 
 
 def _depth_first(parents: np.ndarray) -> np.ndarray:

@@ -20,7 +20,7 @@ from typing import Mapping
 
 import numpy as np
 
-from capture import PROFILES, Skeleton, WorldPose, skeleton_fk
+from capture import PROFILES, Skeleton, WorldPose, identify_profile, skeleton_fk
 from capture.profiles import strip_namespace
 
 from .body import Body
@@ -59,8 +59,6 @@ class RetargetError(ValueError):
 def joint_map_for(skeleton: Skeleton, profile: str | None = None,
                   joint_map: Mapping[str, str] | None = None) -> dict[str, str]:
     """Role -> joint name for a captured skeleton: the profile's, overridden by `joint_map`."""
-    from capture import identify_profile
-
     roles: dict[str, str] = {}
     profile = profile or identify_profile(skeleton.names)
     if profile is not None:
@@ -280,9 +278,17 @@ def retarget(skeleton: Skeleton, channels: np.ndarray, body: Body, *,
 def retarget_pose(skeleton: Skeleton, pose: WorldPose, body: Body, *,
                   profile: str | None = None, joint_map: Mapping[str, str] | None = None
                   ) -> RigMotion:
-    """As `retarget`, from the captured skeleton's world frames (T, J) in metres."""
+    """As `retarget`, from the captured skeleton's world frames (T, J) in metres.
+
+    A skeleton that is a sitrelax rig (a relaxed pose, written by `sitrelax relax`) hands its
+    local rotations over unchanged: the rigs share their rest orientations, so the posture
+    carries across bodies exactly, and only the root moves in proportion to the leg length.
+    """
     from .skinning import rig_pose
 
+    if joint_map is None and sorted(skeleton.names) == sorted(body.joint_names) and \
+            (profile or identify_profile(skeleton.names)) == "sitrelax_rig":
+        return _same_rig(skeleton, pose, body)
     roles = joint_map_for(skeleton, profile, joint_map)
     pos = role_positions(skeleton, pose, roles)
     # the captured spine and neck as polylines, for placing the rig's joints along them
@@ -298,6 +304,24 @@ def retarget_pose(skeleton: Skeleton, pose: WorldPose, body: Body, *,
     scale = leg_length(rig_rest) / leg_length(rest_pos)
     _, local = solve_rig(body, pos)
     root = pos["hips"] * scale
+    return RigMotion(body, local, root, rig_pose(body, local, root))
+
+
+def _same_rig(skeleton: Skeleton, pose: WorldPose, body: Body) -> RigMotion:
+    from .skinning import rig_pose
+
+    index = [skeleton.names.index(n) for n in body.joint_names]
+    rot = np.asarray(pose.rotmats)[:, index]  # (T, J, 3, 3) in the body's joint order
+    parents = body.parents
+    parent_rot = np.where(parents[None, :, None, None] >= 0, rot[:, np.maximum(parents, 0)],
+                          np.eye(3))
+    local = np.swapaxes(parent_rot, -1, -2) @ rot
+    # the captured rig's leg against this body's: hip above the ankle at rest
+    hip, foot = skeleton.names.index("LeftUpLeg"), skeleton.names.index("LeftFoot")
+    rest = skeleton_fk(skeleton, np.zeros(skeleton.num_channels)).positions
+    own = body.joints[body.joint_index("LeftUpLeg")] - body.joints[body.joint_index("LeftFoot")]
+    scale = np.linalg.norm(own) / np.linalg.norm(rest[hip] - rest[foot])
+    root = np.asarray(pose.positions)[:, index[0]] * scale
     return RigMotion(body, local, root, rig_pose(body, local, root))
 
 

@@ -144,10 +144,11 @@ def _contact_colors(surface: np.ndarray, people: list[PlacedPerson]) -> np.ndarr
 
 def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
               surface_dir: str | os.PathLike | None = None, person: int | None = None,
-              db: str | os.PathLike | None = None,
+              db: str | os.PathLike | None = None, save: bool = False,
               progress: Callable[[str], None] | None = None) -> dict:
     """Relaxes the scenario's people onto a surface (fitted before into `surface_dir`, or now)
-    and writes the relaxed bodies, BVH poses, a picture and report.json into `out_dir`."""
+    and writes the relaxed bodies, BVH poses, a picture and report.json into `out_dir`; with
+    `save`, also stores each relaxed pose in the pose library `db` (see `save_relaxed`)."""
     from capture import Motion, write_bvh
 
     from .pressure import triangle_mesh
@@ -156,6 +157,8 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
 
     say = progress or (lambda message: None)
     start = time.perf_counter()
+    if save and db is None:
+        raise RelaxError("Saving relaxed poses needs a pose library (--db)")
     scenario = load_scenario(scenario_path)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -174,14 +177,14 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
     if person is not None and not 1 <= person <= len(people):
         raise RelaxError(f"Expected --person in 1..{len(people)}, got {person}")
     keys = ("mean_support_distance_m", "max_penetration_m", "coverage", "peak_pressure_kpa")
-    rows, meshes_before, meshes_after = [], [], []
+    rows, meshes_before, meshes_after, relaxed = [], [], [], []
     for k in chosen:
         p = people[k]
         t = time.perf_counter()
-        res = relax(problem_for(p, surface, tris))
+        margin = scenario.surface.params.margin
+        res = relax(problem_for(p, surface, tris, margin=margin))
         seconds = time.perf_counter() - t
         mask = p.body.part_mask(p.spec.support)
-        margin = scenario.surface.params.margin
         before, _ = evaluate_person(mesh, p.vertices, p.normals, p.areas, p.importance,
                                     p.body.mass_kg, margin, scenario.foam_stiffness,
                                     p.body.triangles, mask)
@@ -200,11 +203,16 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
                      "before": {key: before[key] for key in keys},
                      "after": {key: after[key] for key in keys},
                      "files": [f"{name}.obj", f"{name}.bvh"]})
+        relaxed.append((p, res))
         meshes_before.append(MeshView(p.vertices, p.body.faces))
         meshes_after.append(MeshView(res.vertices, p.body.faces, (0.62, 0.78, 0.62)))
         say(f"{p.label}: relaxed in {seconds:.2f} s; mean support distance "
             f"{before['mean_support_distance_m'] * 100:.1f} -> "
             f"{after['mean_support_distance_m'] * 100:.1f} cm")
+    if save:
+        for row, saved in zip(rows, save_relaxed(db, relaxed, str(surface_dir or "fitted"))):
+            row["saved_pose"] = saved
+            say(f"{row['name']}: saved as pose {saved['name']!r} ({saved['id']})")
     surf_view = MeshView(surface, faces, SURFACE)
     render_panels(out / "relax.png", [Panel([surf_view] + meshes_before, "side", "before"),
                                       Panel([surf_view] + meshes_after, "side", "after")],
@@ -214,3 +222,42 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
               "files": ["relax.png"]}
     write_atomic(out / "report.json", json.dumps(report, indent=2).encode())
     return report
+
+
+def save_relaxed(db: str | os.PathLike, relaxed: list, surface: str) -> list[dict]:
+    """Stores relaxed poses in the pose library, all in one commit: each as a one-frame take
+    in the body's rig (origin "relaxed", source: the pose it came from, a library pose id or
+    the BVH reference) and a pose "<origin>-relaxed" carrying the origin's tags, "relaxed" and
+    the parts it was supported on. The scene's placement is undone, so the stored pose stands
+    where its capture did. relaxed : [(PlacedPerson, RelaxResult)]."""
+    from posedb import PoseLibrary
+
+    from .relax import pose_channels, rig_skeleton
+
+    lib = PoseLibrary(db)
+    taken = {p.name for p in lib.poses()} | {t.name for t in lib.takes()}
+    saved = []
+    with lib.edit() as ed:
+        for person, res in relaxed:
+            ref = person.spec.pose
+            if ref.startswith("db:"):
+                origin = lib.pose(ref[3:])
+                source, base, tags = origin.id, origin.name, origin.tags
+            else:
+                source, base, tags = ref, Path(ref.split("#")[0]).stem, ()
+            name, k = f"{base}-relaxed", 2
+            while name in taken:
+                name, k = f"{base}-relaxed-{k}", k + 1
+            taken.add(name)
+            rot, shift = person.transform[:3, :3], person.transform[:3, 3]
+            local = res.local.copy()
+            local[0] = rot.T @ local[0]
+            root = rot.T @ (res.world.positions[0] - shift)
+            skeleton, _ = rig_skeleton(person.body)
+            notes = f"relaxed from {ref} onto the surface {surface}"
+            tid = ed.add_take(skeleton, pose_channels(person.body, local, root)[None], 1 / 30,
+                              name=name, source=source, origin="relaxed", notes=notes)
+            pid = ed.add_pose(tid, 0, name, tags=tuple(tags) + ("relaxed",),
+                              supports=person.spec.support, notes=notes)
+            saved.append({"id": pid, "name": name, "take": tid, "origin": source})
+    return saved
