@@ -7,6 +7,7 @@ Conventions as everywhere: metres, Y up, gravity along -Y, bodies face +Z.
 from .body import BODY_PARTS, Body, BodyShape, BodyShapeError, make_body
 from .export import ExportError, write_mesh
 from .poses import CapturedPose, PoseSourceError, load_pose, pose_body
+from .relax import RelaxError, RelaxProblem, RelaxResult, problem_for, relax
 from .render import MeshView, render_png
 from .retarget import RetargetError, RigMotion, joint_map_for, place, retarget, retarget_pose
 from .skinning import rest_pose, rig_pose, skin
@@ -20,6 +21,9 @@ __all__ = [
     "ExportError",
     "MeshView",
     "PoseSourceError",
+    "RelaxError",
+    "RelaxProblem",
+    "RelaxResult",
     "RetargetError",
     "RigMotion",
     "joint_map_for",
@@ -27,6 +31,8 @@ __all__ = [
     "make_body",
     "place",
     "pose_body",
+    "problem_for",
+    "relax",
     "render_png",
     "rest_pose",
     "retarget",
