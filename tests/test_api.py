@@ -41,11 +41,13 @@ def test_solver_public_api():
 
     assert sorted(solver.__all__) == sorted([
         "BODY_PARTS", "Body", "BodyShape", "BodyShapeError", "CapturedPose", "ExportError",
-        "MeshView", "PoseSourceError", "RetargetError", "RigMotion", "joint_map_for",
-        "load_pose", "make_body", "place", "pose_body", "render_png", "rest_pose", "retarget",
+        "MeshView", "PoseSourceError", "RelaxError", "RelaxProblem", "RelaxResult",
+        "RetargetError", "RigMotion", "joint_map_for", "load_pose", "make_body", "place",
+        "pose_body", "problem_for", "relax", "render_png", "rest_pose", "retarget",
         "retarget_pose", "rig_pose", "skin", "write_mesh",
     ])
-    for name in ("BodyShapeError", "ExportError", "PoseSourceError", "RetargetError"):
+    for name in ("BodyShapeError", "ExportError", "PoseSourceError", "RelaxError",
+                 "RetargetError"):
         assert issubclass(getattr(solver, name), ValueError)
 
 
