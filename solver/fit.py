@@ -275,6 +275,7 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
     # (every other vertex each way, about 2 cm apart on a seat): a quarter of the rows
     sampled = np.zeros(s.shape[0], dtype=bool)
     sampled[:sub.steps[-1].matrix.shape[1] if sub.steps else s.shape[0]] = True
+    sampled_ids = np.flatnonzero(sampled)
     best = None
     terms: dict = {}
     stop = f"reached the iteration limit ({params.max_iterations})"
@@ -295,30 +296,38 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
         target[used] /= w[used, None]
         h = np.zeros((3 * n0, 3 * n0))
         g = np.zeros(3 * n0)
-        nt = np.einsum("ij,ij->i", surf_n, target)  # n . p per surface vertex
+        # only the paired surface vertices carry data terms: their rows of S, dense
+        paired = np.flatnonzero(used)
+        s_p = s[paired].toarray()
+        w_p, n_p, t_p = w[paired] / total, surf_n[paired], target[paired]
+        nt = np.einsum("ij,ij->i", n_p, t_p)  # n . p per paired surface vertex
         for a in range(3):
             for b in range(a, 3):
-                c = w * (tau * surf_n[:, a] * surf_n[:, b] + ((1 - tau) if a == b else 0.0))
-                blk = (s.T @ sp.diags(c / total) @ s).toarray()
+                c = w_p * (tau * n_p[:, a] * n_p[:, b] + ((1 - tau) if a == b else 0.0))
+                blk = (s_p.T * c) @ s_p
                 h[a * n0:(a + 1) * n0, b * n0:(b + 1) * n0] = blk
                 if a != b:
                     h[b * n0:(b + 1) * n0, a * n0:(a + 1) * n0] = blk.T
-            ga = w * ((1 - tau) * target[:, a] + tau * surf_n[:, a] * nt) / total
-            g[a * n0:(a + 1) * n0] = s.T @ ga + fixed * v0[:, a]
+            ga = w_p * ((1 - tau) * t_p[:, a] + tau * n_p[:, a] * nt)
+            g[a * n0:(a + 1) * n0] = s_p.T @ ga + fixed * v0[:, a]
             h[a * n0:(a + 1) * n0, a * n0:(a + 1) * n0] += smooth_dense + np.diag(fixed)
         # non-penetration: stay outside the tangent plane at the closest body vertex
-        query = np.concatenate([surf, -FACING_SCALE * surf_n], axis=1)
-        _, closest = body_tree.query(query)
-        dist = np.linalg.norm(points[closest] - surf, axis=1)
+        # (only the sampled surface vertices carry rows, so only they are looked up)
+        sv, sn = surf[sampled_ids], surf_n[sampled_ids]
+        _, near_s = body_tree.query(np.concatenate([sv, -FACING_SCALE * sn], axis=1))
+        dist = np.linalg.norm(points[near_s] - sv, axis=1)
         # a surface vertex inside a body (behind its nearest skin vertex) is always constrained,
         # however far the skin it faces: it must get out
-        _, nearest = body_tree3.query(surf)
-        inside = np.einsum("ij,ij->i", surf - points[nearest], normals[nearest]) < 0
-        if inside.any():
-            _, exits = exit_tree.query(np.concatenate([surf[inside], -EXIT_SCALE * surf_n[inside]],
-                                                      axis=1))
-            closest[inside] = exits
-        wanted = ((dist <= CONSTRAINT_RADIUS) | inside) & sampled
+        _, nearest = body_tree3.query(sv)
+        inside_s = np.einsum("ij,ij->i", sv - points[nearest], normals[nearest]) < 0
+        if inside_s.any():
+            _, exits = exit_tree.query(np.concatenate([sv[inside_s],
+                                                       -EXIT_SCALE * sn[inside_s]], axis=1))
+            near_s[inside_s] = exits
+        closest = np.zeros(len(surf), dtype=np.int64)
+        closest[sampled_ids] = near_s
+        wanted = np.zeros(len(surf), dtype=bool)
+        wanted[sampled_ids] = (dist <= CONSTRAINT_RADIUS) | inside_s
         # rows only join the programme (and stay, inactive when not wanted) so that OSQP is set
         # up again only when a new surface vertex comes near a body
         member |= wanted
