@@ -349,7 +349,7 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
         statuses.append(status)
         residuals.append(residual)
         v = x.reshape(3, n0).T
-        energy, terms = _energy(s @ v, v, v0, pair, b_imp, w_now, surf_n, tau, smooth, fixed)
+        energy, terms = _energy(s @ v, v, v0, pair, b_imp, w_imp, surf_n, tau, smooth, fixed)
         terms["laplacian_m2"] = float(np.mean(np.sum((lap @ v) ** 2, axis=1)))
         energies.append(energy)
         # energies are comparable only at the same tau: keep and judge those after the ramp

@@ -159,7 +159,7 @@ def test_fit_command_writes_files_that_open_again(tmp_path):
 EXAMPLES = Path(__file__).resolve().parents[1] / "fixtures" / "scenarios"
 
 
-@pytest.mark.parametrize("name", ["single_seated", "reclining"])
+@pytest.mark.parametrize("name", ["single_seated", "reclining", "facing_pair"])
 def test_example_scenarios_meet_the_bar(name, tmp_path):
     """Coverage at least 0.9, no cut deeper than the margin plus 5 mm, and a peak pressure at
     most 60 % of the flat seat's at the same height."""
