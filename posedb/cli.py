@@ -14,7 +14,7 @@ from capture.cli import _event, _status
 from .library import PoseLibrary
 from .record import record, recordings, recover
 from .schema import SUPPORT_PARTS
-from .suggest import DEFAULT_MAX_SPEED, DEFAULT_MIN_DURATION, held_postures
+from .suggest import DEFAULT_MAX_SPEED, DEFAULT_MIN_DURATION, suggest_poses
 
 DEFAULT_DB = os.environ.get("SITRELAX_DB", "poses.h5")
 
@@ -113,19 +113,9 @@ def _cmd_pose_delete(args) -> int:
 def _cmd_suggest(args) -> int:
     lib = PoseLibrary(args.db)
     take = lib.take(args.take)
-    data = lib.take_data(take.id)
-    from capture import identify_profile
-
-    held = held_postures(data.skeleton, data.motion().channels, take.frame_time,
-                         identify_profile(data.skeleton.names), max_speed=args.max_speed,
+    rows = suggest_poses(lib, take.id, accept=args.accept, tags=args.tag,
+                         supports=args.support, max_speed=args.max_speed,
                          min_duration=args.min_duration)
-    rows = [h.as_dict() for h in held]
-    if args.accept:
-        with lib.edit() as ed:
-            for row in rows:
-                row["pose"] = ed.add_pose(take.id, row["frame"],
-                                          f"{take.name}-f{row['frame']:05d}", tags=args.tag,
-                                          supports=args.support)
     text = "\n".join(
         f"frames {r['start']}-{r['end']} ({(r['end'] - r['start'] + 1) * take.frame_time:.2f} s):"
         f" propose frame {r['frame']}" + (f" -> {r['pose']}" if "pose" in r else "")

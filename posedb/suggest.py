@@ -81,3 +81,26 @@ def held_postures(skeleton: Skeleton, channels: np.ndarray, frame_time: float,
         frame = int(s + np.argmin(speed[s:e + 1]))
         out.append(HeldPosture(int(s), int(e), frame, float(speed[s:e + 1].mean())))
     return out
+
+
+def suggest_poses(library, take: str, *, accept: bool = False, tags=(),
+                  supports=("torso", "legs"), max_speed: float = DEFAULT_MAX_SPEED,
+                  min_duration: float = DEFAULT_MIN_DURATION) -> list[dict]:
+    """The held postures of a library take (`posedb.PoseLibrary`), as dicts; with `accept`,
+    each becomes a pose "<take>-fNNNNN" (its `pose` entry holds the new id), all in one commit.
+    """
+    from capture import identify_profile
+
+    info = library.take(take)
+    data = library.take_data(info.id)
+    held = held_postures(data.skeleton, data.motion().channels, info.frame_time,
+                         identify_profile(data.skeleton.names), max_speed=max_speed,
+                         min_duration=min_duration)
+    rows = [h.as_dict() for h in held]
+    if accept and rows:
+        with library.edit() as ed:
+            for row in rows:
+                row["name"] = f"{info.name}-f{row['frame']:05d}"
+                row["pose"] = ed.add_pose(info.id, row["frame"], row["name"], tags=tags,
+                                          supports=supports)
+    return rows

@@ -116,6 +116,15 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from .demo import format_summary, run_demo
+
+    summary = run_demo(args.out, progress=lambda m: print(f"demo: {m}", file=sys.stderr,
+                                                           flush=True))
+    print(json.dumps(summary, indent=2) if args.json else format_summary(summary))
+    return 0
+
+
 def _cmd_relax(args: argparse.Namespace) -> int:
     import sys
 
@@ -196,6 +205,12 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--out", required=True, help="output folder")
     fit.add_argument("--json", action="store_true", help="print the report")
     fit.set_defaults(func=_cmd_fit)
+
+    demo = sub.add_parser("demo", help="the whole chain on the bundled recordings")
+    demo.add_argument("--out", default="sitrelax-demo", help="an empty or new folder "
+                      "(default: sitrelax-demo)")
+    demo.add_argument("--json", action="store_true", help="print the summary as JSON")
+    demo.set_defaults(func=_cmd_demo)
 
     rx = sub.add_parser("relax", help="let the scenario's people settle onto the surface")
     rx.add_argument("scenario", help="scenario file (TOML)")

@@ -15,7 +15,7 @@ from capture.bvh import write_atomic
 from .evaluate import SurfaceMesh, evaluate_person, flat_seat_height, flat_surface
 from .export import write_mesh
 from .fit import FitParams, FitResult, fit_surface
-from .render import SURFACE, MeshView, Panel, field_colors, render_panels
+from .render import SKIN, SURFACE, MeshView, Panel, field_colors, render_panels
 from .scenario import Scenario, load_scenario
 from .scene import PlacedPerson, place_person
 
@@ -117,10 +117,13 @@ def export_scene(out: Path, result: FitResult, people: list[PlacedPerson],
         write_mesh(out / f"person_{k}.obj", p.vertices, p.body.faces)
         bodies.append(f"person_{k}.ply")
     files["bodies"] = bodies
+    # the bodies in the scene carry their pressure, on the same scale as pressure.png
     scene = [MeshView(result.surface, result.surface_faces, SURFACE)] + [
-        MeshView(p.vertices, p.body.faces) for p in people]
+        MeshView(p.vertices, p.body.faces, _pressure_on_skin(m, peak))
+        for p, m in zip(people, maps)]
     render_panels(out / "scene.png", [Panel(scene, "three-quarter", "fitted surface"),
-                                      Panel(scene, "side", "side")], columns=2)
+                                      Panel(scene, "side", "side")], columns=2,
+                  colorbar=("pressure, kPa", 0.0, peak))
     files["scene_png"] = "scene.png"
     panels = [Panel([MeshView(p.vertices, p.body.faces, field_colors(m, 0.0, peak))], "below",
                     f"{p.label}: peak {float(m.max()):.1f} kPa") for p, m in zip(people, maps)]
@@ -128,6 +131,13 @@ def export_scene(out: Path, result: FitResult, people: list[PlacedPerson],
                   colorbar=("pressure, kPa", 0.0, peak))
     files["pressure_png"] = "pressure.png"
     return files
+
+
+def _pressure_on_skin(pressure: np.ndarray, peak: float) -> np.ndarray:
+    """Per body vertex: the pressure colour where the body is pressed, skin elsewhere."""
+    colors = field_colors(pressure, 0.0, peak)
+    colors[pressure <= 0] = SKIN
+    return colors
 
 
 def _contact_colors(surface: np.ndarray, people: list[PlacedPerson]) -> np.ndarray:

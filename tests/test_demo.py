@@ -1,0 +1,56 @@
+"""`sitrelax demo` end to end: every file it promises, and figures that mean something."""
+
+import json
+
+import numpy as np
+import trimesh
+
+from posedb import PoseLibrary
+from solver.cli import main
+
+
+def test_demo_makes_everything(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+
+    # the library holds both recorded takes and the accepted poses, tagged
+    lib = PoseLibrary(out / "poses.h5")
+    takes = {t.name: t for t in lib.takes()}
+    assert set(takes) == {"standing", "sitting"}
+    assert takes["sitting"].frames == 77 and takes["sitting"].kind == "stream"
+    assert summary["takes"]["sitting"]["dropped"] == 0
+    seated = lib.search_poses("sit and demo")
+    assert seated and seated == summary["takes"]["sitting"]["poses"]
+
+    # the fit's outputs open again, with the counts the report and the meshes imply
+    fit = json.loads((out / "fit" / "report.json").read_text())
+    assert len(fit["persons"]) == 2
+    control = trimesh.load(out / "fit" / "control.obj", process=False)
+    surface = trimesh.load(out / "fit" / "surface.obj", process=False)
+    assert len(control.vertices) == 21 * 7 and len(surface.vertices) == 161 * 49
+    for k in (1, 2):
+        body = trimesh.load(out / "fit" / f"person_{k}.ply", process=False)
+        assert len(body.vertices) == 13380
+    for name in ("surface.ply", "surface.glb", "scene.png", "pressure.png"):
+        assert (out / "fit" / name).stat().st_size > 10_000
+    # relaxation: a mesh and a BVH a person, and the before/after report
+    relax = json.loads((out / "relax" / "report.json").read_text())
+    for k in (1, 2):
+        assert (out / "relax" / f"person_{k}_relaxed.bvh").stat().st_size > 1000
+        mesh = trimesh.load(out / "relax" / f"person_{k}_relaxed.obj", process=False)
+        assert len(mesh.vertices) == 13380
+    assert (out / "relax" / "relax.png").stat().st_size > 10_000
+
+    # the figures: both supported, neither cut deeper than the margin plus 5 mm, and the fitted
+    # surface presses less than a flat seat at its height
+    masses = []
+    for person, relaxed in zip(summary["persons"], relax["persons"]):
+        assert person["coverage"] >= 0.9
+        assert person["max_penetration_m"] <= 0.035
+        assert person["peak_pressure_kpa"] < person["flat_peak_pressure_kpa"]
+        assert relaxed["after"] == person["relaxed"]
+        masses.append(person["mass_kg"])
+    assert masses[1] > masses[0] + 10  # two different builds
+    assert np.isclose(summary["timing"]["total_s"], sum(
+        v for k, v in summary["timing"].items() if k != "total_s"), rtol=0.05)
