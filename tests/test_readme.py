@@ -1,0 +1,78 @@
+"""Every concrete command in the README runs as written, in order, in a fresh folder.
+
+The synopsis block (metavariables such as FILE and SOURCE) and the install commands (run by CI
+itself) are left out; a line ending in `&` runs in the background for the lines after it, as in
+a shell. The README's fixed port is swapped for a free one so parallel runs cannot collide.
+"""
+
+import re
+import shlex
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from solver.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def readme_commands() -> list[str]:
+    text = (ROOT / "README.md").read_text()
+    commands = []
+    for block in re.findall(r"```sh\n(.*?)```", text, flags=re.S):
+        if "sitrelax bvh info FILE" in block or "python3 -m venv" in block:
+            continue
+        joined = re.sub(r"\\\n\s*", "", block)
+        for line in joined.splitlines():
+            line = re.sub(r"\s+#\s.*$", "", line).strip()
+            if line:
+                commands.append(line)
+    return commands
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_readme_lists_the_commands_it_shows():
+    commands = readme_commands()
+    assert all(c.startswith("sitrelax ") for c in commands), commands
+    for needed in ("capture replay", "capture listen", "capture record", "db import",
+                   "db suggest", "db list", "body make", "pose show", "fit", "relax"):
+        assert any(c.startswith(f"sitrelax {needed} ") for c in commands), needed
+
+
+def test_every_readme_command_runs_as_written(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("SITRELAX_DB", raising=False)
+    (tmp_path / "fixtures").symlink_to(ROOT / "fixtures")
+    port = str(_free_port())
+    background = []
+    try:
+        for command in readme_commands():
+            command = command.replace("7001", port)
+            args = shlex.split(command.rstrip("&").strip())[1:]
+            if command.endswith("&"):
+                background.append(subprocess.Popen(
+                    [sys.executable, "-m", "solver.cli", *args], cwd=tmp_path,
+                    stdout=subprocess.DEVNULL, stderr=subprocess.PIPE))
+                time.sleep(1.0)  # let it listen
+                assert background[-1].poll() is None, background[-1].stderr.read()
+                continue
+            status = main(args)
+            captured = capsys.readouterr()
+            assert status == 0, f"{command}\n{captured.err}"
+    finally:
+        for proc in background:
+            proc.terminate()
+            proc.wait(10)
+    # what the commands say they make
+    assert (tmp_path / "session.raw").stat().st_size > 0
+    assert (tmp_path / "poses.h5").exists()
+    for made in ("body.obj", "seated.png", "seated.obj", "result/report.json",
+                 "thin/report.json", "heavy_on_thin/report.json"):
+        assert (tmp_path / made).exists(), made
