@@ -214,18 +214,20 @@ def run_benchmarks(
 
 
 def format_table(rows: list[dict]) -> str:
-    """A plain-text table of benchmark results."""
-    head = (f"{'name':<14} {'median':>11} {'per second':>12} {'baseline':<24} "
+    """A plain-text table of benchmark results, its columns as wide as their widest entry."""
+    width = max([len("name")] + [len(r["name"]) for r in rows])
+    bwidth = max([len("baseline")] + [len(r.get("baseline") or "") for r in rows])
+    head = (f"{'name':<{width}} {'median':>11} {'per second':>12} {'baseline':<{bwidth}} "
             f"{'baseline median':>16} {'speedup':>9}")
     lines = [head, "-" * len(head)]
     for r in rows:
         if "skipped" in r:
-            lines.append(f"{r['name']:<14} skipped: {r['skipped']}")
+            lines.append(f"{r['name']:<{width}} skipped: {r['skipped']}")
             continue
         base = r.get("baseline") or ""
         bmed = f"{r['baseline_median_s'] * 1e3:.1f} ms" if "baseline_median_s" in r else ""
         speed = f"{r['speedup']:.1f}x" if "speedup" in r else ""
         rate = f"{r['per_second']:,.0f}" if "per_second" in r else ""
-        lines.append(f"{r['name']:<14} {r['median_s'] * 1e3:>8.2f} ms {rate:>12} {base:<24} "
-                     f"{bmed:>16} {speed:>9}")
+        lines.append(f"{r['name']:<{width}} {r['median_s'] * 1e3:>8.2f} ms {rate:>12} "
+                     f"{base:<{bwidth}} {bmed:>16} {speed:>9}")
     return "\n".join(lines)

@@ -193,3 +193,26 @@ def test_validate_pressure_command(tmp_path, capsys):
         assert {"pose", "rmse_reaction", "rmse_normal", "model_s", "reference_s"} <= set(r)
         assert r["rmse_reaction"] <= 0.07 and r["model_s"] < r["reference_s"]
         assert (tmp_path / r["picture"].rsplit("/", 1)[-1]).stat().st_size > 10_000
+
+
+def test_a_locked_library_and_a_missing_pose_are_one_line(tmp_path, capsys, monkeypatch):
+    import fcntl
+
+    import posedb.library
+
+    db = tmp_path / "poses.h5"
+    assert main(["db", "import", "bundled:cmu_75_18_high_sit.bvh", "--db", str(db)]) == 0
+    capsys.readouterr()
+    before = db.read_bytes()
+    monkeypatch.setattr(posedb.library, "_LOCK_WAIT", 0.3)
+    with open(db.with_name(db.name + ".lock"), "a") as held:  # another writer holds the lock
+        fcntl.flock(held, fcntl.LOCK_EX)
+        assert main(["db", "tag", "cmu_75_18_high_sit", "mine", "--db", str(db)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "locked by another writer" in err
+    assert db.read_bytes() == before
+    assert main(["pose", "show", "db:nope", "--db", str(db), "--out",
+                 str(tmp_path / "x.png")]) == 2
+    err = capsys.readouterr().err
+    assert err == f"sitrelax: error: No pose 'nope' in {db}\n"
+    assert not (tmp_path / "x.png").exists()
