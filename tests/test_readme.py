@@ -76,3 +76,17 @@ def test_every_readme_command_runs_as_written(tmp_path, monkeypatch, capsys):
     for made in ("body.obj", "seated.png", "seated.obj", "result/report.json",
                  "thin/report.json", "heavy_on_thin/report.json"):
         assert (tmp_path / made).exists(), made
+
+
+def test_the_readme_scenario_example_is_valid():
+    import tomllib
+
+    from solver.scenario import parse_scenario
+
+    (block,) = re.findall(r"```toml\n(.*?)```", (ROOT / "README.md").read_text(), flags=re.S)
+    scenario = parse_scenario(tomllib.loads(block))
+    assert scenario.surface.params.sigma == 0.003 and scenario.surface.params.margin == 0.03
+    assert list(scenario.surface.params.fixed) == [0, 7]
+    assert scenario.foam_stiffness == 200.0
+    (person,) = scenario.persons
+    assert person.pose == "db:relaxed_sit_01" and list(person.support) == ["torso", "legs"]
