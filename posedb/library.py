@@ -326,6 +326,20 @@ class PoseLibrary:
     def poses(self) -> list[PoseInfo]:
         return [self._pose_info(r) for r in range(len(self._table))]
 
+    def scenarios(self) -> list[dict]:
+        """Stored scenarios (batch results): name, source, created_at, and the scenario and
+        result as parsed JSON, by name."""
+        out = []
+        with schema.open_checked(self.path) as f:
+            group = f.get("scenarios")
+            for key in sorted(group) if group is not None else []:
+                a = group[key].attrs
+                out.append({"name": key, "source": str(a.get("source", "")),
+                            "created_at": float(a.get("created_at", 0.0)),
+                            "scenario": json.loads(str(a["scenario_json"])),
+                            "result": json.loads(str(a["result_json"]))})
+        return out
+
     def stats(self) -> dict:
         with schema.open_checked(self.path) as f:
             skeletons = len(f["skeletons"])
@@ -525,6 +539,27 @@ class Editor:
         self._new_rotations.append(rot)
         self._table_dirty = True
         return _pose_id(pid)
+
+    def put_scenario(self, name: str, scenario_json: str, result_json: str, *,
+                     source: str = "") -> None:
+        """Stores (or replaces) a scenario and its result, both as JSON text, under `name`."""
+        name = str(name).strip()
+        if not name or "/" in name or any(c in name for c in "\n\r\t"):
+            raise LibraryError(f"Expected a scenario name without '/' or line breaks, got "
+                               f"{name!r}")
+        for text, what in ((scenario_json, "scenario"), (result_json, "result")):
+            try:
+                json.loads(text)
+            except ValueError:
+                raise LibraryError(f"Expected the {what} of {name!r} as JSON text") from None
+        group = self.f.require_group("scenarios")
+        if name in group:
+            del group[name]
+        g = group.create_group(name)
+        g.attrs["scenario_json"] = scenario_json
+        g.attrs["result_json"] = result_json
+        g.attrs["source"] = source
+        g.attrs["created_at"] = time.time()
 
     def rename(self, ref: str, new_name: str) -> None:
         """Renames a pose or, failing that, a take."""

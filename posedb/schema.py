@@ -24,7 +24,11 @@
                             notes_offsets; tag_vocabulary (K,) str + tag_matrix (P, K) uint8;
                             rotations (R, 4) float32: each pose's own copy of its local
                             rotations (xyzw)
-    /bodies, /scenarios     reserved for body shapes and scenarios
+    /scenarios/<name>       attrs: scenario_json (the scenario's TOML data as JSON),
+                            result_json (its summary row and per-person evaluation), source
+                            (the file or template + pose it came from), created_at; written by
+                            `sitrelax batch`
+    /bodies                 reserved for body shapes
 
 A file of a newer schema is refused; an older one would be migrated by the functions in
 `MIGRATIONS` (none exist yet: 1 is the first version).

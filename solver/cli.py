@@ -116,6 +116,36 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_batch(args: argparse.Namespace) -> int:
+    from .batch import BatchError, expand_jobs, parse_grid, run_batch
+
+    if args.scenarios and args.from_db:
+        raise BatchError("Give scenario files or --from-db, not both")
+    jobs = expand_jobs(args.scenarios, grid=parse_grid(args.grid), from_db=args.from_db,
+                       template=args.template, db=args.db)
+
+    def progress(c: dict) -> None:
+        print(f"\rbatch: {c['done'] + c['failed']}/{c['total'] - c['skipped']} done, "
+              f"{c['failed']} failed, {c['running']} running, ~{c['left_s']:.0f} s left  ",
+              end="", file=sys.stderr, flush=True)
+
+    print(f"batch: {len(jobs)} jobs", file=sys.stderr, flush=True)
+    result = run_batch(jobs, args.out, db=args.db, workers=args.workers,
+                       scheduler=args.scheduler, progress=progress)
+    print(file=sys.stderr)
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    c = result["counts"]
+    print(f"{c['total']} jobs: {c['done']} done, {c['failed']} failed, {c['skipped']} skipped "
+          f"(finished before) in {result['seconds']:.1f} s; summary in {args.out}/summary.csv"
+          + (f"; {len(result['stored'])} stored in {args.db}" if result["stored"] else ""))
+    for row in result["jobs"]:
+        if row["status"] != "ok":
+            print(f"  {row['job']} failed: {row['error']}")
+    return 0
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from .demo import format_summary, run_demo
 
@@ -205,6 +235,24 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--out", required=True, help="output folder")
     fit.add_argument("--json", action="store_true", help="print the report")
     fit.set_defaults(func=_cmd_fit)
+
+    batch = sub.add_parser("batch", help="fit many scenarios and parameter sets, in parallel")
+    batch.add_argument("scenarios", nargs="*", help="scenario files (TOML)")
+    batch.add_argument("--from-db", help="tag expression: every matching library pose in "
+                       "--template")
+    batch.add_argument("--template", help="scenario whose people take each pose of --from-db")
+    batch.add_argument("--grid", action="append", default=[],
+                       help="KEY=V1,V2,...: sigma, tau_max, margin, level, surface.KEY, "
+                            "evaluation.KEY, body.KEY, person.KEY (repeatable)")
+    batch.add_argument("--db", default=None, help="pose library: db: poses, and where the "
+                       "results are stored as scenarios")
+    batch.add_argument("--out", required=True, help="output folder (a re-run skips what "
+                       "finished)")
+    batch.add_argument("--workers", type=int, default=2,
+                       help="local worker processes (default 2)")
+    batch.add_argument("--scheduler", help="an existing Dask scheduler, tcp://HOST:8786")
+    batch.add_argument("--json", action="store_true", help="print the result as JSON")
+    batch.set_defaults(func=_cmd_batch)
 
     demo = sub.add_parser("demo", help="the whole chain on the bundled recordings")
     demo.add_argument("--out", default="sitrelax-demo", help="an empty or new folder "

@@ -48,14 +48,18 @@ def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.n
     return rows, maps
 
 
-def run_fit(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
+def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathLike, *,
             db: str | os.PathLike | None = None,
             progress: Callable[[str], None] | None = None) -> dict:
-    """Fits a scenario and writes everything into `out_dir`; returns the report."""
+    """Fits a scenario (a file, or one parsed already) and writes everything into `out_dir`;
+    returns the report."""
     say = progress or (lambda message: None)
     timing = {}
     start = time.perf_counter()
-    scenario = load_scenario(scenario_path)
+    if isinstance(scenario_path, Scenario):
+        scenario, scenario_path = scenario_path, scenario_path.path
+    else:
+        scenario = load_scenario(scenario_path)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t = time.perf_counter()

@@ -1,0 +1,140 @@
+"""Batches: grids, a broken scenario, re-runs, the library's copy, a real Dask scheduler and a
+worker killed mid-batch."""
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from capture import resolve_path
+from posedb import PoseLibrary
+from solver.batch import BatchError, expand_jobs, parse_grid, run_batch
+from solver.cli import main
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "fixtures" / "scenarios"
+
+
+@pytest.fixture()
+def library(tmp_path):
+    db = tmp_path / "poses.h5"
+    lib = PoseLibrary(db, create=True)
+    take = lib.import_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"), name="high_sit")
+    for frame in (35, 39):
+        lib.add_pose(take.id, frame, f"perch_{frame}", tags=["sit"])
+    return db
+
+
+def test_grid_and_template_expand_to_jobs(library, tmp_path):
+    grid = parse_grid(["sigma=0.003,0.01", "body.weight=0.2,0.8"])
+    assert grid == {"sigma": [0.003, 0.01], "body.weight": [0.2, 0.8]}
+    jobs = expand_jobs(from_db="sit", template=EXAMPLES / "single_seated.toml", db=library,
+                       grid=grid)
+    assert len(jobs) == 2 * 4 and len({j.id for j in jobs}) == 8
+    for job in jobs:
+        (person,) = job.data["person"]
+        assert person["pose"] in ("db:perch_35", "db:perch_39")
+        assert job.data["surface"]["sigma"] == job.parameters["sigma"]
+        assert person["body"]["weight"] == job.parameters["body.weight"]
+    with pytest.raises(BatchError, match="expected numbers"):
+        parse_grid(["sigma=a,b"])
+    with pytest.raises(BatchError, match="--grid colour"):
+        expand_jobs([EXAMPLES / "single_seated.toml"], grid={"colour": [1]})
+    with pytest.raises(BatchError, match="No pose"):
+        expand_jobs(from_db="lying", template=EXAMPLES / "single_seated.toml", db=library)
+
+
+def test_batch_runs_records_failures_stores_and_skips(library, tmp_path, capsys):
+    broken = tmp_path / "broken.toml"
+    broken.write_text("[surface]\nsigma = -1\n")
+    out = tmp_path / "out"
+    before = library.read_bytes()
+    args = ["batch", "--from-db", "sit", "--template", str(EXAMPLES / "single_seated.toml"),
+            "--grid", "sigma=0.003,0.01", "--db", str(library), "--out", str(out),
+            "--workers", "2", "--json"]
+    assert main(args) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["counts"] == {"total": 4, "skipped": 0, "done": 4, "failed": 0,
+                                "running": 0}
+    # a broken file among good ones: recorded, the rest done
+    assert main(["batch", str(broken), str(EXAMPLES / "single_seated.toml"), "--out",
+                 str(tmp_path / "mixed"), "--workers", "1", "--json"]) == 0
+    mixed = json.loads(capsys.readouterr().out)
+    status = {Path(r["scenario"]).name: r for r in mixed["jobs"]}
+    assert status["single_seated.toml"]["status"] == "ok"
+    assert status["broken.toml"]["status"] == "failed"
+    assert "surface" in status["broken.toml"]["error"]
+
+    # the summary and the library agree job for job; the poses were not touched
+    rows = json.loads((out / "summary.json").read_text())
+    csv_lines = (out / "summary.csv").read_text().strip().splitlines()
+    assert len(csv_lines) == 1 + len(rows) == 5
+    lib = PoseLibrary(library)
+    stored = {s["name"]: s for s in lib.scenarios()}
+    assert set(stored) == {r["job"] for r in rows}
+    for row in rows:
+        entry = stored[row["job"]]
+        assert entry["result"]["summary"] == row
+        assert entry["scenario"]["surface"]["sigma"] == row["parameters"]["sigma"]
+        report = json.loads((out / "jobs" / row["job"] / "report.json").read_text())
+        assert row["coverage_min"] == min(p["coverage"] for p in report["persons"])
+        assert row["coverage_min"] > 0.5
+    assert lib.search_poses("sit") == ["perch_35", "perch_39"]
+    assert library.read_bytes() != before
+
+    # a re-run skips what finished and changes nothing in the results
+    assert main(args) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert again["counts"]["skipped"] == 4 and again["counts"]["done"] == 0
+    assert json.loads((out / "summary.json").read_text()) == rows
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _start(args, **kw):
+    return subprocess.Popen([sys.executable, "-m", *args], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True, **kw)
+
+
+def test_a_dask_scheduler_with_two_workers_and_one_killed(tmp_path):
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    procs = [_start(["distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port",
+                     str(port), "--no-dashboard"])]
+    try:
+        time.sleep(2.0)
+        for _ in range(2):
+            procs.append(_start(["distributed.cli.dask_worker", address, "--nthreads", "1",
+                                 "--no-nanny", "--host", "127.0.0.1", "--no-dashboard"]))
+        jobs = expand_jobs([EXAMPLES / "single_seated.toml"],
+                           grid={"sigma": [0.002, 0.003, 0.005, 0.01, 0.02, 0.03]})
+        killed = {}
+
+        def progress(counts):  # kill one worker once the first job is in
+            if not killed:
+                os.killpg(procs[1].pid, signal.SIGKILL)
+                killed["at"] = counts["done"]
+
+        remote = run_batch(jobs, tmp_path / "remote", scheduler=address, progress=progress)
+        assert killed and remote["counts"]["done"] == 6 and remote["counts"]["failed"] == 0
+        local = run_batch(jobs, tmp_path / "local", workers=2)
+        numbers = ("coverage_min", "max_penetration_m", "peak_pressure_kpa_max", "iterations")
+        for r, l in zip(remote["jobs"], local["jobs"], strict=True):
+            # the same jobs, the same answers (to rounding: BLAS may sum in another order)
+            assert (r["job"], r["status"]) == (l["job"], l["status"]) == (r["job"], "ok")
+            assert {k: r[k] for k in numbers} == pytest.approx({k: l[k] for k in numbers},
+                                                               rel=1e-9)
+    finally:
+        for proc in procs:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGTERM)
+                proc.wait(20)
