@@ -28,6 +28,7 @@ class BenchCase:
     repeats: int = 15
     baseline_repeats: int = 3
     per_second: int | None = None  # items handled per run, to report a throughput
+    warmup: bool = True  # one untimed run first (off for entries that start fresh each run)
 
 
 AXIS_RECORDING = "bundled:axis_neuron_standing_yxz.bvh"

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import statistics
 import time
+from pathlib import Path
 from typing import Callable, Iterable
 
 from capture import bench as capture_bench
@@ -125,6 +126,31 @@ def _relax_numeric(problem):
     return relax(problem, numeric_jacobian=True)
 
 
+def _batch_setup():
+    """24 fits: single_seated at 24 values of sigma."""
+    from .batch import expand_jobs
+
+    path = Path(__file__).resolve().parents[1] / "fixtures" / "scenarios" / "single_seated.toml"
+    if not path.exists():
+        raise BenchUnavailable(f"needs the example scenarios of a source checkout ({path})")
+    sigmas = [round(0.001 * (k + 1), 4) for k in range(24)]
+    return expand_jobs([path], grid={"sigma": sigmas})
+
+
+def _batch_on(workers: int):
+    def run(jobs):
+        import tempfile
+
+        from .batch import run_batch
+
+        with tempfile.TemporaryDirectory() as tmp:  # nothing finished before: all run
+            result = run_batch(jobs, tmp, workers=workers, store=False)
+        if result["counts"]["done"] != len(jobs):
+            raise RuntimeError(f"batch bench: {result['counts']}")
+        return result
+    return run
+
+
 def solver_cases() -> list[BenchCase]:
     return [
         BenchCase("skinning", "pose the 13,380-vertex body (vertices and normals), one frame",
@@ -142,6 +168,9 @@ def solver_cases() -> list[BenchCase]:
         BenchCase("relax", "relax one pose (the overweight body onto the thin body's seat) "
                   "with the analytic Jacobian", _relax_setup, _relax, _relax_numeric,
                   "finite-difference Jacobian", repeats=7, baseline_repeats=1),
+        BenchCase("batch_scaling", "24-job sigma sweep of single_seated (fit, evaluate, export) "
+                  "on 2 local Dask workers", _batch_setup, _batch_on(2), _batch_on(1),
+                  "the same on 1 worker", repeats=1, baseline_repeats=1, warmup=False),
     ]
 
 
@@ -158,8 +187,10 @@ class BenchUnavailable(Exception):
     """An entry that cannot run here (its data is missing); reported, not fatal."""
 
 
-def _median_time(fn: Callable[[object], object], arg: object, repeats: int) -> float:
-    fn(arg)  # warm-up: imports, caches, page cache
+def _median_time(fn: Callable[[object], object], arg: object, repeats: int,
+                 warmup: bool = True) -> float:
+    if warmup:
+        fn(arg)  # imports, caches, page cache
     times = []
     for _ in range(max(1, repeats)):
         start = time.perf_counter()
@@ -199,14 +230,14 @@ def run_benchmarks(
             continue
         n = repeats or case.repeats
         row = {"name": case.name, "description": case.description,
-               "median_s": _median_time(case.run, arg, n), "repeats": n}
+               "median_s": _median_time(case.run, arg, n, case.warmup), "repeats": n}
         if case.per_second is not None:
             row["per_second"] = case.per_second / row["median_s"]
         if case.baseline is not None:
             nb = repeats or case.baseline_repeats
             if progress:
                 progress(f"[{k}/{len(chosen)}] {case.name}: baseline {case.baseline_name}")
-            base = _median_time(case.baseline, arg, nb)
+            base = _median_time(case.baseline, arg, nb, case.warmup)
             row.update(baseline=case.baseline_name, baseline_median_s=base,
                        baseline_repeats=nb, speedup=base / row["median_s"])
         results.append(row)
