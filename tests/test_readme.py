@@ -74,7 +74,7 @@ def test_every_readme_command_runs_as_written(tmp_path, monkeypatch, capsys):
     assert (tmp_path / "session.raw").stat().st_size > 0
     assert (tmp_path / "poses.h5").exists()
     for made in ("body.obj", "seated.png", "seated.obj", "result/report.json",
-                 "thin/report.json", "heavy_on_thin/report.json"):
+                 "thin/report.json", "heavy_on_thin/report.json", "sweep/summary.csv"):
         assert (tmp_path / made).exists(), made
 
 
