@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import signal
-import sys
 
 from capture import resolve_path, write_bvh
 from capture.cli import _event, _status
