@@ -174,10 +174,17 @@ class PoseLibrary:
     # -- opening ------------------------------------------------------------------------------
 
     def _create(self) -> None:
-        tmp = self._tmp_path()
-        try:
+        with self._replacing() as tmp:
             with h5py.File(tmp, "w") as f:
                 schema.initialise(f)
+
+    @contextmanager
+    def _replacing(self) -> Iterator[Path]:
+        """A temporary file that replaces the library in one rename when the block succeeds,
+        and is removed when it fails."""
+        tmp = self._tmp_path()
+        try:
+            yield tmp
             _fsync_path(tmp)
             os.replace(tmp, self.path)
             _fsync_dir(self.path.parent)
@@ -362,19 +369,13 @@ class PoseLibrary:
         """A batch of changes committed together, or not at all."""
         with self._writer_lock():
             self._load()  # another writer may have committed since we read
-            tmp = self._tmp_path()
-            _copy_file(self.path, tmp)
             try:
-                with h5py.File(tmp, "r+") as f:
-                    editor = Editor(self, f)
-                    yield editor
-                    editor._commit()
-                _fsync_path(tmp)
-                os.replace(tmp, self.path)
-                _fsync_dir(self.path.parent)
-            except BaseException:
-                _unlink(tmp)
-                raise
+                with self._replacing() as tmp:
+                    _copy_file(self.path, tmp)
+                    with h5py.File(tmp, "r+") as f:
+                        editor = Editor(self, f)
+                        yield editor
+                        editor._commit()
             finally:
                 self._load()
 

@@ -36,6 +36,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
@@ -111,8 +112,13 @@ class _Model:
         w = w.tocoo()
         self.wi, self.wj, self.wv = w.row, w.col, w.data
         self.m = len(problem.vertex_ids)
-        self.x = body.vertices[problem.vertex_ids]
+        # each (vertex, joint) entry's rest lever arm, and the weights that blend the entries
+        # into vertices, both fixed for the problem
+        self.lever = body.vertices[problem.vertex_ids][self.wi] - body.joints[self.wj]
+        self.blend = sp.csr_matrix((self.wv, (self.wi, np.arange(len(self.wi)))),
+                                   shape=(self.m, len(self.wi)))
         self.desc = _descendants(body.parents)
+        self._last: tuple[np.ndarray, tuple] | None = None  # least_squares asks twice per x
 
     def pose(self, theta: np.ndarray) -> tuple[np.ndarray, WorldPose]:
         angles = theta[:3 * self.n].reshape(self.n, 3)
@@ -121,14 +127,14 @@ class _Model:
         return local, rig_pose(self.p.body, local, self.p.root0 + theta[3 * self.n:])
 
     def vertices(self, theta: np.ndarray):
+        if self._last is not None and np.array_equal(self._last[0], theta):
+            return self._last[1]
         local, world = self.pose(theta)
-        q, pos = world.rotmats, world.positions
-        body = self.p.body
-        u = np.einsum("kab,kb->ka", q[self.wj], self.x[self.wi] - body.joints[self.wj]) + \
-            pos[self.wj]
-        v = np.zeros((self.m, 3))
-        np.add.at(v, self.wi, self.wv[:, None] * u)
-        return v, u, local, world
+        u = np.einsum("kab,kb->ka", world.rotmats[self.wj], self.lever) + \
+            world.positions[self.wj]
+        out = (self.blend @ u, u, local, world)
+        self._last = (theta.copy(), out)
+        return out
 
     def jacobian_vertices(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Vertices (m, 3) and d v / d theta (m, 3, P), P = 3 J + 3."""

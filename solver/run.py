@@ -174,6 +174,9 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
     if save and db is None:
         raise RelaxError("Saving relaxed poses needs a pose library (--db)")
     scenario = load_scenario(scenario_path)
+    if person is not None and not 1 <= person <= len(scenario.persons):
+        raise RelaxError(f"Expected --person in 1..{len(scenario.persons)}, got {person}")
+    chosen = range(len(scenario.persons)) if person is None else [person - 1]
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     people = [place_person(p, db, k) for k, p in enumerate(scenario.persons)]
@@ -187,9 +190,6 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
         say(f"fitted the surface in {result.iterations} iterations")
     tris = np.concatenate([faces[:, [0, 1, 2]], faces[:, [0, 2, 3]]])
     mesh = SurfaceMesh.from_quads(surface, faces)
-    chosen = range(len(people)) if person is None else [person - 1]
-    if person is not None and not 1 <= person <= len(people):
-        raise RelaxError(f"Expected --person in 1..{len(people)}, got {person}")
     keys = ("mean_support_distance_m", "max_penetration_m", "coverage", "peak_pressure_kpa")
     rows, meshes_before, meshes_after, relaxed = [], [], [], []
     for k in chosen:
