@@ -16,6 +16,8 @@ from capture import bench as capture_bench
 from capture.bench import BenchCase
 from posedb import bench as posedb_bench
 
+EXAMPLES = Path(__file__).resolve().parent / "data" / "scenarios"  # the example scenarios
+
 
 def _skinning_setup():
     from .body import make_body
@@ -66,18 +68,21 @@ def _subdivide_fresh(arg):
     return sd.subdivision(len(verts), quads, 3).apply(verts)
 
 
-def _example(name: str):
-    """An example scenario of fixtures/scenarios, or the same bundled with the package."""
-    from pathlib import Path
+def _example_path(name: str) -> Path:
+    """An example scenario, as shipped in solver/data/scenarios (fixtures/scenarios links there)."""
+    path = EXAMPLES / f"{name}.toml"
+    if not path.exists():
+        raise BenchUnavailable(f"the example scenario {path} is missing from this install")
+    return path
 
+
+def _example(name: str):
+    """An example scenario loaded, its people placed, and its fit parameters."""
     from .run import fit_params
     from .scenario import load_scenario
     from .scene import place_person
 
-    path = Path(__file__).resolve().parents[1] / "fixtures" / "scenarios" / f"{name}.toml"
-    if not path.exists():
-        raise BenchUnavailable(f"needs the example scenarios of a source checkout ({path})")
-    scenario = load_scenario(path)
+    scenario = load_scenario(_example_path(name))
     people = [place_person(p, None, k) for k, p in enumerate(scenario.persons)]
     return scenario, [p.target() for p in people], fit_params(scenario)
 
@@ -130,11 +135,8 @@ def _batch_setup():
     """24 fits: single_seated at 24 values of sigma."""
     from .batch import expand_jobs
 
-    path = Path(__file__).resolve().parents[1] / "fixtures" / "scenarios" / "single_seated.toml"
-    if not path.exists():
-        raise BenchUnavailable(f"needs the example scenarios of a source checkout ({path})")
     sigmas = [round(0.001 * (k + 1), 4) for k in range(24)]
-    return expand_jobs([path], grid={"sigma": sigmas})
+    return expand_jobs([_example_path("single_seated")], grid={"sigma": sigmas})
 
 
 def _batch_on(workers: int):
