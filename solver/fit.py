@@ -171,7 +171,17 @@ class _Programme:
         self.a_s = np.ones(len(ar))
         self.a_s[plane] = np.asarray(sub[ar[plane], ac[plane] % self.n0]).ravel()
 
-    def solve(self, p_dense: np.ndarray, q: np.ndarray, rows: np.ndarray, normals: np.ndarray,
+    def _set_up(self, p_values, q, a_values, low, high) -> None:
+        p = self.p_pattern.copy()
+        p.data = p_values
+        a = self.a_pattern.copy()
+        a.data = a_values
+        self.solver = self._osqp.OSQP()
+        self.solver.setup(p, q, a, low, high, verbose=False, warm_starting=True, polishing=False,
+                          eps_abs=EPS_ABS, eps_rel=EPS_REL, max_iter=20000, adaptive_rho=True)
+        self.setups += 1
+
+    def solve(self, p_x: sp.csr_matrix, q: np.ndarray, rows: np.ndarray, normals: np.ndarray,
               lower: np.ndarray, x0: np.ndarray, step: float) -> tuple[np.ndarray, str, float]:
         n, r = 3 * self.n0, len(rows)
         fresh = self.rows is None or not np.array_equal(rows, self.rows)
@@ -180,21 +190,13 @@ class _Programme:
             self._setup_patterns(rows)
         xr, xc = self.p_rows[self.p_is_x], self.p_cols[self.p_is_x]
         p_values = np.full(len(self.p_rows), 2 * SLACK_WEIGHT)
-        p_values[self.p_is_x] = p_dense[xr, xc]
+        p_values[self.p_is_x] = np.asarray(p_x[xr, xc]).ravel()
         a_values = np.where(self.a_plane, self.a_s * normals[self.a_row, self.a_axis], 1.0)
         q_full = np.concatenate([q, np.zeros(r)])
         low = np.concatenate([lower, x0 - step, np.zeros(r)])
         high = np.concatenate([np.full(r, np.inf), x0 + step, np.full(r, np.inf)])
         if fresh:
-            p = self.p_pattern.copy()
-            p.data = p_values
-            a = self.a_pattern.copy()
-            a.data = a_values
-            self.solver = self._osqp.OSQP()
-            self.solver.setup(p, q_full, a, low, high, verbose=False, warm_starting=True,
-                              polishing=False, eps_abs=EPS_ABS, eps_rel=EPS_REL, max_iter=20000,
-                              adaptive_rho=True)
-            self.setups += 1
+            self._set_up(p_values, q_full, a_values, low, high)
         else:
             self.solver.update(Px=p_values, q=q_full, Ax=a_values, l=low, u=high)
         slack0 = np.maximum(0.0, lower - _normals_dot(normals, self.s[rows] @ x0.reshape(3, -1).T))
@@ -264,7 +266,7 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
     fixed = np.full(n0, params.anchor / n0)
     fixed[list(params.fixed)] += params.gamma
     smooth = (params.sigma / n0) * (lap.T @ lap)
-    smooth_dense = smooth.toarray()
+    diagonal = (smooth + sp.diags(fixed + PROXIMAL)).tocsr()
     prog = _Programme(sub, lap, n0)
     v = v0.copy()
     energies: list[float] = []
@@ -294,23 +296,24 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
                            for a in range(3)], axis=1)
         used = w > 0
         target[used] /= w[used, None]
-        h = np.zeros((3 * n0, 3 * n0))
-        g = np.zeros(3 * n0)
-        # only the paired surface vertices carry data terms: their rows of S, dense
+        # only the paired surface vertices carry data terms: their rows of S (sparse, a level-s
+        # vertex depends on a few control vertices), so the Hessian's blocks stay sparse
         paired = np.flatnonzero(used)
-        s_p = s[paired].toarray()
+        s_p = s[paired]
         w_p, n_p, t_p = w[paired] / total, surf_n[paired], target[paired]
         nt = np.einsum("ij,ij->i", n_p, t_p)  # n . p per paired surface vertex
+        blocks = [[None] * 3 for _ in range(3)]
+        g = np.zeros(3 * n0)
         for a in range(3):
             for b in range(a, 3):
                 c = w_p * (tau * n_p[:, a] * n_p[:, b] + ((1 - tau) if a == b else 0.0))
-                blk = (s_p.T * c) @ s_p
-                h[a * n0:(a + 1) * n0, b * n0:(b + 1) * n0] = blk
-                if a != b:
-                    h[b * n0:(b + 1) * n0, a * n0:(a + 1) * n0] = blk.T
+                blocks[a][b] = s_p.T @ sp.diags(c) @ s_p
             ga = w_p * ((1 - tau) * t_p[:, a] + tau * n_p[:, a] * nt)
             g[a * n0:(a + 1) * n0] = s_p.T @ ga + fixed * v0[:, a]
-            h[a * n0:(a + 1) * n0, a * n0:(a + 1) * n0] += smooth_dense + np.diag(fixed)
+            # the smoothness, the fixed and anchor pulls, and a proximal pull to the current
+            # control mesh, which damps the alternation between pairing and solving
+            blocks[a][a] = blocks[a][a] + diagonal
+        h = sp.bmat(blocks, format="csr")
         # non-penetration: stay outside the tangent plane at the closest body vertex
         # (only the sampled surface vertices carry rows, so only they are looked up)
         sv, sn = surf[sampled_ids], surf_n[sampled_ids]
@@ -341,9 +344,6 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
         now = np.einsum("ij,ij->i", cn[rows], surf[rows])
         lower = np.minimum(lower, now + 0.8 * params.step)
         x0 = v.T.reshape(-1)
-        # a proximal pull to the current control mesh damps the alternation between pairing
-        # and solving (which otherwise oscillates once the surface nears the bodies)
-        h[np.diag_indices_from(h)] += PROXIMAL
         g += PROXIMAL * x0
         x, status, residual = prog.solve(2 * h, -2 * g, rows, cn[rows], lower, x0, params.step)
         statuses.append(status)
