@@ -218,9 +218,14 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *,
     cluster = None
     if todo:
         if scheduler is None:
-            cluster = LocalCluster(n_workers=max(1, int(workers)), threads_per_worker=1,
-                                   processes=True, host="127.0.0.1",
-                                   dashboard_address="127.0.0.1:0")
+            import dask
+
+            # the workers' statistical profiler (a stack sample every 10 ms, for the dashboard)
+            # costs a batch a few per cent of its time: our workers go without it
+            with dask.config.set({"distributed.worker.profile.enabled": False}):
+                cluster = LocalCluster(n_workers=max(1, int(workers)), threads_per_worker=1,
+                                       processes=True, host="127.0.0.1",
+                                       dashboard_address="127.0.0.1:0")
             client = Client(cluster)
         else:
             client = Client(scheduler)
