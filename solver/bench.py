@@ -176,9 +176,19 @@ def solver_cases() -> list[BenchCase]:
     ]
 
 
+_ABOVE: list[Callable[[], list]] = []
+
+
+def register_cases(cases: Callable[[], list]) -> None:
+    """Adds the entries of a package above the solver (its `cases` function), once."""
+    if cases not in _ABOVE:
+        _ABOVE.append(cases)
+
+
 def all_cases() -> list[BenchCase]:
     """Every benchmark entry of every package, in layer order."""
-    return list(capture_bench.cases()) + list(posedb_bench.cases()) + solver_cases()
+    above = [case for cases in _ABOVE for case in cases()]
+    return list(capture_bench.cases()) + list(posedb_bench.cases()) + solver_cases() + above
 
 
 class UnknownBenchmarkError(ValueError):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from typing import Any, Callable
 
 from capture import cli as capture_cli
 from posedb import cli as posedb_cli
@@ -192,7 +193,8 @@ def _cmd_validate_pressure(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(extra: Callable[[Any], None] | None = None) -> argparse.ArgumentParser:
+    """The `sitrelax` parser; `extra(subparsers)` adds the subcommands of a package above."""
     parser = argparse.ArgumentParser(
         prog="sitrelax",
         description="Turn motion-captured poses into furniture surfaces that support them.",
@@ -284,11 +286,17 @@ def build_parser() -> argparse.ArgumentParser:
                        help="timed runs per entry (default: per entry)")
     bench.add_argument("--json", action="store_true", help="machine-readable output")
     bench.set_defaults(func=_cmd_bench)
+    if extra is not None:
+        extra(sub)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    return run(build_parser(), argv)
+
+
+def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
+    """Parses and runs one command; errors become one line and exit status 2."""
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)

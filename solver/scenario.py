@@ -28,6 +28,7 @@ to the scenario file.
 
 from __future__ import annotations
 
+import json
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -141,8 +142,45 @@ def read_control_mesh(path: Path, where: str) -> tuple[np.ndarray, np.ndarray]:
     return v, f
 
 
-def parse_scenario(data: dict, where: str = "<scenario>", base: Path | None = None) -> Scenario:
-    """A validated scenario from TOML data; `base` resolves relative paths."""
+MAX_INLINE_VERTICES = 20_000
+
+
+def inline_control_mesh(table: Any, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and quads of a control mesh given as {vertices = [[x, y, z], ...],
+    faces = [[a, b, c, d], ...]} (indices from 0)."""
+    at = "surface.control_mesh"
+    if set(table) != {"vertices", "faces"}:
+        raise _fail(where, at, f"expected exactly the keys vertices and faces, got "
+                    f"{sorted(table)}")
+    verts, faces = table["vertices"], table["faces"]
+    if not isinstance(verts, list) or not 4 <= len(verts) <= MAX_INLINE_VERTICES:
+        raise _fail(where, f"{at}.vertices", f"expected a list of 4 to {MAX_INLINE_VERTICES} "
+                    "[x, y, z] points")
+    if not isinstance(faces, list) or not faces or len(faces) > 2 * MAX_INLINE_VERTICES:
+        raise _fail(where, f"{at}.faces", "expected a non-empty list of [a, b, c, d] quads")
+    v = np.array([_vector(p, where, f"{at}.vertices[{k}]", 3) for k, p in enumerate(verts)])
+    rows = []
+    for k, f in enumerate(faces):
+        if not isinstance(f, list) or len(f) != 4:
+            raise _fail(where, f"{at}.faces[{k}]", f"expected a quad [a, b, c, d], got {f!r}")
+        rows.append([_int(i, where, f"{at}.faces[{k}]", 0, len(v) - 1) for i in f])
+    f = np.array(rows, dtype=np.int64)
+    if np.any(np.sort(f, axis=1)[:, 1:] == np.sort(f, axis=1)[:, :-1]):
+        raise _fail(where, f"{at}.faces", "expected four distinct vertices in every quad")
+    corner = v[f]
+    area = np.linalg.norm(np.cross(corner[:, 2] - corner[:, 0], corner[:, 3] - corner[:, 1]),
+                          axis=1)
+    if np.any(area < 1e-10):
+        raise _fail(where, f"{at}.faces", f"expected quads of non-zero area; quad "
+                    f"{int(np.argmin(area))} has none")
+    return v, f
+
+
+def parse_scenario(data: dict, where: str = "<scenario>", base: Path | None = None, *,
+                   files: bool = True) -> Scenario:
+    """A validated scenario from TOML data; `base` resolves relative paths. With `files`
+    False (a server's requests) nothing names a file: the control mesh is inline and poses come
+    from the library or the bundled recordings."""
     base = base or Path(".")
     unknown = sorted(set(data) - {"surface", "person", "evaluation"})
     if unknown:
@@ -170,10 +208,17 @@ def parse_scenario(data: dict, where: str = "<scenario>", base: Path | None = No
         height = _number(g.get("height", 0.45), where, "surface.grid.height")
         verts, faces = grid_mesh(size, res, height)
         source = f"grid {res[0]}x{res[1]}, {size[0]:g} x {size[1]:g} m at {height:g} m"
+    elif isinstance(surf["control_mesh"], dict):
+        verts, faces = inline_control_mesh(surf["control_mesh"], where)
+        source = f"inline control mesh, {len(verts)} vertices, {len(faces)} quads"
     else:
         mesh_path = surf["control_mesh"]
         if not isinstance(mesh_path, str):
-            raise _fail(where, "surface.control_mesh", f"expected a file name, got {mesh_path!r}")
+            raise _fail(where, "surface.control_mesh", "expected a file name or a table "
+                        f"{{vertices, faces}}, got {mesh_path!r}")
+        if not files:
+            raise _fail(where, "surface.control_mesh", "expected the control mesh inline "
+                        "({vertices, faces}); files are not read here")
         path = (base / mesh_path).resolve()
         verts, faces = read_control_mesh(path, where)
         source = str(path)
@@ -222,6 +267,9 @@ def parse_scenario(data: dict, where: str = "<scenario>", base: Path | None = No
         pose = p.get("pose")
         if not isinstance(pose, str) or not pose:
             raise _fail(where, f"{at}.pose", f"expected db:NAME or bvh:FILE#frame=N, got {pose!r}")
+        if not files and not (pose.startswith("db:") or pose.startswith("bvh:bundled:")):
+            raise _fail(where, f"{at}.pose", "expected db:NAME or bvh:bundled:NAME#frame=N "
+                        f"(files are not read here), got {pose!r}")
         if pose.startswith("bvh:") and "#" in pose:
             file_part, frame = pose[4:].split("#", 1)
             if not file_part.startswith("bundled:"):
@@ -269,3 +317,39 @@ def load_scenario(path: str | Path) -> Scenario:
     except UnicodeDecodeError:
         raise ScenarioError(f"{path}: not a text file") from None
     return parse_scenario(data, str(path), path.parent)
+
+
+def scenario_toml(data: dict) -> str:
+    """Scenario data (as `parse_scenario` takes it) written as TOML: top-level tables as
+    [sections], lists of tables as [[arrays]], anything deeper inline."""
+    head, tables, arrays = [], [], []
+    for key, value in data.items():
+        if isinstance(value, dict):
+            tables.append(f"\n[{key}]\n" + "".join(f"{k} = {_toml_value(v)}\n"
+                                                    for k, v in value.items()))
+        elif isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
+            for item in value:
+                arrays.append(f"\n[[{key}]]\n" + "".join(f"{k} = {_toml_value(v)}\n"
+                                                         for k, v in item.items()))
+        else:
+            head.append(f"{key} = {_toml_value(value)}\n")
+    return "".join(head) + "".join(tables) + "".join(arrays)
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        if not np.isfinite(value):
+            raise ScenarioError(f"Expected finite numbers in a scenario, got {value!r}")
+        return repr(float(value))
+    if isinstance(value, str):
+        return json.dumps(value)  # a TOML basic string takes JSON's escapes
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + " }"
+    raise ScenarioError(f"Expected numbers, strings, lists or tables in a scenario, got "
+                        f"{type(value).__name__}")

@@ -1,0 +1,49 @@
+"""Benchmark entries of the studio layer (run by `sitrelax bench`)."""
+
+from __future__ import annotations
+
+import json
+import tomllib
+import urllib.request
+
+from solver.bench import BenchCase, _example_path
+
+
+def _api_setup():
+    from .api import ApiThread
+
+    data = tomllib.loads(_example_path("single_seated").read_text())
+    return ApiThread(), json.dumps(data).encode(), data
+
+
+def _api_fit(arg):
+    api, body, _ = arg
+    request = urllib.request.Request(f"{api.url}/api/fit", data=body, method="POST",
+                                     headers={"Content-Type": "application/json"})
+    with urllib.request.urlopen(request, timeout=60) as response:
+        reply = json.loads(response.read())
+    if not reply["persons"]:
+        raise RuntimeError("api_fit: no person in the answer")
+    return reply
+
+
+def _in_process_fit(arg):
+    from solver.fit import fit_surface
+    from solver.run import evaluate_scene
+    from solver.scenario import parse_scenario
+    from solver.scene import place_person
+
+    scenario = parse_scenario(arg[2], "bench", files=False)
+    people = [place_person(p, None, k) for k, p in enumerate(scenario.persons)]
+    result = fit_surface(scenario.surface.vertices, scenario.surface.faces,
+                         [p.target() for p in people], scenario.surface.params)
+    return evaluate_scene(scenario, people, result.surface, result.surface_faces)
+
+
+def cases() -> list[BenchCase]:
+    return [
+        BenchCase("api_fit", "POST /api/fit of single_seated to a running `sitrelax serve` "
+                  "(pose, fit, evaluate, JSON both ways)", _api_setup, _api_fit,
+                  _in_process_fit, "the same fit and evaluation in-process", repeats=7,
+                  baseline_repeats=7),
+    ]

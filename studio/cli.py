@@ -1,0 +1,108 @@
+"""`sitrelax serve` (the HTTP API) and `sitrelax studio` (the web studio); `main` is the
+`sitrelax` command: the solver's subcommands (which compose capture's and posedb's) and these."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from .net import LOOPBACK, exposure_warning
+
+
+def _say(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def _cmd_serve(args: argparse.Namespace) -> int:
+    import asyncio
+
+    import uvicorn
+
+    from .api import create_app
+
+    _check_db(args.db)
+    warning = exposure_warning(args.host, "API")
+    if warning:
+        _say(f"sitrelax serve: {warning}")
+    app = create_app(args.db, limit=int(args.max_request_mb * 1024 * 1024))
+    config = uvicorn.Config(app, host=args.host, port=args.port, log_level="warning",
+                            timeout_keep_alive=5, limit_concurrency=32)
+    server = uvicorn.Server(config)
+
+    async def run() -> None:
+        task = asyncio.create_task(server.serve())
+        while not server.started and not task.done():
+            await asyncio.sleep(0.02)
+        if server.started:
+            host, port = server.servers[0].sockets[0].getsockname()[:2]
+            _say(f"sitrelax serve: listening on http://{host}:{port} (OpenAPI at "
+                 f"http://{host}:{port}/openapi.json)")
+        await task
+
+    asyncio.run(run())
+    return 0
+
+
+def _cmd_studio(args: argparse.Namespace) -> int:
+    from .web import Studio
+
+    _check_db(args.db)
+    warning = exposure_warning(args.host, "studio")
+    if warning:
+        _say(f"sitrelax studio: {warning}")
+    studio = Studio(db=args.db, host=args.host, port=args.port, out=args.out)
+    _say(f"sitrelax studio: open http://{studio.host}:{studio.port} in a browser "
+         "(Ctrl-C stops it)")
+    try:
+        studio.wait()
+    finally:
+        studio.stop()
+    return 0
+
+
+def _check_db(db: str | None) -> None:
+    if db is None:
+        return
+    from pathlib import Path
+
+    from posedb import PoseLibrary
+
+    if not Path(db).exists():
+        raise FileNotFoundError(2, "No such pose library", db)
+    PoseLibrary(db)  # opens and checks it
+
+
+def register(sub) -> None:
+    serve = sub.add_parser("serve", help="the solver as a JSON HTTP API (OpenAPI at "
+                                         "/openapi.json)")
+    serve.add_argument("--db", help="pose library (HDF5) the API reads poses from")
+    serve.add_argument("--host", default=LOOPBACK,
+                       help=f"address to listen on (default {LOOPBACK}, this machine only)")
+    serve.add_argument("--port", type=int, default=8765, help="port (default 8765; 0 picks "
+                                                              "a free one)")
+    serve.add_argument("--max-request-mb", type=float, default=8.0,
+                       help="largest request body accepted, MB (default 8; larger: 413)")
+    serve.set_defaults(func=_cmd_serve)
+    studio = sub.add_parser("studio", help="the interactive design studio in the browser")
+    studio.add_argument("--db", help="pose library (HDF5) to pick people from and save to")
+    studio.add_argument("--host", default=LOOPBACK,
+                        help=f"address to listen on (default {LOOPBACK}, this machine only)")
+    studio.add_argument("--port", type=int, default=8080, help="port (default 8080; 0 picks "
+                                                               "a free one)")
+    studio.add_argument("--out", default="sitrelax-studio",
+                        help="folder that Export and Save TOML write into")
+    studio.set_defaults(func=_cmd_studio)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from solver import bench as solver_bench
+    from solver import cli as solver_cli
+
+    from . import bench
+
+    solver_bench.register_cases(bench.cases)
+    return solver_cli.run(solver_cli.build_parser(extra=register), argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,221 @@
+"""`sitrelax serve`: the HTTP API as a client sees it, on a real server over loopback."""
+
+from __future__ import annotations
+
+import http.client
+import json
+import os
+import re
+import socket
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+import schemathesis
+from hypothesis import HealthCheck, settings
+from schemathesis.checks import not_a_server_error
+
+from capture.recordings import resolve_path
+from posedb import PoseLibrary
+from solver.bench import _example_path
+from studio.api import ApiThread, create_app
+from studio.net import exposure_warning, is_loopback
+
+SINGLE = tomllib.loads(_example_path("single_seated").read_text())
+
+
+def _library(path: Path) -> Path:
+    lib = PoseLibrary(path, create=True)
+    take = lib.import_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"), name="high_sit")
+    lib.add_pose(take.id, 39, "perch", tags=["sit", "high"])
+    lib.add_pose(take.id, 35, "perch_early", tags=["sit"])
+    return path
+
+
+@pytest.fixture(scope="module")
+def api(tmp_path_factory):
+    db = _library(tmp_path_factory.mktemp("api") / "poses.h5")
+    server = ApiThread(db, limit=1024 * 1024)
+    yield server
+    server.stop()
+
+
+def _request(api, method: str, path: str, body=None, headers=None):
+    conn = http.client.HTTPConnection(api.host, api.port, timeout=60)
+    data = json.dumps(body).encode() if body is not None and not isinstance(body, bytes) \
+        else body
+    conn.request(method, path, body=data,
+                 headers={"Content-Type": "application/json", **(headers or {})})
+    response = conn.getresponse()
+    payload = response.read()
+    conn.close()
+    return response.status, json.loads(payload) if payload else None
+
+
+def test_fit_of_one_person_answers_with_the_surface_and_its_evaluation(api):
+    status, reply = _request(api, "POST", "/api/fit", SINGLE)
+    assert status == 200, reply
+    # an 8 x 6 grid subdivided three times: (8*8+1) x (6*8+1) vertices, 8*6*64 quads
+    assert len(reply["surface"]["vertices"]) == 65 * 49
+    assert len(reply["surface"]["faces"]) == 8 * 6 * 64
+    assert len(reply["control"]["vertices"]) == 9 * 7
+    person = reply["persons"][0]
+    assert person["coverage"] >= 0.9
+    assert person["peak_pressure_kpa"] < person["flat"]["peak_pressure_kpa"]
+    assert "converged" in reply["stop_reason"]
+
+
+def test_the_same_fit_sent_with_an_inline_control_mesh_gives_the_same_surface(api):
+    _, grid_reply = _request(api, "POST", "/api/fit", SINGLE)
+    inline = json.loads(json.dumps(SINGLE))
+    del inline["surface"]["grid"]
+    from solver.subdivision import grid_mesh
+
+    v, f = grid_mesh((0.5, 0.6), (8, 6), 0.42)
+    inline["surface"]["control_mesh"] = {"vertices": v.tolist(), "faces": f.tolist()}
+    status, reply = _request(api, "POST", "/api/fit", inline)
+    assert status == 200, reply
+    assert reply["surface"]["vertices"] == grid_reply["surface"]["vertices"]
+
+
+def test_library_poses_are_listed_searched_and_used(api):
+    status, reply = _request(api, "GET", "/api/poses?tags=high")
+    assert status == 200 and [p["name"] for p in reply["poses"]] == ["perch"]
+    assert reply["poses"][0]["take"] == "high_sit" and reply["poses"][0]["frame"] == 39
+    status, reply = _request(api, "GET", "/api/poses")
+    assert reply["total"] == 2
+    status, reply = _request(api, "GET", "/api/poses/nobody")
+    assert status == 404 and "nobody" in reply["detail"]
+    # the library pose is the bundled frame 39: the same body comes back
+    from_db = {"person": {**SINGLE["person"][0], "pose": "db:perch"}}
+    _, a = _request(api, "POST", "/api/body", from_db)
+    _, b = _request(api, "POST", "/api/body", {"person": SINGLE["person"][0]})
+    assert len(a["vertices"]) == 13380
+    assert abs(sum(map(sum, a["vertices"])) - sum(map(sum, b["vertices"]))) < 1e-3
+
+
+def test_pressure_evaluate_and_relax(api):
+    person = SINGLE["person"][0]
+    status, field = _request(api, "POST", "/api/pressure", {"person": person})
+    assert status == 200 and field["vertices"] == len(field["importance"]) == 13380
+    assert max(field["importance"]) == pytest.approx(1.0) and min(field["importance"]) == 0.0
+    _, fit = _request(api, "POST", "/api/fit", SINGLE)
+    status, ev = _request(api, "POST", "/api/evaluate",
+                          {**fit["surface"], "person": [person]})
+    assert status == 200
+    assert ev["persons"][0]["coverage"] == pytest.approx(fit["persons"][0]["coverage"], abs=1e-6)
+    status, relaxed = _request(api, "POST", "/api/relax", {"scenario": SINGLE, "index": 0})
+    assert status == 200 and len(relaxed["body"]["vertices"]) == 13380
+    status, reply = _request(api, "POST", "/api/relax", {"scenario": SINGLE, "index": 3})
+    assert status == 400 and "index" in reply["detail"]
+
+
+@pytest.mark.parametrize("change, status, words", [
+    ({"pose": "bvh:/etc/passwd#frame=0"}, 400, "files are not read here"),
+    ({"pose": "db:nobody"}, 404, "nobody"),
+    ({"position": [5.0, 0.0, 0.0]}, 400, "outside the surface's reach"),
+    ({"support": ["wings"]}, 422, "support"),
+    ({"colour": "red"}, 422, "colour"),
+])
+def test_bad_requests_get_a_4xx_that_names_the_problem(api, change, status, words):
+    body = json.loads(json.dumps(SINGLE))
+    body["person"][0].update(change)
+    got, reply = _request(api, "POST", "/api/fit", body)
+    assert got == status
+    assert words in json.dumps(reply)
+
+
+def test_a_control_mesh_that_is_not_all_quads_is_refused(api):
+    body = json.loads(json.dumps(SINGLE))
+    del body["surface"]["grid"]
+    body["surface"]["control_mesh"] = {"vertices": [[0, 0.4, 0], [1, 0.4, 0], [1, 0.4, 1],
+                                                    [0, 0.4, 1]], "faces": [[0, 1, 2]]}
+    status, _ = _request(api, "POST", "/api/fit", body)
+    assert status == 422
+    body["surface"]["control_mesh"]["faces"] = [[0, 1, 1, 3]]
+    status, reply = _request(api, "POST", "/api/fit", body)
+    assert status == 400 and "distinct" in reply["detail"]
+
+
+def test_a_request_over_the_size_limit_gets_413(api):
+    status, reply = _request(api, "POST", "/api/fit", b"[" + b"0," * 600_000 + b"0]")
+    assert status == 413 and "limit" in reply["detail"]
+    # without a Content-Length (chunked), the bytes are counted as they come
+    conn = http.client.HTTPConnection(api.host, api.port, timeout=30)
+    conn.putrequest("POST", "/api/fit")
+    conn.putheader("Content-Type", "application/json")
+    conn.putheader("Transfer-Encoding", "chunked")
+    conn.endheaders()
+    chunk = b"0," * 100_000
+    try:
+        for _ in range(12):
+            conn.send(f"{len(chunk):x}\r\n".encode() + chunk + b"\r\n")
+        conn.send(b"0\r\n\r\n")
+    except (BrokenPipeError, ConnectionResetError):
+        pass  # the server may close before we finish sending
+    response = conn.getresponse()
+    assert response.status == 413
+    conn.close()
+
+
+def test_the_api_listens_on_loopback_only_by_default(api):
+    assert api.host == "127.0.0.1"
+    others = _non_loopback_addresses()
+    if not others:
+        pytest.skip("this machine has no address but loopback")
+    with pytest.raises(OSError):
+        socket.create_connection((others[0], api.port), timeout=2).close()
+
+
+def _non_loopback_addresses() -> list[str]:
+    try:
+        out = subprocess.run(["hostname", "-I"], capture_output=True, text=True,
+                             timeout=5).stdout
+    except (OSError, subprocess.SubprocessError):
+        return []
+    return [a for a in out.split() if ":" not in a and not is_loopback(a)]
+
+
+def test_wider_addresses_are_flagged():
+    assert is_loopback("127.0.0.1") and is_loopback("localhost") and is_loopback("::1")
+    assert not is_loopback("0.0.0.0") and not is_loopback("192.0.2.10")
+    assert exposure_warning("127.0.0.1", "API") is None
+    assert "other machines" in exposure_warning("0.0.0.0", "API")
+
+
+def test_the_serve_command_starts_on_loopback_and_stops(tmp_path):
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "studio.cli", "serve", "--port", "0"],
+                            stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        line = proc.stderr.readline()
+        m = re.search(r"listening on http://([\d.]+):(\d+)", line)
+        assert m, line
+        assert m[1] == "127.0.0.1"
+        conn = http.client.HTTPConnection(m[1], int(m[2]), timeout=10)
+        conn.request("GET", "/openapi.json")
+        spec = json.loads(conn.getresponse().read())
+        assert {"/api/fit", "/api/poses", "/api/body", "/api/pressure", "/api/relax",
+                "/api/evaluate"} <= set(spec["paths"])
+    finally:
+        proc.terminate()
+        proc.wait(timeout=20)
+
+
+def test_serve_refuses_a_missing_library(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "studio.cli", "serve", "--db",
+                           str(tmp_path / "none.h5"), "--port", "0"], capture_output=True,
+                          text=True, timeout=60)
+    assert proc.returncode == 2 and "none.h5" in proc.stderr
+
+
+# the description as the server publishes it (it does not depend on the library)
+fuzzed = schemathesis.openapi.from_dict(create_app(None).openapi())
+
+
+@fuzzed.parametrize()
+@settings(max_examples=25, deadline=None, suppress_health_check=list(HealthCheck))
+def test_fuzzing_the_openapi_description_finds_no_server_error_and_no_hang(case, api):
+    case.call_and_validate(base_url=api.url, checks=[not_a_server_error], timeout=60)
