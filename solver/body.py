@@ -44,6 +44,9 @@ class BodyShapeError(ValueError):
     """Shape parameters outside what the body model accepts."""
 
 
+SHAPE_KEYS = ("gender", "age", "muscle", "weight", "height", "proportions")  # the sliders
+
+
 @dataclass(frozen=True)
 class BodyShape:
     """Shape parameters, each in [0, 1]; the defaults give MakeHuman's average adult."""

@@ -22,7 +22,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-SHAPE_PARAMS = ("gender", "age", "muscle", "weight", "height", "proportions")
+from .body import SHAPE_KEYS as SHAPE_PARAMS  # noqa: E402
 
 
 def add_shape_args(parser: argparse.ArgumentParser) -> None:

@@ -219,7 +219,7 @@ class Design:
         areas, normals = triangle_mesh(person.body.triangles, len(res.vertices)).measures(
             res.vertices)
         after = figures(res.vertices, normals, areas)
-        return RelaxOutcome(k, res.vertices, person.body.faces, before, after,
+        return RelaxOutcome(k, res.vertices, person.body.triangles, before, after,
                             time.perf_counter() - start)
 
     def save_toml(self, path: str | os.PathLike) -> Path:

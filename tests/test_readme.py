@@ -2,7 +2,7 @@
 
 The synopsis block (metavariables such as FILE and SOURCE) and the install commands (run by CI
 itself) are left out; a line ending in `&` runs in the background for the lines after it, as in
-a shell. The README's fixed port is swapped for a free one so parallel runs cannot collide.
+a shell. The README's fixed ports are swapped for free ones so parallel runs cannot collide.
 """
 
 import re
@@ -13,7 +13,7 @@ import sys
 import time
 from pathlib import Path
 
-from solver.cli import main
+from studio.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -42,7 +42,8 @@ def test_readme_lists_the_commands_it_shows():
     commands = readme_commands()
     assert all(c.startswith("sitrelax ") for c in commands), commands
     for needed in ("capture replay", "capture listen", "capture record", "db import",
-                   "db suggest", "db list", "body make", "pose show", "fit", "relax"):
+                   "db suggest", "db list", "body make", "pose show", "fit", "relax",
+                   "studio", "serve"):
         assert any(c.startswith(f"sitrelax {needed} ") for c in commands), needed
 
 
@@ -50,15 +51,16 @@ def test_every_readme_command_runs_as_written(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     monkeypatch.delenv("SITRELAX_DB", raising=False)
     (tmp_path / "fixtures").symlink_to(ROOT / "fixtures")
-    port = str(_free_port())
+    ports = {fixed: str(_free_port()) for fixed in ("7001", "8080", "8765")}
     background = []
     try:
         for command in readme_commands():
-            command = command.replace("7001", port)
+            for fixed, free in ports.items():
+                command = command.replace(fixed, free)
             args = shlex.split(command.rstrip("&").strip())[1:]
             if command.endswith("&"):
                 background.append(subprocess.Popen(
-                    [sys.executable, "-m", "solver.cli", *args], cwd=tmp_path,
+                    [sys.executable, "-m", "studio.cli", *args], cwd=tmp_path,
                     stdout=subprocess.DEVNULL, stderr=subprocess.PIPE))
                 time.sleep(1.0)  # let it listen
                 assert background[-1].poll() is None, background[-1].stderr.read()
@@ -90,3 +92,38 @@ def test_the_readme_scenario_example_is_valid():
     assert scenario.foam_stiffness == 200.0
     (person,) = scenario.persons
     assert person.pose == "db:relaxed_sit_01" and list(person.support) == ["torso", "legs"]
+
+
+def test_the_grasshopper_script_fits_through_a_running_api():
+    """The README's Grasshopper script, run outside Rhino: its request goes to a real server."""
+    import numpy as np
+
+    from solver.subdivision import grid_mesh
+    from studio.api import ApiThread
+
+    text = (ROOT / "README.md").read_text()
+    script = re.search(r"<!-- grasshopper-script -->\n```python\n(.*?)```", text, re.S)[1]
+    namespace: dict = {}
+    exec(compile(script, "README grasshopper script", "exec"), namespace)  # noqa: S102
+    to_sitrelax, to_rhino = namespace["to_sitrelax"], namespace["to_rhino"]
+    # a proper rotation: Rhino's up (Z) becomes Y, and back
+    assert to_sitrelax(0, 0, 1) == [0, 1, 0] and to_rhino(*to_sitrelax(1, 2, 3)) == [1, 2, 3]
+    frame = np.array([to_sitrelax(*e) for e in np.eye(3)])
+    assert np.linalg.det(frame) == 1
+    api = ApiThread()
+    try:
+        v, f = grid_mesh((0.5, 0.6), (8, 6), 0.42)
+        people = [{"pose": "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39",
+                   "position": [0.0, 0.0, -0.1], "support": ["legs"]}]
+        sv, sf, persons = namespace["fit"](api.url, v.tolist(), f.tolist(), people)
+        assert len(sv) == 65 * 49 and len(sf) == 8 * 6 * 64
+        assert persons[0]["coverage"] >= 0.9
+        people[0]["position"] = [3.0, 0.0, 0.0]
+        try:
+            namespace["fit"](api.url, v.tolist(), f.tolist(), people)
+        except RuntimeError as exc:
+            assert "outside the surface's reach" in str(exc)
+        else:
+            raise AssertionError("a person out of reach was fitted")
+    finally:
+        api.stop()

@@ -1,0 +1,161 @@
+"""`sitrelax studio`: the design session, and the studio driven in a real headless browser
+(Debian's chromium and chromedriver, started here; nothing is downloaded)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import time
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from capture.recordings import resolve_path
+from posedb import PoseLibrary
+from studio.design import Design, DesignError
+
+ROOT = Path(__file__).resolve().parents[1]
+ARTIFACTS = Path(os.environ.get("SITRELAX_ARTIFACTS", ROOT / "test-artifacts"))
+CHROMIUM, DRIVER = shutil.which("chromium"), shutil.which("chromedriver")
+HIGH_SIT = "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"
+
+
+@pytest.fixture(scope="module")
+def library(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("studio") / "poses.h5"
+    lib = PoseLibrary(path, create=True)
+    take = lib.import_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"), name="high_sit")
+    lib.add_pose(take.id, 39, "perch", tags=["sit", "high"])
+    return path
+
+
+def test_a_design_fits_relaxes_and_saves_what_reads_back(library, tmp_path):
+    d = Design(library)
+    d.add_person("db:perch")
+    outcome = d.fit()
+    assert outcome.persons[0]["coverage"] >= 0.9
+    assert len(outcome.result.surface) == 65 * 49  # the default 8 x 6 grid at level 3
+    relaxed = d.relax(0)
+    assert relaxed.vertices.shape == (13380, 3)
+    path = d.save_toml(tmp_path / "design.toml")
+    again = tomllib.loads(path.read_text())
+    assert again == d.scenario_data()
+    d.save_to_library("first")
+    stored = {s["name"]: s for s in PoseLibrary(library).scenarios()}["first"]
+    assert stored["scenario"] == d.scenario_data()
+    assert stored["result"]["persons"][0]["coverage"] == outcome.persons[0]["coverage"]
+
+
+def test_design_edits_are_checked(library):
+    d = Design(library)
+    with pytest.raises(DesignError, match="empty"):
+        d.fit()
+    with pytest.raises(ValueError, match="nobody"):
+        d.add_person("db:nobody")
+    assert d.people == []  # nothing half-added
+    d.add_person(HIGH_SIT)
+    with pytest.raises(DesignError, match="control vertex"):
+        d.move_vertex(1000, [0, 0, 0])
+    with pytest.raises(ValueError, match="sigma"):
+        d.set_parameter("sigma", -1.0)
+    assert d.params["sigma"] == 0.003
+    with pytest.raises(DesignError, match="Fit first"):
+        d.relax(0)
+
+
+def test_fixed_vertices_hold_and_moved_ones_start_where_put(library):
+    d = Design(library)
+    d.add_person(HIGH_SIT)
+    d.move_vertex(0, [-0.3, 0.5, -0.35])
+    d.set_fixed(0, True)
+    control = d.fit().result.control
+    assert np.linalg.norm(control[0] - [-0.3, 0.5, -0.35]) < 0.01
+    free = np.linalg.norm(control - d.vertices, axis=1)
+    assert free.max() > 0.02  # the others did move
+
+
+def _browser():
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM
+    for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage",
+                "--window-size=1400,900", "--use-angle=swiftshader",
+                "--enable-unsafe-swiftshader", "--disable-gpu-sandbox"):
+        options.add_argument(arg)
+    return webdriver.Chrome(service=Service(DRIVER), options=options)
+
+
+def _wait(predicate, timeout: float, what: str):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.2)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+
+def _rgb(png: bytes) -> np.ndarray:
+    import io
+
+    from matplotlib.image import imread
+
+    return imread(io.BytesIO(png), format="png")[..., :3]
+
+
+@pytest.mark.skipif(not (CHROMIUM and DRIVER) and not os.environ.get("CI"),
+                    reason="needs Debian's chromium and chromium-driver (apt-get install "
+                           "chromium chromium-driver)")
+def test_the_studio_in_a_browser_adds_a_person_fits_and_shows_the_surface(library, tmp_path):
+    from selenium.webdriver.common.by import By
+
+    from studio.web import Studio
+
+    assert CHROMIUM and DRIVER, "CI installs chromium and chromium-driver (see .ci/run)"
+    studio = Studio(db=str(library), port=0, out=str(tmp_path / "out"))
+    driver = _browser()
+    try:
+        driver.get(f"http://127.0.0.1:{studio.port}")
+
+        def button(label):
+            found = driver.find_elements(By.XPATH, f"//button[normalize-space(.)='{label}']")
+            return found[0] if found else None
+
+        _wait(lambda: button("Add person"), 90, "the studio's controls")
+        time.sleep(2.0)
+        before = driver.get_screenshot_as_png()
+        ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        (ARTIFACTS / "studio-before-fit.png").write_bytes(before)
+        button("Add person").click()
+        _wait(lambda: len(studio.design.people) == 1, 30, "the person to join the scene")
+        assert studio.design.people[0]["pose"] == "db:perch"  # from the library
+        button("Fit").click()
+        _wait(lambda: studio.fits == 1, 60, "the fit")
+        _wait(lambda: "Fitted" in driver.find_element(By.TAG_NAME, "body").text, 30,
+              "the fit's figures on the page")
+        notes = driver.find_elements(By.CSS_SELECTOR, "button.mantine-Notification-closeButton")
+        for close in notes:
+            close.click()  # the note that WebGL runs in software
+        time.sleep(3.0)  # the surface and the coloured body reach the browser and render
+        after = driver.get_screenshot_as_png()
+        ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        (ARTIFACTS / "studio-after-fit.png").write_bytes(after)
+        page = driver.find_element(By.TAG_NAME, "body").text
+        assert "coverage" in page
+        # the surface is on the screen: hiding it alone changes many pixels, and what it
+        # covered was its own blue
+        studio._surface.visible = False
+        time.sleep(2.0)
+        hidden = _rgb(driver.get_screenshot_as_png())
+        shown = _rgb(after)
+        changed = np.abs(shown - hidden).max(axis=2) > 0.08
+        assert changed.sum() > 3000, f"hiding the surface changed only {changed.sum()} pixels"
+        r, g, b = shown[changed].mean(axis=0)
+        assert b > r + 0.05 and b > 0.4, f"the surface's pixels are not its blue: {r, g, b}"
+    finally:
+        driver.quit()
+        studio.stop()
