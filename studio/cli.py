@@ -44,8 +44,13 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 
 
 def _cmd_studio(args: argparse.Namespace) -> int:
+    import logging
+
     from .web import Studio
 
+    # a request the studio does not take (anything but GET and its websocket) is closed; no
+    # traceback for it on the terminal
+    logging.getLogger("websockets.server").setLevel(logging.CRITICAL)
     _check_db(args.db)
     warning = exposure_warning(args.host, "studio")
     if warning:

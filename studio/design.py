@@ -117,6 +117,8 @@ class Design:
     def set_parameter(self, name: str, value: float) -> None:
         if name not in PARAMETERS:
             raise DesignError(f"Expected a parameter from {PARAMETERS}, got {name!r}")
+        if name == "level" and float(value).is_integer():
+            value = int(value)  # sliders send whole numbers as floats
         trial = dict(self.params, **{name: value})
         self._parse(self._data(params=trial, people=[{"pose": "db:any"}]))
         self.params = trial
@@ -134,7 +136,8 @@ class Design:
 
     def update_person(self, k: int, **fields) -> None:
         person = dict(self._person(k), **fields)
-        self._check_person(person)
+        # a move or a turn only needs the fields checked; a new pose or body is made now
+        self._check_person(person, make=bool({"pose", "body"} & set(fields)))
         self.people[k] = person
 
     def remove_person(self, k: int) -> None:
@@ -147,9 +150,10 @@ class Design:
             raise DesignError(f"Expected a person in 0..{len(self.people) - 1}, got {k}")
         return self.people[k]
 
-    def _check_person(self, person: dict) -> None:
+    def _check_person(self, person: dict, make: bool = True) -> None:
         self._parse(self._data(people=[person]))
-        self.place(person)  # the pose must exist and the body must be made
+        if make:  # the pose must exist and the body must be made
+            self.place(dict(person, position=[0.0, 0.0, 0.0], rotation_deg=[0.0, 0.0, 0.0]))
 
     def place(self, person: dict) -> PlacedPerson:
         key = json.dumps(person, sort_keys=True)

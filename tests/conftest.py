@@ -34,3 +34,26 @@ from hypothesis import settings  # noqa: E402
 settings.register_profile("default", max_examples=300)
 settings.register_profile("deep", max_examples=5000)
 settings.load_profile("default")
+
+
+def listening_addresses(port: int) -> set[str]:
+    """The local addresses on which some process of this machine listens on TCP `port`, read
+    from /proc/net (no traffic is sent anywhere)."""
+    import ipaddress
+
+    found = set()
+    for table, size in (("/proc/net/tcp", 4), ("/proc/net/tcp6", 16)):
+        try:
+            lines = Path(table).read_text().splitlines()[1:]
+        except OSError:
+            continue
+        for line in lines:
+            fields = line.split()
+            address, hex_port = fields[1].split(":")
+            if int(hex_port, 16) != port or fields[3] != "0A":  # 0A: LISTEN
+                continue
+            raw = bytes.fromhex(address)
+            # the kernel writes each 32-bit word in host (little-endian) order
+            raw = b"".join(raw[i:i + 4][::-1] for i in range(0, size, 4))
+            found.add(str(ipaddress.ip_address(raw)))
+    return found

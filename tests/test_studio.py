@@ -16,6 +16,8 @@ from capture.recordings import resolve_path
 from posedb import PoseLibrary
 from studio.design import Design, DesignError
 
+from .conftest import listening_addresses
+
 ROOT = Path(__file__).resolve().parents[1]
 ARTIFACTS = Path(os.environ.get("SITRELAX_ARTIFACTS", ROOT / "test-artifacts"))
 CHROMIUM, DRIVER = shutil.which("chromium"), shutil.which("chromedriver")
@@ -159,3 +161,30 @@ def test_the_studio_in_a_browser_adds_a_person_fits_and_shows_the_surface(librar
     finally:
         driver.quit()
         studio.stop()
+
+
+def test_the_studio_listens_on_loopback_only_by_default(library, tmp_path):
+    import urllib.request
+
+    from studio.web import Studio
+
+    studio = Studio(db=str(library), port=0, out=str(tmp_path))
+    try:
+        assert studio.host == "127.0.0.1"
+        with urllib.request.urlopen(f"http://127.0.0.1:{studio.port}/", timeout=10) as page:
+            assert b"<html" in page.read(2000).lower()  # the client, served from the package
+        assert listening_addresses(studio.port) == {"127.0.0.1"}
+    finally:
+        studio.stop()
+
+
+def test_levels_from_a_slider_and_moves_are_taken(library):
+    d = Design(library)
+    d.add_person(HIGH_SIT)
+    d.set_parameter("level", 2.0)
+    assert d.params["level"] == 2 and isinstance(d.params["level"], int)
+    d.update_person(0, position=[0.05, 0.0, -0.1], rotation_deg=[0.0, 5.0, 0.0])
+    assert d.scenario().persons[0].position == (0.05, 0.0, -0.1)
+    with pytest.raises(ValueError, match="position"):
+        d.update_person(0, position=[0.0, 0.0])
+    assert d.people[0]["position"] == [0.05, 0.0, -0.1]
