@@ -7,6 +7,7 @@ import json
 import socket
 
 LOOPBACK = "127.0.0.1"
+DRAIN_FACTOR, DRAIN_MAX = 4, 64 * 1024 * 1024  # bytes of a refused body still read and dropped
 
 
 def is_loopback(host: str) -> bool:
@@ -50,6 +51,7 @@ class BodyLimit:
             except ValueError:
                 return await _reply(send, 400, "Content-Length is not a number")
             if size > self.limit:
+                await self._drain(receive, 0)
                 return await _reply(send, 413, self._message(size))
         seen = 0
         refused = False
@@ -66,6 +68,8 @@ class BodyLimit:
                 if seen > self.limit:
                     refused = True
                     if not started:
+                        if message.get("more_body", False):
+                            await self._drain(receive, seen)
                         await _reply(send, 413, self._message(seen))
                     return {"type": "http.disconnect"}
             return message
@@ -79,6 +83,19 @@ class BodyLimit:
             await send(message)
 
         await self.app(scope, limited_receive, guarded_send)
+
+    async def _drain(self, receive, seen: int) -> None:
+        """Reads and drops the rest of a refused body, up to DRAIN_FACTOR times the limit:
+        closing on unread bytes resets the connection, and the client may never see the 413.
+        A body larger still is cut off."""
+        cap = min(DRAIN_FACTOR * self.limit, DRAIN_MAX)
+        while seen <= cap:
+            message = await receive()
+            if message["type"] != "http.request":
+                return
+            seen += len(message.get("body", b""))
+            if not message.get("more_body", False):
+                return
 
     def _message(self, size: int) -> str:
         return (f"Request body of {size} bytes is larger than this server's limit of "
