@@ -62,6 +62,7 @@ TAU_RAMP = 5  # iterations over which tau rises from 0 to tau_max
 PATIENCE = 5  # iterations without improvement before the loop stops
 EPS_ABS, EPS_REL = 1e-5, 1e-4  # OSQP tolerances (metres for the constraints)
 SLACK_WEIGHT = 1e3  # cost per m^2 of a non-penetration row left unmet (soft constraints)
+DENSE_UP_TO = 150  # control vertices up to which the Hessian is built dense
 PROXIMAL = 0.01  # weight of the pull to the current control mesh (per coordinate)
 
 
@@ -181,7 +182,7 @@ class _Programme:
                           eps_abs=EPS_ABS, eps_rel=EPS_REL, max_iter=20000, adaptive_rho=True)
         self.setups += 1
 
-    def solve(self, p_x: sp.csr_matrix, q: np.ndarray, rows: np.ndarray, normals: np.ndarray,
+    def solve(self, p_x: np.ndarray | sp.csr_matrix, q: np.ndarray, rows: np.ndarray, normals: np.ndarray,
               lower: np.ndarray, x0: np.ndarray, step: float) -> tuple[np.ndarray, str, float]:
         n, r = 3 * self.n0, len(rows)
         fresh = self.rows is None or not np.array_equal(rows, self.rows)
@@ -267,6 +268,9 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
     fixed[list(params.fixed)] += params.gamma
     smooth = (params.sigma / n0) * (lap.T @ lap)
     diagonal = (smooth + sp.diags(fixed + PROXIMAL)).tocsr()
+    dense = n0 <= DENSE_UP_TO
+    if dense:
+        diagonal = diagonal.toarray()
     prog = _Programme(sub, lap, n0)
     v = v0.copy()
     energies: list[float] = []
@@ -296,10 +300,11 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
                            for a in range(3)], axis=1)
         used = w > 0
         target[used] /= w[used, None]
-        # only the paired surface vertices carry data terms: their rows of S (sparse, a level-s
-        # vertex depends on a few control vertices), so the Hessian's blocks stay sparse
+        # only the paired surface vertices carry data terms: their rows of S (a level-s vertex
+        # depends on a few control vertices, so on large meshes the Hessian's blocks stay
+        # sparse; on small ones dense products are quicker)
         paired = np.flatnonzero(used)
-        s_p = s[paired]
+        s_p = s[paired].toarray() if dense else s[paired]
         w_p, n_p, t_p = w[paired] / total, surf_n[paired], target[paired]
         nt = np.einsum("ij,ij->i", n_p, t_p)  # n . p per paired surface vertex
         blocks = [[None] * 3 for _ in range(3)]
@@ -307,13 +312,17 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
         for a in range(3):
             for b in range(a, 3):
                 c = w_p * (tau * n_p[:, a] * n_p[:, b] + ((1 - tau) if a == b else 0.0))
-                blocks[a][b] = s_p.T @ sp.diags(c) @ s_p
+                blocks[a][b] = (s_p.T * c) @ s_p if dense else s_p.T @ sp.diags(c) @ s_p
             ga = w_p * ((1 - tau) * t_p[:, a] + tau * n_p[:, a] * nt)
             g[a * n0:(a + 1) * n0] = s_p.T @ ga + fixed * v0[:, a]
             # the smoothness, the fixed and anchor pulls, and a proximal pull to the current
             # control mesh, which damps the alternation between pairing and solving
             blocks[a][a] = blocks[a][a] + diagonal
-        h = sp.bmat(blocks, format="csr")
+        if dense:  # only the upper blocks are read
+            zero = np.zeros((n0, n0))
+            h = np.block([[blk if blk is not None else zero for blk in row] for row in blocks])
+        else:
+            h = sp.bmat(blocks, format="csr")
         # non-penetration: stay outside the tangent plane at the closest body vertex
         # (only the sampled surface vertices carry rows, so only they are looked up)
         sv, sn = surf[sampled_ids], surf_n[sampled_ids]
