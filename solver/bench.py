@@ -172,7 +172,7 @@ def solver_cases() -> list[BenchCase]:
                   "finite-difference Jacobian", repeats=7, baseline_repeats=1),
         BenchCase("batch_scaling", "24-job sigma sweep of single_seated (fit, evaluate, export) "
                   "on 2 local Dask workers", _batch_setup, _batch_on(2), _batch_on(1),
-                  "the same on 1 worker", repeats=3, baseline_repeats=3, warmup=False),
+                  "the same on 1 worker", repeats=2, baseline_repeats=2, warmup=False),
     ]
 
 
