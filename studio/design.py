@@ -26,11 +26,11 @@ from solver.fit import FitResult, fit_surface
 from solver.run import evaluate_scene, run_fit
 from solver.scenario import Scenario, parse_scenario, read_control_mesh, scenario_toml
 from solver.scene import PlacedPerson, place_person
-from solver.subdivision import grid_mesh
 
 PARAMETERS = ("level", "sigma", "tau_max", "margin")
 DEFAULTS = {"level": 3, "sigma": 0.003, "tau_max": 0.5, "margin": 0.03}
 MAX_PEOPLE = 8
+MAX_CONTROL_VERTICES = 2000
 
 
 class DesignError(ValueError):
@@ -84,6 +84,9 @@ class Design:
         self._set_mesh(v, f)
 
     def _set_mesh(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+        if len(vertices) > MAX_CONTROL_VERTICES:
+            raise DesignError(f"A studio control mesh has at most {MAX_CONTROL_VERTICES} "
+                              f"vertices (a fit stays interactive), got {len(vertices)}")
         self.vertices = np.asarray(vertices, dtype=np.float64).copy()
         self.faces = np.asarray(faces, dtype=np.int64).copy()
         self.fixed = set()

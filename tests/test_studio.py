@@ -65,6 +65,9 @@ def test_design_edits_are_checked(library):
     assert d.params["sigma"] == 0.003
     with pytest.raises(DesignError, match="Fit first"):
         d.relax(0)
+    with pytest.raises(DesignError, match="at most 2000"):
+        d.new_grid((3.0, 3.0), (60, 60), 0.4)
+    assert len(d.vertices) == 63  # the mesh it had
 
 
 def test_fixed_vertices_hold_and_moved_ones_start_where_put(library):
