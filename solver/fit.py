@@ -37,8 +37,8 @@ so the programme's size depends on the control mesh, not on the bodies. Non-pene
 kept for the surface vertices within CONSTRAINT_RADIUS of a body; OSQP is set up again only when
 that set changes and is otherwise updated in place, warm-started from the last solution, and its
 status is checked every time. The loop stops once tau has reached tau_max and the energy has not
-improved by `tolerance` (relative) in PATIENCE iterations, and not before MIN_AFTER_RAMP
-iterations with tau at its maximum, or after `max_iterations`; the best iterate is kept.
+improved by `tolerance` (relative) in PATIENCE iterations, or after `max_iterations`; the best
+iterate is kept.
 """
 
 from __future__ import annotations
@@ -60,10 +60,6 @@ EXIT_SCALE = 1.0  # the same, for a surface vertex inside a body: it leaves thro
                   # facing against the surface's normal, behind the body (below a seated one)
 TAU_RAMP = 5  # iterations over which tau rises from 0 to tau_max
 PATIENCE = 5  # iterations without improvement before the loop stops
-MIN_AFTER_RAMP = 15  # iterations after the tau ramp before the loop may stop: the energy can
-                     # rise for a few iterations once tau is full, and stopping then returns an
-                     # early iterate (a thin seat stopped at 13: coverage 0.90, peak ratio 0.81;
-                     # run on: coverage 0.98, ratio 0.50)
 EPS_ABS, EPS_REL = 1e-5, 1e-4  # OSQP tolerances (metres for the constraints)
 SLACK_WEIGHT = 1e3  # cost per m^2 of a non-penetration row left unmet (soft constraints)
 DENSE_UP_TO = 150  # control vertices up to which the Hessian is built dense
@@ -371,8 +367,7 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
         if progress is not None:
             progress(iteration, energy, tau)
         post = energies[TAU_RAMP:]
-        if len(post) > MIN_AFTER_RAMP and \
-                min(post) > min(post[:-PATIENCE]) * (1 - params.tolerance):
+        if len(post) > PATIENCE and min(post) > min(post[:-PATIENCE]) * (1 - params.tolerance):
             stop = (f"converged: the best energy has not improved by {100 * params.tolerance:g} %"
                     f" in {PATIENCE} iterations (best {best[0]:.6g} at iteration {best[3]})")
             break
