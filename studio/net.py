@@ -109,3 +109,136 @@ async def _reply(send, status: int, detail: str) -> None:
                             (b"content-length", str(len(body)).encode()),
                             (b"connection", b"close")]})
     await send({"type": "http.response.body", "body": body})
+
+
+class Front:
+    """The studio's public socket in front of viser's server (which answers only GET and its
+    websocket): a request without a body passes through byte for byte (the page, then the
+    websocket), one with a body over `limit` bytes gets 413, any other with a body 405, and a
+    request head over 64 KiB 431. Runs its own event loop in a thread; `port` is the one bound."""
+
+    HEAD_LIMIT = 64 * 1024
+
+    def __init__(self, host: str, port: int, backend_port: int, limit: int):
+        import asyncio
+        import threading
+
+        self.backend_port, self.limit = backend_port, int(limit)
+        self.loop = asyncio.new_event_loop()
+        started = threading.Event()
+        failure: list[BaseException] = []
+
+        async def start():
+            try:
+                self.server = await asyncio.start_server(self._serve, host, port,
+                                                         limit=self.HEAD_LIMIT)
+                self.port = self.server.sockets[0].getsockname()[1]
+            except BaseException as exc:  # reported to the caller below
+                failure.append(exc)
+            started.set()
+
+        def run():
+            asyncio.set_event_loop(self.loop)
+            self.loop.create_task(start())
+            self.loop.run_forever()
+
+        self.thread = threading.Thread(target=run, name="sitrelax-studio-front", daemon=True)
+        self.thread.start()
+        started.wait(30)
+        if failure:
+            self.stop()
+            raise failure[0]
+
+    async def _serve(self, reader, writer) -> None:
+        import asyncio
+
+        try:
+            head = await reader.readuntil(b"\r\n\r\n")
+        except asyncio.LimitOverrunError:
+            return await self._answer(writer, 431, "Request head larger than 64 KiB")
+        except (asyncio.IncompleteReadError, ConnectionError):
+            writer.close()
+            return
+        lines = head.decode("latin-1").split("\r\n")
+        method = lines[0].split(" ", 1)[0]
+        headers = {}
+        for line in lines[1:]:
+            name, _, value = line.partition(":")
+            headers[name.strip().lower()] = value.strip()
+        try:
+            length = int(headers.get("content-length", "0") or 0)
+        except ValueError:
+            return await self._answer(writer, 400, "Content-Length is not a number")
+        chunked = "chunked" in headers.get("transfer-encoding", "").lower()
+        if length > self.limit:
+            await self._drain(reader, length)
+            return await self._answer(writer, 413, f"Request body of {length} bytes is larger "
+                                                   f"than this server's limit of {self.limit} "
+                                                   "bytes")
+        if method != "GET" or length or chunked:
+            await self._drain(reader, length)
+            return await self._answer(writer, 405, "The studio takes GET requests and its "
+                                                   "websocket only", allow=True)
+        try:
+            up_reader, up_writer = await asyncio.open_connection("127.0.0.1", self.backend_port)
+        except OSError:
+            return await self._answer(writer, 503, "The studio is not running")
+        up_writer.write(head)
+        await asyncio.gather(self._pipe(reader, up_writer), self._pipe(up_reader, writer))
+
+    async def _drain(self, reader, length: int) -> None:
+        import asyncio
+
+        left = min(length, DRAIN_FACTOR * self.limit, DRAIN_MAX)
+        try:
+            while left > 0:
+                chunk = await asyncio.wait_for(reader.read(min(left, 65536)), 5)
+                if not chunk:
+                    return
+                left -= len(chunk)
+        except (asyncio.TimeoutError, ConnectionError):
+            return
+
+    @staticmethod
+    async def _pipe(reader, writer) -> None:
+        try:
+            while True:
+                chunk = await reader.read(65536)
+                if not chunk:
+                    break
+                writer.write(chunk)
+                await writer.drain()
+        except (ConnectionError, OSError):
+            pass
+        finally:
+            try:
+                writer.close()
+            except (ConnectionError, OSError, RuntimeError):
+                pass
+
+    @staticmethod
+    async def _answer(writer, status: int, detail: str, allow: bool = False) -> None:
+        import http
+
+        body = json.dumps({"detail": detail}).encode()
+        reason = http.HTTPStatus(status).phrase
+        head = (f"HTTP/1.1 {status} {reason}\r\nContent-Type: application/json\r\n"
+                f"Content-Length: {len(body)}\r\nConnection: close\r\n"
+                + ("Allow: GET\r\n" if allow else "") + "\r\n")
+        try:
+            writer.write(head.encode() + body)
+            await writer.drain()
+        except (ConnectionError, OSError):
+            pass
+        finally:
+            writer.close()
+
+    def stop(self) -> None:
+        def close():
+            if getattr(self, "server", None) is not None:
+                self.server.close()
+            self.loop.stop()
+
+        if self.loop.is_running():
+            self.loop.call_soon_threadsafe(close)
+            self.thread.join(timeout=10)

@@ -23,6 +23,7 @@ from solver.body import BODY_PARTS, SHAPE_KEYS
 from solver.render import SKIN, SURFACE, field_colors
 
 from .design import Design, DesignError
+from .net import LOOPBACK, Front
 
 MAX_UPLOAD = 5 * 1024 * 1024  # bytes: the largest control mesh file the studio takes
 CONTROL_COLOR = (40, 40, 48)
@@ -49,15 +50,22 @@ class Studio:
     """The studio server; `port` is the one bound (ask for 0 to get a free one)."""
 
     def __init__(self, db: str | None = None, host: str = "127.0.0.1", port: int = 8080,
-                 out: str = "sitrelax-studio"):
+                 out: str = "sitrelax-studio", limit: int = MAX_UPLOAD):
         import viser
 
         self.design = Design(db)
         self.out = Path(out)
         self.lock = threading.RLock()
         with contextlib.redirect_stdout(io.StringIO()):  # viser's start-up banner
-            self.server = viser.ViserServer(host=host, port=port, verbose=False)
-        self.host, self.port = host, self.server.get_port()
+            self.server = viser.ViserServer(host=LOOPBACK, port=0, verbose=False)
+        # the address the designer asked for is ours: it passes the page and the websocket to
+        # viser, and refuses request bodies (413 past the limit)
+        try:
+            self.front = Front(host, port, self.server.get_port(), limit)
+        except OSError:
+            self.stop()
+            raise
+        self.host, self.port = host, self.front.port
         # the studio stays on this machine: no share link through an outside relay
         self.server.request_share_url = lambda verbose=True: None
         self.server.gui.configure_theme(show_share_button=False, control_width="large")
@@ -396,5 +404,7 @@ class Studio:
             time.sleep(1.0)
 
     def stop(self) -> None:
+        if getattr(self, "front", None) is not None:
+            self.front.stop()
         with contextlib.redirect_stdout(io.StringIO()):
             self.server.stop()

@@ -167,6 +167,8 @@ def test_the_studio_in_a_browser_adds_a_person_fits_and_shows_the_surface(librar
 
 
 def test_the_studio_listens_on_loopback_only_by_default(library, tmp_path):
+    import http.client
+    import json
     import urllib.request
 
     from studio.web import Studio
@@ -177,6 +179,14 @@ def test_the_studio_listens_on_loopback_only_by_default(library, tmp_path):
         with urllib.request.urlopen(f"http://127.0.0.1:{studio.port}/", timeout=10) as page:
             assert b"<html" in page.read(2000).lower()  # the client, served from the package
         assert listening_addresses(studio.port) == {"127.0.0.1"}
+        # no request body is taken over HTTP: over the limit 413, else 405
+        for size, status in ((6 * 1024 * 1024, 413), (1000, 405)):
+            conn = http.client.HTTPConnection("127.0.0.1", studio.port, timeout=30)
+            conn.request("POST", "/", body=b"x" * size)
+            response = conn.getresponse()
+            assert response.status == status, (size, response.status)
+            assert "detail" in json.loads(response.read())
+            conn.close()
     finally:
         studio.stop()
 
