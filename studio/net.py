@@ -115,7 +115,9 @@ class Front:
     """The studio's public socket in front of viser's server (which answers only GET and its
     websocket): a request without a body passes through byte for byte (the page, then the
     websocket), one with a body over `limit` bytes gets 413, any other with a body 405, and a
-    request head over 64 KiB 431. Runs its own event loop in a thread; `port` is the one bound."""
+    request head over 64 KiB 431. The first request of a connection is the one looked at: later
+    requests on a kept-alive connection reach viser, which closes on anything but GET. Runs its
+    own event loop in a thread; `port` is the one bound."""
 
     HEAD_LIMIT = 64 * 1024
 
