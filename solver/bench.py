@@ -104,17 +104,15 @@ def _fit(arg):
 
 def _relax_setup():
     """The overweight body on the seat fitted for the thin one (the paper's figure 8)."""
-    import numpy as np
-
     from .fit import fit_surface
     from .relax import problem_for
     from .scene import place_person
+    from .subdivision import quad_triangles
 
     thin, targets, params = _example("seat_for_thin")
     heavy, _, _ = _example("seat_for_heavy")
     fit = fit_surface(thin.surface.vertices, thin.surface.faces, targets, params)
-    quads = fit.surface_faces
-    tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    tris = quad_triangles(fit.surface_faces)
     person = place_person(heavy.persons[0], None, 0)
     return problem_for(person, fit.surface, tris, margin=params.margin)
 

@@ -22,6 +22,8 @@ from importlib import resources
 import numpy as np
 import scipy.sparse as sp
 
+from .subdivision import quad_triangles
+
 BODY_DENSITY = 1010.0  # kg/m^3: whole-body density with air in the lungs
 DM = 0.1  # metres per asset unit (decimetres)
 BODY_PARTS = ("head", "torso", "arms", "hands", "legs", "feet")
@@ -163,7 +165,7 @@ class Body:
 
     @cached_property
     def triangles(self) -> np.ndarray:
-        return np.concatenate([self.faces[:, [0, 1, 2]], self.faces[:, [0, 2, 3]]])
+        return quad_triangles(self.faces)
 
     @cached_property
     def normals(self) -> np.ndarray:

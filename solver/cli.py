@@ -11,6 +11,7 @@ from capture import cli as capture_cli
 from posedb import cli as posedb_cli
 
 from .bench import format_table, run_benchmarks
+from .body import SHAPE_KEYS as SHAPE_PARAMS
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -22,7 +23,6 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-from .body import SHAPE_KEYS as SHAPE_PARAMS  # noqa: E402
 
 
 def add_shape_args(parser: argparse.ArgumentParser) -> None:

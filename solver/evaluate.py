@@ -24,6 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .subdivision import quad_triangles
+
 G = 9.81
 FOAM_DEPTH = 0.05  # metres: a body vertex deeper than this behind the surface is not in contact
 MAX_SINK = 0.2  # metres: a body that needs to sink deeper than this is reported unsupported
@@ -40,7 +42,7 @@ class SurfaceMesh:
 
     @classmethod
     def from_quads(cls, vertices: np.ndarray, quads: np.ndarray) -> "SurfaceMesh":
-        tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+        tris = quad_triangles(quads)
         return cls.from_triangles(vertices, tris)
 
     @classmethod

@@ -10,6 +10,8 @@ import numpy as np
 
 from capture.bvh import write_atomic
 
+from .subdivision import quad_triangles
+
 MESH_FORMATS = (".obj", ".ply", ".glb")
 
 
@@ -56,8 +58,7 @@ def write_mesh(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray,
         raise ExportError(f"Expected a mesh file ending in {MESH_FORMATS}, got {path.name!r}")
     import trimesh
 
-    tris = faces if faces.shape[1] == 3 else np.concatenate([faces[:, [0, 1, 2]],
-                                                             faces[:, [0, 2, 3]]])
+    tris = faces if faces.shape[1] == 3 else quad_triangles(faces)
     colors = None
     if vertex_colors is not None:
         colors = (np.clip(np.asarray(vertex_colors, dtype=float), 0, 1) * 255).astype(np.uint8)

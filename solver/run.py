@@ -18,6 +18,7 @@ from .fit import FitParams, FitResult, fit_surface
 from .render import SKIN, SURFACE, MeshView, Panel, field_colors, render_panels
 from .scenario import Scenario, load_scenario
 from .scene import PlacedPerson, place_person
+from .subdivision import quad_triangles
 
 
 def fit_params(scenario: Scenario) -> FitParams:
@@ -48,6 +49,48 @@ def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.n
     return rows, maps
 
 
+def fit_scene(scenario: Scenario, people: list[PlacedPerson],
+              progress: Callable[[int, float, float], None] | None = None,
+              timing: dict | None = None) -> tuple[FitResult, list[dict], list[np.ndarray]]:
+    """Fits the scenario's surface to the posed people and evaluates it: the fit, each
+    person's figures and pressure per body vertex (`fit_s`, `evaluate_s` go into `timing`)."""
+    timing = timing if timing is not None else {}
+    t = time.perf_counter()
+    result = fit_surface(scenario.surface.vertices, scenario.surface.faces,
+                         [p.target() for p in people], fit_params(scenario), progress)
+    timing["fit_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    persons, maps = evaluate_scene(scenario, people, result.surface, result.surface_faces)
+    timing["evaluate_s"] = time.perf_counter() - t
+    return result, persons, maps
+
+
+def relax_person(scenario: Scenario, person: PlacedPerson, surface: np.ndarray,
+                 quads: np.ndarray):
+    """Relaxes one posed person onto a surface (vertices, quads): the solver's result, the
+    person's figures before and after (as `evaluate_person` gives them), and the solver's
+    seconds."""
+    from .pressure import triangle_mesh
+    from .relax import problem_for, relax
+
+    margin = scenario.surface.params.margin
+    t = time.perf_counter()
+    res = relax(problem_for(person, surface, quad_triangles(quads), margin=margin))
+    seconds = time.perf_counter() - t
+    mesh = SurfaceMesh.from_quads(surface, quads)
+    mask = person.body.part_mask(person.spec.support)
+
+    def figures(vertices, normals, areas):
+        return evaluate_person(mesh, vertices, normals, areas, person.importance,
+                               person.body.mass_kg, margin, scenario.foam_stiffness,
+                               person.body.triangles, mask)[0]
+
+    areas, normals = triangle_mesh(person.body.triangles, len(res.vertices)).measures(
+        res.vertices)
+    return (res, figures(person.vertices, person.normals, person.areas),
+            figures(res.vertices, normals, areas), seconds)
+
+
 def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathLike, *,
             db: str | os.PathLike | None = None,
             progress: Callable[[str], None] | None = None) -> dict:
@@ -66,15 +109,10 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     people = [place_person(p, db, k) for k, p in enumerate(scenario.persons)]
     timing["pose_s"] = time.perf_counter() - t
     say(f"posed {len(people)} person(s) in {timing['pose_s']:.2f} s")
-    t = time.perf_counter()
-    result = fit_surface(scenario.surface.vertices, scenario.surface.faces,
-                         [p.target() for p in people], fit_params(scenario),
-                         lambda i, e, tau: say(f"iteration {i}: energy {e:.6g} (tau {tau:.2f})"))
-    timing["fit_s"] = time.perf_counter() - t
+    result, persons, maps = fit_scene(
+        scenario, people, lambda i, e, tau: say(f"iteration {i}: energy {e:.6g} (tau {tau:.2f})"),
+        timing)
     say(f"fitted in {result.iterations} iterations, {timing['fit_s']:.2f} s: {result.stop_reason}")
-    t = time.perf_counter()
-    persons, maps = evaluate_scene(scenario, people, result.surface, result.surface_faces)
-    timing["evaluate_s"] = time.perf_counter() - t
     t = time.perf_counter()
     files = export_scene(out, result, people, maps)
     timing["export_s"] = time.perf_counter() - t
@@ -123,7 +161,7 @@ def export_scene(out: Path, result: FitResult, people: list[PlacedPerson],
     files["bodies"] = bodies
     # the bodies in the scene carry their pressure, on the same scale as pressure.png
     scene = [MeshView(result.surface, result.surface_faces, SURFACE)] + [
-        MeshView(p.vertices, p.body.faces, _pressure_on_skin(m, peak))
+        MeshView(p.vertices, p.body.faces, pressure_on_skin(m, peak))
         for p, m in zip(people, maps)]
     render_panels(out / "scene.png", [Panel(scene, "three-quarter", "fitted surface"),
                                       Panel(scene, "side", "side")], columns=2,
@@ -137,7 +175,7 @@ def export_scene(out: Path, result: FitResult, people: list[PlacedPerson],
     return files
 
 
-def _pressure_on_skin(pressure: np.ndarray, peak: float) -> np.ndarray:
+def pressure_on_skin(pressure: np.ndarray, peak: float) -> np.ndarray:
     """Per body vertex: the pressure colour where the body is pressed, skin elsewhere."""
     colors = field_colors(pressure, 0.0, peak)
     colors[pressure <= 0] = SKIN
@@ -165,8 +203,7 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
     `save`, also stores each relaxed pose in the pose library `db` (see `save_relaxed`)."""
     from capture import Motion, write_bvh
 
-    from .pressure import triangle_mesh
-    from .relax import RelaxError, pose_channels, problem_for, relax, rig_skeleton
+    from .relax import RelaxError, pose_channels, rig_skeleton
     from .scenario import read_control_mesh
 
     say = progress or (lambda message: None)
@@ -188,25 +225,11 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
                              [p.target() for p in people], fit_params(scenario))
         surface, faces = result.surface, result.surface_faces
         say(f"fitted the surface in {result.iterations} iterations")
-    tris = np.concatenate([faces[:, [0, 1, 2]], faces[:, [0, 2, 3]]])
-    mesh = SurfaceMesh.from_quads(surface, faces)
     keys = ("mean_support_distance_m", "max_penetration_m", "coverage", "peak_pressure_kpa")
     rows, meshes_before, meshes_after, relaxed = [], [], [], []
     for k in chosen:
         p = people[k]
-        t = time.perf_counter()
-        margin = scenario.surface.params.margin
-        res = relax(problem_for(p, surface, tris, margin=margin))
-        seconds = time.perf_counter() - t
-        mask = p.body.part_mask(p.spec.support)
-        before, _ = evaluate_person(mesh, p.vertices, p.normals, p.areas, p.importance,
-                                    p.body.mass_kg, margin, scenario.foam_stiffness,
-                                    p.body.triangles, mask)
-        areas, normals = triangle_mesh(p.body.triangles, len(res.vertices)).measures(
-            res.vertices)
-        after, _ = evaluate_person(mesh, res.vertices, normals, areas, p.importance,
-                                   p.body.mass_kg, margin, scenario.foam_stiffness,
-                                   p.body.triangles, mask)
+        res, before, after, seconds = relax_person(scenario, p, surface, faces)
         name = f"person_{k + 1}_relaxed"
         write_mesh(out / f"{name}.obj", res.vertices, p.body.faces)
         skeleton, _ = rig_skeleton(p.body)

@@ -165,15 +165,27 @@ def inline_control_mesh(table: Any, where: str) -> tuple[np.ndarray, np.ndarray]
             raise _fail(where, f"{at}.faces[{k}]", f"expected a quad [a, b, c, d], got {f!r}")
         rows.append([_int(i, where, f"{at}.faces[{k}]", 0, len(v) - 1) for i in f])
     f = np.array(rows, dtype=np.int64)
-    if np.any(np.sort(f, axis=1)[:, 1:] == np.sort(f, axis=1)[:, :-1]):
-        raise _fail(where, f"{at}.faces", "expected four distinct vertices in every quad")
-    corner = v[f]
-    area = np.linalg.norm(np.cross(corner[:, 2] - corner[:, 0], corner[:, 3] - corner[:, 1]),
+    problem = faces_problem(v, f)
+    if problem:
+        raise _fail(where, f"{at}.faces", problem)
+    return v, f
+
+
+def faces_problem(vertices: np.ndarray, faces: np.ndarray) -> str | None:
+    """What is wrong with a face list (indices out of range, repeated corners, no area), or
+    None. faces : (F, 3) triangles or (F, 4) quads."""
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        return (f"expected face indices in 0..{len(vertices) - 1}, got "
+                f"{int(faces.min())}..{int(faces.max())}")
+    ordered = np.sort(faces, axis=1)
+    if np.any(ordered[:, 1:] == ordered[:, :-1]):
+        return "expected distinct vertices in every face"
+    corner = vertices[faces]
+    area = np.linalg.norm(np.cross(corner[:, 2] - corner[:, 0], corner[:, -1] - corner[:, 1]),
                           axis=1)
     if np.any(area < 1e-10):
-        raise _fail(where, f"{at}.faces", f"expected quads of non-zero area; quad "
-                    f"{int(np.argmin(area))} has none")
-    return v, f
+        return f"expected faces of non-zero area; face {int(np.argmin(area))} has none"
+    return None
 
 
 def parse_scenario(data: dict, where: str = "<scenario>", base: Path | None = None, *,

@@ -32,6 +32,12 @@ class MeshError(ValueError):
     """A control mesh the subdivision cannot take (bad faces, non-manifold edges)."""
 
 
+def quad_triangles(quads: np.ndarray) -> np.ndarray:
+    """(2F, 3) triangles of (F, 4) quads, each split along its 0-2 diagonal."""
+    quads = np.asarray(quads)
+    return np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+
+
 @dataclass(frozen=True, eq=False)
 class Step:
     """One subdivision step: `vertices_next = matrix @ vertices`; `faces` (F', 4) of the next
@@ -59,8 +65,7 @@ class Subdivision:
 
     @property
     def triangles(self) -> np.ndarray:
-        f = self.faces
-        return np.concatenate([f[:, [0, 1, 2]], f[:, [0, 2, 3]]])
+        return quad_triangles(self.faces)
 
     def apply(self, control: np.ndarray) -> np.ndarray:
         """(n_s, 3) vertices of level s for control vertices (n_0, 3)."""

@@ -237,14 +237,12 @@ def create_app(db: str | os.PathLike | None = None, limit: int = DEFAULT_LIMIT) 
 
     @app.post("/api/fit", summary="Fit a surface to a scenario, with each person's evaluation")
     def fit(s: Scenario) -> FitResponse:
-        from solver.fit import fit_surface
-        from solver.run import evaluate_scene
+        from solver.run import fit_scene
+
         start = time.perf_counter()
         scenario = parse(s)
-        people = [place(p, k) for k, p in enumerate(scenario.persons)]
-        result = fit_surface(scenario.surface.vertices, scenario.surface.faces,
-                             [p.target() for p in people], scenario.surface.params)
-        persons, _ = evaluate_scene(scenario, people, result.surface, result.surface_faces)
+        result, persons, _ = fit_scene(scenario, [place(p, k) for k, p in
+                                                  enumerate(scenario.persons)])
         return FitResponse(control=_mesh(result.control, result.faces),
                            surface=_mesh(result.surface, result.surface_faces),
                            iterations=result.iterations, stop_reason=result.stop_reason,
@@ -254,7 +252,7 @@ def create_app(db: str | os.PathLike | None = None, limit: int = DEFAULT_LIMIT) 
     @app.post("/api/relax", summary="Fit, then relax one person onto the surface")
     def relax(req: RelaxRequest) -> dict:
         from solver.fit import fit_surface
-        from solver.relax import problem_for, relax as relax_pose
+        from solver.run import relax_person
 
         scenario = parse(req.scenario)
         if req.index >= len(scenario.persons):
@@ -263,33 +261,25 @@ def create_app(db: str | os.PathLike | None = None, limit: int = DEFAULT_LIMIT) 
         people = [place(p, k) for k, p in enumerate(scenario.persons)]
         result = fit_surface(scenario.surface.vertices, scenario.surface.faces,
                              [p.target() for p in people], scenario.surface.params)
-        quads = result.surface_faces
-        tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
         person = people[req.index]
-        res = relax_pose(problem_for(person, result.surface, tris,
-                                     margin=scenario.surface.params.margin))
+        res, before, after, seconds = relax_person(scenario, person, result.surface,
+                                                   result.surface_faces)
         return {"label": person.label, "evaluations": res.evaluations,
-                "parameters_at_limit": res.at_limit,
-                "surface": _mesh(result.surface, quads),
+                "parameters_at_limit": res.at_limit, "seconds": seconds,
+                "before": before, "after": after,
+                "surface": _mesh(result.surface, result.surface_faces),
                 "body": _mesh(res.vertices, person.body.triangles)}
 
     @app.post("/api/evaluate", summary="Evaluate any surface mesh against posed people")
     def evaluate(req: EvaluateRequest) -> dict:
         from solver.evaluate import SurfaceMesh, evaluate_person
+        from solver.scenario import faces_problem
 
         v = np.asarray(req.vertices, dtype=np.float64)
         f = np.asarray(req.faces, dtype=np.int64)
-        if f.max() >= len(v):
-            raise HTTPException(400, f"Face indices run to {int(f.max())} but there are only "
-                                     f"{len(v)} vertices")
-        if np.any(np.sort(f, axis=1)[:, 1:] == np.sort(f, axis=1)[:, :-1]):
-            raise HTTPException(400, "Expected faces of distinct vertices")
-        corner = v[f]
-        area = np.linalg.norm(np.cross(corner[:, 1] - corner[:, 0], corner[:, -1] - corner[:, 0]),
-                              axis=1)
-        if np.any(area < 1e-10):
-            raise HTTPException(400, f"Expected faces of non-zero area; face "
-                                     f"{int(np.argmin(area))} has none")
+        problem = faces_problem(v, f)
+        if problem:
+            raise HTTPException(400, problem)
         mesh = SurfaceMesh.from_quads(v, f) if f.shape[1] == 4 else \
             SurfaceMesh.from_triangles(v, f)
         out = []

@@ -28,16 +28,13 @@ def _api_fit(arg):
 
 
 def _in_process_fit(arg):
-    from solver.fit import fit_surface
-    from solver.run import evaluate_scene
+    from solver.run import fit_scene
     from solver.scenario import parse_scenario
     from solver.scene import place_person
 
     scenario = parse_scenario(arg[2], "bench", files=False)
-    people = [place_person(p, None, k) for k, p in enumerate(scenario.persons)]
-    result = fit_surface(scenario.surface.vertices, scenario.surface.faces,
-                         [p.target() for p in people], scenario.surface.params)
-    return evaluate_scene(scenario, people, result.surface, result.surface_faces)
+    return fit_scene(scenario, [place_person(p, None, k)
+                                for k, p in enumerate(scenario.persons)])
 
 
 def cases() -> list[BenchCase]:

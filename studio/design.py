@@ -21,9 +21,8 @@ from typing import Callable
 import numpy as np
 
 from capture.bvh import write_atomic
-from solver.evaluate import SurfaceMesh, evaluate_person
-from solver.fit import FitResult, fit_surface
-from solver.run import evaluate_scene, run_fit
+from solver.fit import FitResult
+from solver.run import fit_scene, relax_person, run_fit
 from solver.scenario import Scenario, parse_scenario, read_control_mesh, scenario_toml
 from solver.scene import PlacedPerson, place_person
 
@@ -193,39 +192,18 @@ class Design:
         start = time.perf_counter()
         scenario = self.scenario()
         people = [self.place(p) for p in self.people]
-        result = fit_surface(scenario.surface.vertices, scenario.surface.faces,
-                             [p.target() for p in people], scenario.surface.params, progress)
-        persons, pressure = evaluate_scene(scenario, people, result.surface,
-                                           result.surface_faces)
+        result, persons, pressure = fit_scene(scenario, people, progress)
         self.last = FitOutcome(result, people, persons, pressure, time.perf_counter() - start)
         return self.last
 
     def relax(self, k: int) -> RelaxOutcome:
-        from solver.pressure import triangle_mesh
-        from solver.relax import problem_for, relax
-
         self._person(k)
         if self.last is None:
             raise DesignError("Fit first: a person relaxes onto the fitted surface")
         start = time.perf_counter()
-        scenario = self.scenario()
         person = self.place(self.people[k])
-        surface, quads = self.last.result.surface, self.last.result.surface_faces
-        tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
-        margin = scenario.surface.params.margin
-        res = relax(problem_for(person, surface, tris, margin=margin))
-        mesh = SurfaceMesh.from_quads(surface, quads)
-        mask = person.body.part_mask(person.spec.support)
-
-        def figures(vertices, normals, areas):
-            return evaluate_person(mesh, vertices, normals, areas, person.importance,
-                                   person.body.mass_kg, margin, scenario.foam_stiffness,
-                                   person.body.triangles, mask)[0]
-
-        before = figures(person.vertices, person.normals, person.areas)
-        areas, normals = triangle_mesh(person.body.triangles, len(res.vertices)).measures(
-            res.vertices)
-        after = figures(res.vertices, normals, areas)
+        res, before, after, _ = relax_person(self.scenario(), person, self.last.result.surface,
+                                             self.last.result.surface_faces)
         return RelaxOutcome(k, res.vertices, person.body.triangles, before, after,
                             time.perf_counter() - start)
 

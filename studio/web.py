@@ -20,7 +20,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from solver.body import BODY_PARTS, SHAPE_KEYS
-from solver.render import SKIN, SURFACE, field_colors
+from solver.render import SKIN, SURFACE
+from solver.run import pressure_on_skin
+from solver.subdivision import quad_triangles
 
 from .design import Design, DesignError
 from .net import LOOPBACK, Front
@@ -254,10 +256,8 @@ class Studio:
             gizmo.on_update(lambda _e, k=k, gizmo=gizmo: self._guarded(
                 lambda: self._moved(k, gizmo)))
             if pressure is not None:
-                colors = field_colors(pressure[k], 0.0, peak or 1.0)
-                colors[pressure[k] <= 0] = SKIN
                 self._colored_mesh(f"/people/p{k}/body", local.vertices, local.body.triangles,
-                                   colors)
+                                   pressure_on_skin(pressure[k], peak))
             else:
                 scene.add_mesh_simple(f"/people/p{k}/body", local.vertices,
                                       local.body.triangles, color=_rgb(SKIN))
@@ -354,7 +354,7 @@ class Studio:
         outcome = self.design.fit()
         r = outcome.result
         quads = r.surface_faces
-        tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+        tris = quad_triangles(quads)
         self._surface = self.server.scene.add_mesh_simple(
             "/surface", r.surface, tris, color=_rgb(SURFACE), side="double")
         peak = max((float(p.max()) for p in outcome.pressure), default=1.0) or 1.0

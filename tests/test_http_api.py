@@ -107,6 +107,11 @@ def test_pressure_evaluate_and_relax(api):
                           {**fit["surface"], "person": [person]})
     assert status == 200
     assert ev["persons"][0]["coverage"] == pytest.approx(fit["persons"][0]["coverage"], abs=1e-6)
+    # a floor two metres below supports nothing within the margin
+    floor = {"vertices": [[-2, -2, -2], [-2, -2, 2], [2, -2, 2], [2, -2, -2]],
+             "faces": [[0, 1, 2, 3]], "person": [person]}
+    status, ev = _request(api, "POST", "/api/evaluate", floor)
+    assert status == 200 and ev["persons"][0]["coverage"] == 0.0
     status, relaxed = _request(api, "POST", "/api/relax", {"scenario": SINGLE, "index": 0})
     assert status == 200 and len(relaxed["body"]["vertices"]) == 13380
     status, reply = _request(api, "POST", "/api/relax", {"scenario": SINGLE, "index": 3})
