@@ -34,11 +34,13 @@ smoothly, without cutting into it. Each iteration:
 
 The data terms are gathered per surface vertex (the weighted mean of the body points it serves),
 so the programme's size depends on the control mesh, not on the bodies. Non-penetration rows are
-kept for the surface vertices within CONSTRAINT_RADIUS of a body; OSQP is set up again only when
-that set changes and is otherwise updated in place, warm-started from the last solution, and its
-status is checked every time. The loop stops once tau has reached tau_max and the energy has not
-improved by `tolerance` (relative) in PATIENCE iterations, or after `max_iterations`; the best
-iterate is kept.
+kept for the surface vertices a body can reach (joined by any that come within CONSTRAINT_RADIUS
+later) and are active only within that radius; OSQP is set up again only when that set changes
+and is otherwise updated in place, warm-started from the last solution, and its status is checked
+every time. The loop judges each iterate by the programme's own objective, the energy plus the
+cost of the non-penetration demands it leaves unmet, and stops once tau has reached tau_max and
+that has not improved by `tolerance` (relative) in PATIENCE iterations, or after
+`max_iterations`; the best iterate is kept.
 """
 
 from __future__ import annotations
@@ -56,6 +58,9 @@ from .subdivision import Subdivision, subdivision
 REACH = 0.5  # metres: a person whose supported points are all farther from the surface is an error
 CONSTRAINT_RADIUS = 0.12  # metres: surface vertices this close to a body get a non-penetration row
 FACING_SCALE = 0.1  # metres a body normal's turn away from the surface counts as, in the search
+# the farthest a pairing in that search can be while its skin point lies within CONSTRAINT_RADIUS
+FACING_REACH = float(np.hypot(CONSTRAINT_RADIUS, 2 * FACING_SCALE)) + 1e-9
+INSIDE_REACH = 0.3  # metres: no body part is thicker than twice this
 EXIT_SCALE = 1.0  # the same, for a surface vertex inside a body: it leaves through the skin
                   # facing against the surface's normal, behind the body (below a seated one)
 TAU_RAMP = 5  # iterations over which tau rises from 0 to tau_max
@@ -131,11 +136,12 @@ class _Programme:
     fit; OSQP is set up again only when the set of rows changes, and updated in place otherwise.
     """
 
-    def __init__(self, sub: Subdivision, lap: sp.csr_matrix, n0: int):
+    def __init__(self, sub: Subdivision, lap: sp.csr_matrix, n0: int, slack_weight: float):
         import osqp
 
         self._osqp = osqp
         self.n0 = n0
+        self.slack_weight = slack_weight
         s = sub.matrix.tocsr()
         self.s = s
         coupling = (s.T @ s).tocsr() + (lap.T @ lap) + sp.identity(n0)
@@ -178,8 +184,12 @@ class _Programme:
         a = self.a_pattern.copy()
         a.data = a_values
         self.solver = self._osqp.OSQP()
+        # no Ruiz equilibration: the variables are metres already, and equilibrating the stiff
+        # slack columns against the soft control vertices left some programmes at OSQP's
+        # iteration limit (thousands of iterations where 100-200 do without)
         self.solver.setup(p, q, a, low, high, verbose=False, warm_starting=True, polishing=False,
-                          eps_abs=EPS_ABS, eps_rel=EPS_REL, max_iter=20000, adaptive_rho=True)
+                          eps_abs=EPS_ABS, eps_rel=EPS_REL, max_iter=20000, adaptive_rho=True,
+                          scaling=0)
         self.setups += 1
 
     def solve(self, p_x: np.ndarray | sp.csr_matrix, q: np.ndarray, rows: np.ndarray, normals: np.ndarray,
@@ -190,7 +200,7 @@ class _Programme:
             self.rows = rows
             self._setup_patterns(rows)
         xr, xc = self.p_rows[self.p_is_x], self.p_cols[self.p_is_x]
-        p_values = np.full(len(self.p_rows), 2 * SLACK_WEIGHT)
+        p_values = np.full(len(self.p_rows), 2 * self.slack_weight)
         p_values[self.p_is_x] = np.asarray(p_x[xr, xc]).ravel()
         a_values = np.where(self.a_plane, self.a_s * normals[self.a_row, self.a_axis], 1.0)
         q_full = np.concatenate([q, np.zeros(r)])
@@ -267,11 +277,16 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
     fixed = np.full(n0, params.anchor / n0)
     fixed[list(params.fixed)] += params.gamma
     smooth = (params.sigma / n0) * (lap.T @ lap)
-    diagonal = (smooth + sp.diags(fixed + PROXIMAL)).tocsr()
+    # the data terms are a mean over everybody's importance, so each person's pull per surface
+    # vertex shrinks with their number; the numerical devices (the proximal damping, the cost of
+    # an unmet row) shrink with it, or they would hold a crowd's surface back
+    people = len(targets)
+    proximal = PROXIMAL / people
+    diagonal = (smooth + sp.diags(fixed + proximal)).tocsr()
     dense = n0 <= DENSE_UP_TO
     if dense:
         diagonal = diagonal.toarray()
-    prog = _Programme(sub, lap, n0)
+    prog = _Programme(sub, lap, n0, SLACK_WEIGHT / people)
     v = v0.copy()
     energies: list[float] = []
     statuses: list[str] = []
@@ -282,6 +297,10 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
     sampled = np.zeros(s.shape[0], dtype=bool)
     sampled[:sub.steps[-1].matrix.shape[1] if sub.steps else s.shape[0]] = True
     sampled_ids = np.flatnonzero(sampled)
+    # rows start on every sampled vertex a body could reach, so that the set (and OSQP's set-up)
+    # seldom changes as the surface moves
+    reach, _ = body_tree3.query(surface0[sampled_ids], distance_upper_bound=REACH)
+    member[sampled_ids[np.isfinite(reach)]] = True
     best = None
     terms: dict = {}
     stop = f"reached the iteration limit ({params.max_iterations})"
@@ -291,10 +310,12 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
         surf = s @ v
         surf_n = sub.normals(surf)
         # data: each important body point pulls its closest surface vertex
-        gap, pair = cKDTree(surf).query(b_imp)
         # body points farther than the pull range do not pull (yet): the surface grows towards
         # the bodies from where the designer put it, instead of reaching across the scene
-        w_now = np.where(gap <= params.pull_range, w_imp, 0.0)
+        gap, pair = cKDTree(surf).query(b_imp, distance_upper_bound=params.pull_range)
+        reached = np.isfinite(gap)
+        pair[~reached] = 0
+        w_now = np.where(reached, w_imp, 0.0)
         w = np.bincount(pair, w_now, minlength=len(surf))
         target = np.stack([np.bincount(pair, w_now * b_imp[:, a], minlength=len(surf))
                            for a in range(3)], axis=1)
@@ -326,12 +347,19 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
         # non-penetration: stay outside the tangent plane at the closest body vertex
         # (only the sampled surface vertices carry rows, so only they are looked up)
         sv, sn = surf[sampled_ids], surf_n[sampled_ids]
-        _, near_s = body_tree.query(np.concatenate([sv, -FACING_SCALE * sn], axis=1))
-        dist = np.linalg.norm(points[near_s] - sv, axis=1)
+        # (a vertex whose search finds nothing within reach is far from every body: no row)
+        _, near_s = body_tree.query(np.concatenate([sv, -FACING_SCALE * sn], axis=1),
+                                    distance_upper_bound=FACING_REACH)
+        far = near_s == len(points)
+        near_s[far] = 0
+        dist = np.where(far, np.inf, np.linalg.norm(points[near_s] - sv, axis=1))
         # a surface vertex inside a body (behind its nearest skin vertex) is always constrained,
-        # however far the skin it faces: it must get out
-        _, nearest = body_tree3.query(sv)
-        inside_s = np.einsum("ij,ij->i", sv - points[nearest], normals[nearest]) < 0
+        # however far the skin it faces: it must get out (no body part is so thick that a point
+        # inside it lies farther than INSIDE_REACH from its skin)
+        _, nearest = body_tree3.query(sv, distance_upper_bound=INSIDE_REACH)
+        outside = nearest == len(points)
+        nearest[outside] = 0
+        inside_s = ~outside & (np.einsum("ij,ij->i", sv - points[nearest], normals[nearest]) < 0)
         if inside_s.any():
             _, exits = exit_tree.query(np.concatenate([sv[inside_s],
                                                        -EXIT_SCALE * sn[inside_s]], axis=1))
@@ -348,17 +376,25 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
         cn[rows] = normals[closest[rows]]
         lower = np.einsum("ij,ij->i", cn[rows], points[closest[rows]]) - params.margin
         lower[~wanted[rows]] = -np.inf
+        demanded = lower.copy()
         # a violated row need only improve by most of a step per iteration (it stays feasible
         # within the trust region)
         now = np.einsum("ij,ij->i", cn[rows], surf[rows])
         lower = np.minimum(lower, now + 0.8 * params.step)
         x0 = v.T.reshape(-1)
-        g += PROXIMAL * x0
+        g += proximal * x0
         x, status, residual = prog.solve(2 * h, -2 * g, rows, cn[rows], lower, x0, params.step)
         statuses.append(status)
         residuals.append(residual)
         v = x.reshape(3, n0).T
-        energy, terms = _energy(s @ v, v, v0, pair, b_imp, w_imp, surf_n, tau, smooth, fixed)
+        new_surf = s @ v
+        energy, terms = _energy(new_surf, v, v0, pair, b_imp, w_imp, surf_n, tau, smooth, fixed)
+        # what the loop judges is the programme's own objective: the energy plus the cost of
+        # the rows the step left unmet (against the whole demand, not the step's share of it),
+        # so an iterate that cuts into a body does not count as the best
+        short = np.maximum(0.0, demanded - np.einsum("ij,ij->i", cn[rows], new_surf[rows]))
+        energy += prog.slack_weight * float(np.sum(short ** 2))
+        terms["unmet_rows_m2"] = float(np.sum(short ** 2))
         terms["laplacian_m2"] = float(np.mean(np.sum((lap @ v) ** 2, axis=1)))
         energies.append(energy)
         # energies are comparable only at the same tau: keep and judge those after the ramp
