@@ -163,7 +163,7 @@ def solver_cases() -> list[BenchCase]:
                   "scratch, applied", _grid_setup, _subdivide_fresh, repeats=30),
         BenchCase("fit_single", "fit an 8x6 grid, level 3, to one seated person, to the "
                   "loop's stop", _fit_setup, _fit, repeats=5),
-        BenchCase("fit_six", "fit a 30x6 grid, level 3, to six seated people, to the loop's "
+        BenchCase("fit_six", "fit a 52x6 grid, level 3, to six seated people, to the loop's "
                   "stop", _fit_six_setup, _fit, repeats=3),
         BenchCase("relax", "relax one pose (the overweight body onto the thin body's seat) "
                   "with the analytic Jacobian", _relax_setup, _relax, _relax_numeric,

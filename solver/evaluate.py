@@ -223,3 +223,26 @@ def flat_surface(height: float, centre: np.ndarray, half: float = 5.0) -> Surfac
     v = np.array([[cx - half, height, cz - half], [cx - half, height, cz + half],
                   [cx + half, height, cz + half], [cx + half, height, cz - half]])
     return SurfaceMesh.from_quads(v, np.array([[0, 1, 2, 3]]))
+
+
+def support_inside(vertices: np.ndarray, importance: np.ndarray,
+                   others: list[tuple[np.ndarray, np.ndarray]]) -> float:
+    """Share of a body's importance that lies inside other bodies (each given as vertices and
+    its closed skin's triangles): support no surface can give, since a surface there would cut
+    into the other person. Inside is a winding number above one half."""
+    import igl
+
+    total = float(importance.sum())
+    wanted = np.flatnonzero(importance > 0)
+    if total <= 0 or not wanted.size:
+        return 0.0
+    points = np.asarray(vertices[wanted], dtype=np.float64)
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    inside = np.zeros(len(wanted), dtype=bool)
+    for other, triangles in others:
+        if np.any(other.max(axis=0) < lo) or np.any(other.min(axis=0) > hi):
+            continue  # the boxes do not meet
+        inside |= igl.fast_winding_number(np.asarray(other, dtype=np.float64),
+                                          np.asarray(triangles, dtype=np.int64), points) > 0.5
+    return float(importance[wanted][inside].sum() / total)
+

@@ -8,6 +8,7 @@ bodies and smooth surfaces seen from outside, which is all the pictures show.
 from __future__ import annotations
 
 import os
+import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -118,8 +119,8 @@ def render_panels(path: str | os.PathLike, panels: Sequence[Panel], *, columns: 
     for k, panel in enumerate(panels):
         ax = fig.add_subplot(rows, columns, k + 1)
         _draw(ax, panel.meshes, panel.view, light)
-        if panel.title:
-            ax.set_title(panel.title, fontsize=10)
+        if panel.title:  # wrapped to the axes' width (about 11 px of panel a character)
+            ax.set_title(textwrap.fill(panel.title, max(20, panel_size[0] // 11)), fontsize=10)
     if title:
         fig.suptitle(title, fontsize=12)
     if colorbar is not None:

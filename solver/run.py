@@ -12,7 +12,8 @@ import numpy as np
 
 from capture.bvh import write_atomic
 
-from .evaluate import SurfaceMesh, evaluate_person, flat_seat_height, flat_surface
+from .evaluate import (SurfaceMesh, evaluate_person, flat_seat_height, flat_surface,
+                       support_inside)
 from .export import write_mesh
 from .fit import FitParams, FitResult, fit_surface
 from .render import SKIN, SURFACE, MeshView, Panel, field_colors, render_panels
@@ -27,12 +28,13 @@ def fit_params(scenario: Scenario) -> FitParams:
 
 def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.ndarray,
                    faces: np.ndarray) -> tuple[list[dict], list[np.ndarray]]:
-    """Per person: the fitted surface's figures (with `flat`, the flat-seat baseline) and the
-    pressure (kPa) per body vertex."""
+    """Per person: the fitted surface's figures (with `flat`, the flat-seat baseline, and
+    `support_inside_others`, the share of the person's importance inside other people's bodies)
+    and the pressure (kPa) per body vertex."""
     mesh = SurfaceMesh.from_quads(surface, faces)
     margin = scenario.surface.params.margin
     rows, maps = [], []
-    for p in people:
+    for k, p in enumerate(people):
         mask = p.body.part_mask(p.spec.support)
         figures, pm = evaluate_person(mesh, p.vertices, p.normals, p.areas, p.importance,
                                       p.body.mass_kg, margin, scenario.foam_stiffness,
@@ -42,9 +44,12 @@ def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.n
                                   p.normals, p.areas, p.importance, p.body.mass_kg, margin,
                                   scenario.foam_stiffness, p.body.triangles, mask)
         flat["height_m"] = height
+        others = [(q.vertices, q.body.triangles) for j, q in enumerate(people) if j != k]
         rows.append({"name": p.label, "body": p.spec.body.as_dict(),
                      "height_m": p.body.height_m, "mass_kg": p.body.mass_kg,
-                     "support": list(p.spec.support), **figures, "flat": flat})
+                     "support": list(p.spec.support), **figures,
+                     "support_inside_others": support_inside(p.vertices, p.importance, others),
+                     "flat": flat})
         maps.append(pm.pressure_kpa)
     return rows, maps
 

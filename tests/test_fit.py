@@ -141,6 +141,7 @@ def test_fit_command_writes_files_that_open_again(tmp_path):
                 "mean_pressure_kpa", "flat"):
         assert key in person
     assert {"coverage", "peak_pressure_kpa"} <= set(person["flat"])
+    assert person["support_inside_others"] == 0.0  # alone in the scene
     control = trimesh.load(out / "control.obj", process=False)
     text = (out / "control.obj").read_text().splitlines()
     faces = [line for line in text if line.startswith("f ")]
@@ -159,7 +160,10 @@ def test_fit_command_writes_files_that_open_again(tmp_path):
 EXAMPLES = Path(__file__).resolve().parents[1] / "fixtures" / "scenarios"
 
 
-@pytest.mark.parametrize("name", ["single_seated", "reclining", "facing_pair"])
+@pytest.mark.parametrize("name", [
+    "single_seated", "reclining", "facing_pair", "seat_for_thin", "seat_for_heavy",
+    "six_overlapping",
+])
 def test_example_scenarios_meet_the_bar(name, tmp_path):
     """Coverage at least 0.9, no cut deeper than the margin plus 5 mm, and a peak pressure at
     most 60 % of the flat seat's at the same height."""
@@ -168,6 +172,27 @@ def test_example_scenarios_meet_the_bar(name, tmp_path):
     report = run_fit(EXAMPLES / f"{name}.toml", tmp_path)
     margin = report["parameters"]["margin"]
     for person in report["persons"]:
+        assert person["support_inside_others"] <= 0.02, person
         assert person["coverage"] >= 0.9, person
         assert person["max_penetration_m"] <= margin + 0.005, person
         assert person["peak_pressure_kpa"] <= 0.6 * person["flat"]["peak_pressure_kpa"], person
+
+
+def test_support_inside_other_bodies_is_the_share_of_importance_they_contain():
+    """A unit cube's corners against a box that holds the four at x = +0.5: half its support
+    (uniform importance) lies inside the other body; one corner weighted 5x moves it to 8/12 when
+    it is among them; a box elsewhere holds nothing."""
+    from solver.evaluate import support_inside
+
+    cube = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    v = np.asarray(cube.vertices)
+    holder = trimesh.creation.box(extents=(2.0, 2.0, 2.0))
+    hv, ht = np.asarray(holder.vertices) + [1.0, 0.0, 0.0], np.asarray(holder.faces)
+    uniform = np.ones(len(v))
+    assert support_inside(v, uniform, [(hv, ht)]) == pytest.approx(0.5)
+    heavy = uniform.copy()
+    heavy[np.flatnonzero(v[:, 0] > 0)[0]] = 5.0
+    assert support_inside(v, heavy, [(hv, ht)]) == pytest.approx(8.0 / 12.0)
+    assert support_inside(v, uniform, [(hv + [10.0, 0.0, 0.0], ht)]) == 0.0
+    assert support_inside(v, np.zeros(len(v)), [(hv, ht)]) == 0.0
+
