@@ -50,7 +50,10 @@ KIND_ATTR = "sitrelax_kind"
 KIND = "pose-library"
 VERSION_ATTR = "sitrelax_schema"
 SCHEMA_VERSION = 1
-SUPPORT_PARTS = ("head", "torso", "arms", "hands", "legs", "feet")
+# bit k of a pose's `supports` names SUPPORT_PARTS[k]; "legs" is thighs and calves together
+# (thighs and calves took the two spare bits of the uint8 within schema 1: older files never set
+# them, so they read the same)
+SUPPORT_PARTS = ("head", "torso", "arms", "hands", "legs", "feet", "thighs", "calves")
 MIGRATIONS: dict[int, Callable[[h5py.File], None]] = {}
 
 _STR = h5py.string_dtype()

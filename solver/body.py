@@ -22,11 +22,15 @@ from importlib import resources
 import numpy as np
 import scipy.sparse as sp
 
+from posedb.schema import SUPPORT_PARTS
+
 from .subdivision import quad_triangles
 
 BODY_DENSITY = 1010.0  # kg/m^3: whole-body density with air in the lungs
 DM = 0.1  # metres per asset unit (decimetres)
 BODY_PARTS = ("head", "torso", "arms", "hands", "legs", "feet")
+# what a support may name: the parts, and the legs split at the knee (SUPPORT_PARTS)
+LEG_SEGMENTS = {"thighs": ("LeftUpLeg", "RightUpLeg"), "calves": ("LeftLeg", "RightLeg")}
 
 # Which part each CMU-MB bone's weights belong to.
 _BONE_PART = {
@@ -195,14 +199,27 @@ class Body:
         except ValueError:
             raise KeyError(f"No joint {name!r}; joints are {list(self.joint_names)}") from None
 
+    @cached_property
+    def thigh(self) -> np.ndarray:
+        """(V,) bool: leg vertices that the thigh bones weigh on more than the shin bones (the
+        rest of the legs are the calves)."""
+        w = {seg: np.asarray(self.weights[:, [self.joint_index(b) for b in bones]].sum(axis=1))
+             .ravel() for seg, bones in LEG_SEGMENTS.items()}
+        return (self.parts == BODY_PARTS.index("legs")) & (w["thighs"] >= w["calves"])
+
     def part_mask(self, parts) -> np.ndarray:
-        """(V,) bool: vertices of the named body parts."""
-        wanted = []
+        """(V,) bool: vertices of the named body parts (SUPPORT_PARTS: the parts, or the legs'
+        thighs or calves)."""
+        wanted, mask = [], np.zeros(len(self.vertices), dtype=bool)
         for p in parts:
-            if p not in BODY_PARTS:
-                raise BodyShapeError(f"Expected body parts from {BODY_PARTS}, got {p!r}")
-            wanted.append(BODY_PARTS.index(p))
-        return np.isin(self.parts, wanted)
+            if p not in SUPPORT_PARTS:
+                raise BodyShapeError(f"Expected body parts from {SUPPORT_PARTS}, got {p!r}")
+            if p in LEG_SEGMENTS:
+                legs = self.parts == BODY_PARTS.index("legs")
+                mask |= self.thigh if p == "thighs" else legs & ~self.thigh
+            else:
+                wanted.append(BODY_PARTS.index(p))
+        return mask | np.isin(self.parts, wanted)
 
     def summary(self) -> dict:
         return {"shape": self.shape.as_dict(), "age_years": self.shape.age_years,

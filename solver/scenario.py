@@ -19,7 +19,7 @@
     body = { gender = 0.0, weight = 0.5, height = 0.5 }
     position = [0.0, 0.0, 0.0]        # metres
     rotation_deg = [0.0, 90.0, 0.0]   # about the world x, then y, then z axes
-    support = ["torso", "legs"]
+    support = ["torso", "legs"]       # head, torso, arms, hands, legs (= thighs + calves), feet
 
 A person is posed on its body with its lowest point on the floor (y = 0) and its pelvis over
 the origin, then turned by `rotation_deg` and moved by `position`. Relative paths are relative
@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from .body import BODY_PARTS, BodyShape, BodyShapeError
+from .body import SUPPORT_PARTS, BodyShape, BodyShapeError
 from .fit import FitParams
 from .subdivision import grid_mesh
 
@@ -295,10 +295,10 @@ def parse_scenario(data: dict, where: str = "<scenario>", base: Path | None = No
         except BodyShapeError as exc:
             raise _fail(where, f"{at}.body", str(exc)) from None
         support = p.get("support", ["torso", "legs"])
-        if not isinstance(support, list) or not support or any(s not in BODY_PARTS
+        if not isinstance(support, list) or not support or any(s not in SUPPORT_PARTS
                                                                 for s in support):
-            raise _fail(where, f"{at}.support", f"expected body parts from {BODY_PARTS}, got "
-                        f"{support!r}")
+            raise _fail(where, f"{at}.support", f"expected body parts from {SUPPORT_PARTS}, "
+                        f"got {support!r}")
         persons.append(PersonSpec(
             pose=pose, body=shape,
             position=_vector(p.get("position", [0, 0, 0]), where, f"{at}.position", 3),

@@ -22,7 +22,7 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field, create_model
 
 from solver import body as solver_body
-from solver.body import BODY_PARTS
+from solver.body import SUPPORT_PARTS
 
 from .net import BodyLimit
 
@@ -37,8 +37,8 @@ Index = Annotated[int, Field(ge=0, le=10 * MAX_CONTROL_VERTICES)]
 Quad = Annotated[list[Index], Field(min_length=4, max_length=4)]
 Triangle = Annotated[list[Index], Field(min_length=3, max_length=3)]
 Unit = Annotated[float, Field(ge=0.0, le=1.0)]
-Part = Literal["head", "torso", "arms", "hands", "legs", "feet"]
-assert set(Part.__args__) == set(BODY_PARTS)  # type: ignore[attr-defined]
+Part = Literal["head", "torso", "arms", "hands", "legs", "feet", "thighs", "calves"]
+assert set(Part.__args__) == set(SUPPORT_PARTS)  # type: ignore[attr-defined]
 
 
 class _Model(BaseModel):
@@ -85,7 +85,7 @@ class Person(_Model):
     position: Point = [0.0, 0.0, -0.1]
     rotation_deg: Annotated[list[Annotated[float, Field(ge=-360.0, le=360.0)]],
                             Field(min_length=3, max_length=3)] = [0.0, 0.0, 0.0]
-    support: Annotated[list[Part], Field(min_length=1, max_length=6)] = ["legs"]
+    support: Annotated[list[Part], Field(min_length=1, max_length=len(SUPPORT_PARTS))] = ["legs"]
 
 
 class Evaluation(_Model):

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from solver.body import BODY_PARTS, SHAPE_KEYS
+from solver.body import SHAPE_KEYS, SUPPORT_PARTS
 from solver.render import SKIN, SURFACE
 from solver.run import pressure_on_skin
 from solver.subdivision import quad_triangles
@@ -105,7 +105,7 @@ class Studio:
                                               initial_value=0.5) for key in SHAPE_KEYS}
             self.parts = {part: gui.add_checkbox(f"Support {part}",
                                                  initial_value=part == "legs")
-                          for part in BODY_PARTS}
+                          for part in SUPPORT_PARTS}
             self.apply = gui.add_button("Apply shape and support")
             self.remove = gui.add_button("Remove person")
         with gui.add_folder("Surface"):

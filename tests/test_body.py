@@ -76,6 +76,21 @@ def test_weights_and_parts(body):
     assert feet[:, 1].max() < 0.2 and head[:, 1].min() > 1.2
 
 
+def test_legs_split_at_the_knee(body):
+    """Thighs and calves are the legs, split without overlap: in the rest pose the thighs lie
+    above the knees and the calves below them (within the knee's own flesh, 5 cm)."""
+    legs, thighs, calves = (body.part_mask([p]) for p in ("legs", "thighs", "calves"))
+    assert not (thighs & calves).any() and ((thighs | calves) == legs).all()
+    assert thighs.sum() > 300 and calves.sum() > 300
+    knee = max(body.joints[body.joint_index(n), 1] for n in ("LeftLeg", "RightLeg"))
+    assert body.vertices[thighs, 1].min() > knee - 0.05
+    assert body.vertices[calves, 1].max() < knee + 0.05
+    np.testing.assert_array_equal(body.part_mask(["thighs", "calves", "feet"]),
+                                  legs | body.part_mask(["feet"]))
+    with pytest.raises(BodyShapeError, match="thighs"):
+        body.part_mask(["knees"])
+
+
 def test_rest_pose_skins_to_the_rest_mesh_exactly(body):
     verts, normals = skin(body, rest_pose(body))
     np.testing.assert_allclose(verts, body.vertices, atol=1e-12)

@@ -97,6 +97,9 @@ def test_pose_lifecycle(lib):
     assert again.id == pose.id and again.tags == ("favourite", "sit")
     assert again.supports == ("torso",) and again.notes == ""
     with lib.edit() as ed:
+        ed.set_pose("high_perch", supports=["thighs", "calves", "torso"])
+    assert lib.pose("high_perch").supports == ("torso", "thighs", "calves")  # in bit order
+    with lib.edit() as ed:
         ed.delete_pose("high_perch")
     with pytest.raises(NotFoundError, match="No pose 'high_perch'"):
         lib.pose("high_perch")
