@@ -312,9 +312,11 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
         # data: each important body point pulls its closest surface vertex
         # body points farther than the pull range do not pull (yet): the surface grows towards
         # the bodies from where the designer put it, instead of reaching across the scene
-        gap, pair = cKDTree(surf).query(b_imp, distance_upper_bound=params.pull_range)
+        surf_tree = cKDTree(surf)
+        gap, pair = surf_tree.query(b_imp, distance_upper_bound=params.pull_range)
         reached = np.isfinite(gap)
-        pair[~reached] = 0
+        if not reached.all():  # the energy still counts them, at their nearest surface vertex
+            pair[~reached] = surf_tree.query(b_imp[~reached])[1]
         w_now = np.where(reached, w_imp, 0.0)
         w = np.bincount(pair, w_now, minlength=len(surf))
         target = np.stack([np.bincount(pair, w_now * b_imp[:, a], minlength=len(surf))

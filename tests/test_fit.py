@@ -58,6 +58,28 @@ def test_fixed_vertices_move_less_than_free_ones(ball):
     assert moved_fixed[list(fixed)].max() < 0.25 * moved_free[list(fixed)].max()
 
 
+def test_points_beyond_the_pull_range_still_count_in_the_energy(ball):
+    """Important points farther than pull_range do not pull, but the loop's point-to-point term
+    still counts them at their nearest surface vertex (the paper's E sums every point): it can
+    only exceed the mean squared distance to the nearest vertex of the final surface (the loop
+    pairs before it solves), and by little."""
+    from scipy.spatial import cKDTree
+
+    v, t, normals, areas, importance = ball
+    far = np.array([[0.5, 0.8, 0.3], [0.5, 0.8, 0.32]])  # 0.35 m over the grid's corner
+    target = BodyTarget(np.vstack([v, far]), np.vstack([normals, [[0.0, -1.0, 0.0]] * 2]),
+                        np.concatenate([importance, [1.0, 1.0]]), "ball and beyond")
+    grid_v, grid_f = grid_mesh((1.2, 0.8), (8, 6), 0.45)
+    params = FitParams(margin=0.02, sigma=0.01, tau_max=0.0, max_iterations=12)
+    result = fit_surface(grid_v, grid_f, [target], params)
+    rho = target.importance
+    keep = rho > 1e-3
+    nearest, _ = cKDTree(result.surface).query(target.vertices[keep])
+    independent = float(np.sum(rho[keep] * nearest ** 2) / rho[keep].sum())
+    term = result.energy_terms["point_to_point_m2"]
+    assert independent <= term < 1.5 * independent
+
+
 @pytest.mark.parametrize("tau_max", [0.0, 1.0])
 def test_tau_extremes_converge(ball, tau_max):
     _, result, figures = _fit(ball, sigma=0.01, tau_max=tau_max, max_iterations=40)
