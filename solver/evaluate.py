@@ -245,4 +245,3 @@ def support_inside(vertices: np.ndarray, importance: np.ndarray,
         inside |= igl.fast_winding_number(np.asarray(other, dtype=np.float64),
                                           np.asarray(triangles, dtype=np.int64), points) > 0.5
     return float(importance[wanted][inside].sum() / total)
-

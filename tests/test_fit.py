@@ -217,4 +217,3 @@ def test_support_inside_other_bodies_is_the_share_of_importance_they_contain():
     assert support_inside(v, heavy, [(hv, ht)]) == pytest.approx(8.0 / 12.0)
     assert support_inside(v, uniform, [(hv + [10.0, 0.0, 0.0], ht)]) == 0.0
     assert support_inside(v, np.zeros(len(v)), [(hv, ht)]) == 0.0
-
