@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .profiles import identify_profile
-from .skeleton import CHANNEL_NAMES, Skeleton, WorldPose, skeleton_fk
+from .skeleton import CHANNEL_NAMES, Skeleton, WorldPose, depth_first_order, skeleton_fk
 from .units import resolve_unit
 
 
@@ -490,12 +490,7 @@ def format_bvh(skeleton: Skeleton, motion: Motion | None = None) -> str:
     ends: dict[int, list[int]] = {j: [] for j in range(skeleton.num_joints)}
     for e, p in enumerate(skeleton.end_site_parents):
         ends[int(p)].append(e)
-    order: list[int] = []
-    stack = [int(j) for j in np.flatnonzero(skeleton.parents < 0)][::-1]
-    while stack:
-        j = stack.pop()
-        order.append(j)
-        stack.extend(children[j][::-1])
+    order = depth_first_order(skeleton.parents)
     if order != list(range(skeleton.num_joints)):
         raise ValueError(
             "Expected joints in depth-first order (the order a BVH file lists them, which fixes "

@@ -286,6 +286,23 @@ class WorldPose(NamedTuple):
         return Rotation.from_matrix(self.rotmats.reshape(-1, 3, 3)).as_quat().reshape(shape + (4,))
 
 
+def depth_first_order(parents: np.ndarray) -> list[int]:
+    """Joint indices in depth-first order, children in index order (the order a BVH file lists
+    its joints), for any parent array (-1 for a root)."""
+    parents = np.asarray(parents, dtype=np.int64)
+    children: list[list[int]] = [[] for _ in range(len(parents))]
+    for j, p in enumerate(parents):
+        if p >= 0:
+            children[int(p)].append(j)
+    order: list[int] = []
+    stack = [int(j) for j in np.flatnonzero(parents < 0)][::-1]
+    while stack:
+        j = stack.pop()
+        order.append(j)
+        stack.extend(children[j][::-1])
+    return order
+
+
 def joint_levels(parents: np.ndarray) -> tuple[np.ndarray, ...]:
     """Joint indices grouped by depth, roots first, for topologically sorted `parents` (J,)."""
     parents = np.asarray(parents, dtype=np.int64)

@@ -161,8 +161,10 @@ class _Programme:
         self.p_pattern = p
         self.p_rows, self.p_cols = _coo_of(p)
         self.p_is_x = self.p_cols < n
+        self.p_xr, self.p_xc = self.p_rows[self.p_is_x], self.p_cols[self.p_is_x]
         # constraints: [n.S  I_r; I_x 0; 0 I_r]
         sub = self.s[rows]
+        self.s_rows = sub
         a = sp.vstack([
             sp.hstack([sub, sub, sub, sp.identity(r)]),
             sp.hstack([sp.identity(n), sp.csr_matrix((n, r))]),
@@ -199,9 +201,8 @@ class _Programme:
         if fresh:
             self.rows = rows
             self._setup_patterns(rows)
-        xr, xc = self.p_rows[self.p_is_x], self.p_cols[self.p_is_x]
         p_values = np.full(len(self.p_rows), 2 * self.slack_weight)
-        p_values[self.p_is_x] = np.asarray(p_x[xr, xc]).ravel()
+        p_values[self.p_is_x] = np.asarray(p_x[self.p_xr, self.p_xc]).ravel()
         a_values = np.where(self.a_plane, self.a_s * normals[self.a_row, self.a_axis], 1.0)
         q_full = np.concatenate([q, np.zeros(r)])
         low = np.concatenate([lower, x0 - step, np.zeros(r)])
@@ -210,7 +211,7 @@ class _Programme:
             self._set_up(p_values, q_full, a_values, low, high)
         else:
             self.solver.update(Px=p_values, q=q_full, Ax=a_values, l=low, u=high)
-        slack0 = np.maximum(0.0, lower - _normals_dot(normals, self.s[rows] @ x0.reshape(3, -1).T))
+        slack0 = np.maximum(0.0, lower - _normals_dot(normals, self.s_rows @ x0.reshape(3, -1).T))
         self.solver.warm_start(x=np.concatenate([x0, slack0]))
         res = self.solver.solve(raise_error=False)
         status = str(res.info.status)
@@ -294,9 +295,7 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTa
     member = np.zeros(s.shape[0], dtype=bool)
     # non-penetration rows on the surface vertices that are vertex points of the level before
     # (every other vertex each way, about 2 cm apart on a seat): a quarter of the rows
-    sampled = np.zeros(s.shape[0], dtype=bool)
-    sampled[:sub.steps[-1].matrix.shape[1] if sub.steps else s.shape[0]] = True
-    sampled_ids = np.flatnonzero(sampled)
+    sampled_ids = np.arange(sub.steps[-1].matrix.shape[1] if sub.steps else s.shape[0])
     # rows start on every sampled vertex a body could reach, so that the set (and OSQP's set-up)
     # seldom changes as the surface moves
     reach, _ = body_tree3.query(surface0[sampled_ids], distance_upper_bound=REACH)

@@ -289,26 +289,15 @@ def problem_for(person, surface_vertices: np.ndarray, surface_triangles: np.ndar
                         penetration_shift=middle)
 
 
-def _depth_first(parents: np.ndarray) -> np.ndarray:
-    """Joint indices in depth-first order (the order a BVH file lists them)."""
-    children = {j: [c for c in range(len(parents)) if parents[c] == j]
-                for j in range(len(parents))}
-    order, stack = [], [int(j) for j in np.flatnonzero(parents < 0)][::-1]
-    while stack:
-        j = stack.pop()
-        order.append(j)
-        stack.extend(children[j][::-1])
-    return np.array(order)
-
-
 def rig_skeleton(body: Body):
     """The body's rig as a BVH skeleton in depth-first order (centimetres; the root with
     position channels, every joint with ZXY rotations), and the rig joint of each BVH joint."""
     from capture import Skeleton
+    from capture.skeleton import depth_first_order
 
     from .skinning import rest_offsets
 
-    order = _depth_first(body.parents)
+    order = np.array(depth_first_order(body.parents))
     new_index = np.empty(len(order), dtype=np.int64)
     new_index[order] = np.arange(len(order))
     parents = np.array([new_index[body.parents[j]] if body.parents[j] >= 0 else -1
@@ -316,7 +305,8 @@ def rig_skeleton(body: Body):
     rot = ("Zrotation", "Xrotation", "Yrotation")
     channels = tuple((("Xposition", "Yposition", "Zposition") + rot) if p < 0 else rot
                      for p in parents)
-    leaves = [k for k in range(len(order)) if k not in set(parents)]
+    has_children = set(parents.tolist())
+    leaves = [k for k in range(len(order)) if k not in has_children]
     ends = np.array([(body.tails[order[k]] - body.joints[order[k]]) * 100
                      for k in leaves]).reshape(-1, 3)
     names = tuple(body.joint_names[j] for j in order)
