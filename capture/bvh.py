@@ -17,13 +17,13 @@ import io
 import math
 import os
 import re
-import tempfile
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from .files import write_atomic
 from .profiles import identify_profile
 from .skeleton import CHANNEL_NAMES, Skeleton, WorldPose, depth_first_order, skeleton_fk
 from .units import resolve_unit
@@ -540,24 +540,3 @@ def write_bvh(path: str | os.PathLike, skeleton: Skeleton, motion: Motion | None
     """Writes a BVH file atomically: the file appears whole or not at all."""
     text = format_bvh(skeleton, motion)
     write_atomic(path, text.encode("utf-8"))
-
-
-def write_atomic(path: str | os.PathLike, data: bytes) -> None:
-    """Writes bytes to `path` through a temporary file in the same folder and a rename."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-    umask = os.umask(0)
-    os.umask(umask)
-    try:
-        os.fchmod(fd, 0o666 & ~umask)  # as an ordinary new file, not mkstemp's 0600
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise

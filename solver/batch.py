@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
-from capture.bvh import write_atomic
+from capture.files import write_atomic
 
 SURFACE_SHORTCUTS = {"level", "sigma", "tau_max", "margin", "gamma", "max_iterations",
                      "tolerance"}

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from capture.bvh import write_atomic
+from capture.files import write_atomic
 
 from .subdivision import quad_triangles
 

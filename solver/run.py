@@ -10,7 +10,7 @@ from typing import Callable
 
 import numpy as np
 
-from capture.bvh import write_atomic
+from capture.files import write_atomic
 
 from .evaluate import (SurfaceMesh, evaluate_person, flat_seat_height, flat_surface,
                        support_inside)

@@ -20,7 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from capture.bvh import write_atomic
+from capture.files import write_atomic
 from solver.fit import FitResult
 from solver.run import fit_scene, relax_person, run_fit
 from solver.scenario import Scenario, parse_scenario, read_control_mesh, scenario_toml
