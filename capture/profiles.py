@@ -93,7 +93,7 @@ PROFILES: dict[str, Profile] = {
     ),
     "sitrelax_rig": Profile(
         "sitrelax_rig", "sitrelax body rig (relaxed poses)", RIG_JOINTS, 0.01,
-        {**_CMU_ROLES, "left_fingers": "LeftHandFinger1", "right_fingers": "RightHandFinger1"},
+        {**_CMU_ROLES, "left_fingers": "LeftFingerBase", "right_fingers": "RightFingerBase"},
     ),
 }
 

@@ -1,43 +1,57 @@
-"""Body model, retargeting, skinning, pressure, Catmull-Clark fitting, relaxation, evaluation,
-export and batch runs. Depends on `capture` and `posedb`.
+"""sitrelax's solver: bodies, their support, surfaces fitted to them, and scenes.
 
-Conventions as everywhere: metres, Y up, gravity along -Y, bodies face +Z.
+Conventions as everywhere: metres, seconds, Y up, gravity along -Y, a body in rest pose faces +Z.
+
+The solver is in layers, each a subpackage; a layer imports only those before it:
+
+* `solver.mesh`: triangle and quad meshes (normals, areas, closest points);
+* `solver.body`: the body model, its rig, skinning, retargeting, pose sources, relaxation;
+* `solver.contact`: the pressure model (where a body needs support), the evaluation of a
+  surface under a body, the physical references;
+* `solver.surface`: Catmull-Clark subdivision and the constrained surface fit;
+* `solver.io`: mesh files and pictures;
+* `solver.scene`: scenarios, people placed in a scene, and the pipelines behind `sitrelax fit`,
+  `relax`, `batch` and `demo` (the only layer that uses all the others).
+
+This module is the facade: the names a user calls, loaded when first used.
 """
 
-from .body import BODY_PARTS, Body, BodyShape, BodyShapeError, make_body
-from .export import ExportError, write_mesh
-from .poses import CapturedPose, PoseSourceError, load_pose, pose_body
-from .relax import RelaxError, RelaxProblem, RelaxResult, problem_for, relax
-from .render import MeshView, render_png
-from .retarget import RetargetError, RigMotion, joint_map_for, place, retarget, retarget_pose
-from .skinning import rest_pose, rig_pose, skin
+from __future__ import annotations
 
-__all__ = [
-    "BODY_PARTS",
-    "Body",
-    "BodyShape",
-    "BodyShapeError",
-    "CapturedPose",
-    "ExportError",
-    "MeshView",
-    "PoseSourceError",
-    "RelaxError",
-    "RelaxProblem",
-    "RelaxResult",
-    "RetargetError",
-    "RigMotion",
-    "joint_map_for",
-    "load_pose",
-    "make_body",
-    "place",
-    "pose_body",
-    "problem_for",
-    "relax",
-    "render_png",
-    "rest_pose",
-    "retarget",
-    "retarget_pose",
-    "rig_pose",
-    "skin",
-    "write_mesh",
-]
+import importlib
+
+_EXPORTS = {
+    "solver.body.model": ("BODY_PARTS", "Body", "BodyShape", "BodyShapeError", "make_body"),
+    "solver.body.poses": ("CapturedPose", "PoseSourceError", "load_pose", "pose_body"),
+    "solver.body.retarget": ("RetargetError", "joint_map_for", "place", "retarget",
+                             "retarget_pose"),
+    "solver.body.rig": ("RigMotion", "rest_pose", "rig_pose"),
+    "solver.body.skinning": ("skin",),
+    "solver.body.relax": ("RelaxError", "RelaxProblem", "RelaxResult", "relax"),
+    "solver.contact.pressure": ("PressureField", "pressure_field"),
+    "solver.contact.supported": ("SupportedBody",),
+    "solver.contact.evaluate": ("evaluate_person",),
+    "solver.mesh": ("SurfaceMesh",),
+    "solver.surface.subdivision": ("MeshError", "Subdivision", "grid_mesh", "subdivision"),
+    "solver.surface.fit": ("FitError", "FitParams", "FitResult", "fit_surface"),
+    "solver.scene.scenario": ("Scenario", "ScenarioError", "load_scenario", "parse_scenario"),
+    "solver.scene.placement": ("PlacedPerson", "place_person"),
+    "solver.scene.run": ("fit_scene", "relax_problem", "run_fit", "run_relax"),
+    "solver.io.export": ("ExportError", "write_mesh"),
+    "solver.io.render": ("MeshView", "render_png"),
+}
+_HOME = {name: module for module, names in _EXPORTS.items() for name in names}
+__all__ = sorted(_HOME)
+
+
+def __getattr__(name: str):
+    module = _HOME.get(name)
+    if module is None:
+        raise AttributeError(f"module 'solver' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -20,8 +20,8 @@ EXAMPLES = Path(__file__).resolve().parent / "data" / "scenarios"  # the example
 
 
 def _skinning_setup():
-    from .body import make_body
-    from .poses import load_pose, pose_body
+    from solver.body.model import make_body
+    from solver.body.poses import load_pose, pose_body
 
     body = make_body()
     motion = pose_body(load_pose("bundled:cmu_75_18_high_sit.bvh#frame=39"), body)
@@ -29,39 +29,39 @@ def _skinning_setup():
 
 
 def _skinning(arg):
-    from .skinning import skin
+    from solver.body.skinning import skin
 
     body, pose = arg
     return skin(body, pose)
 
 
 def _posed_setup():
-    from .skinning import skin
+    from solver.body.skinning import skin
 
     body, pose = _skinning_setup()
     return skin(body, pose, normals=False)[0], body.triangles
 
 
 def _pressure(arg):
-    from .pressure import pressure_field
+    from solver.contact.pressure import pressure_field
 
     return pressure_field(*arg)
 
 
 def _pressure_reference(arg):
-    from .pressure_reference import rigid_contact
+    from solver.contact.reference import rigid_contact
 
     return rigid_contact(*arg)
 
 
 def _grid_setup():
-    from .subdivision import grid_mesh
+    from solver.surface.subdivision import grid_mesh
 
     return grid_mesh(resolution=(8, 6))
 
 
 def _subdivide_fresh(arg):
-    from . import subdivision as sd
+    from solver.surface import subdivision as sd
 
     verts, quads = arg
     sd._CACHE.clear()  # built from scratch every time
@@ -78,13 +78,12 @@ def _example_path(name: str) -> Path:
 
 def _example(name: str):
     """An example scenario loaded, its people placed, and its fit parameters."""
-    from .run import fit_params
-    from .scenario import load_scenario
-    from .scene import place_person
+    from solver.scene.scenario import load_scenario
+    from solver.scene.placement import place_person
 
     scenario = load_scenario(_example_path(name))
     people = [place_person(p, None, k) for k, p in enumerate(scenario.persons)]
-    return scenario, [p.target() for p in people], fit_params(scenario)
+    return scenario, people, scenario.surface.params
 
 
 def _fit_setup():
@@ -96,7 +95,7 @@ def _fit_six_setup():
 
 
 def _fit(arg):
-    from .fit import fit_surface
+    from solver.surface.fit import fit_surface
 
     scenario, targets, params = arg
     return fit_surface(scenario.surface.vertices, scenario.surface.faces, targets, params)
@@ -104,34 +103,34 @@ def _fit(arg):
 
 def _relax_setup():
     """The overweight body on the seat fitted for the thin one (the paper's figure 8)."""
-    from .fit import fit_surface
-    from .relax import problem_for
-    from .scene import place_person
-    from .subdivision import quad_triangles
+    from solver.surface.fit import fit_surface
+    from solver.mesh import quad_triangles
+    from solver.scene.placement import place_person
+    from solver.scene.run import relax_problem
 
     thin, targets, params = _example("seat_for_thin")
     heavy, _, _ = _example("seat_for_heavy")
     fit = fit_surface(thin.surface.vertices, thin.surface.faces, targets, params)
     tris = quad_triangles(fit.surface_faces)
     person = place_person(heavy.persons[0], None, 0)
-    return problem_for(person, fit.surface, tris, margin=params.margin)
+    return relax_problem(person, fit.surface, tris, margin=params.margin)
 
 
 def _relax(problem):
-    from .relax import relax
+    from solver.body.relax import relax
 
     return relax(problem)
 
 
 def _relax_numeric(problem):
-    from .relax import relax
+    from solver.body.relax import relax
 
     return relax(problem, numeric_jacobian=True)
 
 
 def _batch_setup():
     """24 fits: single_seated at 24 values of sigma."""
-    from .batch import expand_jobs
+    from solver.scene.batch import expand_jobs
 
     sigmas = [round(0.001 * (k + 1), 4) for k in range(24)]
     return expand_jobs([_example_path("single_seated")], grid={"sigma": sigmas})
@@ -141,7 +140,7 @@ def _batch_on(workers: int):
     def run(jobs):
         import tempfile
 
-        from .batch import run_batch
+        from solver.scene.batch import run_batch
 
         with tempfile.TemporaryDirectory() as tmp:  # nothing finished before: all run
             result = run_batch(jobs, tmp, workers=workers, store=False)

@@ -10,8 +10,8 @@ from typing import Any, Callable
 from capture import cli as capture_cli
 from posedb import cli as posedb_cli
 
-from .bench import format_table, run_benchmarks
-from .body import SHAPE_KEYS as SHAPE_PARAMS
+from solver.bench import format_table, run_benchmarks
+from solver.body.model import SHAPE_KEYS as SHAPE_PARAMS
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -33,16 +33,16 @@ def add_shape_args(parser: argparse.ArgumentParser) -> None:
 
 
 def shape_from_args(args: argparse.Namespace):
-    from .body import BodyShape
+    from solver.body.model import BodyShape
 
     return BodyShape(**{k: getattr(args, k) for k in SHAPE_PARAMS})
 
 
 def _save_mesh_or_picture(out: str, vertices, faces, title: str, view: str) -> None:
-    from .export import write_mesh
+    from solver.io.export import write_mesh
 
     if out.lower().endswith(".png"):
-        from .render import MeshView, render_png
+        from solver.io.render import MeshView, render_png
 
         render_png(out, [MeshView(vertices, faces)], title=title, view=view)
     else:
@@ -50,7 +50,7 @@ def _save_mesh_or_picture(out: str, vertices, faces, title: str, view: str) -> N
 
 
 def _cmd_body_make(args: argparse.Namespace) -> int:
-    from .body import make_body
+    from solver.body.model import make_body
 
     body = make_body(shape_from_args(args))
     summary = body.summary()
@@ -73,9 +73,9 @@ def _cmd_body_make(args: argparse.Namespace) -> int:
 
 
 def _cmd_pose_show(args: argparse.Namespace) -> int:
-    from .body import make_body
-    from .poses import load_pose, pose_body
-    from .skinning import skin
+    from solver.body.model import make_body
+    from solver.body.poses import load_pose, pose_body
+    from solver.body.skinning import skin
 
     body = make_body(shape_from_args(args))
     captured = load_pose(args.source, args.db)
@@ -96,7 +96,7 @@ def _cmd_pose_show(args: argparse.Namespace) -> int:
 def _cmd_fit(args: argparse.Namespace) -> int:
     import sys
 
-    from .run import run_fit
+    from solver.scene.run import run_fit
 
     def progress(message: str) -> None:
         print(f"fit: {message}", file=sys.stderr, flush=True)
@@ -118,7 +118,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:
-    from .batch import BatchError, expand_jobs, parse_grid, run_batch
+    from solver.scene.batch import BatchError, expand_jobs, parse_grid, run_batch
 
     if args.scenarios and args.from_db:
         raise BatchError("Give scenario files or --from-db, not both")
@@ -148,7 +148,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from .demo import format_summary, run_demo
+    from solver.scene.demo import format_summary, run_demo
 
     summary = run_demo(args.out, progress=lambda m: print(f"demo: {m}", file=sys.stderr,
                                                            flush=True))
@@ -159,7 +159,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 def _cmd_relax(args: argparse.Namespace) -> int:
     import sys
 
-    from .run import run_relax
+    from solver.scene.run import run_relax
 
     report = run_relax(args.scenario, args.out, surface_dir=args.surface, person=args.person,
                        db=args.db, save=args.save,
@@ -179,7 +179,7 @@ def _cmd_relax(args: argparse.Namespace) -> int:
 
 
 def _cmd_validate_pressure(args: argparse.Namespace) -> int:
-    from .validate import validate_pressure
+    from solver.contact.validate import validate_pressure
 
     rows = validate_pressure(args.out)
     if args.json:
@@ -203,7 +203,7 @@ def build_parser(extra: Callable[[Any], None] | None = None) -> argparse.Argumen
     sub = parser.add_subparsers(dest="command", required=True)
     groups = capture_cli.register(sub)
     posedb_cli.register(sub, groups)
-    from .render import VIEWS
+    from solver.io.render import VIEWS
 
     body = sub.add_parser("body", help="bodies of any shape")
     bsub = body.add_subparsers(dest="body_command", required=True)

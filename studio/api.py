@@ -21,8 +21,8 @@ from fastapi import FastAPI, HTTPException, Query, Request
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field, create_model
 
-from solver import body as solver_body
-from solver.body import SUPPORT_PARTS
+from solver.body import model as solver_body
+from solver.body.model import SUPPORT_PARTS
 
 from .net import BodyLimit
 
@@ -147,7 +147,7 @@ def _mesh(vertices: np.ndarray, faces: np.ndarray, decimals: int = 5) -> dict:
 def create_app(db: str | os.PathLike | None = None, limit: int = DEFAULT_LIMIT) -> FastAPI:
     """The API over the pose library `db` (or none), refusing request bodies over `limit`."""
     from posedb.schema import LibraryError, NotFoundError
-    from solver.scenario import parse_scenario
+    from solver.scene.scenario import parse_scenario
 
     db = str(db) if db is not None else None
     app = FastAPI(title="sitrelax", version="1",
@@ -178,7 +178,7 @@ def create_app(db: str | os.PathLike | None = None, limit: int = DEFAULT_LIMIT) 
 
     def place(spec, index: int):
         """A posed person, reused while the same person (and library file) comes again."""
-        from solver.scene import place_person
+        from solver.scene.placement import place_person
 
         stamp = os.stat(db).st_mtime_ns if db is not None else 0
         key = (spec, index, stamp)
@@ -237,7 +237,7 @@ def create_app(db: str | os.PathLike | None = None, limit: int = DEFAULT_LIMIT) 
 
     @app.post("/api/fit", summary="Fit a surface to a scenario, with each person's evaluation")
     def fit(s: Scenario) -> FitResponse:
-        from solver.run import fit_scene
+        from solver.scene.run import fit_scene
 
         start = time.perf_counter()
         scenario = parse(s)
@@ -251,16 +251,14 @@ def create_app(db: str | os.PathLike | None = None, limit: int = DEFAULT_LIMIT) 
 
     @app.post("/api/relax", summary="Fit, then relax one person onto the surface")
     def relax(req: RelaxRequest) -> dict:
-        from solver.fit import fit_surface
-        from solver.run import relax_person
+        from solver.scene.run import fit_people, relax_person
 
         scenario = parse(req.scenario)
         if req.index >= len(scenario.persons):
             raise HTTPException(400, f"Expected index in 0..{len(scenario.persons) - 1}, got "
                                      f"{req.index}")
         people = [place(p, k) for k, p in enumerate(scenario.persons)]
-        result = fit_surface(scenario.surface.vertices, scenario.surface.faces,
-                             [p.target() for p in people], scenario.surface.params)
+        result = fit_people(scenario, people)
         person = people[req.index]
         res, before, after, seconds = relax_person(scenario, person, result.surface,
                                                    result.surface_faces)
@@ -272,23 +270,19 @@ def create_app(db: str | os.PathLike | None = None, limit: int = DEFAULT_LIMIT) 
 
     @app.post("/api/evaluate", summary="Evaluate any surface mesh against posed people")
     def evaluate(req: EvaluateRequest) -> dict:
-        from solver.evaluate import SurfaceMesh, evaluate_person
-        from solver.scenario import faces_problem
+        from solver.contact.evaluate import evaluate_person
+        from solver.mesh import SurfaceMesh, faces_problem
 
         v = np.asarray(req.vertices, dtype=np.float64)
         f = np.asarray(req.faces, dtype=np.int64)
         problem = faces_problem(v, f)
         if problem:
             raise HTTPException(400, problem)
-        mesh = SurfaceMesh.from_quads(v, f) if f.shape[1] == 4 else \
-            SurfaceMesh.from_triangles(v, f)
+        mesh = SurfaceMesh.from_faces(v, f)
         out = []
         for person in req.person:
             p = placed(person)
-            figures, _ = evaluate_person(mesh, p.vertices, p.normals, p.areas, p.importance,
-                                         p.body.mass_kg, req.margin,
-                                         req.evaluation.foam_stiffness, p.body.triangles,
-                                         p.body.part_mask(p.spec.support))
+            figures, _ = evaluate_person(mesh, p, req.margin, req.evaluation.foam_stiffness)
             out.append({"name": p.label, **figures})
         return {"persons": out}
 

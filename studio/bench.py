@@ -28,9 +28,9 @@ def _api_fit(arg):
 
 
 def _in_process_fit(arg):
-    from solver.run import fit_scene
-    from solver.scenario import parse_scenario
-    from solver.scene import place_person
+    from solver.scene.run import fit_scene
+    from solver.scene.scenario import parse_scenario
+    from solver.scene.placement import place_person
 
     scenario = parse_scenario(arg[2], "bench", files=False)
     return fit_scene(scenario, [place_person(p, None, k)

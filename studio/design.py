@@ -21,10 +21,10 @@ from typing import Callable
 import numpy as np
 
 from capture.files import write_atomic
-from solver.fit import FitResult
-from solver.run import fit_scene, relax_person, run_fit
-from solver.scenario import Scenario, parse_scenario, read_control_mesh, scenario_toml
-from solver.scene import PlacedPerson, place_person
+from solver.surface.fit import FitResult
+from solver.scene.run import fit_scene, relax_person, run_fit
+from solver.scene.scenario import Scenario, parse_scenario, read_control_mesh, scenario_toml
+from solver.scene.placement import PlacedPerson, place_person
 
 PARAMETERS = ("level", "sigma", "tau_max", "margin")
 DEFAULTS = {"level": 3, "sigma": 0.003, "tau_max": 0.5, "margin": 0.03}

@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from solver.body import SHAPE_KEYS, SUPPORT_PARTS
-from solver.render import SKIN, SURFACE
-from solver.run import pressure_on_skin
-from solver.subdivision import quad_triangles
+from solver.body.model import SHAPE_KEYS, SUPPORT_PARTS
+from solver.io.render import SKIN, SURFACE
+from solver.scene.run import pressure_on_skin
+from solver.mesh import quad_triangles
 
 from .design import Design, DesignError
 from .net import LOOPBACK, Front

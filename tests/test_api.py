@@ -41,13 +41,17 @@ def test_solver_public_api():
 
     assert sorted(solver.__all__) == sorted([
         "BODY_PARTS", "Body", "BodyShape", "BodyShapeError", "CapturedPose", "ExportError",
-        "MeshView", "PoseSourceError", "RelaxError", "RelaxProblem", "RelaxResult",
-        "RetargetError", "RigMotion", "joint_map_for", "load_pose", "make_body", "place",
-        "pose_body", "problem_for", "relax", "render_png", "rest_pose", "retarget",
-        "retarget_pose", "rig_pose", "skin", "write_mesh",
+        "FitError", "FitParams", "FitResult", "MeshError", "MeshView", "PlacedPerson",
+        "PoseSourceError", "PressureField", "RelaxError", "RelaxProblem", "RelaxResult",
+        "RetargetError", "RigMotion", "Scenario", "ScenarioError", "Subdivision",
+        "SupportedBody", "SurfaceMesh", "evaluate_person", "fit_scene", "fit_surface",
+        "grid_mesh", "joint_map_for", "load_pose", "load_scenario", "make_body",
+        "parse_scenario", "place", "place_person", "pose_body", "pressure_field", "relax",
+        "relax_problem", "render_png", "rest_pose", "retarget", "retarget_pose", "rig_pose",
+        "run_fit", "run_relax", "skin", "subdivision", "write_mesh",
     ])
-    for name in ("BodyShapeError", "ExportError", "PoseSourceError", "RelaxError",
-                 "RetargetError"):
+    for name in ("BodyShapeError", "ExportError", "FitError", "MeshError", "PoseSourceError",
+                 "RelaxError", "RetargetError", "ScenarioError"):
         assert issubclass(getattr(solver, name), ValueError)
 
 

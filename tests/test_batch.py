@@ -14,7 +14,7 @@ import pytest
 
 from capture import resolve_path
 from posedb import PoseLibrary
-from solver.batch import BatchError, expand_jobs, parse_grid, run_batch
+from solver.scene.batch import BatchError, expand_jobs, parse_grid, run_batch
 from solver.cli import main
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "fixtures" / "scenarios"

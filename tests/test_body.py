@@ -7,8 +7,9 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from capture import WorldPose
-from solver.body import BODY_PARTS, Body, BodyShape, BodyShapeError, make_body
-from solver.skinning import rest_pose, rig_pose, skin
+from solver.body.model import BODY_PARTS, Body, BodyShape, BodyShapeError, make_body
+from solver.body.rig import rest_pose, rig_pose
+from solver.body.skinning import skin
 
 
 @pytest.fixture(scope="module")

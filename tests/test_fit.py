@@ -6,11 +6,14 @@ import numpy as np
 import pytest
 import trimesh
 
-from solver.evaluate import SurfaceMesh, evaluate_person
-from solver.fit import BodyTarget, FitError, FitParams, fit_surface
-from solver.pressure import pressure_field, triangle_mesh
-from solver.scenario import ScenarioError, load_scenario, parse_scenario
-from solver.subdivision import grid_mesh
+from solver.contact.evaluate import evaluate_person
+from solver.mesh import SurfaceMesh
+from solver.contact.supported import SupportedBody
+from solver.surface.fit import FitError, FitParams, fit_surface
+from solver.contact.pressure import pressure_field
+from solver.mesh import triangle_mesh
+from solver.scene.scenario import ScenarioError, load_scenario, parse_scenario
+from solver.surface.subdivision import grid_mesh
 
 
 @pytest.fixture(scope="module")
@@ -27,9 +30,10 @@ def _fit(ball, **kw):
     v, t, normals, areas, importance = ball
     grid_v, grid_f = grid_mesh((1.2, 0.8), (8, 6), 0.45)
     params = FitParams(**{"margin": 0.02, "max_iterations": 25, **kw})
-    result = fit_surface(grid_v, grid_f, [BodyTarget(v, normals, importance, "ball")], params)
-    figures, _ = evaluate_person(SurfaceMesh.from_quads(result.surface, result.surface_faces), v,
-                                 normals, areas, importance, 30.0, params.margin, 200.0, t)
+    target = SupportedBody(v, normals, importance, "ball", t, areas, mass_kg=30.0)
+    result = fit_surface(grid_v, grid_f, [target], params)
+    figures, _ = evaluate_person(SurfaceMesh.from_quads(result.surface, result.surface_faces),
+                                 target, params.margin, 200.0)
     return grid_v, result, figures
 
 
@@ -67,7 +71,7 @@ def test_points_beyond_the_pull_range_still_count_in_the_energy(ball):
 
     v, t, normals, areas, importance = ball
     far = np.array([[0.5, 0.8, 0.3], [0.5, 0.8, 0.32]])  # 0.35 m over the grid's corner
-    target = BodyTarget(np.vstack([v, far]), np.vstack([normals, [[0.0, -1.0, 0.0]] * 2]),
+    target = SupportedBody(np.vstack([v, far]), np.vstack([normals, [[0.0, -1.0, 0.0]] * 2]),
                         np.concatenate([importance, [1.0, 1.0]]), "ball and beyond")
     grid_v, grid_f = grid_mesh((1.2, 0.8), (8, 6), 0.45)
     params = FitParams(margin=0.02, sigma=0.01, tau_max=0.0, max_iterations=12)
@@ -91,7 +95,7 @@ def test_person_out_of_reach_is_named(ball):
     v, t, normals, areas, importance = ball
     grid_v, grid_f = grid_mesh()
     with pytest.raises(FitError, match="entirely outside the surface's reach"):
-        fit_surface(grid_v, grid_f, [BodyTarget(v + [5.0, 0, 0], normals, importance, "ball")])
+        fit_surface(grid_v, grid_f, [SupportedBody(v + [5.0, 0, 0], normals, importance, "ball")])
 
 
 SCENARIO = """
@@ -137,8 +141,8 @@ def test_missing_scenario_and_unknown_pose(tmp_path):
     with pytest.raises(ScenarioError, match="No scenario file"):
         load_scenario(tmp_path / "none.toml")
     scenario = parse_scenario({"surface": {"grid": {}}, "person": [{"pose": "db:nobody"}]})
-    from solver.scene import place_person
-    from solver.poses import PoseSourceError
+    from solver.scene.placement import place_person
+    from solver.body.poses import PoseSourceError
 
     with pytest.raises(PoseSourceError, match="needs a pose library"):
         place_person(scenario.persons[0])
@@ -189,7 +193,7 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "fixtures" / "scenarios"
 def test_example_scenarios_meet_the_bar(name, tmp_path):
     """Coverage at least 0.9, no cut deeper than the margin plus 5 mm, and a peak pressure at
     most 60 % of the flat seat's at the same height."""
-    from solver.run import run_fit
+    from solver.scene.run import run_fit
 
     report = run_fit(EXAMPLES / f"{name}.toml", tmp_path)
     margin = report["parameters"]["margin"]
@@ -204,7 +208,7 @@ def test_support_inside_other_bodies_is_the_share_of_importance_they_contain():
     """A unit cube's corners against a box that holds the four at x = +0.5: half its support
     (uniform importance) lies inside the other body; one corner weighted 5x moves it to 8/12 when
     it is among them; a box elsewhere holds nothing."""
-    from solver.evaluate import support_inside
+    from solver.contact.evaluate import support_inside
 
     cube = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
     v = np.asarray(cube.vertices)

@@ -72,7 +72,7 @@ def test_the_same_fit_sent_with_an_inline_control_mesh_gives_the_same_surface(ap
     _, grid_reply = _request(api, "POST", "/api/fit", SINGLE)
     inline = json.loads(json.dumps(SINGLE))
     del inline["surface"]["grid"]
-    from solver.subdivision import grid_mesh
+    from solver.surface.subdivision import grid_mesh
 
     v, f = grid_mesh((0.5, 0.6), (8, 6), 0.42)
     inline["surface"]["control_mesh"] = {"vertices": v.tolist(), "faces": f.tolist()}

@@ -6,11 +6,13 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from solver.body import make_body
-from solver.poses import load_pose, pose_body
-from solver.pressure import pressure_field, vertex_normals, voronoi_areas
-from solver.pressure_reference import mould_vertices, rigid_contact, volume_centroid
-from solver.skinning import skin
+from solver.body.model import make_body
+from solver.body.poses import load_pose, pose_body
+from solver.contact.pressure import pressure_field
+from solver.mesh import vertex_normals, voronoi_areas
+from solver.contact.reference import mould_vertices, rigid_contact
+from solver.mesh import volume_centroid
+from solver.body.skinning import skin
 
 
 @pytest.fixture(scope="module")
@@ -98,7 +100,7 @@ def test_reference_balances_the_load(seated):
 
 
 def test_model_agrees_with_the_reference_within_the_papers_bar():
-    from solver.validate import validate_pressure
+    from solver.contact.validate import validate_pressure
 
     rows = validate_pressure()
     assert [r["pose"] for r in rows] == ["seated", "lying T-pose"]

@@ -83,7 +83,7 @@ def test_every_readme_command_runs_as_written(tmp_path, monkeypatch, capsys):
 def test_the_readme_scenario_example_is_valid():
     import tomllib
 
-    from solver.scenario import parse_scenario
+    from solver.scene.scenario import parse_scenario
 
     (block,) = re.findall(r"```toml\n(.*?)```", (ROOT / "README.md").read_text(), flags=re.S)
     scenario = parse_scenario(tomllib.loads(block))
@@ -98,7 +98,7 @@ def test_the_grasshopper_script_fits_through_a_running_api():
     """The README's Grasshopper script, run outside Rhino: its request goes to a real server."""
     import numpy as np
 
-    from solver.subdivision import grid_mesh
+    from solver.surface.subdivision import grid_mesh
     from studio.api import ApiThread
 
     text = (ROOT / "README.md").read_text()

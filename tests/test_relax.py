@@ -7,24 +7,26 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from capture import Motion, identify_profile, read_bvh, resolve_path, write_bvh
-from solver.body import make_body
-from solver.evaluate import SurfaceMesh, evaluate_person
-from solver.poses import load_pose, pose_body
-from solver.pressure import pressure_field, triangle_mesh
-from solver.relax import (
+from solver.body.model import make_body
+from solver.contact.evaluate import evaluate_person
+from solver.contact.supported import SupportedBody
+from solver.mesh import SurfaceMesh
+from solver.body.poses import load_pose, pose_body
+from solver.contact.pressure import pressure_field
+from solver.mesh import triangle_mesh
+from solver.body.relax import (
     DEFAULT_LIMIT,
     JOINT_LIMITS,
     RelaxProblem,
     _Model,
     joint_bounds,
-    pose_channels,
     relax,
     residual_jacobian,
     residuals,
-    rig_skeleton,
 )
-from solver.skinning import rig_pose, skin
-from solver.subdivision import grid_mesh
+from solver.body.rig import pose_channels, rig_pose, rig_skeleton
+from solver.body.skinning import skin
+from solver.surface.subdivision import grid_mesh
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "fixtures" / "scenarios"
 
@@ -80,20 +82,20 @@ def test_hovering_body_settles_onto_the_seat(hovering):
     body, verts, field, mask, problem, gv, gf = hovering
     result = relax(problem)
     surface = SurfaceMesh.from_quads(gv, gf)
-    before, _ = evaluate_person(surface, verts, *_measures(body, verts), field.importance,
-                                body.mass_kg, 0.03, 200.0, body.triangles, mask)
-    after, _ = evaluate_person(surface, result.vertices, *_measures(body, result.vertices),
-                               field.importance, body.mass_kg, 0.03, 200.0, body.triangles,
-                               mask)
+    before, _ = evaluate_person(surface, _supported(body, verts, field.importance, mask), 0.03,
+                                200.0)
+    after, _ = evaluate_person(surface, _supported(body, result.vertices, field.importance, mask),
+                               0.03, 200.0)
     assert after["mean_support_distance_m"] <= 0.5 * before["mean_support_distance_m"]
     assert after["max_penetration_m"] <= 0.03
     lo, hi = joint_bounds(body)
     assert np.all(result.theta >= lo - 1e-9) and np.all(result.theta <= hi + 1e-9)
 
 
-def _measures(body, verts):
+def _supported(body, verts, importance, mask):
     areas, normals = triangle_mesh(body.triangles, len(verts)).measures(verts)
-    return normals, areas
+    return SupportedBody(verts, normals, importance, "body", body.triangles, areas, mask,
+                         body.mass_kg)
 
 
 def test_relaxed_pose_as_bvh(hovering, tmp_path):
@@ -153,8 +155,8 @@ def test_forearms_hovering_over_armrests_come_down_onto_them():
     margin = 0.03
 
     def evaluate(v, part):
-        return evaluate_person(surface, v, *_measures(body, v), field.importance * part,
-                               body.mass_kg, margin, 200.0, body.triangles, mask)[0]
+        return evaluate_person(surface, _supported(body, v, field.importance * part, mask),
+                               margin, 200.0)[0]
 
     before, after = evaluate(verts, forearms), evaluate(result.vertices, forearms)
     # the forearms hovered: nothing of them touched before
@@ -211,8 +213,8 @@ def test_relaxed_poses_saved_to_the_library_link_their_origin(tmp_path, capsys):
 
     from posedb import PoseLibrary
     from solver.cli import main
-    from solver.scenario import load_scenario
-    from solver.scene import place_person
+    from solver.scene.scenario import load_scenario
+    from solver.scene.placement import place_person
 
     db = tmp_path / "poses.h5"
     lib = PoseLibrary(db, create=True)

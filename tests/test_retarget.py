@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from capture import Skeleton, read_bvh, skeleton_fk
-from solver.body import BodyShape, make_body
-from solver.poses import PoseSourceError, load_pose, pose_body
-from solver.retarget import RetargetError, joint_map_for, place, retarget, role_positions
-from solver.skinning import skin
+from solver.body.model import BodyShape, make_body
+from solver.body.poses import PoseSourceError, load_pose, pose_body
+from solver.body.retarget import RetargetError, joint_map_for, place, retarget, role_positions
+from solver.body.skinning import skin
 
 from .conftest import recording
 

@@ -8,7 +8,7 @@ import pytest
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from solver.subdivision import MeshError, grid_mesh, subdivide_once, subdivision
+from solver.surface.subdivision import MeshError, grid_mesh, subdivide_once, subdivision
 
 CUBE_V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0],
                    [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], dtype=float)

@@ -11,7 +11,7 @@ What is kept: the skin (the `body` group: 13,378 quads over 13,380 vertices) and
 that locate the rig's joints; every macro target (`targets/macrodetails`, 348 files) restricted
 to those vertices, as int16 offsets in units of 0.1 mm; the 31-bone CMU-MB rig (bone heads and
 tails as means of vertices, so joints follow the shape) and its skinning weights restricted to
-the skin and renormalised. Lengths stay in the assets' decimetres; `solver.body` converts to
+the skin and renormalised. Lengths stay in the assets' decimetres; `solver.body.model` converts to
 metres. The arrays are stored in an .npz, compressed with xz (LZMA).
 """
 

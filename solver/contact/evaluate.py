@@ -24,49 +24,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .subdivision import quad_triangles
+from solver.contact.supported import SupportedBody
+from solver.mesh import SurfaceMesh
 
 G = 9.81
 FOAM_DEPTH = 0.05  # metres: a body vertex deeper than this behind the surface is not in contact
 MAX_SINK = 0.2  # metres: a body that needs to sink deeper than this is reported unsupported
-
-
-@dataclass(frozen=True, eq=False)
-class SurfaceMesh:
-    """A triangle surface for distance queries: vertices (N, 3), triangles (F, 3), unit face
-    normals (F, 3) pointing to the side bodies rest on."""
-
-    vertices: np.ndarray
-    triangles: np.ndarray
-    face_normals: np.ndarray
-
-    @classmethod
-    def from_quads(cls, vertices: np.ndarray, quads: np.ndarray) -> "SurfaceMesh":
-        tris = quad_triangles(quads)
-        return cls.from_triangles(vertices, tris)
-
-    @classmethod
-    def from_triangles(cls, vertices: np.ndarray, triangles: np.ndarray) -> "SurfaceMesh":
-        v = np.asarray(vertices, dtype=np.float64)
-        t = np.asarray(triangles, dtype=np.int64)
-        n = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        return cls(v, t, n)
-
-    def closest(self, points: np.ndarray):
-        """Unsigned distance (P,), signed distance along the closest face's normal (P,), whether
-        the closest point lies inside its face (not on the surface's border) (P,), the closest
-        face (P,) and the closest point (P, 3)."""
-        import igl
-
-        points = np.asarray(points, dtype=np.float64)
-        sq, face, closest = igl.point_mesh_squared_distance(points, self.vertices, self.triangles)
-        dist = np.sqrt(sq)
-        offset = points - closest
-        signed = np.einsum("ij,ij->i", offset, self.face_normals[face])
-        # over the surface: the offset runs along the normal (not sideways off an edge)
-        over = np.abs(signed) >= 0.95 * dist - 1e-9
-        return dist, signed, over, face, closest
 
 
 PEAK_AREA = 10e-4  # m^2: the peak pressure index averages over 10 cm^2, as seating studies do
@@ -165,17 +128,23 @@ def penetration_depth(surface_points: np.ndarray, body_vertices: np.ndarray,
     return float(max(0.0, -signed.min()))
 
 
-def evaluate_person(surface: SurfaceMesh, vertices: np.ndarray, normals: np.ndarray,
-                    areas: np.ndarray, importance: np.ndarray, mass_kg: float, margin: float,
-                    stiffness_kpa_per_m: float, triangles: np.ndarray,
-                    supported: np.ndarray | None = None) -> tuple[dict, PressureMap]:
+def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float,
+                    stiffness_kpa_per_m: float) -> tuple[dict, PressureMap]:
     """Coverage, penetration and the pressure map of one body on one surface.
 
-    vertices, normals, areas, importance : the posed body's per-vertex data; triangles : its
-    closed skin, for the penetration depth; supported : (V,) bool, its supported parts.
+    person : the posed body with its importance, areas, closed skin (for the penetration
+        depth), supported parts and mass.
+    margin : metres of softness the surface may sink into the body (coverage counts the
+        importance within it).
+    stiffness_kpa_per_m : the foam's kPa per metre pressed in.
+    Returns the figures (lengths m, pressures kPa, areas m^2) and the pressure map.
     """
     import igl
 
+    if person.areas is None or person.triangles is None or person.mass_kg is None:
+        raise ValueError(f"{person.label}: an evaluation needs the body's areas, closed skin "
+                         "and mass")
+    vertices, importance, triangles = person.vertices, person.importance, person.triangles
     dist, signed, over, face, closest = surface.closest(vertices)
     total = importance.sum()
     coverage = float(importance[dist <= margin + 1e-9].sum() / total) if total > 0 else 0.0
@@ -189,8 +158,9 @@ def evaluate_person(surface: SurfaceMesh, vertices: np.ndarray, normals: np.ndar
         wn = igl.fast_winding_number(np.asarray(vertices, dtype=np.float64),
                                      np.asarray(triangles, dtype=np.int64), closest[behind])
         cut[behind] = wn > 0.5
-    pm = pressure_map(vertices, normals, areas, mass_kg, signed, surface.face_normals[face],
-                      over, stiffness_kpa_per_m, supported, cut)
+    pm = pressure_map(vertices, person.normals, person.areas, person.mass_kg, signed,
+                      surface.face_normals[face], over, stiffness_kpa_per_m, person.supported,
+                      cut)
     figures = {
         "coverage": coverage,
         "max_penetration_m": penetration,
@@ -205,9 +175,9 @@ def evaluate_person(surface: SurfaceMesh, vertices: np.ndarray, normals: np.ndar
     return figures, pm
 
 
-def flat_seat_height(surface: SurfaceMesh, vertices: np.ndarray, importance: np.ndarray
-                     ) -> float:
+def flat_seat_height(surface: SurfaceMesh, person: SupportedBody) -> float:
     """Height of the fitted surface under the body's most important tenth."""
+    vertices, importance = person.vertices, person.importance
     top = importance >= np.quantile(importance[importance > 0], 0.9) if (importance > 0).any() \
         else np.ones(len(importance), dtype=bool)
     import igl

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import time
@@ -12,18 +13,18 @@ import numpy as np
 
 from capture.files import write_atomic
 
-from .evaluate import (SurfaceMesh, evaluate_person, flat_seat_height, flat_surface,
+from solver.mesh import SurfaceMesh
+from solver.contact.evaluate import (evaluate_person, flat_seat_height, flat_surface,
                        support_inside)
-from .export import write_mesh
-from .fit import FitParams, FitResult, fit_surface
-from .render import SKIN, SURFACE, MeshView, Panel, field_colors, render_panels
-from .scenario import Scenario, load_scenario
-from .scene import PlacedPerson, place_person
-from .subdivision import quad_triangles
-
-
-def fit_params(scenario: Scenario) -> FitParams:
-    return scenario.surface.params
+from solver.io.export import write_mesh
+from solver.body.relax import (PENETRATION_SHIFT, PENETRATION_WIDTH, RelaxError, RelaxProblem,
+                               relax)
+from solver.mesh import triangle_mesh
+from solver.surface.fit import FitResult, fit_surface
+from solver.io.render import SKIN, SURFACE, MeshView, Panel, field_colors, render_panels
+from solver.scene.scenario import Scenario, load_scenario
+from solver.scene.placement import PlacedPerson, place_person
+from solver.mesh import quad_triangles
 
 
 def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.ndarray,
@@ -32,19 +33,15 @@ def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.n
     `support_inside_others`, the share of the person's importance inside other people's bodies)
     and the pressure (kPa) per body vertex."""
     mesh = SurfaceMesh.from_quads(surface, faces)
-    margin = scenario.surface.params.margin
+    margin, stiffness = scenario.surface.params.margin, scenario.foam_stiffness
     rows, maps = [], []
     for k, p in enumerate(people):
-        mask = p.body.part_mask(p.spec.support)
-        figures, pm = evaluate_person(mesh, p.vertices, p.normals, p.areas, p.importance,
-                                      p.body.mass_kg, margin, scenario.foam_stiffness,
-                                      p.body.triangles, mask)
-        height = flat_seat_height(mesh, p.vertices, p.importance)
-        flat, _ = evaluate_person(flat_surface(height, p.vertices.mean(axis=0)), p.vertices,
-                                  p.normals, p.areas, p.importance, p.body.mass_kg, margin,
-                                  scenario.foam_stiffness, p.body.triangles, mask)
+        figures, pm = evaluate_person(mesh, p, margin, stiffness)
+        height = flat_seat_height(mesh, p)
+        flat, _ = evaluate_person(flat_surface(height, p.vertices.mean(axis=0)), p, margin,
+                                  stiffness)
         flat["height_m"] = height
-        others = [(q.vertices, q.body.triangles) for j, q in enumerate(people) if j != k]
+        others = [(q.vertices, q.triangles) for j, q in enumerate(people) if j != k]
         rows.append({"name": p.label, "body": p.spec.body.as_dict(),
                      "height_m": p.body.height_m, "mass_kg": p.body.mass_kg,
                      "support": list(p.spec.support), **figures,
@@ -61,8 +58,7 @@ def fit_scene(scenario: Scenario, people: list[PlacedPerson],
     person's figures and pressure per body vertex (`fit_s`, `evaluate_s` go into `timing`)."""
     timing = timing if timing is not None else {}
     t = time.perf_counter()
-    result = fit_surface(scenario.surface.vertices, scenario.surface.faces,
-                         [p.target() for p in people], fit_params(scenario), progress)
+    result = fit_people(scenario, people, progress)
     timing["fit_s"] = time.perf_counter() - t
     t = time.perf_counter()
     persons, maps = evaluate_scene(scenario, people, result.surface, result.surface_faces)
@@ -70,30 +66,49 @@ def fit_scene(scenario: Scenario, people: list[PlacedPerson],
     return result, persons, maps
 
 
+def fit_people(scenario: Scenario, people: list[PlacedPerson],
+               progress: Callable[[int, float, float], None] | None = None) -> FitResult:
+    """The scenario's surface fitted to the posed people."""
+    return fit_surface(scenario.surface.vertices, scenario.surface.faces, people,
+                       scenario.surface.params, progress)
+
+
+def relax_problem(person: PlacedPerson, surface_vertices: np.ndarray,
+                  surface_triangles: np.ndarray, threshold: float = 0.02,
+                  margin: float | None = None) -> RelaxProblem:
+    """The relaxation problem of a placed person: its rig in the scene frame, its vertices of
+    importance above `threshold`, and the surface (vertices (N, 3), triangles (F, 3)), fitted
+    with softness `margin` (metres; None: the paper's step)."""
+    ids = np.flatnonzero(person.importance > threshold)
+    if not ids.size:
+        raise RelaxError(f"{person.label}: nothing to support (no importance above "
+                         f"{threshold})")
+    rot, shift = person.transform[:3, :3], person.transform[:3, 3]
+    local0 = person.motion.local_rotmats[0].copy()
+    local0[0] = rot @ local0[0]
+    root0 = rot @ person.motion.root_positions[0] + shift
+    middle = PENETRATION_SHIFT if margin is None else max(margin - 2 * PENETRATION_WIDTH, 0.0)
+    return RelaxProblem(person.body, local0, root0, ids, person.importance[ids],
+                        np.asarray(surface_vertices, dtype=np.float64),
+                        np.asarray(surface_triangles, dtype=np.int64),
+                        penetration_shift=middle)
+
+
 def relax_person(scenario: Scenario, person: PlacedPerson, surface: np.ndarray,
                  quads: np.ndarray):
     """Relaxes one posed person onto a surface (vertices, quads): the solver's result, the
     person's figures before and after (as `evaluate_person` gives them), and the solver's
     seconds."""
-    from .pressure import triangle_mesh
-    from .relax import problem_for, relax
-
-    margin = scenario.surface.params.margin
+    margin, stiffness = scenario.surface.params.margin, scenario.foam_stiffness
     t = time.perf_counter()
-    res = relax(problem_for(person, surface, quad_triangles(quads), margin=margin))
+    res = relax(relax_problem(person, surface, quad_triangles(quads), margin=margin))
     seconds = time.perf_counter() - t
     mesh = SurfaceMesh.from_quads(surface, quads)
-    mask = person.body.part_mask(person.spec.support)
-
-    def figures(vertices, normals, areas):
-        return evaluate_person(mesh, vertices, normals, areas, person.importance,
-                               person.body.mass_kg, margin, scenario.foam_stiffness,
-                               person.body.triangles, mask)[0]
-
     areas, normals = triangle_mesh(person.body.triangles, len(res.vertices)).measures(
         res.vertices)
-    return (res, figures(person.vertices, person.normals, person.areas),
-            figures(res.vertices, normals, areas), seconds)
+    relaxed = dataclasses.replace(person, vertices=res.vertices, normals=normals, areas=areas)
+    return (res, evaluate_person(mesh, person, margin, stiffness)[0],
+            evaluate_person(mesh, relaxed, margin, stiffness)[0], seconds)
 
 
 def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathLike, *,
@@ -124,7 +139,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     timing["total_s"] = time.perf_counter() - start
     report = {
         "scenario": str(scenario_path),
-        "parameters": {**fit_params(scenario).__dict__,
+        "parameters": {**scenario.surface.params.__dict__,
                        "fixed": list(scenario.surface.params.fixed),
                        "creases": [list(c) for c in scenario.surface.params.creases],
                        "foam_stiffness_kpa_per_m": scenario.foam_stiffness,
@@ -208,8 +223,8 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
     `save`, also stores each relaxed pose in the pose library `db` (see `save_relaxed`)."""
     from capture import Motion, write_bvh
 
-    from .relax import RelaxError, pose_channels, rig_skeleton
-    from .scenario import read_control_mesh
+    from solver.body.rig import pose_channels, rig_skeleton
+    from solver.scene.scenario import read_control_mesh
 
     say = progress or (lambda message: None)
     start = time.perf_counter()
@@ -226,8 +241,7 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
         surface, faces = read_control_mesh(Path(surface_dir) / "surface.obj", str(surface_dir))
         say(f"surface from {surface_dir}")
     else:
-        result = fit_surface(scenario.surface.vertices, scenario.surface.faces,
-                             [p.target() for p in people], fit_params(scenario))
+        result = fit_people(scenario, people)
         surface, faces = result.surface, result.surface_faces
         say(f"fitted the surface in {result.iterations} iterations")
     keys = ("mean_support_distance_m", "max_penetration_m", "coverage", "peak_pressure_kpa")
@@ -274,7 +288,7 @@ def save_relaxed(db: str | os.PathLike, relaxed: list, surface: str) -> list[dic
     where its capture did. relaxed : [(PlacedPerson, RelaxResult)]."""
     from posedb import PoseLibrary
 
-    from .relax import pose_channels, rig_skeleton
+    from solver.body.rig import pose_channels, rig_skeleton
 
     lib = PoseLibrary(db)
     taken = {p.name for p in lib.poses()} | {t.name for t in lib.takes()}

@@ -27,15 +27,11 @@ from typing import Iterable, Sequence
 import numpy as np
 import scipy.sparse as sp
 
+from solver.mesh import area_weighted_normals, quad_triangles
+
 
 class MeshError(ValueError):
     """A control mesh the subdivision cannot take (bad faces, non-manifold edges)."""
-
-
-def quad_triangles(quads: np.ndarray) -> np.ndarray:
-    """(2F, 3) triangles of (F, 4) quads, each split along its 0-2 diagonal."""
-    quads = np.asarray(quads)
-    return np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,10 +69,7 @@ class Subdivision:
 
     def normals(self, vertices: np.ndarray) -> np.ndarray:
         """(n_s, 3) unit vertex normals of level-s vertices (area-weighted face normals)."""
-        import igl
-
-        return igl.per_vertex_normals(np.asarray(vertices, dtype=np.float64), self.triangles,
-                                      igl.PER_VERTEX_NORMALS_WEIGHTING_TYPE_AREA)
+        return area_weighted_normals(vertices, self.triangles)
 
 
 def _as_faces(faces: Sequence[Sequence[int]] | np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -10,7 +10,7 @@ import numpy as np
 
 from capture.files import write_atomic
 
-from .subdivision import quad_triangles
+from solver.mesh import quad_triangles
 
 MESH_FORMATS = (".obj", ".ply", ".glb")
 

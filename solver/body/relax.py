@@ -18,7 +18,7 @@ from Blender in metres): the step is about 1/a = 1 mm wide and its middle sits a
 `PENETRATION_SHIFT` = 1 cm, so a = 1 / width and b = shift / width. A surface fitted with a
 softness margin m (the fit lets skin sink m into the foam) is relaxed onto with the step's middle
 two widths short of m, so the penalty is nearly full at the margin and absent well inside it
-(`problem_for`); otherwise the paper's 1 cm holds.
+(`solver.scene.run.relax_problem`); otherwise the paper's 1 cm holds.
 
 Only the vertices facing the surface (their closest point is the foot of the perpendicular, not a
 point on a border they lie beside) can be behind it: a thigh below the level of an armrest's
@@ -42,8 +42,9 @@ from scipy.spatial.transform import Rotation
 
 from capture import WorldPose
 
-from .body import Body
-from .skinning import rig_pose
+from solver.body.model import Body
+from solver.mesh import face_normals
+from solver.body.rig import descendants, rig_pose
 
 LAMBDAS = (0.2, 0.2, 0.5, 0.1)  # point-to-point, point-to-plane, penetration, similarity
 PENETRATION_WIDTH = 0.001  # metres: 1 / a
@@ -88,18 +89,6 @@ class RelaxProblem:
     penetration_shift: float = PENETRATION_SHIFT  # metres behind the surface: the step's middle
 
 
-def _descendants(parents: np.ndarray) -> np.ndarray:
-    """(J, J) D[j, m] = 1 when joint j is m or below it."""
-    n = len(parents)
-    d = np.eye(n)
-    for j in range(n):
-        p = parents[j]
-        while p >= 0:
-            d[j, p] = 1.0
-            p = parents[p]
-    return d
-
-
 class _Model:
     """Forward model and analytic Jacobian of the supportable vertices."""
 
@@ -117,7 +106,7 @@ class _Model:
         self.lever = body.vertices[problem.vertex_ids][self.wi] - body.joints[self.wj]
         self.blend = sp.csr_matrix((self.wv, (self.wi, np.arange(len(self.wi)))),
                                    shape=(self.m, len(self.wi)))
-        self.desc = _descendants(body.parents)
+        self.desc = descendants(body.parents)
         self._last: tuple[np.ndarray, tuple] | None = None  # least_squares asks twice per x
 
     def pose(self, theta: np.ndarray) -> tuple[np.ndarray, WorldPose]:
@@ -185,8 +174,7 @@ def _surface_frames(points: np.ndarray, sv: np.ndarray, st: np.ndarray):
     import igl
 
     _, face, closest = igl.point_mesh_squared_distance(points, sv, st)
-    fn = np.cross(sv[st[face, 1]] - sv[st[face, 0]], sv[st[face, 2]] - sv[st[face, 0]])
-    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+    fn = face_normals(sv, st[face])
     offset = points - closest
     along = np.einsum("ij,ij->i", offset, fn)
     sideways = np.linalg.norm(offset - along[:, None] * fn, axis=1)
@@ -243,7 +231,7 @@ def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 60, *,
           numeric_jacobian: bool = False) -> RelaxResult:
     """Relaxes the pose: `rounds` of pairing with the surface, each a bounded least squares.
     `numeric_jacobian` swaps the analytic Jacobian for finite differences (a reference)."""
-    from .skinning import skin
+    from solver.body.skinning import skin
 
     model = _Model(problem)
     lo, hi = joint_bounds(problem.body)
@@ -267,59 +255,3 @@ def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 60, *,
     verts, _ = skin(problem.body, WorldPose(world.positions, world.rotmats), normals=False)
     at_limit = int(np.sum((theta <= lo + 1e-9) | (theta >= hi - 1e-9)))
     return RelaxResult(theta, local, world, verts, cost, evaluations, rounds, at_limit)
-
-
-def problem_for(person, surface_vertices: np.ndarray, surface_triangles: np.ndarray,
-                threshold: float = 0.02, margin: float | None = None) -> RelaxProblem:
-    """The relaxation problem of a placed person (see `solver.scene.PlacedPerson`): its rig in
-    the scene frame, its vertices of importance above `threshold`, and the surface, fitted with
-    softness `margin` (metres; None: the paper's step)."""
-    ids = np.flatnonzero(person.importance > threshold)
-    if not ids.size:
-        raise RelaxError(f"{person.label}: nothing to support (no importance above "
-                         f"{threshold})")
-    rot, shift = person.transform[:3, :3], person.transform[:3, 3]
-    local0 = person.motion.local_rotmats[0].copy()
-    local0[0] = rot @ local0[0]
-    root0 = rot @ person.motion.root_positions[0] + shift
-    middle = PENETRATION_SHIFT if margin is None else max(margin - 2 * PENETRATION_WIDTH, 0.0)
-    return RelaxProblem(person.body, local0, root0, ids, person.importance[ids],
-                        np.asarray(surface_vertices, dtype=np.float64),
-                        np.asarray(surface_triangles, dtype=np.int64),
-                        penetration_shift=middle)
-
-
-def rig_skeleton(body: Body):
-    """The body's rig as a BVH skeleton in depth-first order (centimetres; the root with
-    position channels, every joint with ZXY rotations), and the rig joint of each BVH joint."""
-    from capture import Skeleton
-    from capture.skeleton import depth_first_order
-
-    from .skinning import rest_offsets
-
-    order = np.array(depth_first_order(body.parents))
-    new_index = np.empty(len(order), dtype=np.int64)
-    new_index[order] = np.arange(len(order))
-    parents = np.array([new_index[body.parents[j]] if body.parents[j] >= 0 else -1
-                        for j in order])
-    rot = ("Zrotation", "Xrotation", "Yrotation")
-    channels = tuple((("Xposition", "Yposition", "Zposition") + rot) if p < 0 else rot
-                     for p in parents)
-    has_children = set(parents.tolist())
-    leaves = [k for k in range(len(order)) if k not in has_children]
-    ends = np.array([(body.tails[order[k]] - body.joints[order[k]]) * 100
-                     for k in leaves]).reshape(-1, 3)
-    names = tuple(body.joint_names[j] for j in order)
-    return Skeleton(names, parents, rest_offsets(body)[order] * 100, channels, ends,
-                    np.array(leaves, dtype=np.int64), unit_m=0.01), order
-
-
-def pose_channels(body: Body, local: np.ndarray, root: np.ndarray) -> np.ndarray:
-    """(C,) BVH channels of one rig pose for `rig_skeleton(body)`."""
-    from .skinning import rest_offsets
-
-    sk, order = rig_skeleton(body)
-    quats = Rotation.from_matrix(local[order]).as_quat()
-    trans = rest_offsets(body)[order].copy()
-    trans[0] = root
-    return sk.channels_from_pose(quats, trans)

@@ -85,7 +85,7 @@ def run_demo(out_dir: str | os.PathLike, progress: Callable[[str], None] | None 
     from posedb import PoseLibrary
     from posedb.suggest import suggest_poses
 
-    from .run import run_fit, run_relax
+    from solver.scene.run import run_fit, run_relax
 
     report = progress or (lambda message: None)
 

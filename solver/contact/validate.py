@@ -14,11 +14,12 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .body import BodyShape, make_body
-from .poses import load_pose, pose_body, t_pose
-from .pressure import pressure_field
-from .pressure_reference import rigid_contact
-from .skinning import skin
+from solver.body.model import BodyShape, make_body
+from solver.body.poses import load_pose, pose_body
+from solver.body.rig import t_pose
+from solver.contact.pressure import pressure_field
+from solver.contact.reference import rigid_contact
+from solver.body.skinning import skin
 
 SEATED = "bundled:cmu_75_18_high_sit.bvh#frame=39"
 
@@ -69,7 +70,7 @@ def validate_pressure(out_dir: str | Path | None = None) -> list[dict]:
 
 
 def _picture(out_dir: Path, name: str, body, k, ours, reaction) -> Path:
-    from .render import MeshView, Panel, field_colors, render_panels
+    from solver.io.render import MeshView, Panel, field_colors, render_panels
 
     out_dir.mkdir(parents=True, exist_ok=True)
     display = skin(body, t_pose(body), normals=False)[0]  # shown on a standing T-pose

@@ -22,9 +22,10 @@ from importlib import resources
 import numpy as np
 import scipy.sparse as sp
 
+from capture.skeleton import joint_levels
 from posedb.schema import SUPPORT_PARTS
 
-from .subdivision import quad_triangles
+from solver.mesh import area_weighted_normals, enclosed_volume, quad_triangles
 
 BODY_DENSITY = 1010.0  # kg/m^3: whole-body density with air in the lungs
 DM = 0.1  # metres per asset unit (decimetres)
@@ -174,10 +175,7 @@ class Body:
     @cached_property
     def normals(self) -> np.ndarray:
         """(V, 3) rest-pose unit normals, area-weighted over the incident triangles."""
-        import igl
-
-        return igl.per_vertex_normals(self.vertices, self.triangles,
-                                      igl.PER_VERTEX_NORMALS_WEIGHTING_TYPE_AREA)
+        return area_weighted_normals(self.vertices, self.triangles)
 
     @cached_property
     def height_m(self) -> float:
@@ -186,12 +184,16 @@ class Body:
     @cached_property
     def volume_m3(self) -> float:
         """Enclosed volume (divergence theorem over the closed skin)."""
-        v = self.vertices[self.triangles]
-        return float(np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6.0)
+        return enclosed_volume(self.vertices, self.triangles)
 
     @cached_property
     def mass_kg(self) -> float:
         return self.volume_m3 * BODY_DENSITY
+
+    @cached_property
+    def levels(self) -> tuple[np.ndarray, ...]:
+        """The rig's joints grouped by depth, for forward kinematics level by level."""
+        return joint_levels(self.parents)
 
     def joint_index(self, name: str) -> int:
         try:

@@ -20,7 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import root
 
-from .pressure import GRAVITY, triangle_mesh
+from solver.contact.pressure import GRAVITY
+from solver.mesh import face_cross, triangle_mesh, volume_centroid
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,7 +54,7 @@ def mould_vertices(vertices: np.ndarray, triangles: np.ndarray,
     t = np.asarray(triangles)
     g = np.asarray(gravity, dtype=np.float64)
     g = g / np.linalg.norm(g)
-    fn = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
+    fn = face_cross(v, t)
     facing = fn @ g >= 0  # not pointing up
     return np.unique(t[facing])
 
@@ -119,10 +120,3 @@ def rigid_contact(vertices: np.ndarray, triangles: np.ndarray, *, load: float = 
     fn, ft = forces(z)
     return ContactSolution(contact, fn, ft, z[:3] * length, z[3:] * length / arm,
                            err * load)
-
-
-def volume_centroid(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """(3,) centroid of the volume a closed triangle mesh encloses."""
-    p = np.asarray(vertices, dtype=np.float64)[np.asarray(triangles)]
-    vol = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])) / 6.0
-    return (vol[:, None] * p.sum(axis=1) / 4.0).sum(axis=0) / vol.sum()

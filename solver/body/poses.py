@@ -17,8 +17,9 @@ from scipy.spatial.transform import Rotation
 
 from capture import Skeleton, WorldPose, forward_kinematics, read_bvh, resolve_path, skeleton_fk
 
-from .body import Body
-from .retarget import RigMotion, place, retarget_pose
+from solver.body.model import Body
+from solver.body.retarget import place, retarget_pose
+from solver.body.rig import RigMotion
 
 _FRAME = re.compile(r"^(?P<path>.+?)#frame=(?P<frame>-?\d+)$")
 
@@ -77,19 +78,3 @@ def pose_body(captured: CapturedPose, body: Body, *, lowest: float | None = 0.0,
 
 
 
-def t_pose(body: Body, root_rotation: np.ndarray | None = None,
-           root_position: np.ndarray | None = None):
-    """The body's rig with its upper arms straight out sideways (a T-pose), optionally turned
-    by a root rotation (3, 3) and moved; returns the world frames (J)."""
-    from .retarget import _swing
-    from .skinning import rig_pose
-
-    n = len(body.joint_names)
-    local = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
-    for side, sign in (("Left", 1.0), ("Right", -1.0)):
-        arm, elbow = body.joint_index(f"{side}Arm"), body.joint_index(f"{side}ForeArm")
-        local[arm] = _swing(body.joints[elbow] - body.joints[arm], np.array([sign, 0.0, 0.0]))
-    if root_rotation is not None:
-        local[0] = root_rotation
-    root = body.joints[0] if root_position is None else root_position
-    return rig_pose(body, local, root)

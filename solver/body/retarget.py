@@ -15,7 +15,6 @@ scales with the body; `place` can then put the lowest skin point or the pelvis a
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
@@ -23,30 +22,11 @@ import numpy as np
 from capture import PROFILES, Skeleton, WorldPose, identify_profile, skeleton_fk
 from capture.profiles import strip_namespace
 
-from .body import Body
-from .skinning import skin
+from solver.body.model import Body
+from solver.body.rig import (FIT_AIMS, RIG_CHAINS, RIG_ROLES, RIG_ROLES_INV, RIG_TAILS, RigMotion,
+                             kabsch, rig_pose, swing)
+from solver.body.skinning import skin
 
-# Rig joint -> role it takes its target from. The clavicles have none: skeletons disagree on
-# where a clavicle starts (CMU's start at the neck), so they keep their rest pose on the chest.
-RIG_ROLES = {
-    "Hips": "hips", "LeftUpLeg": "left_upper_leg", "LeftLeg": "left_lower_leg",
-    "LeftFoot": "left_foot", "LeftToeBase": "left_toe", "RightUpLeg": "right_upper_leg",
-    "RightLeg": "right_lower_leg", "RightFoot": "right_foot", "RightToeBase": "right_toe",
-    "Neck": "neck", "Head": "head", "LeftArm": "left_upper_arm",
-    "LeftForeArm": "left_forearm", "LeftHand": "left_hand", "LeftFingerBase": "left_fingers",
-    "RightArm": "right_upper_arm",
-    "RightForeArm": "right_forearm", "RightHand": "right_hand",
-    "RightFingerBase": "right_fingers",
-}
-# Rig joints placed along a captured chain: (chain start role, chain end role, joints).
-RIG_CHAINS = (("hips", "neck", ("LowerBack", "Spine", "Spine1")), ("neck", "head", ("Neck1",)))
-# A leaf joint aims its bone's tail at this role.
-RIG_TAILS = {"Head": "head_top"}
-# Joints oriented by the best fit (Kabsch) to several targets, which fixes their twist, and then
-# turned to point exactly along the first, the chain that carries the posture. The chest aims
-# at the shoulder joints, not at the clavicles' roots, which some skeletons put at the neck.
-FIT_AIMS = {"Hips": ("LowerBack", "LeftUpLeg", "RightUpLeg"),
-            "Spine1": ("Neck", "LeftArm", "RightArm")}
 REQUIRED_ROLES = ("hips", "neck", "head", "left_upper_leg", "left_lower_leg", "left_foot",
                   "right_upper_leg", "right_lower_leg", "right_foot", "left_upper_arm",
                   "left_forearm", "left_hand", "right_upper_arm", "right_forearm", "right_hand")
@@ -130,52 +110,6 @@ def _along(points: np.ndarray, fractions: np.ndarray) -> np.ndarray:
     return out
 
 
-def _swing(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) the smallest rotation turning direction a onto direction b (the identity
-    where b is shorter than a tenth of a millimetre: no direction to follow)."""
-    from scipy.spatial.transform import Rotation
-
-    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
-    length = np.linalg.norm(b, axis=-1, keepdims=True)
-    b = np.where(length > 1e-4, b / np.maximum(length, 1e-300), a)
-    axis = np.cross(a, b)
-    sin = np.linalg.norm(axis, axis=-1, keepdims=True)
-    cos = np.sum(a * b, axis=-1, keepdims=True)
-    angle = np.arctan2(sin, cos)
-    # opposite directions: any axis perpendicular to a
-    perp = np.cross(a, np.where(np.abs(a[..., :1]) < 0.9, [1.0, 0, 0], [0, 1.0, 0]))
-    axis = np.where(sin > 1e-9, axis / np.maximum(sin, 1e-300),
-                    perp / np.linalg.norm(perp, axis=-1, keepdims=True))
-    rotvec = (axis * angle).reshape(-1, 3)
-    return Rotation.from_rotvec(rotvec).as_matrix().reshape(a.shape + (3,))
-
-
-def _kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) rotation R minimising sum |R src_k - dst_k|^2; src, dst (..., K, 3)."""
-    h = np.swapaxes(src, -1, -2) @ dst  # (..., 3, 3) = sum_k src_k dst_k^T
-    u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(np.swapaxes(vt, -1, -2) @ np.swapaxes(u, -1, -2)))
-    fix = np.ones(d.shape + (3,))
-    fix[..., 2] = d
-    return np.swapaxes(vt, -1, -2) @ (fix[..., :, None] * np.swapaxes(u, -1, -2))
-
-
-@dataclass(frozen=True, eq=False)
-class RigMotion:
-    """A body's rig posed over frames: local rotations and root positions, and world frames.
-
-    local_rotmats : (T, J, 3, 3); root_positions : (T, 3) metres; world : WorldPose (T, J).
-    """
-
-    body: Body
-    local_rotmats: np.ndarray
-    root_positions: np.ndarray
-    world: WorldPose
-
-    def frame(self, t: int) -> WorldPose:
-        return WorldPose(self.world.positions[t], self.world.rotmats[t])
-
-
 def _targets(body: Body, roles_pos: dict[str, np.ndarray], batch: tuple) -> dict[int, np.ndarray]:
     """Target point of each rig joint that has one, (..., 3)."""
     names = body.joint_names
@@ -197,9 +131,6 @@ def _targets(body: Body, roles_pos: dict[str, np.ndarray], batch: tuple) -> dict
         for k, joint in enumerate(joints):
             targets[names.index(joint)] = placed[..., k, :]
     return targets
-
-
-RIG_ROLES_INV = {v: k for k, v in RIG_ROLES.items()}
 
 
 def solve_rig(body: Body, roles_pos: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -225,9 +156,9 @@ def solve_rig(body: Body, roles_pos: dict[str, np.ndarray]) -> tuple[np.ndarray,
             src = np.stack([(rest[c] - rest[j]) / np.linalg.norm(rest[c] - rest[j]) for c in fit])
             dst = np.stack([targets[c] - base for c in fit], axis=-2)
             dst = dst / np.maximum(np.linalg.norm(dst, axis=-1, keepdims=True), 1e-12)
-            best = _kabsch(np.broadcast_to(src, dst.shape), dst)
+            best = kabsch(np.broadcast_to(src, dst.shape), dst)
             c = fit[0]
-            world[..., j, :, :] = _swing(best @ (rest[c] - rest[j]), targets[c] - base) @ best
+            world[..., j, :, :] = swing(best @ (rest[c] - rest[j]), targets[c] - base) @ best
         else:
             aim = None  # the first child (or grandchild past a zero-length bone) with a target
             for c in children[j]:
@@ -242,10 +173,10 @@ def solve_rig(body: Body, roles_pos: dict[str, np.ndarray]) -> tuple[np.ndarray,
             tail_role = RIG_TAILS.get(names[j])
             if base is not None and aim is not None:
                 cur = inherited @ (rest[aim] - rest[j])
-                world[..., j, :, :] = _swing(cur, targets[aim] - base) @ inherited
+                world[..., j, :, :] = swing(cur, targets[aim] - base) @ inherited
             elif base is not None and tail_role in roles_pos:
                 cur = inherited @ (body.tails[j] - rest[j])
-                world[..., j, :, :] = _swing(cur, roles_pos[tail_role] - base) @ inherited
+                world[..., j, :, :] = swing(cur, roles_pos[tail_role] - base) @ inherited
             else:
                 world[..., j, :, :] = inherited
         local[..., j, :, :] = world[..., j, :, :] if p < 0 else \
@@ -284,8 +215,6 @@ def retarget_pose(skeleton: Skeleton, pose: WorldPose, body: Body, *,
     local rotations over unchanged: the rigs share their rest orientations, so the posture
     carries across bodies exactly, and only the root moves in proportion to the leg length.
     """
-    from .skinning import rig_pose
-
     if joint_map is None and sorted(skeleton.names) == sorted(body.joint_names) and \
             (profile or identify_profile(skeleton.names)) == "sitrelax_rig":
         return _same_rig(skeleton, pose, body)
@@ -308,8 +237,6 @@ def retarget_pose(skeleton: Skeleton, pose: WorldPose, body: Body, *,
 
 
 def _same_rig(skeleton: Skeleton, pose: WorldPose, body: Body) -> RigMotion:
-    from .skinning import rig_pose
-
     index = [skeleton.names.index(n) for n in body.joint_names]
     rot = np.asarray(pose.rotmats)[:, index]  # (T, J, 3, 3) in the body's joint order
     parents = body.parents
@@ -330,16 +257,7 @@ def place(motion: RigMotion, *, lowest: float | None = None, pelvis: float | Non
     """Moves each frame vertically: its lowest skin point, or its pelvis, to the given height."""
     if (lowest is None) == (pelvis is None):
         raise ValueError("Expected exactly one of lowest= or pelvis=")
-    from .skinning import rig_pose
-
-    root = motion.root_positions.copy()
-    for t in range(len(root)):
-        if pelvis is not None:
-            dy = pelvis - motion.world.positions[t, 0, 1]
-        else:
-            verts, _ = skin(motion.body, motion.frame(t), normals=False)
-            dy = lowest - verts[:, 1].min()
-        root[t, 1] += dy
-
-    return RigMotion(motion.body, motion.local_rotmats, root,
-                     rig_pose(motion.body, motion.local_rotmats, root))
+    if pelvis is not None:
+        return motion.lifted(pelvis - motion.world.positions[:, 0, 1])
+    return motion.lifted(np.array([lowest - skin(motion.body, motion.frame(t), normals=False)[0]
+                                   [:, 1].min() for t in range(len(motion.root_positions))]))

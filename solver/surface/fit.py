@@ -53,7 +53,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from .subdivision import Subdivision, subdivision
+from solver.contact.supported import SupportedBody
+from solver.surface.subdivision import Subdivision, subdivision
 
 REACH = 0.5  # metres: a person whose supported points are all farther from the surface is an error
 CONSTRAINT_RADIUS = 0.12  # metres: surface vertices this close to a body get a non-penetration row
@@ -89,18 +90,6 @@ class FitParams:
     anchor: float = 1e-3
     pull_range: float = 0.25
     step: float = 0.05  # metres a control vertex may move per iteration (a trust region)
-
-
-@dataclass(frozen=True, eq=False)
-class BodyTarget:
-    """One posed body as the fit sees it: vertices (V, 3) m, unit normals (V, 3), importance
-    (V,) in [0, 1] (zero outside the supported parts), and a label for messages."""
-
-    vertices: np.ndarray
-    normals: np.ndarray
-    importance: np.ndarray
-    label: str = "person"
-    triangles: np.ndarray | None = None  # the closed skin
 
 
 @dataclass
@@ -230,7 +219,7 @@ def _coo_of(m: sp.csc_matrix) -> tuple[np.ndarray, np.ndarray]:
     return m.indices.copy(), cols
 
 
-def _stack(targets: Sequence[BodyTarget]):
+def _stack(targets: Sequence[SupportedBody]):
     points = np.concatenate([t.vertices for t in targets])
     normals = np.concatenate([t.normals for t in targets])
     rho = np.concatenate([t.importance for t in targets])
@@ -238,7 +227,7 @@ def _stack(targets: Sequence[BodyTarget]):
     return points, normals, rho, owner
 
 
-def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[BodyTarget],
+def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedBody],
                 params: FitParams = FitParams(),
                 progress: Callable[[int, float, float], None] | None = None) -> FitResult:
     """Fits the control mesh to the bodies (see the module docstring).

@@ -36,9 +36,10 @@ from typing import Any
 
 import numpy as np
 
-from .body import SUPPORT_PARTS, BodyShape, BodyShapeError
-from .fit import FitParams
-from .subdivision import grid_mesh
+from solver.body.model import SUPPORT_PARTS, BodyShape, BodyShapeError
+from solver.surface.fit import FitParams
+from solver.mesh import faces_problem
+from solver.surface.subdivision import grid_mesh
 
 SURFACE_KEYS = {"grid", "control_mesh", "level", "sigma", "tau_max", "margin", "fixed", "gamma",
                 "creases", "max_iterations", "tolerance"}
@@ -171,23 +172,6 @@ def inline_control_mesh(table: Any, where: str) -> tuple[np.ndarray, np.ndarray]
     return v, f
 
 
-def faces_problem(vertices: np.ndarray, faces: np.ndarray) -> str | None:
-    """What is wrong with a face list (indices out of range, repeated corners, no area), or
-    None. faces : (F, 3) triangles or (F, 4) quads."""
-    if faces.min() < 0 or faces.max() >= len(vertices):
-        return (f"expected face indices in 0..{len(vertices) - 1}, got "
-                f"{int(faces.min())}..{int(faces.max())}")
-    ordered = np.sort(faces, axis=1)
-    if np.any(ordered[:, 1:] == ordered[:, :-1]):
-        return "expected distinct vertices in every face"
-    corner = vertices[faces]
-    area = np.linalg.norm(np.cross(corner[:, 2] - corner[:, 0], corner[:, -1] - corner[:, 1]),
-                          axis=1)
-    if np.any(area < 1e-10):
-        return f"expected faces of non-zero area; face {int(np.argmin(area))} has none"
-    return None
-
-
 def parse_scenario(data: dict, where: str = "<scenario>", base: Path | None = None, *,
                    files: bool = True) -> Scenario:
     """A validated scenario from TOML data; `base` resolves relative paths. With `files`
@@ -258,7 +242,7 @@ def parse_scenario(data: dict, where: str = "<scenario>", base: Path | None = No
         tolerance=_number(surf.get("tolerance", 0.01), where, "surface.tolerance", 0.0),
     ), source)
     if creases:
-        from .subdivision import MeshError, subdivide_once
+        from solver.surface.subdivision import MeshError, subdivide_once
 
         try:
             subdivide_once(n, faces, np.array(creases))

@@ -101,7 +101,7 @@ def expand_jobs(scenarios: Sequence[str | os.PathLike] = (), *, grid: dict | Non
                 db: str | os.PathLike | None = None) -> list[Job]:
     """The batch's jobs: every scenario (or every library pose matching `from_db`, put into
     each person of `template`) at every point of `grid`."""
-    from .scenario import ScenarioError, parse_scenario
+    from solver.scene.scenario import ScenarioError, parse_scenario
 
     grid = grid or {}
     sources: list[tuple[str, dict, Path]] = []
@@ -157,8 +157,8 @@ def _read_toml(path: str | os.PathLike) -> dict:
 
 def run_job(job: Job, db: str | None, out_root: str) -> dict:
     """Runs one job on a worker; returns its summary row (a failure is a row too)."""
-    from .run import run_fit
-    from .scenario import parse_scenario
+    from solver.scene.run import run_fit
+    from solver.scene.scenario import parse_scenario
 
     folder = Path(out_root) / "jobs" / job.id
     folder.mkdir(parents=True, exist_ok=True)

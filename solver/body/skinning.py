@@ -1,0 +1,38 @@
+"""Linear blend skinning: posing a body's skin by its rig's joint frames.
+
+A posed joint j moves a rest point x to Q_j (x - P_j) + p_j (see `solver.body.rig`). Skinning
+blends these per-joint affine maps with the sparse weight matrix W (V x J): M = W @ A, one
+(3 x 4) map per vertex, applied to the rest vertices and (rotation part) normals.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from capture import WorldPose
+
+from solver.body.model import Body
+
+
+def skinning_maps(body: Body, pose: WorldPose) -> np.ndarray:
+    """(V, 3, 4) blended affine map of each vertex for one pose."""
+    rot = pose.rotmats
+    trans = pose.positions - np.einsum("jab,jb->ja", rot, body.joints)
+    per_joint = np.concatenate([rot, trans[:, :, None]], axis=2).reshape(len(rot), 12)
+    return np.asarray(body.weights @ per_joint).reshape(-1, 3, 4)
+
+
+def skin(body: Body, pose: WorldPose, normals: bool = True
+         ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Posed vertices (V, 3) and unit normals (V, 3) of a body for one rig pose."""
+    if pose.rotmats.shape != (len(body.joint_names), 3, 3):
+        raise ValueError(f"Expected one pose of {len(body.joint_names)} joints, got rotations of "
+                         f"shape {pose.rotmats.shape}")
+    maps = skinning_maps(body, pose)
+    lin = maps[:, :, :3]
+    verts = np.einsum("vab,vb->va", lin, body.vertices) + maps[:, :, 3]
+    if not normals:
+        return verts, None
+    n = np.einsum("vab,vb->va", lin, body.normals)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    return verts, n

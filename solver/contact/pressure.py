@@ -1,0 +1,86 @@
+"""Where a body needs support: the pressure model of the paper's section 4.
+
+The body is taken as fully enveloped by a perfectly fitting support, friction and the body's
+weight are ignored, and each vertex facing down or sideways carries a normal reaction: with n its
+unit normal, g the unit direction of gravity and A its Voronoi area,
+
+    p = max(0, n . g)      |r_n| = A p      rho = |r_n| / max |r_n|
+
+Vertices facing up carry nothing. The importance rho weights the surface fit; vertices outside
+the body parts the designer chose get zero importance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from solver.mesh import triangle_mesh
+
+GRAVITY = (0.0, -1.0, 0.0)
+
+
+@dataclass(frozen=True, eq=False)
+class PressureField:
+    """Per-vertex fields (V,): `pressure` p in [0, 1], `area` A (m^2), `reaction` |r_n| = A p,
+    `importance` rho in [0, 1] (zero outside the chosen parts)."""
+
+    pressure: np.ndarray
+    area: np.ndarray
+    reaction: np.ndarray
+    importance: np.ndarray
+
+
+def pressure_field(vertices: np.ndarray, triangles: np.ndarray, *,
+                   gravity: Sequence[float] = GRAVITY, mask: np.ndarray | None = None,
+                   normals: np.ndarray | None = None, areas: np.ndarray | None = None
+                   ) -> PressureField:
+    """The pressure model on a posed body mesh.
+
+    vertices : (V, 3) metres; triangles : (F, 3).
+    gravity : direction of gravity (normalised here).
+    mask : optional (V,) bool, the vertices of the supported body parts.
+    normals, areas : optional precomputed (V, 3) unit normals and (V,) areas.
+    """
+    g = np.asarray(gravity, dtype=np.float64)
+    norm = np.linalg.norm(g)
+    if g.shape != (3,) or not np.isfinite(norm) or norm == 0:
+        raise ValueError(f"Expected a non-zero gravity direction (3,), got {gravity!r}")
+    g = g / norm
+    if normals is None or areas is None:
+        a, n = triangle_mesh(triangles, len(vertices)).measures(vertices)
+        n = n if normals is None else np.asarray(normals)
+        a = a if areas is None else np.asarray(areas)
+    else:
+        n, a = np.asarray(normals), np.asarray(areas)
+    pressure = np.maximum(0.0, n @ g)
+    reaction = a * pressure
+    supported = reaction if mask is None else np.where(mask, reaction, 0.0)
+    peak = supported.max(initial=0.0)
+    importance = supported / peak if peak > 0 else np.zeros_like(supported)
+    return PressureField(pressure, a, reaction, importance)
+
+
+REACH_STEPS = (0.01, 0.02, 0.04, 0.08, 0.16)  # metres along the normal
+
+
+def reachable(vertices: np.ndarray, triangles: np.ndarray, normals: np.ndarray,
+              candidates: np.ndarray) -> np.ndarray:
+    """(V,) bool: vertices a support could touch, those whose outward normal does not run
+    straight back into the body within 16 cm (the underside of a belly over the thighs, the
+    inner side of a thigh against the other). Only `candidates` (V,) bool are tested."""
+    import igl
+
+    out = np.zeros(len(vertices), dtype=bool)
+    idx = np.flatnonzero(candidates)
+    if not idx.size:
+        return out
+    steps = np.asarray(REACH_STEPS)
+    probes = (vertices[idx, None, :] + steps[None, :, None] * normals[idx, None, :]).reshape(-1, 3)
+    wn = igl.fast_winding_number(np.asarray(vertices, dtype=np.float64),
+                                 np.asarray(triangles, dtype=np.int64), probes)
+    blocked = (wn.reshape(len(idx), len(steps)) > 0.5).any(axis=1)
+    out[idx] = ~blocked
+    return out

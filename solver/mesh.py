@@ -1,0 +1,194 @@
+"""Triangle and quad meshes: the one home of face products, normals, areas, volumes and
+closest-point queries, for bodies and surfaces alike.
+
+Vertices are (V, 3) float metres, triangles (F, 3) and quads (F, 4) int, counter-clockwise seen
+from the side a face's normal points to.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+
+def quad_triangles(quads: np.ndarray) -> np.ndarray:
+    """(2F, 3) triangles of (F, 4) quads, each split along its 0-2 diagonal."""
+    quads = np.asarray(quads)
+    return np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+
+
+def face_cross(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(F, 3) (b - a) x (c - a) of each triangle (a, b, c): twice its area along its normal."""
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.asarray(triangles, dtype=np.int64)
+    return np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
+
+
+def face_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(F, 3) unit normals of the triangles (zero-area faces give a zero vector)."""
+    n = face_cross(vertices, triangles)
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+
+
+def area_weighted_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(V, 3) unit vertex normals, the area-weighted mean of the incident faces' normals
+    (libigl's `per_vertex_normals`, area weighting)."""
+    import igl
+
+    return igl.per_vertex_normals(np.asarray(vertices, dtype=np.float64),
+                                  np.asarray(triangles, dtype=np.int64),
+                                  igl.PER_VERTEX_NORMALS_WEIGHTING_TYPE_AREA)
+
+
+def enclosed_volume(vertices: np.ndarray, triangles: np.ndarray) -> float:
+    """Volume (m^3) a closed, outward-oriented triangle mesh encloses (divergence theorem)."""
+    p = np.asarray(vertices, dtype=np.float64)[np.asarray(triangles)]
+    return float(np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6.0)
+
+
+def volume_centroid(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(3,) centroid of the volume a closed triangle mesh encloses."""
+    p = np.asarray(vertices, dtype=np.float64)[np.asarray(triangles)]
+    vol = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])) / 6.0
+    return (vol[:, None] * p.sum(axis=1) / 4.0).sum(axis=0) / vol.sum()
+
+
+def faces_problem(vertices: np.ndarray, faces: np.ndarray) -> str | None:
+    """What is wrong with a face list (indices out of range, repeated corners, no area), or
+    None. faces : (F, 3) triangles or (F, 4) quads."""
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        return (f"expected face indices in 0..{len(vertices) - 1}, got "
+                f"{int(faces.min())}..{int(faces.max())}")
+    ordered = np.sort(faces, axis=1)
+    if np.any(ordered[:, 1:] == ordered[:, :-1]):
+        return "expected distinct vertices in every face"
+    corner = vertices[faces]
+    area = np.linalg.norm(np.cross(corner[:, 2] - corner[:, 0], corner[:, -1] - corner[:, 1]),
+                          axis=1)
+    if np.any(area < 1e-10):
+        return f"expected faces of non-zero area; face {int(np.argmin(area))} has none"
+    return None
+
+
+class TriangleMesh:
+    """Per-topology operators for fast Voronoi areas and vertex normals of a triangle mesh.
+
+    Computed column by column (structure of arrays), with the scatter to vertices as sparse
+    products, which on a 26k-triangle body is several times faster than libigl's mass matrix
+    construction; the tests check both against libigl.
+    """
+
+    def __init__(self, triangles: np.ndarray, n_vertices: int):
+        t = np.asarray(triangles, dtype=np.int64)
+        if t.ndim != 2 or t.shape[1] != 3:
+            raise ValueError(f"Expected triangles (F, 3), got {t.shape}")
+        self.n = int(n_vertices)
+        self.t0, self.t1, self.t2 = (np.ascontiguousarray(t[:, k]) for k in range(3))
+        f = len(t)
+        rows = np.concatenate([self.t0, self.t1, self.t2])
+        self.corner_sum = sp.csr_matrix((np.ones(3 * f), (rows, np.arange(3 * f))),
+                                        shape=(self.n, 3 * f))
+        self.face_sum = sp.csr_matrix((np.ones(3 * f), (rows, np.tile(np.arange(f), 3))),
+                                      shape=(self.n, f))
+
+    def measures(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(V,) Voronoi (mixed) areas (m^2) and (V, 3) area-weighted unit normals."""
+        v = np.asarray(vertices, dtype=np.float64)
+        x, y, z = v[:, 0].copy(), v[:, 1].copy(), v[:, 2].copy()
+        x0, y0, z0 = x.take(self.t0), y.take(self.t0), z.take(self.t0)
+        x1, y1, z1 = x.take(self.t1), y.take(self.t1), z.take(self.t1)
+        x2, y2, z2 = x.take(self.t2), y.take(self.t2), z.take(self.t2)
+        # the edge opposite each corner
+        ax, ay, az = x2 - x1, y2 - y1, z2 - z1
+        bx, by, bz = x0 - x2, y0 - y2, z0 - z2
+        cx, cy, cz = x1 - x0, y1 - y0, z1 - z0
+        nx, ny, nz = by * cz - bz * cy, bz * cx - bx * cz, bx * cy - by * cx  # 2 x area vector
+        dbl = np.sqrt(nx * nx + ny * ny + nz * nz)
+        la, lb, lc = ax * ax + ay * ay + az * az, bx * bx + by * by + bz * bz, \
+            cx * cx + cy * cy + cz * cz
+        # dot products of the two edges leaving each corner (cot = dot / (2 area))
+        d0 = -(cx * bx + cy * by + cz * bz)
+        d1 = -(ax * cx + ay * cy + az * cz)
+        d2 = -(bx * ax + by * ay + bz * az)
+        inv = 0.125 / np.maximum(dbl, 1e-300)
+        w0, w1, w2 = (lb * d1 + lc * d2) * inv, (lc * d2 + la * d0) * inv, (la * d0 + lb * d1) * inv
+        obtuse = (d0 < 0) | (d1 < 0) | (d2 < 0)
+        if obtuse.any():  # Meyer et al.: half the area to the obtuse corner, a quarter to others
+            q = dbl[obtuse] * 0.125
+            for w, d in ((w0, d0), (w1, d1), (w2, d2)):
+                w[obtuse] = np.where(d[obtuse] < 0, 2 * q, q)
+        areas = self.corner_sum @ np.concatenate([w0, w1, w2])
+        vx, vy, vz = self.face_sum @ nx, self.face_sum @ ny, self.face_sum @ nz
+        norm = np.sqrt(vx * vx + vy * vy + vz * vz)
+        normals = np.empty((self.n, 3))
+        normals[:, 0], normals[:, 1], normals[:, 2] = vx / norm, vy / norm, vz / norm
+        return areas, normals
+
+
+_MESHES: dict[tuple, TriangleMesh] = {}
+
+
+def triangle_mesh(triangles: np.ndarray, n_vertices: int) -> TriangleMesh:
+    """The cached `TriangleMesh` of a topology."""
+    t = np.asarray(triangles)
+    key = (n_vertices, t.shape, hash(t.tobytes()))
+    mesh = _MESHES.get(key)
+    if mesh is None:
+        if len(_MESHES) > 16:
+            _MESHES.clear()
+        mesh = _MESHES[key] = TriangleMesh(t, n_vertices)
+    return mesh
+
+
+def voronoi_areas(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(V,) Voronoi (mixed) area of each vertex, m^2."""
+    return triangle_mesh(triangles, len(vertices)).measures(vertices)[0]
+
+
+def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(V, 3) unit normals, area-weighted (the fast path of `area_weighted_normals`)."""
+    return triangle_mesh(triangles, len(vertices)).measures(vertices)[1]
+
+
+@dataclass(frozen=True, eq=False)
+class SurfaceMesh:
+    """A triangle surface for distance queries: vertices (N, 3), triangles (F, 3), unit face
+    normals (F, 3) pointing to the side bodies rest on."""
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    face_normals: np.ndarray
+
+    @classmethod
+    def from_quads(cls, vertices: np.ndarray, quads: np.ndarray) -> "SurfaceMesh":
+        return cls.from_triangles(vertices, quad_triangles(quads))
+
+    @classmethod
+    def from_triangles(cls, vertices: np.ndarray, triangles: np.ndarray) -> "SurfaceMesh":
+        v = np.asarray(vertices, dtype=np.float64)
+        t = np.asarray(triangles, dtype=np.int64)
+        return cls(v, t, face_normals(v, t))
+
+    @classmethod
+    def from_faces(cls, vertices: np.ndarray, faces: np.ndarray) -> "SurfaceMesh":
+        """From (F, 4) quads or (F, 3) triangles."""
+        faces = np.asarray(faces)
+        return cls.from_quads(vertices, faces) if faces.shape[1] == 4 else \
+            cls.from_triangles(vertices, faces)
+
+    def closest(self, points: np.ndarray):
+        """Unsigned distance (P,), signed distance along the closest face's normal (P,), whether
+        the closest point lies inside its face (not on the surface's border) (P,), the closest
+        face (P,) and the closest point (P, 3)."""
+        import igl
+
+        points = np.asarray(points, dtype=np.float64)
+        sq, face, closest = igl.point_mesh_squared_distance(points, self.vertices, self.triangles)
+        dist = np.sqrt(sq)
+        offset = points - closest
+        signed = np.einsum("ij,ij->i", offset, self.face_normals[face])
+        # over the surface: the offset runs along the normal (not sideways off an edge)
+        over = np.abs(signed) >= 0.95 * dist - 1e-9
+        return dist, signed, over, face, closest

@@ -1,0 +1,68 @@
+"""People placed in a scene: posed bodies with their pressure fields, ready to be supported."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from solver.body.model import Body, make_body
+from solver.contact.supported import SupportedBody
+from solver.body.poses import load_pose
+from solver.body.retarget import retarget_pose
+from solver.contact.pressure import pressure_field, reachable
+from solver.mesh import triangle_mesh
+from solver.body.rig import RigMotion
+from solver.scene.scenario import PersonSpec
+from solver.body.skinning import skin
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class PlacedPerson(SupportedBody):
+    """A person in the scene: the posed skin with its support fields (`SupportedBody`: vertices,
+    unit normals, Voronoi areas, importance, the supported parts' mask, mass), the scenario's
+    person, the body and its rig posed in the scene frame before `transform`."""
+
+    spec: PersonSpec
+    body: Body
+    motion: RigMotion
+    transform: np.ndarray  # (4, 4) scene placement applied after posing
+
+
+def placement(position, rotation_deg) -> np.ndarray:
+    """(4, 4) rotation about world x, then y, then z (degrees), then translation."""
+    m = np.eye(4)
+    m[:3, :3] = Rotation.from_euler("xyz", rotation_deg, degrees=True).as_matrix()
+    m[:3, 3] = position
+    return m
+
+
+def place_person(spec: PersonSpec, db: str | os.PathLike | None = None,
+                 index: int = 0) -> PlacedPerson:
+    """Poses the person's body (lowest point on y = 0, pelvis over the origin), then places it.
+    The captured skeleton and the rig are posed once and the skin skinned once."""
+    body = make_body(spec.body)
+    captured = load_pose(spec.pose, db)
+    motion = retarget_pose(captured.skeleton, captured.world, body)
+    verts, _ = skin(body, motion.frame(0), normals=False)
+    lift = -verts[:, 1].min()  # onto the floor: the skin moves rigidly with the root
+    motion = motion.lifted(np.array([lift]))
+    verts = verts + [0.0, lift, 0.0]
+    pelvis = motion.world.positions[0, 0]
+    centre = np.array([pelvis[0], 0.0, pelvis[2]])
+    m = placement(spec.position, spec.rotation_deg)
+    placed = (verts - centre) @ m[:3, :3].T + m[:3, 3]
+    to_scene = m.copy()
+    to_scene[:3, 3] = m[:3, 3] - m[:3, :3] @ centre
+    areas, normals = triangle_mesh(body.triangles, len(placed)).measures(placed)
+    parts = body.part_mask(spec.support)
+    # a support can only reach skin whose outward normal does not run back into the body
+    reach = parts & reachable(placed, body.triangles, normals,
+                              parts & (normals @ [0.0, -1.0, 0.0] > 0))
+    field = pressure_field(placed, body.triangles, mask=reach, normals=normals, areas=areas)
+    label = spec.name or f"person {index + 1}"
+    return PlacedPerson(placed, normals, field.importance, f"{label} ({captured.label})",
+                        body.triangles, areas, parts, body.mass_kg, spec=spec, body=body,
+                        motion=motion, transform=to_scene)
