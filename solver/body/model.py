@@ -191,6 +191,14 @@ class Body:
         return self.volume_m3 * BODY_DENSITY
 
     @cached_property
+    def weight_levers(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The skinning weights' entries as (vertex, joint, weight) arrays and each entry's rest
+        distance (m) from the vertex to the joint."""
+        w = self.weights.tocoo()
+        lever = np.linalg.norm(self.vertices[w.row] - self.joints[w.col], axis=1)
+        return w.row, w.col, w.data, lever
+
+    @cached_property
     def levels(self) -> tuple[np.ndarray, ...]:
         """The rig's joints grouped by depth, for forward kinematics level by level."""
         return joint_levels(self.parents)

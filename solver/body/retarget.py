@@ -25,7 +25,7 @@ from capture.profiles import strip_namespace
 from solver.body.model import Body
 from solver.body.rig import (FIT_AIMS, RIG_CHAINS, RIG_ROLES, RIG_ROLES_INV, RIG_TAILS, RigMotion,
                              kabsch, rig_pose, swing)
-from solver.body.skinning import skin
+from solver.body.skinning import lowest_height
 
 REQUIRED_ROLES = ("hips", "neck", "head", "left_upper_leg", "left_lower_leg", "left_foot",
                   "right_upper_leg", "right_lower_leg", "right_foot", "left_upper_arm",
@@ -254,10 +254,15 @@ def _same_rig(skeleton: Skeleton, pose: WorldPose, body: Body) -> RigMotion:
 
 def place(motion: RigMotion, *, lowest: float | None = None, pelvis: float | None = None
           ) -> RigMotion:
-    """Moves each frame vertically: its lowest skin point, or its pelvis, to the given height."""
+    """Moves each frame vertically: its lowest skin point, or its pelvis, to the given height
+    (the rig posed again at the moved root; the skin is not skinned here)."""
     if (lowest is None) == (pelvis is None):
         raise ValueError("Expected exactly one of lowest= or pelvis=")
-    if pelvis is not None:
-        return motion.lifted(pelvis - motion.world.positions[:, 0, 1])
-    return motion.lifted(np.array([lowest - skin(motion.body, motion.frame(t), normals=False)[0]
-                                   [:, 1].min() for t in range(len(motion.root_positions))]))
+    root = motion.root_positions.copy()
+    for t in range(len(root)):
+        if pelvis is not None:
+            root[t, 1] += pelvis - motion.world.positions[t, 0, 1]
+        else:
+            root[t, 1] += lowest - lowest_height(motion.body, motion.frame(t))
+    return RigMotion(motion.body, motion.local_rotmats, root,
+                     rig_pose(motion.body, motion.local_rotmats, root))

@@ -53,13 +53,6 @@ class RigMotion:
     def frame(self, t: int) -> WorldPose:
         return WorldPose(self.world.positions[t], self.world.rotmats[t])
 
-    def lifted(self, dy: np.ndarray) -> "RigMotion":
-        """The same motion moved up by dy (T,) metres per frame: rotations unchanged, so the
-        joints (and the skin) move rigidly and nothing is recomputed."""
-        shift = np.zeros_like(self.root_positions)
-        shift[:, 1] = dy
-        return RigMotion(self.body, self.local_rotmats, self.root_positions + shift,
-                         WorldPose(self.world.positions + shift[:, None, :], self.world.rotmats))
 
 
 def rest_offsets(body: Body) -> np.ndarray:

@@ -14,12 +14,37 @@ from capture import WorldPose
 from solver.body.model import Body
 
 
-def skinning_maps(body: Body, pose: WorldPose) -> np.ndarray:
-    """(V, 3, 4) blended affine map of each vertex for one pose."""
+def skinning_maps(body: Body, pose: WorldPose, vertices: np.ndarray | None = None
+                  ) -> np.ndarray:
+    """(V, 3, 4) blended affine map of each vertex (or of the given vertex indices) for one
+    pose."""
     rot = pose.rotmats
     trans = pose.positions - np.einsum("jab,jb->ja", rot, body.joints)
     per_joint = np.concatenate([rot, trans[:, :, None]], axis=2).reshape(len(rot), 12)
-    return np.asarray(body.weights @ per_joint).reshape(-1, 3, 4)
+    weights = body.weights if vertices is None else body.weights[vertices]
+    return np.asarray(weights @ per_joint).reshape(-1, 3, 4)
+
+
+def lowest_height(body: Body, pose: WorldPose) -> float:
+    """The lowest posed skin height (y, metres), skinning only the vertices that can be lowest.
+
+    A vertex's posed point is the weighted mean of where each of its joints carries it, and a
+    joint j carries a vertex at rest distance L from it no lower than p_j,y - L: so
+    sum_j w_j (p_j,y - L_j) bounds it from below, and only the vertices whose bound lies under
+    the lowest-bounded vertex's posed height need skinning. The result is the full skin's
+    minimum exactly (the same arithmetic per vertex)."""
+    rows, cols, w, lever = body.weight_levers
+    bound = np.bincount(rows, w * (pose.positions[cols, 1] - lever),
+                        minlength=len(body.vertices))
+    probe = int(np.argmin(bound))
+    ceiling = _skinned(body, pose, np.array([probe]))[0, 1]
+    candidates = np.flatnonzero(bound <= ceiling + 1e-9)
+    return float(_skinned(body, pose, candidates)[:, 1].min())
+
+
+def _skinned(body: Body, pose: WorldPose, vertices: np.ndarray) -> np.ndarray:
+    maps = skinning_maps(body, pose, vertices)
+    return np.einsum("vab,vb->va", maps[:, :, :3], body.vertices[vertices]) + maps[:, :, 3]
 
 
 def skin(body: Body, pose: WorldPose, normals: bool = True

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from solver.body.model import Body, make_body
 from solver.contact.supported import SupportedBody
 from solver.body.poses import load_pose
-from solver.body.retarget import retarget_pose
+from solver.body.retarget import place, retarget_pose
 from solver.contact.pressure import pressure_field, reachable
 from solver.mesh import triangle_mesh
 from solver.body.rig import RigMotion
@@ -45,11 +45,8 @@ def place_person(spec: PersonSpec, db: str | os.PathLike | None = None,
     The captured skeleton and the rig are posed once and the skin skinned once."""
     body = make_body(spec.body)
     captured = load_pose(spec.pose, db)
-    motion = retarget_pose(captured.skeleton, captured.world, body)
-    verts, _ = skin(body, motion.frame(0), normals=False)
-    lift = -verts[:, 1].min()  # onto the floor: the skin moves rigidly with the root
-    motion = motion.lifted(np.array([lift]))
-    verts = verts + [0.0, lift, 0.0]
+    motion = place(retarget_pose(captured.skeleton, captured.world, body), lowest=0.0)
+    verts, _ = skin(body, motion.frame(0), normals=False)  # the one full skinning
     pelvis = motion.world.positions[0, 0]
     centre = np.array([pelvis[0], 0.0, pelvis[2]])
     m = placement(spec.position, spec.rotation_deg)

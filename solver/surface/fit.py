@@ -54,6 +54,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from solver.contact.supported import SupportedBody
+from solver.surface.programme import Programme, ProgrammeError
 from solver.surface.subdivision import Subdivision, subdivision
 
 REACH = 0.5  # metres: a person whose supported points are all farther from the surface is an error
@@ -66,7 +67,6 @@ EXIT_SCALE = 1.0  # the same, for a surface vertex inside a body: it leaves thro
                   # facing against the surface's normal, behind the body (below a seated one)
 TAU_RAMP = 5  # iterations over which tau rises from 0 to tau_max
 PATIENCE = 5  # iterations without improvement before the loop stops
-EPS_ABS, EPS_REL = 1e-5, 1e-4  # OSQP tolerances (metres for the constraints)
 SLACK_WEIGHT = 1e3  # cost per m^2 of a non-penetration row left unmet (soft constraints)
 DENSE_UP_TO = 150  # control vertices up to which the Hessian is built dense
 PROXIMAL = 0.01  # weight of the pull to the current control mesh (per coordinate)
@@ -116,107 +116,58 @@ def control_laplacian(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
     return sp.csr_matrix(lap)
 
 
-class _Programme:
-    """The QP over the control vertices x (3 n0) and one slack per non-penetration row.
+@dataclass(eq=False)
+class _Fit:
+    """What stays fixed over one fit: the start, the operators, the bodies' important points
+    and search trees, the quadratic weights and the programme."""
 
-    Rows are soft: n . (S x)_r + slack_r >= lower_r with slack_r >= 0 costing SLACK_WEIGHT
-    slack^2, so overlapping bodies that no surface can clear at once leave a measured residual
-    instead of an infeasible programme. The objective's pattern for x is fixed for the whole
-    fit; OSQP is set up again only when the set of rows changes, and updated in place otherwise.
-    """
+    v0: np.ndarray  # (n0, 3) start control vertices
+    faces: np.ndarray
+    params: FitParams
+    sub: Subdivision
+    lap: sp.csr_matrix  # (n0, n0) control-mesh Laplacian
+    points: np.ndarray  # (P, 3) every body vertex
+    normals: np.ndarray  # (P, 3)
+    b_imp: np.ndarray  # (I, 3) the important ones
+    w_imp: np.ndarray  # (I,) their importance
+    body_tree: cKDTree  # (position, FACING_SCALE x normal) of every body vertex
+    body_tree3: cKDTree  # positions
+    exit_tree: cKDTree  # (position, EXIT_SCALE x normal)
+    fixed: np.ndarray  # (n0,) pull to the start: anchor / n0, plus gamma on fixed vertices
+    smooth: sp.csr_matrix  # (sigma / n0) L^T L
+    diagonal: np.ndarray | sp.csr_matrix  # smooth + fixed + proximal, per coordinate block
+    proximal: float
+    dense: bool
+    programme: Programme
+    sampled_ids: np.ndarray  # the surface vertices that may carry non-penetration rows
 
-    def __init__(self, sub: Subdivision, lap: sp.csr_matrix, n0: int, slack_weight: float):
-        import osqp
-
-        self._osqp = osqp
-        self.n0 = n0
-        self.slack_weight = slack_weight
-        s = sub.matrix.tocsr()
-        self.s = s
-        coupling = (s.T @ s).tocsr() + (lap.T @ lap) + sp.identity(n0)
-        coupling.data[:] = 1.0
-        block = sp.kron(sp.csr_matrix(np.ones((3, 3))), coupling).tocsc()
-        self.x_pattern = sp.triu(block, format="csc")
-        self.x_pattern.sort_indices()
-        self.rows: np.ndarray | None = None
-        self.solver = None
-        self.setups = 0
-
-    def _setup_patterns(self, rows: np.ndarray) -> None:
-        n, r = 3 * self.n0, len(rows)
-        # objective: [P_x 0; 0 2 w I_r]
-        p = sp.block_diag([self.x_pattern, sp.identity(r)], format="csc")
-        p.sort_indices()
-        self.p_pattern = p
-        self.p_rows, self.p_cols = _coo_of(p)
-        self.p_is_x = self.p_cols < n
-        self.p_xr, self.p_xc = self.p_rows[self.p_is_x], self.p_cols[self.p_is_x]
-        # constraints: [n.S  I_r; I_x 0; 0 I_r]
-        sub = self.s[rows]
-        self.s_rows = sub
-        a = sp.vstack([
-            sp.hstack([sub, sub, sub, sp.identity(r)]),
-            sp.hstack([sp.identity(n), sp.csr_matrix((n, r))]),
-            sp.hstack([sp.csr_matrix((r, n)), sp.identity(r)]),
-        ], format="csc")
-        a.sort_indices()
-        self.a_pattern = a
-        ar, ac = _coo_of(a)
-        plane = (ar < r) & (ac < n)
-        self.a_plane = plane
-        self.a_row = np.where(plane, ar, 0)
-        self.a_axis = np.where(plane, ac // self.n0, 0)
-        self.a_s = np.ones(len(ar))
-        self.a_s[plane] = np.asarray(sub[ar[plane], ac[plane] % self.n0]).ravel()
-
-    def _set_up(self, p_values, q, a_values, low, high) -> None:
-        p = self.p_pattern.copy()
-        p.data = p_values
-        a = self.a_pattern.copy()
-        a.data = a_values
-        self.solver = self._osqp.OSQP()
-        # no Ruiz equilibration: the variables are metres already, and equilibrating the stiff
-        # slack columns against the soft control vertices left some programmes at OSQP's
-        # iteration limit (thousands of iterations where 100-200 do without)
-        self.solver.setup(p, q, a, low, high, verbose=False, warm_starting=True, polishing=False,
-                          eps_abs=EPS_ABS, eps_rel=EPS_REL, max_iter=20000, adaptive_rho=True,
-                          scaling=0)
-        self.setups += 1
-
-    def solve(self, p_x: np.ndarray | sp.csr_matrix, q: np.ndarray, rows: np.ndarray, normals: np.ndarray,
-              lower: np.ndarray, x0: np.ndarray, step: float) -> tuple[np.ndarray, str, float]:
-        n, r = 3 * self.n0, len(rows)
-        fresh = self.rows is None or not np.array_equal(rows, self.rows)
-        if fresh:
-            self.rows = rows
-            self._setup_patterns(rows)
-        p_values = np.full(len(self.p_rows), 2 * self.slack_weight)
-        p_values[self.p_is_x] = np.asarray(p_x[self.p_xr, self.p_xc]).ravel()
-        a_values = np.where(self.a_plane, self.a_s * normals[self.a_row, self.a_axis], 1.0)
-        q_full = np.concatenate([q, np.zeros(r)])
-        low = np.concatenate([lower, x0 - step, np.zeros(r)])
-        high = np.concatenate([np.full(r, np.inf), x0 + step, np.full(r, np.inf)])
-        if fresh:
-            self._set_up(p_values, q_full, a_values, low, high)
-        else:
-            self.solver.update(Px=p_values, q=q_full, Ax=a_values, l=low, u=high)
-        slack0 = np.maximum(0.0, lower - _normals_dot(normals, self.s_rows @ x0.reshape(3, -1).T))
-        self.solver.warm_start(x=np.concatenate([x0, slack0]))
-        res = self.solver.solve(raise_error=False)
-        status = str(res.info.status)
-        if status not in ("solved", "solved inaccurate"):
-            raise FitError(f"The surface's quadratic programme failed: OSQP says {status!r}")
-        return res.x[:n], status, float(res.x[n:].max(initial=0.0))
+    @property
+    def n0(self) -> int:
+        return len(self.v0)
 
 
-def _normals_dot(normals: np.ndarray, points: np.ndarray) -> np.ndarray:
-    return np.einsum("ij,ij->i", normals, points)
+@dataclass(frozen=True, eq=False)
+class Pairing:
+    """Each important body point's closest surface vertex `pair` (I,), and per paired surface
+    vertex `paired` (K,) its weight (K,) (importance within the pull range, over the total) and
+    the weighted mean `target` (K, 3) of the points it serves."""
+
+    pair: np.ndarray
+    paired: np.ndarray
+    weight: np.ndarray
+    target: np.ndarray
 
 
-def _coo_of(m: sp.csc_matrix) -> tuple[np.ndarray, np.ndarray]:
-    """Row and column of each stored entry, in the matrix's own data order (CSC)."""
-    cols = np.repeat(np.arange(m.shape[1]), np.diff(m.indptr))
-    return m.indices.copy(), cols
+@dataclass(frozen=True, eq=False)
+class Rows:
+    """The non-penetration rows: surface vertices `rows` (R,), the body normal (R, 3) each
+    stays in front of, `lower` (R,) the step's bound on n . v, `demanded` (R,) the whole
+    demand n . b - margin (-inf where a row is not wanted now)."""
+
+    rows: np.ndarray
+    normals: np.ndarray
+    lower: np.ndarray
+    demanded: np.ndarray
 
 
 def _stack(targets: Sequence[SupportedBody]):
@@ -227,28 +178,8 @@ def _stack(targets: Sequence[SupportedBody]):
     return points, normals, rho, owner
 
 
-def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedBody],
-                params: FitParams = FitParams(),
-                progress: Callable[[int, float, float], None] | None = None) -> FitResult:
-    """Fits the control mesh to the bodies (see the module docstring).
-
-    progress : optional callback (iteration, energy, tau).
-    """
-    start = time.perf_counter()
-    v0 = np.asarray(control, dtype=np.float64)
-    faces = np.asarray(faces, dtype=np.int64)
-    n0 = len(v0)
-    if not targets:
-        raise FitError("Expected at least one body to support, got none")
-    for j in params.fixed:
-        if not 0 <= j < n0:
-            raise FitError(f"Expected fixed control vertices in 0..{n0 - 1}, got {j}")
-    sub = subdivision(n0, faces, params.level, params.creases or None)
-    s = sub.matrix
-    lap = control_laplacian(v0, faces)
-    points, normals, rho, owner = _stack(targets)
-    important = np.flatnonzero(rho > 1e-3)
-    surface0 = s @ v0
+def _check_reach(surface0: np.ndarray, targets: Sequence[SupportedBody], points: np.ndarray,
+                 owner: np.ndarray, important: np.ndarray) -> None:
     near, _ = cKDTree(surface0).query(points[important])
     for k, t in enumerate(targets):
         mine = owner[important] == k
@@ -259,11 +190,24 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
             raise FitError(f"{t.label} is entirely outside the surface's reach: its nearest "
                            f"supported point is {near[mine].min():.2f} m from the surface "
                            f"(reach {REACH} m); move the person or the surface")
-    b_imp, w_imp = points[important], rho[important]
-    total = w_imp.sum()
-    body_tree = cKDTree(np.concatenate([points, FACING_SCALE * normals], axis=1))
-    body_tree3 = cKDTree(points)
-    exit_tree = cKDTree(np.concatenate([points, EXIT_SCALE * normals], axis=1))
+
+
+def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedBody],
+            params: FitParams) -> _Fit:
+    """Checks the inputs and builds what stays fixed over the fit (see `_Fit`)."""
+    v0 = np.asarray(control, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    n0 = len(v0)
+    if not targets:
+        raise FitError("Expected at least one body to support, got none")
+    for j in params.fixed:
+        if not 0 <= j < n0:
+            raise FitError(f"Expected fixed control vertices in 0..{n0 - 1}, got {j}")
+    sub = subdivision(n0, faces, params.level, params.creases or None)
+    lap = control_laplacian(v0, faces)
+    points, normals, rho, owner = _stack(targets)
+    important = np.flatnonzero(rho > 1e-3)
+    _check_reach(sub.matrix @ v0, targets, points, owner, important)
     fixed = np.full(n0, params.anchor / n0)
     fixed[list(params.fixed)] += params.gamma
     smooth = (params.sigma / n0) * (lap.T @ lap)
@@ -274,136 +218,201 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
     proximal = PROXIMAL / people
     diagonal = (smooth + sp.diags(fixed + proximal)).tocsr()
     dense = n0 <= DENSE_UP_TO
-    if dense:
-        diagonal = diagonal.toarray()
-    prog = _Programme(sub, lap, n0, SLACK_WEIGHT / people)
-    v = v0.copy()
+    # non-penetration rows on the surface vertices that are vertex points of the level before
+    # (every other vertex each way, about 2 cm apart on a seat): a quarter of the rows
+    sampled = np.arange(sub.steps[-1].matrix.shape[1] if sub.steps else sub.matrix.shape[0])
+    return _Fit(v0, faces, params, sub, lap, points, normals, points[important],
+                rho[important], cKDTree(np.concatenate([points, FACING_SCALE * normals], axis=1)),
+                cKDTree(points), cKDTree(np.concatenate([points, EXIT_SCALE * normals], axis=1)),
+                fixed, smooth, diagonal.toarray() if dense else diagonal, proximal, dense,
+                Programme(sub, lap, n0, SLACK_WEIGHT / people), sampled)
+
+
+def initial_rows(fit: _Fit) -> np.ndarray:
+    """(ns,) bool: the sampled surface vertices a body could reach from the start, where rows
+    begin, so that the set (and OSQP's set-up) seldom changes as the surface moves."""
+    member = np.zeros(fit.sub.matrix.shape[0], dtype=bool)
+    reach, _ = fit.body_tree3.query((fit.sub.matrix @ fit.v0)[fit.sampled_ids],
+                                    distance_upper_bound=REACH)
+    member[fit.sampled_ids[np.isfinite(reach)]] = True
+    return member
+
+
+def pair(fit: _Fit, surf: np.ndarray) -> Pairing:
+    """Each important body point pulls its closest surface vertex. Body points farther than the
+    pull range do not pull (yet): the surface grows towards the bodies from where the designer
+    put it, instead of reaching across the scene."""
+    surf_tree = cKDTree(surf)
+    gap, nearest = surf_tree.query(fit.b_imp, distance_upper_bound=fit.params.pull_range)
+    reached = np.isfinite(gap)
+    if not reached.all():  # the energy still counts them, at their nearest surface vertex
+        nearest[~reached] = surf_tree.query(fit.b_imp[~reached])[1]
+    w_now = np.where(reached, fit.w_imp, 0.0)
+    w = np.bincount(nearest, w_now, minlength=len(surf))
+    target = np.stack([np.bincount(nearest, w_now * fit.b_imp[:, a], minlength=len(surf))
+                       for a in range(3)], axis=1)
+    used = w > 0
+    target[used] /= w[used, None]
+    paired = np.flatnonzero(used)
+    return Pairing(nearest, paired, w[paired] / fit.w_imp.sum(), target[paired])
+
+
+def assemble(fit: _Fit, pairing: Pairing, surf_n: np.ndarray, tau: float
+             ) -> tuple[np.ndarray | sp.csr_matrix, np.ndarray]:
+    """The quadratic energy of the control vertices x (3 n0, coordinate blocks) as
+    x^T H x - 2 g^T x + const: the data terms at the pairing, the smoothness, the fixed and
+    anchor pulls and the proximal pull (its linear part is added by the caller, who knows the
+    current iterate). Only the paired surface vertices carry data terms: their rows of S (a
+    level-s vertex depends on a few control vertices, so on large meshes the blocks stay sparse;
+    on small ones dense products are quicker)."""
+    n0, s, v0 = fit.n0, fit.sub.matrix, fit.v0
+    s_p = s[pairing.paired].toarray() if fit.dense else s[pairing.paired]
+    w_p, n_p, t_p = pairing.weight, surf_n[pairing.paired], pairing.target
+    nt = np.einsum("ij,ij->i", n_p, t_p)  # n . p per paired surface vertex
+    blocks = [[None] * 3 for _ in range(3)]
+    g = np.zeros(3 * n0)
+    for a in range(3):
+        for b in range(a, 3):
+            c = w_p * (tau * n_p[:, a] * n_p[:, b] + ((1 - tau) if a == b else 0.0))
+            blocks[a][b] = (s_p.T * c) @ s_p if fit.dense else s_p.T @ sp.diags(c) @ s_p
+        ga = w_p * ((1 - tau) * t_p[:, a] + tau * n_p[:, a] * nt)
+        g[a * n0:(a + 1) * n0] = s_p.T @ ga + fit.fixed * v0[:, a]
+        blocks[a][a] = blocks[a][a] + fit.diagonal
+    if fit.dense:  # only the upper blocks are read
+        zero = np.zeros((n0, n0))
+        return np.block([[blk if blk is not None else zero for blk in row]
+                         for row in blocks]), g
+    return sp.bmat(blocks, format="csr"), g
+
+
+def _nearest_skin(fit: _Fit, sv: np.ndarray, sn: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For sampled surface vertices sv (m, 3) with normals sn: the body vertex each stays in
+    front of, its distance, and whether the surface vertex lies inside a body."""
+    points, normals = fit.points, fit.normals
+    # closest body vertex facing the surface (a vertex whose search finds nothing within reach
+    # is far from every body: no row)
+    _, near_s = fit.body_tree.query(np.concatenate([sv, -FACING_SCALE * sn], axis=1),
+                                    distance_upper_bound=FACING_REACH)
+    far = near_s == len(points)
+    near_s[far] = 0
+    dist = np.where(far, np.inf, np.linalg.norm(points[near_s] - sv, axis=1))
+    # a surface vertex inside a body (behind its nearest skin vertex) is always constrained,
+    # however far the skin it faces: it must get out (no body part is so thick that a point
+    # inside it lies farther than INSIDE_REACH from its skin); it leaves through the skin
+    # facing against the surface's normal
+    _, nearest = fit.body_tree3.query(sv, distance_upper_bound=INSIDE_REACH)
+    outside = nearest == len(points)
+    nearest[outside] = 0
+    inside = ~outside & (np.einsum("ij,ij->i", sv - points[nearest], normals[nearest]) < 0)
+    if inside.any():
+        _, exits = fit.exit_tree.query(np.concatenate([sv[inside], -EXIT_SCALE * sn[inside]],
+                                                      axis=1))
+        near_s[inside] = exits
+    return near_s, dist, inside
+
+
+def constrain(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray, member: np.ndarray) -> Rows:
+    """Non-penetration: each sampled surface vertex near a body (or inside one) stays outside
+    the tangent plane at its body vertex, less the margin. Rows join `member` (updated in
+    place) and stay, inactive when not wanted, so that OSQP is set up again only when a new
+    surface vertex comes near a body."""
+    ids = fit.sampled_ids
+    near_s, dist, inside = _nearest_skin(fit, surf[ids], surf_n[ids])
+    closest = np.zeros(len(surf), dtype=np.int64)
+    closest[ids] = near_s
+    wanted = np.zeros(len(surf), dtype=bool)
+    wanted[ids] = (dist <= CONSTRAINT_RADIUS) | inside
+    member |= wanted
+    rows = np.flatnonzero(member)
+    cn = fit.normals[closest[rows]]
+    lower = np.einsum("ij,ij->i", cn, fit.points[closest[rows]]) - fit.params.margin
+    lower[~wanted[rows]] = -np.inf
+    demanded = lower.copy()
+    # a violated row need only improve by most of a step per iteration (it stays feasible
+    # within the trust region)
+    now = np.einsum("ij,ij->i", cn, surf[rows])
+    return Rows(rows, cn, np.minimum(lower, now + 0.8 * fit.params.step), demanded)
+
+
+def judge(fit: _Fit, v: np.ndarray, pairing: Pairing, surf_n: np.ndarray, tau: float,
+          rows: Rows) -> tuple[float, dict]:
+    """What the loop judges an iterate by: the programme's own objective, the energy plus the
+    cost of the rows the step left unmet (against the whole demand, not the step's share of
+    it), so an iterate that cuts into a body does not count as the best."""
+    new_surf = fit.sub.matrix @ v
+    energy, terms = _energy(new_surf, v, fit.v0, pairing.pair, fit.b_imp, fit.w_imp, surf_n,
+                            tau, fit.smooth, fit.fixed)
+    short = np.maximum(0.0, rows.demanded - np.einsum("ij,ij->i", rows.normals,
+                                                      new_surf[rows.rows]))
+    energy += fit.programme.slack_weight * float(np.sum(short ** 2))
+    terms["unmet_rows_m2"] = float(np.sum(short ** 2))
+    terms["laplacian_m2"] = float(np.mean(np.sum((fit.lap @ v) ** 2, axis=1)))
+    return energy, terms
+
+
+def converged(energies: Sequence[float], tolerance: float) -> bool:
+    """Whether the best energy after the tau ramp has not improved by `tolerance` (relative)
+    in the last PATIENCE iterations (energies are comparable only at the same tau)."""
+    post = energies[TAU_RAMP:]
+    return len(post) > PATIENCE and min(post) > min(post[:-PATIENCE]) * (1 - tolerance)
+
+
+def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedBody],
+                params: FitParams = FitParams(),
+                progress: Callable[[int, float, float], None] | None = None) -> FitResult:
+    """Fits the control mesh to the bodies (see the module docstring): each iteration pairs,
+    assembles, constrains, solves and judges; the best iterate is kept.
+
+    control : (n0, 3) start control vertices, metres; faces : (F0, 4) quads.
+    targets : the bodies to support (vertices, normals, importance; their triangles unused).
+    progress : optional callback (iteration, energy, tau).
+    """
+    start = time.perf_counter()
+    fit = prepare(control, faces, targets, params)
+    s, n0 = fit.sub.matrix, fit.n0
+    v = fit.v0.copy()
     energies: list[float] = []
     statuses: list[str] = []
     residuals: list[float] = []
-    member = np.zeros(s.shape[0], dtype=bool)
-    # non-penetration rows on the surface vertices that are vertex points of the level before
-    # (every other vertex each way, about 2 cm apart on a seat): a quarter of the rows
-    sampled_ids = np.arange(sub.steps[-1].matrix.shape[1] if sub.steps else s.shape[0])
-    # rows start on every sampled vertex a body could reach, so that the set (and OSQP's set-up)
-    # seldom changes as the surface moves
-    reach, _ = body_tree3.query(surface0[sampled_ids], distance_upper_bound=REACH)
-    member[sampled_ids[np.isfinite(reach)]] = True
+    member = initial_rows(fit)
     best = None
-    terms: dict = {}
     stop = f"reached the iteration limit ({params.max_iterations})"
     iteration = 0
     for iteration in range(1, params.max_iterations + 1):
         tau = params.tau_max * min(1.0, (iteration - 1) / TAU_RAMP)
         surf = s @ v
-        surf_n = sub.normals(surf)
-        # data: each important body point pulls its closest surface vertex
-        # body points farther than the pull range do not pull (yet): the surface grows towards
-        # the bodies from where the designer put it, instead of reaching across the scene
-        surf_tree = cKDTree(surf)
-        gap, pair = surf_tree.query(b_imp, distance_upper_bound=params.pull_range)
-        reached = np.isfinite(gap)
-        if not reached.all():  # the energy still counts them, at their nearest surface vertex
-            pair[~reached] = surf_tree.query(b_imp[~reached])[1]
-        w_now = np.where(reached, w_imp, 0.0)
-        w = np.bincount(pair, w_now, minlength=len(surf))
-        target = np.stack([np.bincount(pair, w_now * b_imp[:, a], minlength=len(surf))
-                           for a in range(3)], axis=1)
-        used = w > 0
-        target[used] /= w[used, None]
-        # only the paired surface vertices carry data terms: their rows of S (a level-s vertex
-        # depends on a few control vertices, so on large meshes the Hessian's blocks stay
-        # sparse; on small ones dense products are quicker)
-        paired = np.flatnonzero(used)
-        s_p = s[paired].toarray() if dense else s[paired]
-        w_p, n_p, t_p = w[paired] / total, surf_n[paired], target[paired]
-        nt = np.einsum("ij,ij->i", n_p, t_p)  # n . p per paired surface vertex
-        blocks = [[None] * 3 for _ in range(3)]
-        g = np.zeros(3 * n0)
-        for a in range(3):
-            for b in range(a, 3):
-                c = w_p * (tau * n_p[:, a] * n_p[:, b] + ((1 - tau) if a == b else 0.0))
-                blocks[a][b] = (s_p.T * c) @ s_p if dense else s_p.T @ sp.diags(c) @ s_p
-            ga = w_p * ((1 - tau) * t_p[:, a] + tau * n_p[:, a] * nt)
-            g[a * n0:(a + 1) * n0] = s_p.T @ ga + fixed * v0[:, a]
-            # the smoothness, the fixed and anchor pulls, and a proximal pull to the current
-            # control mesh, which damps the alternation between pairing and solving
-            blocks[a][a] = blocks[a][a] + diagonal
-        if dense:  # only the upper blocks are read
-            zero = np.zeros((n0, n0))
-            h = np.block([[blk if blk is not None else zero for blk in row] for row in blocks])
-        else:
-            h = sp.bmat(blocks, format="csr")
-        # non-penetration: stay outside the tangent plane at the closest body vertex
-        # (only the sampled surface vertices carry rows, so only they are looked up)
-        sv, sn = surf[sampled_ids], surf_n[sampled_ids]
-        # (a vertex whose search finds nothing within reach is far from every body: no row)
-        _, near_s = body_tree.query(np.concatenate([sv, -FACING_SCALE * sn], axis=1),
-                                    distance_upper_bound=FACING_REACH)
-        far = near_s == len(points)
-        near_s[far] = 0
-        dist = np.where(far, np.inf, np.linalg.norm(points[near_s] - sv, axis=1))
-        # a surface vertex inside a body (behind its nearest skin vertex) is always constrained,
-        # however far the skin it faces: it must get out (no body part is so thick that a point
-        # inside it lies farther than INSIDE_REACH from its skin)
-        _, nearest = body_tree3.query(sv, distance_upper_bound=INSIDE_REACH)
-        outside = nearest == len(points)
-        nearest[outside] = 0
-        inside_s = ~outside & (np.einsum("ij,ij->i", sv - points[nearest], normals[nearest]) < 0)
-        if inside_s.any():
-            _, exits = exit_tree.query(np.concatenate([sv[inside_s],
-                                                       -EXIT_SCALE * sn[inside_s]], axis=1))
-            near_s[inside_s] = exits
-        closest = np.zeros(len(surf), dtype=np.int64)
-        closest[sampled_ids] = near_s
-        wanted = np.zeros(len(surf), dtype=bool)
-        wanted[sampled_ids] = (dist <= CONSTRAINT_RADIUS) | inside_s
-        # rows only join the programme (and stay, inactive when not wanted) so that OSQP is set
-        # up again only when a new surface vertex comes near a body
-        member |= wanted
-        rows = np.flatnonzero(member)
-        cn = np.zeros((len(surf), 3))
-        cn[rows] = normals[closest[rows]]
-        lower = np.einsum("ij,ij->i", cn[rows], points[closest[rows]]) - params.margin
-        lower[~wanted[rows]] = -np.inf
-        demanded = lower.copy()
-        # a violated row need only improve by most of a step per iteration (it stays feasible
-        # within the trust region)
-        now = np.einsum("ij,ij->i", cn[rows], surf[rows])
-        lower = np.minimum(lower, now + 0.8 * params.step)
+        surf_n = fit.sub.normals(surf)
+        pairing = pair(fit, surf)
+        h, g = assemble(fit, pairing, surf_n, tau)
+        rows = constrain(fit, surf, surf_n, member)
         x0 = v.T.reshape(-1)
-        g += proximal * x0
-        x, status, residual = prog.solve(2 * h, -2 * g, rows, cn[rows], lower, x0, params.step)
+        g += fit.proximal * x0  # the proximal pull to the current iterate
+        try:
+            x, status, residual = fit.programme.solve(2 * h, -2 * g, rows.rows, rows.normals,
+                                                      rows.lower, x0, params.step)
+        except ProgrammeError as exc:
+            raise FitError(str(exc)) from None
         statuses.append(status)
         residuals.append(residual)
         v = x.reshape(3, n0).T
-        new_surf = s @ v
-        energy, terms = _energy(new_surf, v, v0, pair, b_imp, w_imp, surf_n, tau, smooth, fixed)
-        # what the loop judges is the programme's own objective: the energy plus the cost of
-        # the rows the step left unmet (against the whole demand, not the step's share of it),
-        # so an iterate that cuts into a body does not count as the best
-        short = np.maximum(0.0, demanded - np.einsum("ij,ij->i", cn[rows], new_surf[rows]))
-        energy += prog.slack_weight * float(np.sum(short ** 2))
-        terms["unmet_rows_m2"] = float(np.sum(short ** 2))
-        terms["laplacian_m2"] = float(np.mean(np.sum((lap @ v) ** 2, axis=1)))
+        energy, terms = judge(fit, v, pairing, surf_n, tau, rows)
         energies.append(energy)
         # energies are comparable only at the same tau: keep and judge those after the ramp
         if best is None or energy < best[0] or iteration <= TAU_RAMP + 1:
             best = (energy, v.copy(), dict(terms), iteration)
         if progress is not None:
             progress(iteration, energy, tau)
-        post = energies[TAU_RAMP:]
-        if len(post) > PATIENCE and min(post) > min(post[:-PATIENCE]) * (1 - params.tolerance):
+        if converged(energies, params.tolerance):
             stop = (f"converged: the best energy has not improved by {100 * params.tolerance:g} %"
                     f" in {PATIENCE} iterations (best {best[0]:.6g} at iteration {best[3]})")
             break
     _, v, terms, best_iteration = best
-    surface = s @ v
     terms["best_iteration"] = best_iteration
-    terms["qp_setups"] = prog.setups
+    terms["qp_setups"] = fit.programme.setups
     terms["largest_row_residual_m"] = residuals[best_iteration - 1] if residuals else 0.0
-    return FitResult(v, faces, surface, sub.faces, iteration, stop, energies, terms,
-                     time.perf_counter() - start, statuses, sub)
+    return FitResult(v, fit.faces, s @ v, fit.sub.faces, iteration, stop, energies, terms,
+                     time.perf_counter() - start, statuses, fit.sub)
 
 
 def _energy(surf, v, v0, pair, b, w, surf_n, tau, smooth, fixed) -> tuple[float, dict]:

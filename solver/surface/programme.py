@@ -1,0 +1,119 @@
+"""The fit's quadratic programme: the control vertices and one slack per non-penetration row,
+solved by OSQP, set up once per set of rows and updated in place otherwise."""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from solver.surface.subdivision import Subdivision
+
+EPS_ABS, EPS_REL = 1e-5, 1e-4  # OSQP tolerances (metres for the constraints)
+
+
+class ProgrammeError(ValueError):
+    """OSQP could not solve the programme."""
+
+
+class Programme:
+    """The QP over the control vertices x (3 n0) and one slack per non-penetration row.
+
+    Rows are soft: n . (S x)_r + slack_r >= lower_r with slack_r >= 0 costing SLACK_WEIGHT
+    slack^2, so overlapping bodies that no surface can clear at once leave a measured residual
+    instead of an infeasible programme. The objective's pattern for x is fixed for the whole
+    fit; OSQP is set up again only when the set of rows changes, and updated in place otherwise.
+    """
+
+    def __init__(self, sub: Subdivision, lap: sp.csr_matrix, n0: int, slack_weight: float):
+        import osqp
+
+        self._osqp = osqp
+        self.n0 = n0
+        self.slack_weight = slack_weight
+        s = sub.matrix.tocsr()
+        self.s = s
+        coupling = (s.T @ s).tocsr() + (lap.T @ lap) + sp.identity(n0)
+        coupling.data[:] = 1.0
+        block = sp.kron(sp.csr_matrix(np.ones((3, 3))), coupling).tocsc()
+        self.x_pattern = sp.triu(block, format="csc")
+        self.x_pattern.sort_indices()
+        self.rows: np.ndarray | None = None
+        self.solver = None
+        self.setups = 0
+
+    def _setup_patterns(self, rows: np.ndarray) -> None:
+        n, r = 3 * self.n0, len(rows)
+        # objective: [P_x 0; 0 2 w I_r]
+        p = sp.block_diag([self.x_pattern, sp.identity(r)], format="csc")
+        p.sort_indices()
+        self.p_pattern = p
+        self.p_rows, self.p_cols = _coo_of(p)
+        self.p_is_x = self.p_cols < n
+        self.p_xr, self.p_xc = self.p_rows[self.p_is_x], self.p_cols[self.p_is_x]
+        # constraints: [n.S  I_r; I_x 0; 0 I_r]
+        sub = self.s[rows]
+        self.s_rows = sub
+        a = sp.vstack([
+            sp.hstack([sub, sub, sub, sp.identity(r)]),
+            sp.hstack([sp.identity(n), sp.csr_matrix((n, r))]),
+            sp.hstack([sp.csr_matrix((r, n)), sp.identity(r)]),
+        ], format="csc")
+        a.sort_indices()
+        self.a_pattern = a
+        ar, ac = _coo_of(a)
+        plane = (ar < r) & (ac < n)
+        self.a_plane = plane
+        self.a_row = np.where(plane, ar, 0)
+        self.a_axis = np.where(plane, ac // self.n0, 0)
+        self.a_s = np.ones(len(ar))
+        self.a_s[plane] = np.asarray(sub[ar[plane], ac[plane] % self.n0]).ravel()
+
+    def _set_up(self, p_values, q, a_values, low, high) -> None:
+        p = self.p_pattern.copy()
+        p.data = p_values
+        a = self.a_pattern.copy()
+        a.data = a_values
+        self.solver = self._osqp.OSQP()
+        # no Ruiz equilibration: the variables are metres already, and equilibrating the stiff
+        # slack columns against the soft control vertices left some programmes at OSQP's
+        # iteration limit (thousands of iterations where 100-200 do without)
+        self.solver.setup(p, q, a, low, high, verbose=False, warm_starting=True, polishing=False,
+                          eps_abs=EPS_ABS, eps_rel=EPS_REL, max_iter=20000, adaptive_rho=True,
+                          scaling=0)
+        self.setups += 1
+
+    def solve(self, p_x: np.ndarray | sp.csr_matrix, q: np.ndarray, rows: np.ndarray, normals: np.ndarray,
+              lower: np.ndarray, x0: np.ndarray, step: float) -> tuple[np.ndarray, str, float]:
+        n, r = 3 * self.n0, len(rows)
+        fresh = self.rows is None or not np.array_equal(rows, self.rows)
+        if fresh:
+            self.rows = rows
+            self._setup_patterns(rows)
+        p_values = np.full(len(self.p_rows), 2 * self.slack_weight)
+        p_values[self.p_is_x] = np.asarray(p_x[self.p_xr, self.p_xc]).ravel()
+        a_values = np.where(self.a_plane, self.a_s * normals[self.a_row, self.a_axis], 1.0)
+        q_full = np.concatenate([q, np.zeros(r)])
+        low = np.concatenate([lower, x0 - step, np.zeros(r)])
+        high = np.concatenate([np.full(r, np.inf), x0 + step, np.full(r, np.inf)])
+        if fresh:
+            self._set_up(p_values, q_full, a_values, low, high)
+        else:
+            self.solver.update(Px=p_values, q=q_full, Ax=a_values, l=low, u=high)
+        slack0 = np.maximum(0.0, lower - _normals_dot(normals, self.s_rows @ x0.reshape(3, -1).T))
+        self.solver.warm_start(x=np.concatenate([x0, slack0]))
+        res = self.solver.solve(raise_error=False)
+        status = str(res.info.status)
+        if status not in ("solved", "solved inaccurate"):
+            raise ProgrammeError(f"The surface's quadratic programme failed: OSQP says "
+                                 f"{status!r}")
+        return res.x[:n], status, float(res.x[n:].max(initial=0.0))
+
+
+def _normals_dot(normals: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,ij->i", normals, points)
+
+
+def _coo_of(m: sp.csc_matrix) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column of each stored entry, in the matrix's own data order (CSC)."""
+    cols = np.repeat(np.arange(m.shape[1]), np.diff(m.indptr))
+    return m.indices.copy(), cols
