@@ -7,7 +7,7 @@ import os
 import signal
 
 from capture import resolve_path, write_bvh
-from capture.cli import _event, _status
+from capture.cli_output import print_event, print_status
 
 from .library import PoseLibrary
 from .record import record, recordings, recover
@@ -153,13 +153,13 @@ def _cmd_record(args) -> int:
 
     def progress(s: dict) -> None:
         fps = f"{s['fps']:.1f}" if s["fps"] else "-"
-        _status(f"recording {args.take}: {s['frames']} frames  fps {fps}  dropped "
-                f"{s['dropped']}  corrupt {s['corrupt']}")
+        print_status(f"recording {args.take}: {s['frames']} frames  fps {fps}  dropped "
+                     f"{s['dropped']}  corrupt {s['corrupt']}")
 
     try:
         summary = record(args.source, args.db, args.take, args.skeleton, duration=args.duration,
                          frames=args.frames, subject=args.subject, tags=args.tag,
-                         notes=args.notes, unit=args.unit, on_event=_event,
+                         notes=args.notes, unit=args.unit, on_event=print_event,
                          on_progress=progress, stop=lambda: stopping["flag"])
     finally:
         signal.signal(signal.SIGINT, previous)
