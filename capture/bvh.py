@@ -18,7 +18,7 @@ import math
 import os
 import re
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -167,14 +167,38 @@ def _tokenise_line(raw: str) -> list[str]:
     return words
 
 
-def _parse_hierarchy(cur: _Lines):
-    names: list[str] = []
-    parents: list[int] = []
-    offsets: list[tuple[float, float, float]] = []
-    channels: list[tuple[str, ...]] = []
-    end_sites: list[tuple[float, float, float]] = []
-    end_parents: list[int] = []
+@dataclass
+class _Tree:
+    """The hierarchy's tables as they are read, in file (depth-first) order."""
 
+    names: list[str] = field(default_factory=list)
+    parents: list[int] = field(default_factory=list)
+    offsets: list[tuple[float, float, float]] = field(default_factory=list)
+    channels: list[tuple[str, ...]] = field(default_factory=list)
+    end_sites: list[tuple[float, float, float]] = field(default_factory=list)
+    end_parents: list[int] = field(default_factory=list)
+
+    def skeleton(self) -> Skeleton:
+        return Skeleton(
+            names=tuple(self.names),
+            parents=np.array(self.parents, dtype=np.int64),
+            offsets=np.array(self.offsets, dtype=np.float64),
+            channels=tuple(self.channels),
+            end_sites=np.array(self.end_sites, dtype=np.float64).reshape(-1, 3),
+            end_site_parents=np.array(self.end_parents, dtype=np.int64),
+        )
+
+
+def _parse_hierarchy(cur: _Lines) -> Skeleton:
+    tree = _Tree()
+    _hierarchy_keyword(cur)
+    while _next_root(cur, tree):
+        _parse_joint(cur, tree, -1, "ROOT")
+    return tree.skeleton()
+
+
+def _hierarchy_keyword(cur: _Lines) -> None:
+    """The file's first line: `HIERARCHY` alone."""
     first = cur.peek()
     if first is None:
         raise cur.error("expected 'HIERARCHY', got an empty file", line=1)
@@ -185,142 +209,156 @@ def _parse_hierarchy(cur: _Lines):
     if extra:
         raise cur.error(f"expected nothing after 'HIERARCHY', got {_show(extra[0])}")
 
-    def offset_triplet() -> tuple[float, float, float]:
-        values = cur.rest_of_line()
-        if len(values) != 3:
-            raise cur.error(f"expected 3 numbers after OFFSET, got {len(values)}")
-        out = []
-        for v in values:
-            if not _NUMBER.fullmatch(v):
-                raise cur.error(f"expected a number in OFFSET, got {_show(v)}")
-            x = float(v)
-            if not math.isfinite(x):
-                raise cur.error(f"expected a finite number in OFFSET, got {_show(v)}")
-            out.append(x)
-        return tuple(out)  # type: ignore[return-value]
 
-    def open_brace(owner: str) -> None:
-        tok = cur.take(f"'{{' after {owner}")
-        if tok != "{":
-            raise cur.error(f"expected '{{' after {owner}, got {_show(tok)}")
+def _next_root(cur: _Lines, tree: _Tree) -> bool:
+    """Takes a ROOT keyword (True) or the `MOTION` line that ends the hierarchy (False)."""
+    tok = cur.peek()
+    if tok is None:
+        raise cur.error("expected 'MOTION' after the hierarchy, got end of file",
+                        line=cur.last_line)
+    key = tok.upper()
+    if key == "ROOT":
+        cur.take("ROOT")
+        return True
+    if key == "MOTION":
+        if not tree.names:
+            raise cur.error("expected a ROOT joint before 'MOTION', got none")
+        cur.take("MOTION")
+        extra = cur.rest_of_line()
+        if extra:
+            raise cur.error(f"expected nothing after 'MOTION', got {_show(extra[0])}")
+        return False
+    if tok == "}":
+        raise cur.error("expected ROOT or MOTION, got an unmatched '}'")
+    raise cur.error(f"expected ROOT or MOTION, got {_show(tok)}")
 
-    def parse_end_site(parent: int) -> None:
-        open_brace("End Site")
-        off = None
-        while True:
-            tok = cur.take(f"'}}' closing the End Site of {names[parent]!r}")
-            if tok == "}":
-                break
-            if tok.upper() == "OFFSET":
-                if off is not None:
-                    raise cur.error("expected one OFFSET in an End Site, got a second one")
-                off = offset_triplet()
-            else:
-                raise cur.error(f"expected OFFSET or '}}' in an End Site, got {_show(tok)}")
-        if off is None:
-            raise cur.error("expected an OFFSET in the End Site, got none")
-        end_sites.append(off)
-        end_parents.append(parent)
 
-    def parse_joint(parent: int, keyword: str) -> None:
-        decl_line = cur.line_no
-        if not cur.tokens or cur.tokens[0] == "{":
-            raise cur.error(f"expected a joint name after {keyword}, got none")
-        name = cur.take("joint name")
-        if name in names:
-            raise cur.error(f"expected a unique joint name, got {name!r} a second time")
-        j = len(names)
-        names.append(name)
-        parents.append(parent)
-        offsets.append((math.nan, math.nan, math.nan))
-        channels.append(())
-        open_brace(f"{keyword} {name}")
-        have_offset = have_channels = False
-        while True:
-            tok = cur.take(f"'}}' closing joint {name!r} (opened at line {decl_line})")
-            if tok == "}":
-                break
-            key = tok.upper()
-            if key == "OFFSET":
-                if have_offset:
-                    raise cur.error(f"expected one OFFSET for joint {name!r}, got a second one")
-                offsets[j] = offset_triplet()
-                have_offset = True
-            elif key == "CHANNELS":
-                if have_channels:
-                    raise cur.error(f"expected one CHANNELS line for joint {name!r}, got a second")
-                count_tok = cur.take("channel count")
-                if not count_tok.isdigit():
-                    raise cur.error(f"expected a channel count after CHANNELS, got {_show(count_tok)}")
-                count = int(count_tok)
-                listed = cur.rest_of_line()
-                if len(listed) != count:
-                    raise cur.error(
-                        f"expected {count} channel names after 'CHANNELS {count}', got {len(listed)}"
-                    )
-                chans = []
-                for c in listed:
-                    canon = _CHANNEL_LOOKUP.get(c.lower())
-                    if canon is None:
-                        raise cur.error(
-                            f"expected a channel name ({', '.join(CHANNEL_NAMES)}), got {_show(c)}"
-                        )
-                    if canon in chans:
-                        raise cur.error(f"expected distinct channels, got {canon} twice")
-                    chans.append(canon)
-                channels[j] = tuple(chans)
-                have_channels = True
-            elif key == "JOINT":
-                parse_joint(j, "JOINT")
-            elif key == "END SITE":
-                parse_end_site(j)
-            elif key == "ROOT":
-                raise cur.error(f"expected JOINT or '}}' inside joint {name!r}, got ROOT")
-            elif key == "MOTION":
-                raise cur.error(
-                    f"expected '}}' closing joint {name!r} (opened at line {decl_line}) before "
-                    "'MOTION', got 'MOTION'"
-                )
-            else:
-                raise cur.error(
-                    f"expected OFFSET, CHANNELS, JOINT, End Site or '}}' in joint {name!r}, "
-                    f"got {_show(tok)}"
-                )
-        if not have_offset:
-            raise cur.error(f"expected an OFFSET for joint {name!r}, got none", line=decl_line)
-        if not have_channels:
-            raise cur.error(f"expected a CHANNELS line for joint {name!r}, got none",
-                            line=decl_line)
+def _open_brace(cur: _Lines, owner: str) -> None:
+    tok = cur.take(f"'{{' after {owner}")
+    if tok != "{":
+        raise cur.error(f"expected '{{' after {owner}, got {_show(tok)}")
 
+
+def _offset_triplet(cur: _Lines) -> tuple[float, float, float]:
+    """The three numbers after OFFSET, the rest of its line."""
+    values = cur.rest_of_line()
+    if len(values) != 3:
+        raise cur.error(f"expected 3 numbers after OFFSET, got {len(values)}")
+    out = []
+    for v in values:
+        if not _NUMBER.fullmatch(v):
+            raise cur.error(f"expected a number in OFFSET, got {_show(v)}")
+        x = float(v)
+        if not math.isfinite(x):
+            raise cur.error(f"expected a finite number in OFFSET, got {_show(v)}")
+        out.append(x)
+    return tuple(out)  # type: ignore[return-value]
+
+
+def _channel_list(cur: _Lines) -> tuple[str, ...]:
+    """The count and names after CHANNELS, the rest of its line, in canonical spelling."""
+    count_tok = cur.take("channel count")
+    if not count_tok.isdigit():
+        raise cur.error(f"expected a channel count after CHANNELS, got {_show(count_tok)}")
+    count = int(count_tok)
+    listed = cur.rest_of_line()
+    if len(listed) != count:
+        raise cur.error(
+            f"expected {count} channel names after 'CHANNELS {count}', got {len(listed)}"
+        )
+    chans: list[str] = []
+    for c in listed:
+        canon = _CHANNEL_LOOKUP.get(c.lower())
+        if canon is None:
+            raise cur.error(
+                f"expected a channel name ({', '.join(CHANNEL_NAMES)}), got {_show(c)}"
+            )
+        if canon in chans:
+            raise cur.error(f"expected distinct channels, got {canon} twice")
+        chans.append(canon)
+    return tuple(chans)
+
+
+def _parse_end_site(cur: _Lines, tree: _Tree, parent: int) -> None:
+    """An `End Site { OFFSET x y z }` block of joint `parent` (its keyword already taken)."""
+    _open_brace(cur, "End Site")
+    off = None
     while True:
-        tok = cur.peek()
-        if tok is None:
-            raise cur.error("expected 'MOTION' after the hierarchy, got end of file",
-                            line=cur.last_line)
-        key = tok.upper()
-        if key == "ROOT":
-            cur.take("ROOT")
-            parse_joint(-1, "ROOT")
-        elif key == "MOTION":
-            if not names:
-                raise cur.error("expected a ROOT joint before 'MOTION', got none")
-            cur.take("MOTION")
-            extra = cur.rest_of_line()
-            if extra:
-                raise cur.error(f"expected nothing after 'MOTION', got {_show(extra[0])}")
+        tok = cur.take(f"'}}' closing the End Site of {tree.names[parent]!r}")
+        if tok == "}":
             break
-        elif tok == "}":
-            raise cur.error("expected ROOT or MOTION, got an unmatched '}'")
-        else:
-            raise cur.error(f"expected ROOT or MOTION, got {_show(tok)}")
+        if tok.upper() != "OFFSET":
+            raise cur.error(f"expected OFFSET or '}}' in an End Site, got {_show(tok)}")
+        if off is not None:
+            raise cur.error("expected one OFFSET in an End Site, got a second one")
+        off = _offset_triplet(cur)
+    if off is None:
+        raise cur.error("expected an OFFSET in the End Site, got none")
+    tree.end_sites.append(off)
+    tree.end_parents.append(parent)
 
-    return Skeleton(
-        names=tuple(names),
-        parents=np.array(parents, dtype=np.int64),
-        offsets=np.array(offsets, dtype=np.float64),
-        channels=tuple(channels),
-        end_sites=np.array(end_sites, dtype=np.float64).reshape(-1, 3),
-        end_site_parents=np.array(end_parents, dtype=np.int64),
+
+def _joint_header(cur: _Lines, tree: _Tree, parent: int, keyword: str) -> tuple[int, str]:
+    """The name after ROOT/JOINT and the opening brace; adds the joint and returns its index."""
+    if not cur.tokens or cur.tokens[0] == "{":
+        raise cur.error(f"expected a joint name after {keyword}, got none")
+    name = cur.take("joint name")
+    if name in tree.names:
+        raise cur.error(f"expected a unique joint name, got {name!r} a second time")
+    tree.names.append(name)
+    tree.parents.append(parent)
+    tree.offsets.append((math.nan, math.nan, math.nan))
+    tree.channels.append(())
+    _open_brace(cur, f"{keyword} {name}")
+    return len(tree.names) - 1, name
+
+
+def _parse_joint(cur: _Lines, tree: _Tree, parent: int, keyword: str) -> None:
+    """A ROOT or JOINT block (its keyword already taken), with its children, to its '}'."""
+    decl_line = cur.line_no
+    j, name = _joint_header(cur, tree, parent, keyword)
+    have_offset = have_channels = False
+    while True:
+        tok = cur.take(f"'}}' closing joint {name!r} (opened at line {decl_line})")
+        if tok == "}":
+            break
+        key = tok.upper()
+        if key == "OFFSET":
+            if have_offset:
+                raise cur.error(f"expected one OFFSET for joint {name!r}, got a second one")
+            tree.offsets[j] = _offset_triplet(cur)
+            have_offset = True
+        elif key == "CHANNELS":
+            if have_channels:
+                raise cur.error(f"expected one CHANNELS line for joint {name!r}, got a second")
+            tree.channels[j] = _channel_list(cur)
+            have_channels = True
+        elif key == "JOINT":
+            _parse_joint(cur, tree, j, "JOINT")
+        elif key == "END SITE":
+            _parse_end_site(cur, tree, j)
+        else:
+            raise _unexpected_in_joint(cur, tok, name, decl_line)
+    if not have_offset:
+        raise cur.error(f"expected an OFFSET for joint {name!r}, got none", line=decl_line)
+    if not have_channels:
+        raise cur.error(f"expected a CHANNELS line for joint {name!r}, got none",
+                        line=decl_line)
+
+
+def _unexpected_in_joint(cur: _Lines, tok: str, name: str, decl_line: int) -> BvhParseError:
+    """The error for a token that has no place inside a joint's braces."""
+    key = tok.upper()
+    if key == "ROOT":
+        return cur.error(f"expected JOINT or '}}' inside joint {name!r}, got ROOT")
+    if key == "MOTION":
+        return cur.error(
+            f"expected '}}' closing joint {name!r} (opened at line {decl_line}) before "
+            "'MOTION', got 'MOTION'"
+        )
+    return cur.error(
+        f"expected OFFSET, CHANNELS, JOINT, End Site or '}}' in joint {name!r}, "
+        f"got {_show(tok)}"
     )
 
 

@@ -5,12 +5,12 @@ from __future__ import annotations
 import argparse
 import json
 import signal
-import sys
 import time
 
 import numpy as np
 
 from .bvh import read_bvh
+from .cli_output import print_event, print_status
 from .recordings import bundled_recordings, resolve_path
 
 
@@ -71,21 +71,6 @@ def _cmd_list(args: argparse.Namespace) -> int:
     return 0
 
 
-def _status(line: str, final: bool = False) -> None:
-    """A progress line on stderr, rewritten in place on a terminal."""
-    if sys.stderr.isatty():
-        sys.stderr.write("\r" + line + ("\n" if final else ""))
-    else:
-        sys.stderr.write(line + "\n")
-    sys.stderr.flush()
-
-
-def _event(message: str) -> None:
-    if sys.stderr.isatty():
-        sys.stderr.write("\r\033[K")
-    print(message, file=sys.stderr, flush=True)
-
-
 def listen(source_url: str, skeleton: str, *, duration: float | None = None,
            frames: int | None = None, save_raw: str | None = None, fmt: str = "auto",
            on_event=None, on_progress=None, stop=None) -> dict:
@@ -142,12 +127,12 @@ def _cmd_listen(args: argparse.Namespace) -> int:
     def progress(s: dict) -> None:
         fps = f"{s['fps']:.1f}" if s["fps"] else "-"
         lat = f"{s['latency_ms']:.1f} ms" if s["latency_ms"] is not None else "-"
-        _status(f"frames {s['frames']}  fps {fps}  dropped {s['dropped']}  corrupt "
-                f"{s['corrupt']}  latency {lat}")
+        print_status(f"frames {s['frames']}  fps {fps}  dropped {s['dropped']}  corrupt "
+                     f"{s['corrupt']}  latency {lat}")
 
     try:
         summary = listen(args.source, args.skeleton, duration=args.duration, frames=args.frames,
-                         save_raw=args.save_raw, fmt=args.format, on_event=_event,
+                         save_raw=args.save_raw, fmt=args.format, on_event=print_event,
                          on_progress=progress, stop=lambda: stopping["flag"])
     finally:
         signal.signal(signal.SIGINT, previous)
@@ -177,9 +162,9 @@ def _cmd_replay(args: argparse.Namespace) -> int:
                                  start_index=args.start_index)
     else:
         replay = Replay.from_raw(path)
-    sink = open_sink(tcp=args.tcp, udp=args.udp, serial_url=args.serial, on_event=_event)
-    _event(f"replaying {replay.description} to {sink.name} at {args.rate:g}x"
-           + (", looping" if args.loop else ""))
+    sink = open_sink(tcp=args.tcp, udp=args.udp, serial_url=args.serial, on_event=print_event)
+    print_event(f"replaying {replay.description} to {sink.name} at {args.rate:g}x"
+                + (", looping" if args.loop else ""))
 
     import threading
 
@@ -187,12 +172,12 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     previous = signal.signal(signal.SIGINT, lambda signum, frame: stop.set())
     try:
         if args.wait_client and hasattr(sink, "wait_for_client"):
-            _event("waiting for a client")
+            print_event("waiting for a client")
             sink.wait_for_client(stop)
         stats = replay.run(sink, rate=args.rate, loop=args.loop, stop=stop,
                            max_frames=args.frames,
-                           progress=lambda s: _status(f"sent {s.frames_sent} frames in "
-                                                      f"{s.elapsed_s:.1f} s"))
+                           progress=lambda s: print_status(f"sent {s.frames_sent} frames in "
+                                                           f"{s.elapsed_s:.1f} s"))
     finally:
         signal.signal(signal.SIGINT, previous)
         sink.close()
@@ -201,8 +186,8 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(result, indent=2))
     else:
-        _status(f"sent {stats.frames_sent} frames ({stats.bytes_sent} bytes) in "
-                f"{stats.elapsed_s:.2f} s to {sink.name}", final=True)
+        print_status(f"sent {stats.frames_sent} frames ({stats.bytes_sent} bytes) in "
+                     f"{stats.elapsed_s:.2f} s to {sink.name}", final=True)
     return 0
 
 

@@ -7,7 +7,7 @@ import os
 import signal
 
 from capture import resolve_path, write_bvh
-from capture.cli import _event, _status
+from capture.cli_output import print_event, print_status
 
 from .library import PoseLibrary
 from .record import record, recordings, recover
@@ -153,13 +153,13 @@ def _cmd_record(args) -> int:
 
     def progress(s: dict) -> None:
         fps = f"{s['fps']:.1f}" if s["fps"] else "-"
-        _status(f"recording {args.take}: {s['frames']} frames  fps {fps}  dropped "
-                f"{s['dropped']}  corrupt {s['corrupt']}")
+        print_status(f"recording {args.take}: {s['frames']} frames  fps {fps}  dropped "
+                     f"{s['dropped']}  corrupt {s['corrupt']}")
 
     try:
         summary = record(args.source, args.db, args.take, args.skeleton, duration=args.duration,
                          frames=args.frames, subject=args.subject, tags=args.tag,
-                         notes=args.notes, unit=args.unit, on_event=_event,
+                         notes=args.notes, unit=args.unit, on_event=print_event,
                          on_progress=progress, stop=lambda: stopping["flag"])
     finally:
         signal.signal(signal.SIGINT, previous)
@@ -175,15 +175,24 @@ def register(subparsers, groups: dict) -> None:
     """Adds `db` and `capture record` to the top-level parser."""
     db = subparsers.add_parser("db", help="the pose library: takes, poses, tags")
     sub = db.add_subparsers(dest="db_command", required=True)
+    _register_take_commands(sub)
+    _register_pose_commands(sub)
+    _register_library_commands(sub)
+    _register_record(groups["capture"])
 
-    def common(p, json_flag=True):
-        p.add_argument("--db", default=DEFAULT_DB,
-                       help=f"the pose library file (default: $SITRELAX_DB or {DEFAULT_DB})")
-        if json_flag:
-            p.add_argument("--json", action="store_true", help="machine-readable output")
-        return p
 
-    p = common(sub.add_parser("import", help="import BVH files as takes"))
+def _library_options(p, json_flag: bool = True):
+    """The options every library command takes: `--db` and, unless told not to, `--json`."""
+    p.add_argument("--db", default=DEFAULT_DB,
+                   help=f"the pose library file (default: $SITRELAX_DB or {DEFAULT_DB})")
+    if json_flag:
+        p.add_argument("--json", action="store_true", help="machine-readable output")
+    return p
+
+
+def _register_take_commands(sub) -> None:
+    """`db import`, `db list`, `db show` and `db tag`."""
+    p = _library_options(sub.add_parser("import", help="import BVH files as takes"))
     p.add_argument("files", nargs="+", help=".bvh paths or bundled:NAME")
     p.add_argument("--name", help="take name (one file only; default: the file name)")
     p.add_argument("--subject", default="", help="who was recorded")
@@ -192,26 +201,29 @@ def register(subparsers, groups: dict) -> None:
     p.add_argument("--unit", default="auto", help="length unit of the files (default: auto)")
     p.set_defaults(func=_cmd_import)
 
-    p = common(sub.add_parser("list", help="list takes, poses and recordings"))
+    p = _library_options(sub.add_parser("list", help="list takes, poses and recordings"))
     p.add_argument("--tag", help="tag expression, e.g. 'sit and not floor'")
     p.add_argument("--take", help="only poses of this take")
     p.add_argument("--subject", help="only this subject")
     p.add_argument("--kind", choices=("take", "pose", "recording"))
     p.set_defaults(func=_cmd_list)
 
-    p = common(sub.add_parser("show", help="show a take or pose"))
+    p = _library_options(sub.add_parser("show", help="show a take or pose"))
     p.add_argument("name")
     p.set_defaults(func=_cmd_show)
 
-    p = common(sub.add_parser("tag", help="add (or with --remove, remove) tags"))
+    p = _library_options(sub.add_parser("tag", help="add (or with --remove, remove) tags"))
     p.add_argument("name", help="pose or take")
     p.add_argument("tags", nargs="+")
     p.add_argument("--remove", action="store_true")
     p.set_defaults(func=_cmd_tag)
 
+
+def _register_pose_commands(sub) -> None:
+    """`db pose add|rename|delete` and `db suggest`."""
     pose = sub.add_parser("pose", help="add, rename or delete poses")
     psub = pose.add_subparsers(dest="pose_command", required=True)
-    p = common(psub.add_parser("add", help="name a frame of a take as a pose"))
+    p = _library_options(psub.add_parser("add", help="name a frame of a take as a pose"))
     p.add_argument("take")
     p.add_argument("frame", type=int, help="0-based frame of the take")
     p.add_argument("--name", required=True)
@@ -220,15 +232,15 @@ def register(subparsers, groups: dict) -> None:
                    help="body parts the pose needs supported (default: torso legs)")
     p.add_argument("--notes", default="")
     p.set_defaults(func=_cmd_pose_add)
-    p = common(psub.add_parser("rename"), json_flag=False)
+    p = _library_options(psub.add_parser("rename"), json_flag=False)
     p.add_argument("name")
     p.add_argument("new_name")
     p.set_defaults(func=_cmd_pose_rename)
-    p = common(psub.add_parser("delete"), json_flag=False)
+    p = _library_options(psub.add_parser("delete"), json_flag=False)
     p.add_argument("name")
     p.set_defaults(func=_cmd_pose_delete)
 
-    p = common(sub.add_parser("suggest", help="propose poses where the body holds still"))
+    p = _library_options(sub.add_parser("suggest", help="propose poses where the body holds still"))
     p.add_argument("take")
     p.add_argument("--accept", action="store_true", help="store the proposals as poses")
     p.add_argument("--tag", action="append", default=[], help="tags for accepted poses")
@@ -239,23 +251,29 @@ def register(subparsers, groups: dict) -> None:
                    help=f"shortest held posture, s (default {DEFAULT_MIN_DURATION})")
     p.set_defaults(func=_cmd_suggest)
 
-    p = common(sub.add_parser("export", help="write a take (or a frame range) as BVH"),
-               json_flag=False)
+
+def _register_library_commands(sub) -> None:
+    """`db export`, `db recover` and `db stats`: the library as a whole."""
+    p = _library_options(sub.add_parser("export", help="write a take (or a frame range) as BVH"),
+                         json_flag=False)
     p.add_argument("name")
     p.add_argument("--out", required=True)
     p.add_argument("--start", type=int, default=0, help="first frame (0-based)")
     p.add_argument("--end", type=int, default=None, help="last frame, inclusive")
     p.set_defaults(func=_cmd_export)
 
-    p = common(sub.add_parser("recover", help="turn interrupted recordings into takes"))
+    p = _library_options(sub.add_parser("recover", help="turn interrupted recordings into takes"))
     p.set_defaults(func=_cmd_recover)
 
-    p = common(sub.add_parser("stats", help="what the library holds"))
+    p = _library_options(sub.add_parser("stats", help="what the library holds"))
     p.set_defaults(func=_cmd_stats)
 
-    rec = groups["capture"].add_parser("record", help="record a stream into a new take")
+
+def _register_record(capture_sub) -> None:
+    """`capture record`, added to the `capture` group that `capture.cli` made."""
+    rec = capture_sub.add_parser("record", help="record a stream into a new take")
     rec.add_argument("source", help="stream source URL (see `capture listen`)")
-    common(rec)
+    _library_options(rec)
     rec.add_argument("--take", required=True, help="name of the new take")
     rec.add_argument("--skeleton", required=True, help="the BVH header paired with the stream")
     rec.add_argument("--duration", type=float, default=None)

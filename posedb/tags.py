@@ -9,6 +9,7 @@ search over a whole library is a handful of vectorised operations.
 
 from __future__ import annotations
 
+import functools
 import re
 from typing import Callable, Iterable, Sequence
 
@@ -49,17 +50,10 @@ def compile_expression(expr: str) -> Matcher:
 
     membership : (N, K) bool, item n carries tag k; vocabulary : tag -> column k.
     """
-    tokens = []
-    pos = 0
     text = expr.strip()
     if not text:
         raise TagError("Expected a tag expression, got an empty one")
-    while pos < len(text):
-        m = _TOKEN.match(text, pos)
-        if m is None:
-            break
-        tokens.append((m.group(1), m.start(1)))
-        pos = m.end()
+    tokens = _expression_tokens(text)
     at = 0
 
     def peek() -> str | None:
@@ -70,30 +64,20 @@ def compile_expression(expr: str) -> Matcher:
         col = tokens[at][1] + 1 if at < len(tokens) else len(text) + 1
         return TagError(f"In tag expression {expr!r} at column {col}: expected {what}, got {got}")
 
-    def parse_or() -> Matcher:
+    def parse_infix(keyword: str, operand: Callable[[], Matcher],
+                    combine: Callable[[Matcher, Matcher], Matcher]) -> Matcher:
         nonlocal at
-        left = parse_and()
-        while peek() == "or":
+        left = operand()
+        while peek() == keyword:
             at += 1
-            right = parse_and()
-            left = (lambda a, b: lambda m, v: a(m, v) | b(m, v))(left, right)
-        return left
-
-    def parse_and() -> Matcher:
-        nonlocal at
-        left = parse_not()
-        while peek() == "and":
-            at += 1
-            right = parse_not()
-            left = (lambda a, b: lambda m, v: a(m, v) & b(m, v))(left, right)
+            left = combine(left, operand())
         return left
 
     def parse_not() -> Matcher:
         nonlocal at
         if peek() == "not":
             at += 1
-            inner = parse_not()
-            return lambda m, v: ~inner(m, v)
+            return _negated(parse_not())
         return parse_atom()
 
     def parse_atom() -> Matcher:
@@ -113,17 +97,50 @@ def compile_expression(expr: str) -> Matcher:
         except TagError:
             raise fail("a tag") from None
         at += 1
+        return _carries(tag)
 
-        def match(m: np.ndarray, vocab: dict[str, int]) -> np.ndarray:
-            k = vocab.get(tag)
-            return np.zeros(m.shape[0], dtype=bool) if k is None else m[:, k].copy()
-
-        return match
-
+    # Partials, not wrapper functions: a nesting level costs as few frames as it did before.
+    parse_and = functools.partial(parse_infix, "and", parse_not, _both)
+    parse_or = functools.partial(parse_infix, "or", parse_and, _either)
     result = parse_or()
     if at != len(tokens):
         raise fail("'and', 'or' or the end")
     return result
+
+
+def _expression_tokens(text: str) -> list[tuple[str, int]]:
+    """A tag expression's words and parentheses, each with its 0-based column."""
+    tokens = []
+    pos = 0
+    while pos < len(text):
+        m = _TOKEN.match(text, pos)
+        if m is None:
+            break
+        tokens.append((m.group(1), m.start(1)))
+        pos = m.end()
+    return tokens
+
+
+def _either(a: Matcher, b: Matcher) -> Matcher:
+    return lambda m, v: a(m, v) | b(m, v)
+
+
+def _both(a: Matcher, b: Matcher) -> Matcher:
+    return lambda m, v: a(m, v) & b(m, v)
+
+
+def _negated(inner: Matcher) -> Matcher:
+    return lambda m, v: ~inner(m, v)
+
+
+def _carries(tag: str) -> Matcher:
+    """Items that carry `tag` (none when the vocabulary lacks it)."""
+
+    def match(m: np.ndarray, vocab: dict[str, int]) -> np.ndarray:
+        k = vocab.get(tag)
+        return np.zeros(m.shape[0], dtype=bool) if k is None else m[:, k].copy()
+
+    return match
 
 
 def membership(tag_lists: Sequence[Sequence[str]]) -> tuple[np.ndarray, dict[str, int]]:
