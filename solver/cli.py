@@ -179,7 +179,7 @@ def _cmd_relax(args: argparse.Namespace) -> int:
 
 
 def _cmd_validate_pressure(args: argparse.Namespace) -> int:
-    from solver.contact.validate import validate_pressure
+    from solver.scene.validate import validate_pressure
 
     rows = validate_pressure(args.out)
     if args.json:

@@ -1,0 +1,146 @@
+"""The fit's steps one by one, each against an independent computation: pairing against a
+brute-force nearest vertex, the assembled quadratic against the energy written out densely,
+non-penetration rows on a ball, the stop rule on hand-made energies; and the floor search
+against the full skin."""
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from solver.contact.pressure import pressure_field
+from solver.contact.supported import SupportedBody
+from solver.mesh import triangle_mesh
+from solver.surface import fit as F
+from solver.surface.subdivision import grid_mesh
+
+
+@pytest.fixture(scope="module")
+def ball_fit():
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.2)
+    v = np.asarray(sphere.vertices) + [0.0, 0.62, 0.0]
+    t = np.asarray(sphere.faces)
+    areas, normals = triangle_mesh(t, len(v)).measures(v)
+    importance = pressure_field(v, t, normals=normals, areas=areas).importance
+    grid_v, grid_f = grid_mesh((1.2, 0.8), (8, 6), 0.45)
+    params = F.FitParams(margin=0.02, sigma=0.01, pull_range=0.1)
+    return F.prepare(grid_v, grid_f, [SupportedBody(v, normals, importance, "ball", t)],
+                     params)
+
+
+def test_pairing_is_the_nearest_surface_vertex_within_the_pull_range(ball_fit):
+    fit = ball_fit
+    surf = fit.sub.matrix @ fit.v0
+    pairing = F.pair(fit, surf)
+    d = np.linalg.norm(fit.b_imp[:, None, :] - surf[None, :, :], axis=2)  # brute force
+    nearest = d.argmin(axis=1)
+    np.testing.assert_array_equal(pairing.pair, nearest)
+    pulls = d.min(axis=1) <= fit.params.pull_range
+    assert 0 < pulls.sum() < len(pulls)  # some points lie beyond the range: the case matters
+    w = np.bincount(nearest, np.where(pulls, fit.w_imp, 0.0), minlength=len(surf))
+    np.testing.assert_array_equal(pairing.paired, np.flatnonzero(w > 0))
+    np.testing.assert_allclose(pairing.weight, w[pairing.paired] / fit.w_imp.sum())
+    for k, j in enumerate(pairing.paired[:20]):
+        mine = (nearest == j) & pulls
+        expected = (fit.w_imp[mine, None] * fit.b_imp[mine]).sum(axis=0) / fit.w_imp[mine].sum()
+        np.testing.assert_allclose(pairing.target[k], expected, atol=1e-12)
+
+
+@pytest.mark.parametrize("tau", [0.0, 0.3, 1.0])
+def test_assembled_quadratic_is_the_energy(ball_fit, tau):
+    """x^T H x - 2 g^T x equals the energy written out term by term (up to a constant), so
+    differences between two random control meshes agree."""
+    fit = ball_fit
+    s = fit.sub.matrix.toarray()
+    surf = s @ fit.v0
+    surf_n = fit.sub.normals(surf)
+    pairing = F.pair(fit, surf)
+    h, g = F.assemble(fit, pairing, surf_n, tau)
+    h = np.asarray(h.toarray() if hasattr(h, "toarray") else h)
+    h = np.triu(h) + np.triu(h, 1).T  # only the upper blocks are meaningful
+    current = fit.v0 + 0.01
+    g = g + fit.proximal * current.T.reshape(-1)
+    lap = fit.lap.toarray()
+
+    def energy(v):
+        sp_ = s[pairing.paired] @ v
+        n = surf_n[pairing.paired]
+        diff = pairing.target - sp_
+        data = np.sum(pairing.weight * ((1 - tau) * np.sum(diff ** 2, axis=1)
+                                        + tau * np.sum(n * diff, axis=1) ** 2))
+        smooth = fit.params.sigma / fit.n0 * np.sum((lap @ v) ** 2)
+        pull = np.sum(fit.fixed[:, None] * (v - fit.v0) ** 2)
+        return data + smooth + pull + fit.proximal * np.sum((v - current) ** 2)
+
+    def quadratic(v):
+        x = v.T.reshape(-1)
+        return x @ h @ x - 2 * g @ x
+
+    rng = np.random.default_rng(3)
+    a = fit.v0 + rng.normal(scale=0.02, size=fit.v0.shape)
+    b = fit.v0 + rng.normal(scale=0.02, size=fit.v0.shape)
+    assert quadratic(a) - quadratic(b) == pytest.approx(energy(a) - energy(b), rel=1e-9)
+
+
+def test_rows_hold_surface_vertices_out_of_the_ball(ball_fit):
+    fit = ball_fit
+    surf = fit.sub.matrix @ fit.v0
+    surf = surf + [0.0, 0.2, 0.0]  # the grid lifted into the ball's lower half
+    surf_n = fit.sub.normals(surf)
+    member = np.zeros(len(surf), dtype=bool)
+    rows = F.constrain(fit, surf, surf_n, member)
+    centre = np.array([0.0, 0.62, 0.0])
+    depth = 0.2 - np.linalg.norm(surf[fit.sampled_ids] - centre, axis=1)
+    inside = fit.sampled_ids[depth > 0.005]
+    assert inside.size and set(inside) <= set(rows.rows)
+    wanted = np.isfinite(rows.demanded)
+    far = np.linalg.norm(surf[rows.rows] - centre, axis=1) > 0.2 + F.CONSTRAINT_RADIUS + 0.01
+    assert not np.any(wanted & far)  # far vertices keep no active row
+    # each wanted row's demand: in front of the ball's tangent plane at its skin point, less
+    # the margin; a vertex inside is below its demand
+    k = np.isin(rows.rows, inside)
+    now = np.einsum("ij,ij->i", rows.normals[k], surf[rows.rows[k]])
+    assert np.all(now < rows.demanded[k])
+    np.testing.assert_allclose(np.linalg.norm(rows.normals, axis=1), 1.0, atol=1e-6)
+    # and the step's bound asks for at most 0.8 of a trust-region step now
+    assert np.all(rows.lower[k] <= now + 0.8 * fit.params.step + 1e-12)
+    assert member[rows.rows].all()
+
+
+def test_judge_counts_unmet_demand(ball_fit):
+    fit = ball_fit
+    surf = fit.sub.matrix @ fit.v0
+    surf_n = fit.sub.normals(surf)
+    pairing = F.pair(fit, surf)
+    rows = F.Rows(np.array([0, 5]), np.array([[0.0, 1.0, 0.0]] * 2), np.array([0.0, 0.0]),
+                  np.array([surf[0, 1] + 0.01, -np.inf]))
+    met = F.Rows(rows.rows, rows.normals, rows.lower, np.array([-np.inf, -np.inf]))
+    e_short, terms = F.judge(fit, fit.v0, pairing, surf_n, 0.5, rows)
+    e_met, _ = F.judge(fit, fit.v0, pairing, surf_n, 0.5, met)
+    assert terms["unmet_rows_m2"] == pytest.approx(1e-4)
+    assert e_short - e_met == pytest.approx(fit.programme.slack_weight * 1e-4)
+
+
+def test_stop_rule():
+    ramp = [10.0] * F.TAU_RAMP
+    improving = ramp + [1.0 - 0.02 * k for k in range(F.PATIENCE + 3)]
+    assert not F.converged(improving, 0.01)
+    stalled = ramp + [1.0, 0.999, 0.9995, 0.9992, 0.9991, 0.9993, 0.9999]
+    assert F.converged(stalled, 0.01)
+    assert not F.converged(stalled[:F.TAU_RAMP + F.PATIENCE], 0.01)  # too few to judge
+
+
+def test_floor_search_finds_the_full_skins_lowest_point():
+    from solver.body.model import BodyShape, make_body
+    from solver.body.rig import rig_pose
+    from solver.body.skinning import lowest_height, skin
+
+    rng = np.random.default_rng(7)
+    for shape in (BodyShape(), BodyShape(weight=1.0, height=0.0), BodyShape(gender=0.0)):
+        body = make_body(shape)
+        for _ in range(5):
+            n = len(body.joint_names)
+            local = Rotation.from_rotvec(rng.normal(scale=0.6, size=(n, 3))).as_matrix()
+            pose = rig_pose(body, local, rng.normal(size=3))
+            full = skin(body, pose, normals=False)[0][:, 1].min()
+            assert lowest_height(body, pose) == full  # the same arithmetic: exactly equal
