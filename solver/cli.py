@@ -203,6 +203,16 @@ def build_parser(extra: Callable[[Any], None] | None = None) -> argparse.Argumen
     sub = parser.add_subparsers(dest="command", required=True)
     groups = capture_cli.register(sub)
     posedb_cli.register(sub, groups)
+    _register_bodies(sub)
+    _register_fitting(sub)
+    _register_checks(sub)
+    if extra is not None:
+        extra(sub)
+    return parser
+
+
+def _register_bodies(sub) -> None:
+    """`body make` and `pose show`."""
     from solver.io.render import VIEWS
 
     body = sub.add_parser("body", help="bodies of any shape")
@@ -231,6 +241,9 @@ def build_parser(extra: Callable[[Any], None] | None = None) -> argparse.Argumen
     show.add_argument("--json", action="store_true", help="machine-readable output")
     show.set_defaults(func=_cmd_pose_show)
 
+
+def _register_fitting(sub) -> None:
+    """`fit`, `batch`, `demo` and `relax`."""
     fit = sub.add_parser("fit", help="fit a supporting surface to a scenario")
     fit.add_argument("scenario", help="scenario file (TOML)")
     fit.add_argument("--db", default=None, help="pose library for db: poses")
@@ -273,6 +286,9 @@ def build_parser(extra: Callable[[Any], None] | None = None) -> argparse.Argumen
     rx.add_argument("--json", action="store_true", help="print the report")
     rx.set_defaults(func=_cmd_relax)
 
+
+def _register_checks(sub) -> None:
+    """`validate` and `bench`."""
     validate = sub.add_parser("validate", help="check models against physical references")
     vsub = validate.add_subparsers(dest="validate_command", required=True)
     vp = vsub.add_parser("pressure", help="the pressure model against a rigid-contact reference")
@@ -286,9 +302,6 @@ def build_parser(extra: Callable[[Any], None] | None = None) -> argparse.Argumen
                        help="timed runs per entry (default: per entry)")
     bench.add_argument("--json", action="store_true", help="machine-readable output")
     bench.set_defaults(func=_cmd_bench)
-    if extra is not None:
-        extra(sub)
-    return parser
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -78,10 +78,35 @@ def _stream_and_record(source: str, library: Path, take: str, frames: int, tags:
     return thread
 
 
+def _capture(library: Path, say: Callable[[str], None]) -> tuple[dict, dict]:
+    """Streams both recordings at once from replay servers and records them into a new
+    library; returns each take's (source, frames, tags) and its recording result."""
+    from capture import read_bvh
+    from posedb import PoseLibrary
+
+    PoseLibrary(library, create=True)
+    standing = read_bvh(resolve_path(STANDING))
+    sitting = read_bvh(resolve_path(SITTING))
+    jobs = {"standing": (STANDING, int(STANDING_SECONDS / standing.motion.frame_time), ["stand"]),
+            "sitting": (SITTING, sitting.motion.num_frames, ["sit"])}
+    results: dict = {}
+    threads = [_stream_and_record(src, library, take, frames, tags, results, say)
+               for take, (src, frames, tags) in jobs.items()]
+    for thread in threads:
+        thread.join(60)
+    for take in jobs:
+        got = results.get(take)
+        if isinstance(got, BaseException):
+            raise DemoError(f"recording {take} failed: {got}") from got
+        if not got or not got.get("take"):
+            raise DemoError(f"recording {take} stored nothing")
+        say(f"recorded {got['frames']} frames into take {take} ({got['dropped']} dropped)")
+    return jobs, results
+
+
 def run_demo(out_dir: str | os.PathLike, progress: Callable[[str], None] | None = None
              ) -> dict:
     """Runs the demo into `out_dir` (see the module docstring); returns its summary."""
-    from capture import read_bvh
     from posedb import PoseLibrary
     from posedb.suggest import suggest_poses
 
@@ -102,23 +127,7 @@ def run_demo(out_dir: str | os.PathLike, progress: Callable[[str], None] | None 
     start = time.perf_counter()
 
     # 1. capture both streams at once, in real time
-    PoseLibrary(library, create=True)
-    standing = read_bvh(resolve_path(STANDING))
-    sitting = read_bvh(resolve_path(SITTING))
-    jobs = {"standing": (STANDING, int(STANDING_SECONDS / standing.motion.frame_time), ["stand"]),
-            "sitting": (SITTING, sitting.motion.num_frames, ["sit"])}
-    results: dict = {}
-    threads = [_stream_and_record(src, library, take, frames, tags, results, say)
-               for take, (src, frames, tags) in jobs.items()]
-    for thread in threads:
-        thread.join(60)
-    for take in jobs:
-        got = results.get(take)
-        if isinstance(got, BaseException):
-            raise DemoError(f"recording {take} failed: {got}") from got
-        if not got or not got.get("take"):
-            raise DemoError(f"recording {take} stored nothing")
-        say(f"recorded {got['frames']} frames into take {take} ({got['dropped']} dropped)")
+    jobs, results = _capture(library, say)
     stages["capture_s"] = time.perf_counter() - start
 
     # 2. poses: suggest and accept the held postures
@@ -147,15 +156,12 @@ def run_demo(out_dir: str | os.PathLike, progress: Callable[[str], None] | None 
     stages["relax_s"] = time.perf_counter() - t
     stages["total_s"] = time.perf_counter() - start
 
-    persons = []
-    for fitted, rel in zip(fit["persons"], relaxed["persons"]):
-        persons.append({
-            "name": fitted["name"], "mass_kg": fitted["mass_kg"],
-            "coverage": fitted["coverage"], "max_penetration_m": fitted["max_penetration_m"],
-            "peak_pressure_kpa": fitted["peak_pressure_kpa"],
-            "flat_peak_pressure_kpa": fitted["flat"]["peak_pressure_kpa"],
-            "relaxed": rel["after"],
-        })
+    persons = [{"name": fitted["name"], "mass_kg": fitted["mass_kg"],
+                "coverage": fitted["coverage"], "max_penetration_m": fitted["max_penetration_m"],
+                "peak_pressure_kpa": fitted["peak_pressure_kpa"],
+                "flat_peak_pressure_kpa": fitted["flat"]["peak_pressure_kpa"],
+                "relaxed": rel["after"]} for fitted, rel in zip(fit["persons"],
+                                                                relaxed["persons"])]
     return {
         "out": str(out), "library": library.name, "scenario": scenario.name,
         "takes": {take: {"frames": results[take]["frames"], "dropped": results[take]["dropped"],

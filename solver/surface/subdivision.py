@@ -103,11 +103,23 @@ def _as_faces(faces: Sequence[Sequence[int]] | np.ndarray, n: int) -> tuple[np.n
     return arr, sizes
 
 
-def subdivide_once(n: int, faces, creases: np.ndarray | None = None) -> Step:
-    """The operator of one Catmull-Clark step for a mesh of n vertices (see module docstring)."""
-    arr, sizes = _as_faces(faces, n)
-    nf = len(arr)
-    # corners: face f, position i -> vertex a, next vertex b
+@dataclass(frozen=True, eq=False)
+class _Edges:
+    """A polygon mesh's corners and edges: corner k is position ci[k] of face fi[k], from vertex
+    a[k]; edge e joins edge_a[e] and edge_b[e], has counts[e] faces and is sharp (a boundary
+    or a crease); corner k runs along edge edge_of_corner[k]."""
+
+    fi: np.ndarray
+    ci: np.ndarray
+    a: np.ndarray
+    edge_of_corner: np.ndarray
+    counts: np.ndarray
+    edge_a: np.ndarray
+    edge_b: np.ndarray
+    sharp: np.ndarray
+
+
+def _edges(arr: np.ndarray, sizes: np.ndarray, n: int, creases: np.ndarray | None) -> _Edges:
     fi, ci = np.nonzero(np.arange(arr.shape[1])[None, :] < sizes[:, None])
     a = arr[fi, ci]
     b = arr[fi, (ci + 1) % sizes[fi]]
@@ -119,7 +131,6 @@ def subdivide_once(n: int, faces, creases: np.ndarray | None = None) -> Step:
         bad = uniq[np.argmax(counts)]
         raise MeshError(f"Expected a manifold mesh, got edge ({bad // n}, {bad % n}) shared by "
                         f"{counts.max()} faces")
-    edge_a, edge_b = uniq // n, uniq % n
     sharp = counts == 1  # boundary edges
     if creases is not None and len(creases):
         c = np.sort(np.asarray(creases, dtype=np.int64).reshape(-1, 2), axis=1)
@@ -131,36 +142,43 @@ def subdivide_once(n: int, faces, creases: np.ndarray | None = None) -> Step:
             raise MeshError(f"Expected creases along mesh edges, got ({e[0]}, {e[1]})")
         sharp = sharp.copy()
         sharp[pos] = True
+    return _Edges(fi, ci, a, edge_of_corner, counts, uniq // n, uniq % n, sharp)
 
-    # face points: mean of the face's vertices
-    face_pts = sp.csr_matrix((1.0 / sizes[fi], (fi, a)), shape=(nf, n))
 
-    # edge points
-    smooth = ~sharp
+def _edge_points(g: _Edges, face_pts: sp.csr_matrix, n: int) -> sp.csr_matrix:
+    """(E, n): (a + b + f0 + f1) / 4 on smooth edges, (a + b) / 2 on sharp ones."""
+    ne, nf = len(g.edge_a), face_pts.shape[0]
+    smooth = ~g.sharp
     e_rows = np.concatenate([np.arange(ne), np.arange(ne)])
-    e_cols = np.concatenate([edge_a, edge_b])
+    e_cols = np.concatenate([g.edge_a, g.edge_b])
     e_vals = np.where(np.concatenate([smooth, smooth]), 0.25, 0.5)
     edge_vert = sp.csr_matrix((e_vals, (e_rows, e_cols)), shape=(ne, n))
-    sm_corner = smooth[edge_of_corner]
+    sm_corner = smooth[g.edge_of_corner]
     edge_face = sp.csr_matrix((np.full(sm_corner.sum(), 0.25),
-                               (edge_of_corner[sm_corner], fi[sm_corner])), shape=(ne, nf))
-    edge_pts = edge_vert + edge_face @ face_pts
+                               (g.edge_of_corner[sm_corner], g.fi[sm_corner])), shape=(ne, nf))
+    return edge_vert + edge_face @ face_pts
 
-    # vertex points
+
+def _vertex_points(g: _Edges, face_pts: sp.csr_matrix, n: int
+                   ) -> tuple[sp.csr_matrix, np.ndarray]:
+    """(n, n) the vertex points (smooth, crease-curve and corner rules) and the boundary
+    vertices (n,) bool."""
+    ne, nf = len(g.edge_a), face_pts.shape[0]
+    edge_a, edge_b, sharp = g.edge_a, g.edge_b, g.sharp
     valence = np.bincount(np.concatenate([edge_a, edge_b]), minlength=n)
-    n_faces = np.bincount(a, minlength=n)
+    n_faces = np.bincount(g.a, minlength=n)
     sharp_count = np.bincount(np.concatenate([edge_a[sharp], edge_b[sharp]]), minlength=n)
     boundary = np.zeros(n, dtype=bool)
-    boundary[np.concatenate([edge_a[counts == 1], edge_b[counts == 1]])] = True
+    boundary[np.concatenate([edge_a[g.counts == 1], edge_b[g.counts == 1]])] = True
     unused = valence == 0
     corner = (sharp_count >= 3) | (boundary & (n_faces == 1)) | unused
     curve = (sharp_count == 2) & ~corner
     smooth_v = ~corner & ~curve
     nv = np.maximum(valence, 1).astype(float)
     # smooth: (n-2)/n v + 1/n^2 (sum of face points + sum of neighbours)
-    vf = sp.csr_matrix((np.ones(len(a)), (a, fi)), shape=(n, nf))  # vertex-face incidence
-    adj = sp.csr_matrix((np.ones(2 * ne), (e_cols, np.concatenate([edge_b, edge_a]))),
-                        shape=(n, n))
+    vf = sp.csr_matrix((np.ones(len(g.a)), (g.a, g.fi)), shape=(n, nf))  # vertex-face incidence
+    adj = sp.csr_matrix((np.ones(2 * ne), (np.concatenate([edge_a, edge_b]),
+                                           np.concatenate([edge_b, edge_a]))), shape=(n, n))
     scale = sp.diags(np.where(smooth_v, 1.0 / nv**2, 0.0))
     smooth_part = scale @ (vf @ face_pts + adj) + sp.diags(np.where(smooth_v, (nv - 2) / nv, 0.0))
     # crease curve: 3/4 v + 1/8 each sharp neighbour
@@ -170,27 +188,33 @@ def subdivide_once(n: int, faces, creases: np.ndarray | None = None) -> Step:
     curve_part = sp.csr_matrix((np.full(keep.sum(), 0.125), (s_rows[keep], s_cols[keep])),
                                shape=(n, n)) + sp.diags(np.where(curve, 0.75, 0.0))
     corner_part = sp.diags(corner.astype(float))
-    vert_pts = smooth_part + curve_part + corner_part
+    return smooth_part + curve_part + corner_part, boundary
 
-    matrix = sp.vstack([vert_pts, edge_pts, face_pts]).tocsr()
+
+def subdivide_once(n: int, faces, creases: np.ndarray | None = None) -> Step:
+    """The operator of one Catmull-Clark step for a mesh of n vertices (see module docstring)."""
+    arr, sizes = _as_faces(faces, n)
+    nf = len(arr)
+    g = _edges(arr, sizes, n, creases)
+    ne = len(g.edge_a)
+    face_pts = sp.csr_matrix((1.0 / sizes[g.fi], (g.fi, g.a)), shape=(nf, n))
+    vert_pts, boundary = _vertex_points(g, face_pts, n)
+    matrix = sp.vstack([vert_pts, _edge_points(g, face_pts, n), face_pts]).tocsr()
     matrix.sum_duplicates()
     matrix.eliminate_zeros()
-
     # next faces: at each corner i of face f, (v_i, e(i, i+1), f, e(i-1, i))
-    prev_c = (ci - 1) % sizes[fi]
+    prev_c = (g.ci - 1) % sizes[g.fi]
     corner_index = np.full(arr.shape, -1)
-    corner_index[fi, ci] = np.arange(len(fi))
-    e_next = edge_of_corner
-    e_prev = edge_of_corner[corner_index[fi, prev_c]]
-    new_faces = np.stack([a, n + e_next, n + ne + fi, n + e_prev], axis=1)
-
+    corner_index[g.fi, g.ci] = np.arange(len(g.fi))
+    e_prev = g.edge_of_corner[corner_index[g.fi, prev_c]]
+    new_faces = np.stack([g.a, n + g.edge_of_corner, n + ne + g.fi, n + e_prev], axis=1)
     # creases of the next level: both halves of each sharp (non-boundary) crease edge
-    crease_edges = np.flatnonzero(sharp & (counts == 2))
+    crease_edges = np.flatnonzero(g.sharp & (g.counts == 2))
     new_creases = np.concatenate([
-        np.stack([edge_a[crease_edges], n + crease_edges], axis=1),
-        np.stack([n + crease_edges, edge_b[crease_edges]], axis=1),
+        np.stack([g.edge_a[crease_edges], n + crease_edges], axis=1),
+        np.stack([n + crease_edges, g.edge_b[crease_edges]], axis=1),
     ])
-    next_boundary = np.concatenate([boundary, counts == 1, np.zeros(nf, dtype=bool)])
+    next_boundary = np.concatenate([boundary, g.counts == 1, np.zeros(nf, dtype=bool)])
     return Step(matrix, new_faces, new_creases, next_boundary)
 
 
