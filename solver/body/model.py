@@ -240,7 +240,23 @@ class Body:
 
 @lru_cache(maxsize=32)
 def make_body(shape: BodyShape = BodyShape()) -> Body:
-    """The body of a shape (cached: bodies are immutable)."""
+    """The body of a shape (cached: bodies are immutable).
+
+    The MakeHuman base mesh morphed by the shape's targets, standing on y = 0 with the pelvis
+    over the origin, facing +Z.
+
+    Parameters
+    ----------
+    shape : BodyShape, optional
+        Shape parameters, each in [0, 1]; the default is MakeHuman's average adult.
+
+    Returns
+    -------
+    Body
+        The rest-pose body: skin vertices (V, 3) in metres, quads (F, 4), the rig's joints and
+        tails (J, 3) in metres with their parents, and skinning weights (V, J); its mass
+        (`Body.mass_kg`, kg) follows from the enclosed volume.
+    """
     assets = _assets()
     weights = shape.state_weights()
     factors = np.array([np.prod([weights[s] for s in states])

@@ -38,7 +38,27 @@ class CapturedPose:
 
 
 def load_pose(spec: str, db: str | os.PathLike | None = None) -> CapturedPose:
-    """Resolves `db:NAME` or `[bvh:]PATH#frame=N` (see the module docstring)."""
+    """Resolves `db:NAME` or `[bvh:]PATH#frame=N` (see the module docstring).
+
+    Parameters
+    ----------
+    spec : str
+        ``db:NAME`` for a pose of the library (by name or id), or ``[bvh:]PATH#frame=N`` for
+        frame N (0-based) of a BVH file; PATH may be ``bundled:NAME``.
+    db : str or os.PathLike, optional
+        The pose library file; needed for a ``db:`` pose.
+
+    Returns
+    -------
+    CapturedPose
+        The captured skeleton, its world frames (1, J) (positions in metres) and a label naming
+        the pose and its frame.
+
+    Raises
+    ------
+    PoseSourceError
+        If `spec` has neither form, a ``db:`` pose has no `db`, or the frame is out of range.
+    """
     if spec.startswith("db:"):
         from posedb import PoseLibrary
 
@@ -69,7 +89,33 @@ def load_pose(spec: str, db: str | os.PathLike | None = None) -> CapturedPose:
 def pose_body(captured: CapturedPose, body: Body, *, lowest: float | None = 0.0,
               pelvis: float | None = None) -> RigMotion:
     """The body's rig in the captured posture, its lowest skin point (or pelvis) at a height;
-    with both None, where the capture put it (scaled by leg length)."""
+    with both None, where the capture put it (scaled by leg length).
+
+    Parameters
+    ----------
+    captured : CapturedPose
+        The captured skeleton in one posture (see `load_pose`).
+    body : Body
+        The body whose rig is posed.
+    lowest : float or None, default 0.0
+        Height (y, metres) of the lowest posed skin point.
+    pelvis : float, optional
+        Height (y, metres) of the pelvis (the rig's root joint) instead; `lowest` must then be
+        passed as None, since `place` takes exactly one of them.
+
+    Returns
+    -------
+    RigMotion
+        The rig in the posture: local rotations (1, J, 3, 3), root positions (1, 3) in metres
+        and world frames (1, J).
+
+    Raises
+    ------
+    ValueError
+        If `pelvis` is given while `lowest` is not None.
+    RetargetError
+        If the captured skeleton cannot be retargeted.
+    """
     motion = retarget_pose(captured.skeleton, captured.world, body)
     if lowest is None and pelvis is None:
         return motion

@@ -217,6 +217,17 @@ def residual_jacobian(theta: np.ndarray, model: _Model, closest: np.ndarray,
 
 @dataclass
 class RelaxResult:
+    """A relaxed pose (see `relax`).
+
+    theta : (3 J + 3,) float, the solution: per joint three angles (radians) from the captured
+        local rotation, L_j = L0_j Rx Ry Rz, then the root translation (metres) from `root0`.
+    local : (J, 3, 3) float relaxed local rotations; world : WorldPose (J) relaxed world frames.
+    vertices : (V, 3) float, metres, the whole relaxed body.
+    cost : half the sum of squared residuals at the end of the last round (scipy's cost).
+    evaluations : residual evaluations over all rounds; rounds : the rounds run.
+    at_limit : how many parameters ended on their box limit.
+    """
+
     theta: np.ndarray
     local: np.ndarray
     world: WorldPose
@@ -230,7 +241,31 @@ class RelaxResult:
 def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 60, *,
           numeric_jacobian: bool = False) -> RelaxResult:
     """Relaxes the pose: `rounds` of pairing with the surface, each a bounded least squares.
-    `numeric_jacobian` swaps the analytic Jacobian for finite differences (a reference)."""
+
+    Each round pairs the supportable vertices with their closest surface points, then solves
+    the least squares of the module docstring from the last round's solution (trust-region
+    reflective, box constraints `JOINT_LIMITS` in degrees per axis and `ROOT_RANGE` metres).
+
+    Parameters
+    ----------
+    problem : RelaxProblem
+        The body, its captured pose, its supportable vertices with their importance, and the
+        surface (metres).
+    rounds : int, default 3
+        Rounds of pairing and solving.
+    max_evaluations : int, default 60
+        Residual evaluations allowed per round.
+    numeric_jacobian : bool, default False
+        Swaps the analytic Jacobian for finite differences (a reference).
+
+    Returns
+    -------
+    RelaxResult
+        The parameters theta (3 J + 3,) (radians per joint axis, then the root translation in
+        metres), the relaxed local rotations (J, 3, 3) and world frames (J), the whole relaxed
+        skin (V, 3) in metres, the last round's cost, the evaluations over all rounds and the
+        number of parameters at their limit.
+    """
     from solver.body.skinning import skin
 
     model = _Model(problem)

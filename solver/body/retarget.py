@@ -38,7 +38,31 @@ class RetargetError(ValueError):
 
 def joint_map_for(skeleton: Skeleton, profile: str | None = None,
                   joint_map: Mapping[str, str] | None = None) -> dict[str, str]:
-    """Role -> joint name for a captured skeleton: the profile's, overridden by `joint_map`."""
+    """Role -> joint name for a captured skeleton: the profile's, overridden by `joint_map`.
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+        The captured skeleton whose joints play the roles.
+    profile : str, optional
+        Name of a known profile (a key of `capture.PROFILES`); by default the one
+        `identify_profile` recognises from the joint names, if any. Profile joint names are
+        matched without their namespace prefix.
+    joint_map : mapping of str to str, optional
+        Role -> joint name entries that override (or, with no recognised profile, replace) the
+        profile's. A name ``"end:JOINT"`` stands for the end site of JOINT.
+
+    Returns
+    -------
+    dict of str to str
+        Role -> joint name of `skeleton` (``"end:"``-prefixed for an end site), covering at
+        least every role in `REQUIRED_ROLES`.
+
+    Raises
+    ------
+    RetargetError
+        If a required role has no joint, or a joint named for a role is not in the skeleton.
+    """
     roles: dict[str, str] = {}
     profile = profile or identify_profile(skeleton.names)
     if profile is not None:
@@ -199,7 +223,32 @@ def retarget(skeleton: Skeleton, channels: np.ndarray, body: Body, *,
              ) -> RigMotion:
     """The body's rig in the captured posture for every frame.
 
-    channels : (T, C) raw channels of `skeleton` (its unit must be known).
+    Forward kinematics of the raw channels, then `retarget_pose`.
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+        The captured skeleton; its length unit must be known (`Skeleton.unit_m`).
+    channels : (T, C) float
+        Raw channels of `skeleton`: positions in the skeleton's file unit, rotations in degrees.
+        A single frame (C,) is taken as T = 1.
+    body : Body
+        The body whose rig is posed.
+    profile : str, optional
+        The skeleton's profile (see `joint_map_for`); recognised from its joint names by default.
+    joint_map : mapping of str to str, optional
+        Role -> joint name overrides (see `joint_map_for`).
+
+    Returns
+    -------
+    RigMotion
+        The rig over the T frames: local rotations (T, J, 3, 3), root positions (T, 3) in metres
+        and world frames (T, J), J the body's rig joints.
+
+    Raises
+    ------
+    RetargetError
+        If the skeleton's joints cannot be given the roles the retargeting needs.
     """
     channels = np.atleast_2d(np.asarray(channels, dtype=np.float64))
     return retarget_pose(skeleton, skeleton_fk(skeleton, channels), body, profile=profile,
@@ -214,6 +263,34 @@ def retarget_pose(skeleton: Skeleton, pose: WorldPose, body: Body, *,
     A skeleton that is a sitrelax rig (a relaxed pose, written by `sitrelax relax`) hands its
     local rotations over unchanged: the rigs share their rest orientations, so the posture
     carries across bodies exactly, and only the root moves in proportion to the leg length.
+    That shortcut is taken only without a `joint_map`. Otherwise the rig is solved by bone
+    directions (see the module docstring) and its root is the captured hips' position scaled by
+    the ratio of the rig's leg length to the skeleton's.
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+        The captured skeleton; its length unit must be known (`Skeleton.unit_m`).
+    pose : WorldPose
+        The skeleton's world frames over T frames: positions (T, J, 3) in metres and rotations
+        (T, J, 3, 3), J the skeleton's joints (the leading frame axis is required).
+    body : Body
+        The body whose rig is posed.
+    profile : str, optional
+        The skeleton's profile (see `joint_map_for`); recognised from its joint names by default.
+    joint_map : mapping of str to str, optional
+        Role -> joint name overrides (see `joint_map_for`).
+
+    Returns
+    -------
+    RigMotion
+        The rig over the T frames: local rotations (T, J, 3, 3), root positions (T, 3) in metres
+        and world frames (T, J), J the body's rig joints.
+
+    Raises
+    ------
+    RetargetError
+        If the skeleton's joints cannot be given the roles the retargeting needs.
     """
     if joint_map is None and sorted(skeleton.names) == sorted(body.joint_names) and \
             (profile or identify_profile(skeleton.names)) == "sitrelax_rig":
@@ -255,7 +332,31 @@ def _same_rig(skeleton: Skeleton, pose: WorldPose, body: Body) -> RigMotion:
 def place(motion: RigMotion, *, lowest: float | None = None, pelvis: float | None = None
           ) -> RigMotion:
     """Moves each frame vertically: its lowest skin point, or its pelvis, to the given height
-    (the rig posed again at the moved root; the skin is not skinned here)."""
+    (the rig posed again at the moved root; the skin is not skinned here).
+
+    Only the root's y changes; the local rotations are kept.
+
+    Parameters
+    ----------
+    motion : RigMotion
+        The posed rig over T frames.
+    lowest : float, optional
+        Height (y, metres) to put each frame's lowest posed skin point at.
+    pelvis : float, optional
+        Height (y, metres) to put each frame's root joint (the pelvis) at. Give exactly one of
+        `lowest` and `pelvis`.
+
+    Returns
+    -------
+    RigMotion
+        The same body and local rotations (T, J, 3, 3), with root positions (T, 3) in metres
+        moved along y and the world frames (T, J) posed again.
+
+    Raises
+    ------
+    ValueError
+        If neither or both of `lowest` and `pelvis` are given.
+    """
     if (lowest is None) == (pelvis is None):
         raise ValueError("Expected exactly one of lowest= or pelvis=")
     root = motion.root_positions.copy()

@@ -66,8 +66,21 @@ def rest_offsets(body: Body) -> np.ndarray:
 def rig_pose(body: Body, local_rotmats: np.ndarray, root_position: np.ndarray) -> WorldPose:
     """World joint frames from local rotations and the root's position.
 
-    local_rotmats : (..., J, 3, 3) rotation of each joint relative to its parent's frame.
-    root_position : (..., 3) metres.
+    The other joints sit at their rest offsets from their parents (`Body.joints`).
+
+    Parameters
+    ----------
+    body : Body
+        The body whose rig is posed (J joints, joint 0 the root).
+    local_rotmats : (..., J, 3, 3) float
+        Rotation of each joint relative to its parent's frame (the root's: to the world).
+    root_position : (..., 3) float
+        World position of the root joint, metres.
+
+    Returns
+    -------
+    WorldPose
+        World positions (..., J, 3) in metres and rotations (..., J, 3, 3).
     """
     local_rotmats = np.asarray(local_rotmats, dtype=np.float64)
     trans = np.broadcast_to(rest_offsets(body), local_rotmats.shape[:-2] + (3,)).copy()
@@ -76,7 +89,18 @@ def rig_pose(body: Body, local_rotmats: np.ndarray, root_position: np.ndarray) -
 
 
 def rest_pose(body: Body) -> WorldPose:
-    """The rig's rest frames: identity rotations at the rest joint positions."""
+    """The rig's rest frames: identity rotations at the rest joint positions.
+
+    Parameters
+    ----------
+    body : Body
+        The body whose rig is meant (J joints).
+
+    Returns
+    -------
+    WorldPose
+        Positions (J, 3) in metres (a copy of `Body.joints`) and identity rotations (J, 3, 3).
+    """
     n = len(body.joint_names)
     return WorldPose(body.joints.copy(), np.broadcast_to(np.eye(3), (n, 3, 3)).copy())
 

@@ -49,7 +49,31 @@ def _skinned(body: Body, pose: WorldPose, vertices: np.ndarray) -> np.ndarray:
 
 def skin(body: Body, pose: WorldPose, normals: bool = True
          ) -> tuple[np.ndarray, np.ndarray | None]:
-    """Posed vertices (V, 3) and unit normals (V, 3) of a body for one rig pose."""
+    """Posed vertices (V, 3) and unit normals (V, 3) of a body for one rig pose.
+
+    Parameters
+    ----------
+    body : Body
+        The body to pose (V skin vertices, J rig joints).
+    pose : WorldPose
+        One pose of the rig: positions (J, 3) in metres and rotations (J, 3, 3), without a
+        frame axis (`RigMotion.frame(t)`).
+    normals : bool, default True
+        Whether to pose the rest normals too.
+
+    Returns
+    -------
+    vertices : (V, 3) float
+        Posed skin vertices, metres.
+    normals : (V, 3) float or None
+        Unit normals, the rest normals turned by each vertex's blended linear map and
+        renormalised; None when `normals` is False.
+
+    Raises
+    ------
+    ValueError
+        If the pose's rotations are not of shape (J, 3, 3).
+    """
     if pose.rotmats.shape != (len(body.joint_names), 3, 3):
         raise ValueError(f"Expected one pose of {len(body.joint_names)} joints, got rotations of "
                          f"shape {pose.rotmats.shape}")

@@ -132,12 +132,39 @@ def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float,
                     stiffness_kpa_per_m: float) -> tuple[dict, PressureMap]:
     """Coverage, penetration and the pressure map of one body on one surface.
 
-    person : the posed body with its importance, areas, closed skin (for the penetration
-        depth), supported parts and mass.
-    margin : metres of softness the surface may sink into the body (coverage counts the
-        importance within it).
-    stiffness_kpa_per_m : the foam's kPa per metre pressed in.
-    Returns the figures (lengths m, pressures kPa, areas m^2) and the pressure map.
+    Parameters
+    ----------
+    surface : SurfaceMesh
+        The surface, metres, its face normals towards the side bodies rest on.
+    person : SupportedBody
+        The posed body (V vertices, metres) with its importance, areas, closed skin (for the
+        penetration depth), supported parts and mass; areas, triangles and mass_kg are
+        required.
+    margin : float
+        Metres of softness the surface may sink into the body (coverage counts the importance
+        within it).
+    stiffness_kpa_per_m : float
+        The foam's kPa per metre pressed in.
+
+    Returns
+    -------
+    figures : dict
+        The figures, lengths in metres, pressures in kPa, areas in m^2: ``coverage`` (share of
+        the importance within `margin` of the surface, in [0, 1]), ``max_penetration_m``,
+        ``contact_area_m2``, ``peak_pressure_kpa``, ``mean_pressure_kpa``,
+        ``centre_of_pressure_m`` ((3,) list of metres, or None when unsupported), ``sink_m``
+        (the sinking depth, metres, at which the reactions carry the weight; `MAX_SINK` when
+        unsupported),
+        ``supported`` (bool: the foam carries the body's weight within `MAX_SINK`) and
+        ``mean_support_distance_m`` (importance-weighted mean distance to the surface, None
+        without importance).
+    pressure_map : PressureMap
+        The simulated pressure mat: per body vertex pressure (V,) in kPa and the same figures.
+
+    Raises
+    ------
+    ValueError
+        If the person lacks areas, a closed skin or a mass.
     """
     import igl
 

@@ -39,10 +39,32 @@ def pressure_field(vertices: np.ndarray, triangles: np.ndarray, *,
                    ) -> PressureField:
     """The pressure model on a posed body mesh.
 
-    vertices : (V, 3) metres; triangles : (F, 3).
-    gravity : direction of gravity (normalised here).
-    mask : optional (V,) bool, the vertices of the supported body parts.
-    normals, areas : optional precomputed (V, 3) unit normals and (V,) areas.
+    Parameters
+    ----------
+    vertices : (V, 3) float
+        Posed body vertices, metres.
+    triangles : (F, 3) int
+        The body's triangles.
+    gravity : (3,) float, default (0, -1, 0)
+        Direction of gravity (normalised here; any non-zero length).
+    mask : (V,) bool, optional
+        The vertices of the supported body parts; the others get zero importance.
+    normals : (V, 3) float, optional
+        Precomputed unit vertex normals (otherwise from the mesh).
+    areas : (V,) float, optional
+        Precomputed Voronoi areas, m^2 (otherwise from the mesh).
+
+    Returns
+    -------
+    PressureField
+        Per-vertex (V,) fields: pressure p = max(0, n . g) in [0, 1], area A (m^2), reaction
+        |r_n| = A p (m^2), and importance rho = |r_n| / max |r_n| in [0, 1], taken over the
+        masked vertices (all zero when none carries any reaction).
+
+    Raises
+    ------
+    ValueError
+        If `gravity` is not a finite, non-zero (3,) direction.
     """
     g = np.asarray(gravity, dtype=np.float64)
     norm = np.linalg.norm(g)

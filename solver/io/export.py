@@ -41,7 +41,37 @@ def obj_text(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None
 def write_mesh(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray, *,
                normals: np.ndarray | None = None, vertex_colors: np.ndarray | None = None,
                comment: str | None = None) -> Path:
-    """Writes a mesh atomically; the format follows the suffix (.obj, .ply or .glb)."""
+    """Writes a mesh atomically; the format follows the suffix (.obj, .ply or .glb).
+
+    OBJ keeps the faces as given (quads stay quads) and writes `normals` and `comment`; PLY and
+    GLB go through trimesh, quads split into triangles, and carry `vertex_colors`.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write; its suffix picks the format.
+    vertices : (V, 3) float
+        Finite vertex positions, metres.
+    faces : (F, 3) or (F, 4) int
+        0-based triangles or quads indexing the vertices.
+    normals : (V, 3) float, optional
+        Vertex normals (OBJ only).
+    vertex_colors : (V, 3) or (V, 4) float, optional
+        Colours in [0, 1] (clipped), written as 8-bit (PLY and GLB only).
+    comment : str, optional
+        Header comment lines (OBJ only).
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+
+    Raises
+    ------
+    ExportError
+        If the vertices or faces have the wrong shape, are not finite or index out of range,
+        or the suffix is not one of `MESH_FORMATS`.
+    """
     path = Path(path)
     suffix = path.suffix.lower()
     vertices = np.asarray(vertices, dtype=np.float64)

@@ -153,7 +153,29 @@ def render_png(path: str | os.PathLike, meshes: Sequence[MeshView], *,
                colorbar: tuple[str, float, float] | None = None) -> Path:
     """Renders meshes to a PNG file and returns its path.
 
-    colorbar : optional (label, low, high) drawn with the viridis scale the caller coloured by.
+    Orthographic, back faces culled, flat Lambert shading (see the module docstring).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The PNG file to write.
+    meshes : sequence of MeshView
+        The meshes to draw: vertices (V, 3), faces (F, 3) or (F, 4), and colours.
+    view : str or (3,) float, default "three-quarter"
+        A name from `VIEWS`, or a direction from the scene towards the camera (any length).
+    size : (2,) int, default (800, 800)
+        Picture width and height, pixels.
+    title : str, optional
+        A title over the picture.
+    light : (3,) float, default (0.4, 0.8, 0.6)
+        Direction of the light (any length).
+    colorbar : (label, low, high), optional
+        A colour bar drawn with the viridis scale the caller coloured by.
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
     """
     import matplotlib
 

@@ -42,7 +42,39 @@ def placement(position, rotation_deg) -> np.ndarray:
 def place_person(spec: PersonSpec, db: str | os.PathLike | None = None,
                  index: int = 0) -> PlacedPerson:
     """Poses the person's body (lowest point on y = 0, pelvis over the origin), then places it.
-    The captured skeleton and the rig are posed once and the skin skinned once."""
+    The captured skeleton and the rig are posed once and the skin skinned once.
+
+    The placement rotates about world x, then y, then z by `spec.rotation_deg` (degrees), then
+    moves by `spec.position` (metres). Importance is the pressure model's, restricted to the
+    supported parts' vertices a support can reach.
+
+    Parameters
+    ----------
+    spec : PersonSpec
+        The scenario's person: pose source, body shape, position (3,) in metres, rotation (3,)
+        in degrees, supported parts and name.
+    db : str or os.PathLike, optional
+        The pose library, for a ``db:`` pose.
+    index : int, default 0
+        The person's 0-based place in the scenario, for the default label.
+
+    Returns
+    -------
+    PlacedPerson
+        The placed skin: vertices (V, 3) in metres, unit normals (V, 3), importance (V,),
+        label, triangles (F, 3), Voronoi areas (V,) in m^2, supported parts (V,) bool and mass
+        in kg; with the spec, the body, its rig motion (1 frame, before placement) and the
+        (4, 4) transform from that frame to the scene.
+
+    Raises
+    ------
+    PoseSourceError
+        If the pose cannot be resolved.
+    RetargetError
+        If the captured skeleton cannot be retargeted.
+    BodyShapeError
+        If a supported part is unknown.
+    """
     body = make_body(spec.body)
     captured = load_pose(spec.pose, db)
     motion = place(retarget_pose(captured.skeleton, captured.world, body), lowest=0.0)

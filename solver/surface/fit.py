@@ -364,9 +364,37 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
     """Fits the control mesh to the bodies (see the module docstring): each iteration pairs,
     assembles, constrains, solves and judges; the best iterate is kept.
 
-    control : (n0, 3) start control vertices, metres; faces : (F0, 4) quads.
-    targets : the bodies to support (vertices, normals, importance; their triangles unused).
-    progress : optional callback (iteration, energy, tau).
+    Parameters
+    ----------
+    control : (n0, 3) float
+        Start control vertices, metres.
+    faces : (F0, 4) int
+        The control mesh's quads.
+    targets : sequence of SupportedBody
+        The bodies to support (vertices in metres, unit normals, importance; their triangles
+        unused).
+    params : FitParams, optional
+        Subdivision level, weights, softness margin (metres), fixed vertices, creases, stopping
+        rule and per-iteration step (metres).
+    progress : callable, optional
+        Called after every iteration as ``progress(iteration, energy, tau)``.
+
+    Returns
+    -------
+    FitResult
+        The best iterate's control vertices (n0, 3) in metres with the control quads (F0, 4),
+        its level-s surface vertices (ns, 3) in metres and quads (Fs, 4), the iterations run,
+        why the loop stopped, the energy of every iteration, the best iterate's energy terms,
+        the wall-clock seconds, the QP status of every iteration and the subdivision operator.
+
+    Raises
+    ------
+    FitError
+        If there is no body, a fixed vertex index is out of range, a body has nothing to
+        support or lies beyond `REACH` of the surface, or the quadratic programme fails.
+    MeshError
+        If the control mesh cannot be subdivided (bad faces, non-manifold edges, creases off
+        its edges).
     """
     start = time.perf_counter()
     fit = prepare(control, faces, targets, params)

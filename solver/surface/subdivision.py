@@ -234,9 +234,33 @@ def subdivision(n: int, faces, level: int, creases: Iterable[Sequence[int]] | No
                 ) -> Subdivision:
     """The composed operator of `level` Catmull-Clark steps for a mesh of n vertices.
 
-    faces : (F, k) array or a list of index lists (quads, triangles or other polygons).
-    creases : edges (pairs of vertex indices) to keep sharp.
     Cached by topology: the same faces, creases and level return the same object.
+
+    Parameters
+    ----------
+    n : int
+        Number of control vertices.
+    faces : (F, k) int array or list of index lists
+        The control faces (quads, triangles or other polygons), indices into the n vertices.
+    level : int
+        Number of subdivision steps, >= 0 (0: the identity).
+    creases : iterable of (2,) int pairs, optional
+        Edges (pairs of vertex indices) to keep sharp at every level.
+
+    Returns
+    -------
+    Subdivision
+        The operator: `matrix` (n_s, n) sparse CSR with rows summing to 1, so that the level's
+        vertices are ``matrix @ control`` ((n, 3) metres in, (n_s, 3) metres out), its `faces`
+        (F_s, 4) quads (at level 0 the control faces as an (F, k) array, shorter faces padded
+        with -1), and the per-level steps.
+
+    Raises
+    ------
+    MeshError
+        If `level` is negative, or the faces or creases are invalid (no faces, faces of fewer
+        than three or repeated vertices, indices out of range, non-manifold edges, creases
+        that are not mesh edges).
     """
     if level < 0:
         raise MeshError(f"Expected a subdivision level >= 0, got {level}")
@@ -266,8 +290,27 @@ def grid_mesh(size: Sequence[float] = (1.2, 0.8), resolution: Sequence[int] = (8
               height: float = 0.45) -> tuple[np.ndarray, np.ndarray]:
     """A flat quad grid in the XZ plane at height y, centred on the origin.
 
-    resolution : (faces along x, faces along z). Returns vertices (n, 3) and quads (F, 4),
-    ordered so that face normals point up (+Y).
+    Parameters
+    ----------
+    size : (2,) float, default (1.2, 0.8)
+        Extent along x and along z, metres.
+    resolution : (2,) int, default (8, 6)
+        (faces along x, faces along z), each at least 1.
+    height : float, default 0.45
+        The grid's y, metres.
+
+    Returns
+    -------
+    vertices : (V, 3) float
+        Grid points, metres, V = (nx + 1) (nz + 1); point i (nz + 1) + k is the i-th along x
+        and the k-th along z.
+    quads : (F, 4) int
+        F = nx nz quads, ordered so that face normals point up (+Y).
+
+    Raises
+    ------
+    MeshError
+        If a resolution is below 1.
     """
     nx, nz = (int(r) for r in resolution)
     if nx < 1 or nz < 1:
