@@ -251,9 +251,11 @@ def _got(value: Any) -> str:
 
 def _describe(error: dict, node: dict, loc: list) -> str:
     kind, value, ctx = error["type"], error.get("input"), error.get("ctx") or {}
-    if loc in (["surface"], ["person"]) and kind in ("missing", "too_short", "model_type",
-                                                     "list_type"):
-        return f"expected {'a [surface] table' if loc == ['surface'] else 'at least one [[person]]'}"
+    sections = {"surface": "expected a [surface] table",
+                "person": "expected at least one [[person]]"}
+    if len(loc) == 1 and loc[0] in sections and kind in ("missing", "too_short", "model_type",
+                                                         "list_type"):
+        return sections[loc[0]]
     whole = node.get("type") == "integer"
     noun = "a whole number" if whole else "a number"
     if kind == "extra_forbidden":
