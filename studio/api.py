@@ -1,6 +1,8 @@
 """`sitrelax serve`: the solver behind a JSON HTTP API (FastAPI), for Rhino/Grasshopper or any
 tool. The OpenAPI description is at /openapi.json and the interactive docs at /docs.
 
+A scenario request (/api/fit, /api/relax) is the scenario schema (`solver.scene.schema`, the
+TOML format as JSON, with the same defaults), within the server's own bounds (`check_limits`).
 Requests name nothing on the server's disk: control meshes come inline, poses from the
 server's pose library (`db:NAME`) or the bundled recordings (`bvh:bundled:NAME#frame=N`).
 Every request is validated (422 for a malformed one, 400 for one the solver cannot run, 404
@@ -10,19 +12,18 @@ runs for long.
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import threading
 import time
-from typing import Annotated, Literal
+from typing import Annotated
 
 import numpy as np
 from fastapi import FastAPI, HTTPException, Query, Request
 from fastapi.responses import JSONResponse
-from pydantic import BaseModel, ConfigDict, Field, create_model
+from pydantic import BaseModel, ConfigDict, Field
 
-from solver.body import model as solver_body
-from solver.body.model import SUPPORT_PARTS
+from solver.scene import schema
+from solver.surface.fit import FitParams
 
 from .net import BodyLimit
 
@@ -30,89 +31,37 @@ DEFAULT_LIMIT = 8 * 1024 * 1024  # bytes of request body
 MAX_CONTROL_VERTICES = 2000
 MAX_PEOPLE = 6
 COORD = 100.0  # metres: the largest coordinate a request may give
+# the server's own ceilings on top of the scenario schema's bounds, so no request runs long
+CEILINGS = {"level": 3, "max_iterations": 100, "sigma": 100.0, "gamma": 1e6, "anchor": 1e6,
+            "margin": 0.2, "tolerance": 1.0, "pull_range": COORD, "step": COORD}
+MAX_FOAM_STIFFNESS = 1e5
 
 Coord = Annotated[float, Field(ge=-COORD, le=COORD)]
 Point = Annotated[list[Coord], Field(min_length=3, max_length=3)]
 Index = Annotated[int, Field(ge=0, le=10 * MAX_CONTROL_VERTICES)]
 Quad = Annotated[list[Index], Field(min_length=4, max_length=4)]
 Triangle = Annotated[list[Index], Field(min_length=3, max_length=3)]
-Unit = Annotated[float, Field(ge=0.0, le=1.0)]
-Part = Literal["head", "torso", "arms", "hands", "legs", "feet", "thighs", "calves"]
-assert set(Part.__args__) == set(SUPPORT_PARTS)  # type: ignore[attr-defined]
 
 
 class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
 
-class Grid(_Model):
-    size: Annotated[list[Annotated[float, Field(ge=0.05, le=20.0)]],
-                    Field(min_length=2, max_length=2)] = [0.5, 0.6]
-    resolution: Annotated[list[Annotated[int, Field(ge=1, le=40)]],
-                          Field(min_length=2, max_length=2)] = [8, 6]
-    height: Coord = 0.42
-
-
-class ControlMesh(_Model):
-    vertices: Annotated[list[Point], Field(min_length=4, max_length=MAX_CONTROL_VERTICES)]
-    faces: Annotated[list[Quad], Field(min_length=1, max_length=2 * MAX_CONTROL_VERTICES)]
-
-
-class Surface(_Model):
-    grid: Grid | None = None
-    control_mesh: ControlMesh | None = None
-    level: Annotated[int, Field(ge=1, le=3)] = 3
-    sigma: Annotated[float, Field(ge=0.0, le=100.0)] = 0.003
-    tau_max: Unit = 0.5
-    margin: Annotated[float, Field(ge=0.0, le=0.2)] = 0.03
-    fixed: Annotated[list[Index], Field(max_length=MAX_CONTROL_VERTICES)] = []
-    gamma: Annotated[float, Field(ge=0.0, le=1e6)] = 10.0
-    max_iterations: Annotated[int, Field(ge=1, le=100)] = 50
-    tolerance: Annotated[float, Field(ge=0.0, le=1.0)] = 0.01
-
-
-# the body's shape parameters, each in [0, 1], as the solver's BodyShape declares them
-BodyShape = create_model(
-    "BodyShape", __config__=ConfigDict(extra="forbid"),
-    **{f.name: (Unit, f.default) for f in dataclasses.fields(solver_body.BodyShape)})
-
-
-class Person(_Model):
-    pose: Annotated[str, Field(min_length=4, max_length=300,
-                               examples=["bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"])]
-    name: Annotated[str, Field(max_length=100)] = ""
-    body: BodyShape = BodyShape()
-    position: Point = [0.0, 0.0, -0.1]
-    rotation_deg: Annotated[list[Annotated[float, Field(ge=-360.0, le=360.0)]],
-                            Field(min_length=3, max_length=3)] = [0.0, 0.0, 0.0]
-    support: Annotated[list[Part], Field(min_length=1, max_length=len(SUPPORT_PARTS))] = ["legs"]
-
-
-class Evaluation(_Model):
-    foam_stiffness: Annotated[float, Field(ge=1.0, le=1e5)] = 200.0
-
-
-class Scenario(_Model):
-    surface: Surface
-    person: Annotated[list[Person], Field(min_length=1, max_length=MAX_PEOPLE)]
-    evaluation: Evaluation = Evaluation()
-
-
 class PersonRequest(_Model):
-    person: Person
+    person: schema.Person
 
 
 class RelaxRequest(_Model):
-    scenario: Scenario
+    scenario: schema.Scenario
     index: Annotated[int, Field(ge=0, le=MAX_PEOPLE - 1)] = 0
 
 
 class EvaluateRequest(_Model):
     vertices: Annotated[list[Point], Field(min_length=3, max_length=200_000)]
     faces: Annotated[list[Quad] | list[Triangle], Field(min_length=1, max_length=400_000)]
-    person: Annotated[list[Person], Field(min_length=1, max_length=MAX_PEOPLE)]
-    margin: Annotated[float, Field(ge=0.0, le=0.2)] = 0.03
-    evaluation: Evaluation = Evaluation()
+    person: Annotated[list[schema.Person], Field(min_length=1, max_length=MAX_PEOPLE)]
+    margin: schema.FIT_FIELDS["margin"] = FitParams.margin  # type: ignore[valid-type]
+    evaluation: schema.Evaluation = schema.Evaluation()
 
 
 class Mesh(BaseModel):
@@ -123,6 +72,7 @@ class Mesh(BaseModel):
 class FitResponse(BaseModel):
     control: Mesh
     surface: Mesh
+    parameters: dict  # as report.json's "parameters"
     iterations: int
     stop_reason: str
     seconds: float
@@ -130,14 +80,55 @@ class FitResponse(BaseModel):
     persons: list[dict]
 
 
-def _scenario_data(s: Scenario) -> dict:
-    data = s.model_dump(exclude_none=True)
-    if not data["surface"]["fixed"]:
-        del data["surface"]["fixed"]
-    for p in data["person"]:
-        if not p["name"]:
-            del p["name"]
-    return data
+def _limit(loc: list, message: str) -> HTTPException:
+    return HTTPException(422, [{"type": "limit", "loc": ["body", *loc], "msg": message}])
+
+
+def _check_person(p: schema.Person, loc: list) -> None:
+    if max(abs(c) for c in p.position) > COORD:
+        raise _limit([*loc, "position"], f"expected coordinates within {COORD:g} m here, got "
+                                         f"{p.position}")
+
+
+def check_limits(s: schema.Scenario, loc: tuple = ()) -> None:
+    """The server's bounds on a scenario (the schema's, then these): at most
+    MAX_CONTROL_VERTICES control vertices, MAX_PEOPLE people, CEILINGS on the parameters and
+    coordinates within COORD metres; an HTTP 422 naming the field otherwise."""
+    surf = s.surface
+    if surf.grid is not None:
+        nx, nz = surf.grid.resolution
+        count, extent = (nx + 1) * (nz + 1), max(*surf.grid.size, abs(surf.grid.height))
+    elif isinstance(surf.control_mesh, schema.InlineMesh):
+        count = len(surf.control_mesh.vertices)
+        extent = max(abs(c) for v in surf.control_mesh.vertices for c in v)
+    else:
+        count, extent = 0, 0.0  # a file name: refused as such by the parse
+    if count > MAX_CONTROL_VERTICES:
+        raise _limit([*loc, "surface"], f"expected at most {MAX_CONTROL_VERTICES} control "
+                                        f"vertices here, got {count}")
+    if extent > COORD:
+        raise _limit([*loc, "surface"], f"expected coordinates within {COORD:g} m here")
+    for name, ceiling in CEILINGS.items():
+        if getattr(surf, name) > ceiling:
+            raise _limit([*loc, "surface", name], f"expected at most {ceiling:g} here, got "
+                                                  f"{getattr(surf, name):g}")
+    if s.evaluation.foam_stiffness > MAX_FOAM_STIFFNESS:
+        raise _limit([*loc, "evaluation", "foam_stiffness"],
+                     f"expected at most {MAX_FOAM_STIFFNESS:g} here")
+    if len(s.person) > MAX_PEOPLE:
+        raise _limit([*loc, "person"], f"expected at most {MAX_PEOPLE} people here, got "
+                                       f"{len(s.person)}")
+    for k, p in enumerate(s.person):
+        _check_person(p, [*loc, "person", k])
+
+
+def request_scenario(s: schema.Scenario, loc: tuple = ()):
+    """The solver's scenario of a request (the server's bounds checked; nothing read from
+    disk): what /api/fit and /api/relax run."""
+    from solver.scene.scenario import scenario_from_model
+
+    check_limits(s, loc)
+    return scenario_from_model(s, "request", files=False, raw=s.model_dump(exclude_none=True))
 
 
 def _mesh(vertices: np.ndarray, faces: np.ndarray, decimals: int = 5) -> dict:
@@ -146,13 +137,21 @@ def _mesh(vertices: np.ndarray, faces: np.ndarray, decimals: int = 5) -> dict:
 
 def create_app(db: str | os.PathLike | None = None, limit: int = DEFAULT_LIMIT) -> FastAPI:
     """The API over the pose library `db` (or none), refusing request bodies over `limit`."""
-    from posedb.schema import LibraryError, NotFoundError
-    from solver.scene.scenario import parse_scenario
-
     db = str(db) if db is not None else None
     app = FastAPI(title="sitrelax", version="1",
                   description="Fit supporting surfaces to captured poses: poses, posed bodies, "
                               "pressure fields, fits, relaxation and evaluation, in metres.")
+    _error_handlers(app)
+    place = _placer(db)
+    _library_routes(app, db)
+    _person_routes(app, place)
+    _fit_routes(app, place)
+    app.add_middleware(BodyLimit, limit=limit)
+    return app
+
+
+def _error_handlers(app: FastAPI) -> None:
+    from posedb.schema import LibraryError, NotFoundError
 
     @app.exception_handler(NotFoundError)
     async def not_found(_: Request, exc: NotFoundError):
@@ -163,23 +162,16 @@ def create_app(db: str | os.PathLike | None = None, limit: int = DEFAULT_LIMIT) 
         status = 409 if isinstance(exc, LibraryError) and "locked" in str(exc).lower() else 400
         return JSONResponse({"detail": str(exc)}, status_code=status)
 
-    def library():
-        from posedb import PoseLibrary
 
-        if db is None:
-            raise HTTPException(409, "This server has no pose library (start it with --db)")
-        return PoseLibrary(db)
-
-    def parse(s: Scenario):
-        return parse_scenario(_scenario_data(s), "request", files=False)
+def _placer(db: str | None):
+    """place(spec, index): a posed person, reused while the same person (and library file)
+    comes again."""
+    from solver.scene.placement import place_person
 
     cache: dict[tuple, object] = {}
     lock = threading.Lock()
 
     def place(spec, index: int):
-        """A posed person, reused while the same person (and library file) comes again."""
-        from solver.scene.placement import place_person
-
         stamp = os.stat(db).st_mtime_ns if db is not None else 0
         key = (spec, index, stamp)
         with lock:
@@ -192,9 +184,16 @@ def create_app(db: str | os.PathLike | None = None, limit: int = DEFAULT_LIMIT) 
                 cache[key] = hit
         return hit
 
-    def placed(person: Person):
-        data = {"surface": {"grid": {}}, "person": [person.model_dump()]}
-        return place(parse_scenario(data, "request", files=False).persons[0], 0)
+    return place
+
+
+def _library_routes(app: FastAPI, db: str | None) -> None:
+    def library():
+        from posedb import PoseLibrary
+
+        if db is None:
+            raise HTTPException(409, "This server has no pose library (start it with --db)")
+        return PoseLibrary(db)
 
     @app.get("/api/health", summary="Whether the server runs, and its library")
     def health() -> dict:
@@ -222,29 +221,63 @@ def create_app(db: str | os.PathLike | None = None, limit: int = DEFAULT_LIMIT) 
         info = lib.pose(name)
         return info.as_dict(lib.take(info.take).name)
 
+
+def _person_routes(app: FastAPI, place) -> None:
+    from solver.scene.scenario import parse_scenario
+
+    def placed(person: schema.Person, loc: list):
+        _check_person(person, loc)
+        data = {"surface": {"grid": {}}, "person": [person.model_dump(exclude_none=True)]}
+        return place(parse_scenario(data, "request", files=False).persons[0], 0)
+
     @app.post("/api/body", summary="A person's posed body mesh, placed in the scene")
     def body(req: PersonRequest) -> dict:
-        p = placed(req.person)
+        p = placed(req.person, ["person"])
         return {"label": p.label, "mass_kg": p.body.mass_kg, "height_m": p.body.height_m,
                 **_mesh(p.vertices, p.body.triangles)}
 
     @app.post("/api/pressure", summary="A person's pressure field: where the body needs support")
     def pressure(req: PersonRequest) -> dict:
-        p = placed(req.person)
+        p = placed(req.person, ["person"])
         return {"label": p.label, "importance": np.round(p.importance, 5).tolist(),
                 "supported_area_m2": float(p.areas[p.importance > 0].sum()),
                 "vertices": int(len(p.vertices))}
 
+    @app.post("/api/evaluate", summary="Evaluate any surface mesh against posed people")
+    def evaluate(req: EvaluateRequest) -> dict:
+        from solver.contact.evaluate import evaluate_person
+        from solver.mesh import SurfaceMesh, faces_problem
+
+        if req.margin > CEILINGS["margin"] or (req.evaluation.foam_stiffness
+                                               > MAX_FOAM_STIFFNESS):
+            raise _limit(["margin"], f"expected margin <= {CEILINGS['margin']:g} and "
+                                     f"foam_stiffness <= {MAX_FOAM_STIFFNESS:g} here")
+        v = np.asarray(req.vertices, dtype=np.float64)
+        f = np.asarray(req.faces, dtype=np.int64)
+        problem = faces_problem(v, f)
+        if problem:
+            raise HTTPException(400, problem)
+        mesh = SurfaceMesh.from_faces(v, f)
+        out = []
+        for k, person in enumerate(req.person):
+            p = placed(person, ["person", k])
+            figures, _ = evaluate_person(mesh, p, req.margin, req.evaluation.foam_stiffness)
+            out.append({"name": p.label, **figures})
+        return {"persons": out}
+
+
+def _fit_routes(app: FastAPI, place) -> None:
     @app.post("/api/fit", summary="Fit a surface to a scenario, with each person's evaluation")
-    def fit(s: Scenario) -> FitResponse:
-        from solver.scene.run import fit_scene
+    def fit(s: schema.Scenario) -> FitResponse:
+        from solver.scene.run import fit_scene, report_parameters
 
         start = time.perf_counter()
-        scenario = parse(s)
+        scenario = request_scenario(s)
         result, persons, _ = fit_scene(scenario, [place(p, k) for k, p in
                                                   enumerate(scenario.persons)])
         return FitResponse(control=_mesh(result.control, result.faces),
                            surface=_mesh(result.surface, result.surface_faces),
+                           parameters=report_parameters(scenario),
                            iterations=result.iterations, stop_reason=result.stop_reason,
                            seconds=time.perf_counter() - start, energies=result.energies,
                            persons=persons)
@@ -253,7 +286,7 @@ def create_app(db: str | os.PathLike | None = None, limit: int = DEFAULT_LIMIT) 
     def relax(req: RelaxRequest) -> dict:
         from solver.scene.run import fit_people, relax_person
 
-        scenario = parse(req.scenario)
+        scenario = request_scenario(req.scenario, ("scenario",))
         if req.index >= len(scenario.persons):
             raise HTTPException(400, f"Expected index in 0..{len(scenario.persons) - 1}, got "
                                      f"{req.index}")
@@ -267,27 +300,6 @@ def create_app(db: str | os.PathLike | None = None, limit: int = DEFAULT_LIMIT) 
                 "before": before, "after": after,
                 "surface": _mesh(result.surface, result.surface_faces),
                 "body": _mesh(res.vertices, person.body.triangles)}
-
-    @app.post("/api/evaluate", summary="Evaluate any surface mesh against posed people")
-    def evaluate(req: EvaluateRequest) -> dict:
-        from solver.contact.evaluate import evaluate_person
-        from solver.mesh import SurfaceMesh, faces_problem
-
-        v = np.asarray(req.vertices, dtype=np.float64)
-        f = np.asarray(req.faces, dtype=np.int64)
-        problem = faces_problem(v, f)
-        if problem:
-            raise HTTPException(400, problem)
-        mesh = SurfaceMesh.from_faces(v, f)
-        out = []
-        for person in req.person:
-            p = placed(person)
-            figures, _ = evaluate_person(mesh, p, req.margin, req.evaluation.foam_stiffness)
-            out.append({"name": p.label, **figures})
-        return {"persons": out}
-
-    app.add_middleware(BodyLimit, limit=limit)
-    return app
 
 
 class ApiThread:

@@ -2,8 +2,9 @@
 them in the studio, and what can be done with them: fit, relax, save (library or TOML), export.
 
 The session is plain data (scenario person tables, a control mesh, parameters) turned into a
-`Scenario` whenever it runs, so everything the studio does is what `sitrelax fit` would do with
-the same scenario file. Posed people are cached by their table, so moving one person re-poses
+`Scenario` by `parse_scenario` (the scenario schema: its defaults, its checks) whenever it
+runs, so everything the studio does is what `sitrelax fit` would do with the same scenario
+file. Posed people are cached by their table, so moving one person re-poses
 that person only.
 """
 
@@ -21,13 +22,13 @@ from typing import Callable
 import numpy as np
 
 from capture.files import write_atomic
+from solver.scene import schema
 from solver.surface.fit import FitResult
 from solver.scene.run import fit_scene, relax_person, run_fit
 from solver.scene.scenario import Scenario, parse_scenario, read_control_mesh, scenario_toml
 from solver.scene.placement import PlacedPerson, place_person
 
-PARAMETERS = ("level", "sigma", "tau_max", "margin")
-DEFAULTS = {"level": 3, "sigma": 0.003, "tau_max": 0.5, "margin": 0.03}
+PARAMETERS = ("level", "sigma", "tau_max", "margin")  # the ones the studio's panel sets
 MAX_PEOPLE = 8
 MAX_CONTROL_VERTICES = 2000
 
@@ -62,13 +63,13 @@ class Design:
     def __init__(self, db: str | os.PathLike | None = None):
         self.db = str(db) if db is not None else None
         self.people: list[dict] = []
-        self.params = dict(DEFAULTS)
+        self.params = {name: schema.default(schema.Surface, name) for name in PARAMETERS}
         self.fixed: set[int] = set()
         self.vertices = np.zeros((0, 3))
         self.faces = np.zeros((0, 4), dtype=np.int64)
         self.last: FitOutcome | None = None
         self._placed: dict[str, PlacedPerson] = {}
-        self.new_grid((0.5, 0.6), (8, 6), 0.42)
+        self.new_grid(**schema.Grid().model_dump())  # the scenario's default start
 
     # the control mesh -------------------------------------------------------------------
     def new_grid(self, size, resolution, height: float) -> None:
@@ -130,8 +131,7 @@ class Design:
         if len(self.people) >= MAX_PEOPLE:
             raise DesignError(f"A studio scene holds at most {MAX_PEOPLE} people")
         person = {"name": f"person {len(self.people) + 1}", "pose": pose,
-                  "position": [0.0, 0.0, -0.1], "rotation_deg": [0.0, 0.0, 0.0],
-                  "support": ["legs"], **fields}
+                  **schema.person_defaults(), **fields}
         self._check_person(person)
         self.people.append(person)
         return len(self.people) - 1

@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from solver.body.model import SHAPE_KEYS, SUPPORT_PARTS
+from solver.body.model import SHAPE_KEYS, SUPPORT_PARTS, BodyShape
+from solver.scene import schema
 from solver.io.render import SKIN, SURFACE
 from solver.scene.run import pressure_on_skin
 from solver.mesh import quad_triangles
@@ -102,30 +103,34 @@ class Studio:
             self.add = gui.add_button("Add person")
             self.selected = gui.add_dropdown("Selected", ["(none)"])
             self.shape = {key: gui.add_slider(key.capitalize(), min=0.0, max=1.0, step=0.05,
-                                              initial_value=0.5) for key in SHAPE_KEYS}
+                                              initial_value=getattr(BodyShape(), key))
+                          for key in SHAPE_KEYS}
+            support = schema.default(schema.Person, "support")
             self.parts = {part: gui.add_checkbox(f"Support {part}",
-                                                 initial_value=part == "legs")
+                                                 initial_value=part in support)
                           for part in SUPPORT_PARTS}
             self.apply = gui.add_button("Apply shape and support")
             self.remove = gui.add_button("Remove person")
+        grid, params = schema.Grid(), self.design.params  # the schema's defaults
         with gui.add_folder("Surface"):
-            self.grid_size = gui.add_vector2("Grid size (m)", initial_value=(0.5, 0.6),
+            self.grid_size = gui.add_vector2("Grid size (m)", initial_value=tuple(grid.size),
                                              min=(0.05, 0.05), max=(10.0, 10.0), step=0.05)
-            self.grid_res = gui.add_vector2("Grid faces", initial_value=(8, 6), min=(1, 1),
-                                            max=(40, 40), step=1)
-            self.grid_height = gui.add_number("Grid height (m)", initial_value=0.42,
+            self.grid_res = gui.add_vector2("Grid faces", initial_value=tuple(grid.resolution),
+                                            min=(1, 1), max=(40, 40), step=1)
+            self.grid_height = gui.add_number("Grid height (m)", initial_value=grid.height,
                                               min=-5.0, max=5.0, step=0.01)
             self.new_grid = gui.add_button("New grid")
             self.upload = gui.add_upload_button("Load control mesh (OBJ)", mime_type=".obj")
             self.vertex = gui.add_number("Control vertex", initial_value=0, min=0, step=1)
             self.fixed = gui.add_checkbox("Fixed", initial_value=False)
-            self.level = gui.add_slider("Level", min=1, max=3, step=1, initial_value=3)
-            self.sigma = gui.add_number("Sigma", initial_value=0.003, min=0.0, max=100.0,
-                                        step=0.001)
+            self.level = gui.add_slider("Level", min=1, max=3, step=1,
+                                        initial_value=params["level"])
+            self.sigma = gui.add_number("Sigma", initial_value=params["sigma"], min=0.0,
+                                        max=100.0, step=0.001)
             self.tau = gui.add_slider("Tau max", min=0.0, max=1.0, step=0.05,
-                                      initial_value=0.5)
+                                      initial_value=params["tau_max"])
             self.margin = gui.add_slider("Margin (m)", min=0.0, max=0.1, step=0.005,
-                                         initial_value=0.03)
+                                         initial_value=params["margin"])
             self.adopt = gui.add_button("Start from the fitted mesh")
         with gui.add_folder("Save"):
             self.name = gui.add_text("Name", initial_value="studio-design")
@@ -199,7 +204,7 @@ class Studio:
 
     def add_person(self, pose: str) -> int:
         """Adds a person (also what the Add button does with the chosen pose)."""
-        k = self.design.add_person(pose, position=[0.0, 0.0, -0.1])
+        k = self.design.add_person(pose)
         self._draw_people()
         self.selected.value = self._labels()[k]
         self._status(f"Added {self.design.people[k]['name']} ({pose}).")
@@ -223,7 +228,7 @@ class Studio:
         p = self.design.people[self._selected_index()]
         body = p.get("body", {})
         for key, slider in self.shape.items():
-            slider.value = float(body.get(key, 0.5))
+            slider.value = float(body.get(key, getattr(BodyShape(), key)))
         for part, box in self.parts.items():
             box.value = part in p["support"]
 

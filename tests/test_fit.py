@@ -119,12 +119,59 @@ pose = "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"
     (("#frame=39\"", "#frame=39\"\nsupport = ['tail']"), r"person\[0\].support"),
     (("grid = { size = [1.2, 0.8], resolution = [8, 6], height = 0.45 }",
       "control_mesh = 'missing.obj'"), r"surface.control_mesh: no such file"),
+    (("sigma = 0.1", "sigmma = 0.1"),
+     r"surface.sigmma: unknown field \(did you mean sigma\? expected one of \['anchor', "),
+    (("pose = ", "psoe = "), r"person\[0\].psoe: unknown field \(did you mean pose\?"),
+    (("sigma = 0.1", "sigma = nan"), r"s.toml: surface.sigma: expected a finite number, got nan"),
+    (("sigma = 0.1", "step = inf"), r"surface.step: expected a finite number, got inf"),
+    (("sigma = 0.1", "pull_range = 0"), r"surface.pull_range: expected a number > 0, got 0"),
+    (("sigma = 0.1", "level = 9"), r"surface.level: expected a whole number in 1..5, got 9"),
+    (("sigma = 0.1", "creases = [[0, 99]]"),
+     r"surface.creases\[0\]: expected a whole number in 0..62, got 99"),
+    (("#frame=39\"", "#frame=39\"\nposition = [0, 0]"),
+     r"person\[0\].position: expected a list of 3 numbers, got \[0, 0\]"),
 ])
 def test_bad_scenarios_name_the_field(tmp_path, edit, message):
     path = tmp_path / "s.toml"
     path.write_text(SCENARIO.replace(*edit))
     with pytest.raises(ScenarioError, match=message):
         load_scenario(path)
+
+
+def test_every_fit_parameter_is_a_scenario_field_with_the_fit_s_default():
+    import dataclasses
+
+    from solver.scene import schema
+
+    scenario = parse_scenario({"surface": {"grid": {}}, "person": [{"pose": "db:any"}]})
+    assert scenario.surface.params == FitParams()
+    assert FitParams().sigma == 0.003
+    for f in dataclasses.fields(FitParams):
+        expected = list(f.default) if isinstance(f.default, tuple) else f.default
+        assert schema.Surface.model_fields[f.name].default == expected
+    set_all = {"anchor": 0.002, "pull_range": 0.3, "step": 0.04, "tolerance": 0.02,
+               "max_iterations": 7, "creases": [[0, 1]], "fixed": [5], "gamma": 3.0}
+    params = parse_scenario({"surface": {"grid": {}, **set_all},
+                             "person": [{"pose": "db:any"}]}).surface.params
+    assert params == FitParams(**{**set_all, "creases": ((0, 1),), "fixed": (5,)})
+
+
+def test_a_scenario_written_as_toml_reads_back_equal(tmp_path):
+    from solver.scene.scenario import scenario_toml
+
+    data = {"surface": {"grid": {"size": [1.0, 0.5]}, "sigma": 0.01, "creases": [[0, 1]]},
+            "evaluation": {"foam_stiffness": 150.0},
+            "person": [{"name": "Zo\u00eb \U0001F600", "pose": "db:any",
+                        "body": {"weight": 0.25}, "support": ["legs"]},
+                       {"name": "tab\tquote\" back\\slash", "pose": "db:other"}]}
+    path = tmp_path / "zoe.toml"
+    path.write_text(scenario_toml(data), encoding="utf-8")
+    import tomllib
+
+    assert tomllib.loads(path.read_text(encoding="utf-8")) == data
+    assert load_scenario(path).persons[0].name == "Zo\u00eb \U0001F600"
+    with pytest.raises(ScenarioError, match="Expected numbers"):
+        scenario_toml({"surface": {"sigma": None}})
 
 
 def test_non_quad_control_mesh_is_refused(tmp_path):

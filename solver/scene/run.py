@@ -111,6 +111,17 @@ def relax_person(scenario: Scenario, person: PlacedPerson, surface: np.ndarray,
             evaluate_person(mesh, relaxed, margin, stiffness)[0], seconds)
 
 
+def report_parameters(scenario: Scenario) -> dict:
+    """The fit's parameters as report.json (and the HTTP API's fit reply) gives them: every
+    `FitParams` field, the foam stiffness (kPa per metre) and where the control mesh came
+    from."""
+    params = scenario.surface.params
+    return {**dataclasses.asdict(params), "fixed": list(params.fixed),
+            "creases": [list(c) for c in params.creases],
+            "foam_stiffness_kpa_per_m": scenario.foam_stiffness,
+            "control_mesh": scenario.surface.source}
+
+
 def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathLike, *,
             db: str | os.PathLike | None = None,
             progress: Callable[[str], None] | None = None) -> dict:
@@ -139,11 +150,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     timing["total_s"] = time.perf_counter() - start
     report = {
         "scenario": str(scenario_path),
-        "parameters": {**scenario.surface.params.__dict__,
-                       "fixed": list(scenario.surface.params.fixed),
-                       "creases": [list(c) for c in scenario.surface.params.creases],
-                       "foam_stiffness_kpa_per_m": scenario.foam_stiffness,
-                       "control_mesh": scenario.surface.source},
+        "parameters": report_parameters(scenario),
         "iterations": result.iterations,
         "stop_reason": result.stop_reason,
         "energies": result.energies,

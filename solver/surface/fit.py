@@ -79,7 +79,7 @@ class FitError(ValueError):
 @dataclass(frozen=True)
 class FitParams:
     level: int = 3
-    sigma: float = 0.1
+    sigma: float = 0.003
     tau_max: float = 0.5
     margin: float = 0.03
     fixed: tuple[int, ...] = ()
