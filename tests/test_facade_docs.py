@@ -10,14 +10,6 @@ import solver
 
 # Their docstrings land separately (solver/scene/run.py and solver/scene/scenario.py are being
 # edited elsewhere); remove this set once they have numpydoc sections.
-PENDING = {"fit_scene", "relax_problem", "run_fit", "run_relax", "load_scenario",
-           "parse_scenario"}
-
-# Dataclasses whose only docstring is the one `dataclass` generates from the signature, in
-# files outside the change that documented the functions (solver/surface/fit.py,
-# solver/scene/scenario.py); remove them as they get docstrings of their own.
-PENDING_CLASSES = {"FitParams", "FitResult", "Scenario"}
-
 # Exported values that are neither functions nor classes.
 CONSTANTS = {"BODY_PARTS"}
 
@@ -42,11 +34,9 @@ CLASSES = [n for n in solver.__all__ if _kind(n) == "class"]
 def test_every_export_is_a_function_a_class_or_a_known_constant():
     constants = {n for n in solver.__all__ if _kind(n) == "constant"}
     assert constants == CONSTANTS
-    assert PENDING <= set(FUNCTIONS)
-    assert PENDING_CLASSES <= set(CLASSES)
 
 
-@pytest.mark.parametrize("name", [n for n in FUNCTIONS if n not in PENDING])
+@pytest.mark.parametrize("name", FUNCTIONS)
 def test_function_has_parameters_and_returns_sections(name):
     func = getattr(solver, name)
     doc = inspect.getdoc(func)
@@ -56,7 +46,7 @@ def test_function_has_parameters_and_returns_sections(name):
     assert _section(doc, "Returns"), f"{name}'s docstring has no Returns section"
 
 
-@pytest.mark.parametrize("name", [n for n in CLASSES if n not in PENDING_CLASSES])
+@pytest.mark.parametrize("name", CLASSES)
 def test_class_has_a_docstring(name):
     cls = getattr(solver, name)
     doc = cls.__dict__.get("__doc__")

@@ -100,7 +100,7 @@ def test_reference_balances_the_load(seated):
 
 
 def test_model_agrees_with_the_reference_within_the_papers_bar():
-    from solver.contact.validate import validate_pressure
+    from solver.scene.validate import validate_pressure
 
     rows = validate_pressure()
     assert [r["pose"] for r in rows] == ["seated", "lying T-pose"]

@@ -54,8 +54,22 @@ def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.n
 def fit_scene(scenario: Scenario, people: list[PlacedPerson],
               progress: Callable[[int, float, float], None] | None = None,
               timing: dict | None = None) -> tuple[FitResult, list[dict], list[np.ndarray]]:
-    """Fits the scenario's surface to the posed people and evaluates it: the fit, each
-    person's figures and pressure per body vertex (`fit_s`, `evaluate_s` go into `timing`)."""
+    """Fits the scenario's surface to the posed people and evaluates it.
+
+    Parameters
+    ----------
+    scenario : the scenario (its control mesh, fit parameters and foam stiffness).
+    people : the scenario's people as `place_person` posed them, in its order.
+    progress : optional callback (iteration, energy, tau) of the fit's loop.
+    timing : optional dict that receives `fit_s` and `evaluate_s` (seconds).
+
+    Returns
+    -------
+    result : FitResult, the fitted control mesh and its level-s surface (metres).
+    persons : per person the report's figures (coverage, max_penetration_m, pressures in kPa,
+        contact_area_m2, ...), with the flat-seat baseline under `flat`.
+    pressure : per person (V,) float, kPa on each body vertex.
+    """
     timing = timing if timing is not None else {}
     t = time.perf_counter()
     result = fit_people(scenario, people, progress)
@@ -77,8 +91,20 @@ def relax_problem(person: PlacedPerson, surface_vertices: np.ndarray,
                   surface_triangles: np.ndarray, threshold: float = 0.02,
                   margin: float | None = None) -> RelaxProblem:
     """The relaxation problem of a placed person: its rig in the scene frame, its vertices of
-    importance above `threshold`, and the surface (vertices (N, 3), triangles (F, 3)), fitted
-    with softness `margin` (metres; None: the paper's step)."""
+    importance above `threshold`, and the surface to settle on.
+
+    Parameters
+    ----------
+    person : a person placed by `place_person`.
+    surface_vertices : (N, 3) float, metres; surface_triangles : (F, 3) int, facing the body.
+    threshold : importance (in [0, 1]) a vertex needs to count as supportable.
+    margin : metres of softness the surface was fitted with; the penetration step's middle
+        sits two step widths short of it (None: the paper's 1 cm).
+
+    Returns
+    -------
+    RelaxProblem, for `relax`. Raises RelaxError when nothing is supportable.
+    """
     ids = np.flatnonzero(person.importance > threshold)
     if not ids.size:
         raise RelaxError(f"{person.label}: nothing to support (no importance above "
@@ -125,8 +151,20 @@ def report_parameters(scenario: Scenario) -> dict:
 def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathLike, *,
             db: str | os.PathLike | None = None,
             progress: Callable[[str], None] | None = None) -> dict:
-    """Fits a scenario (a file, or one parsed already) and writes everything into `out_dir`;
-    returns the report."""
+    """Fits a scenario and writes everything into `out_dir` (`sitrelax fit`).
+
+    Parameters
+    ----------
+    scenario_path : a scenario file (TOML), or a `Scenario` parsed already.
+    out_dir : folder for the surface, control mesh, bodies, pictures and report.json (made if
+        missing).
+    db : the pose library that `db:` poses come from.
+    progress : optional callback taking one line of news per stage and iteration.
+
+    Returns
+    -------
+    dict, the report as written to report.json (lengths m, pressures kPa, times s).
+    """
     say = progress or (lambda message: None)
     timing = {}
     start = time.perf_counter()
@@ -225,13 +263,28 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
               surface_dir: str | os.PathLike | None = None, person: int | None = None,
               db: str | os.PathLike | None = None, save: bool = False,
               progress: Callable[[str], None] | None = None) -> dict:
-    """Relaxes the scenario's people onto a surface (fitted before into `surface_dir`, or now)
-    and writes the relaxed bodies, BVH poses, a picture and report.json into `out_dir`; with
-    `save`, also stores each relaxed pose in the pose library `db` (see `save_relaxed`)."""
+    """Relaxes the scenario's people onto a surface and writes the results (`sitrelax relax`).
+
+    Parameters
+    ----------
+    scenario_path : a scenario file (TOML).
+    out_dir : folder for the relaxed bodies (OBJ), their poses (BVH), relax.png and
+        report.json (made if missing).
+    surface_dir : folder of an earlier `sitrelax fit` result whose surface.obj is used (None:
+        fit the scenario now).
+    person : only this person (1-based; None: everybody).
+    db : the pose library for `db:` poses, and where `save` stores the relaxed poses.
+    save : store each relaxed pose in `db`, linked to its origin (see `save_relaxed`).
+    progress : optional callback taking one line of news per stage.
+
+    Returns
+    -------
+    dict, the report as written to report.json (each person's figures before and after).
+    """
     from capture import Motion, write_bvh
 
     from solver.body.rig import pose_channels, rig_skeleton
-    from solver.scene.scenario import read_control_mesh
+    from solver.io.obj import read_quad_obj
 
     say = progress or (lambda message: None)
     start = time.perf_counter()
@@ -245,7 +298,7 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
     out.mkdir(parents=True, exist_ok=True)
     people = [place_person(p, db, k) for k, p in enumerate(scenario.persons)]
     if surface_dir is not None:
-        surface, faces = read_control_mesh(Path(surface_dir) / "surface.obj", str(surface_dir))
+        surface, faces = read_quad_obj(Path(surface_dir) / "surface.obj")
         say(f"surface from {surface_dir}")
     else:
         result = fit_people(scenario, people)

@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from solver.body.model import BodyShape, BodyShapeError
+from solver.io.obj import MeshFileError, read_quad_obj
 from solver.mesh import faces_problem
 from solver.scene import schema
 from solver.scene.schema import MAX_INLINE_VERTICES, ScenarioError  # noqa: F401 (re-exported)
@@ -64,6 +65,9 @@ class SurfaceSpec:
 
 @dataclass(frozen=True)
 class PersonSpec:
+    """A person of a scenario: the pose reference, the body shape, the placement (metres,
+    degrees about x, then y, then z) and the parts to support."""
+
     pose: str
     body: BodyShape = field(default_factory=BodyShape)
     position: tuple[float, float, float] = tuple(_PERSON["position"])
@@ -74,6 +78,10 @@ class PersonSpec:
 
 @dataclass(frozen=True)
 class Scenario:
+    """A validated scenario: the surface to fit (`SurfaceSpec`: control mesh and parameters),
+    the people (`PersonSpec`), the foam's stiffness (kPa per metre), the file it came from and
+    the data as read."""
+
     surface: SurfaceSpec
     persons: tuple[PersonSpec, ...]
     foam_stiffness: float = schema.default(schema.Evaluation, "foam_stiffness")  # kPa per m
@@ -86,33 +94,12 @@ def _fail(where: str, field_name: str, message: str) -> ScenarioError:
 
 
 def read_control_mesh(path: Path, where: str) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices and quad faces of an OBJ control mesh (every face must be a quad)."""
-    if not path.exists():
-        raise _fail(where, "surface.control_mesh", f"no such file {path}")
-    verts, faces = [], []
-    for no, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
-        parts = line.split()
-        if not parts:
-            continue
-        if parts[0] == "v":
-            try:
-                verts.append([float(x) for x in parts[1:4]])
-            except ValueError:
-                raise _fail(where, "surface.control_mesh",
-                            f"{path}:{no}: expected 'v x y z', got {line.strip()!r}") from None
-        elif parts[0] == "f":
-            idx = [int(p.split("/")[0]) for p in parts[1:]]
-            if len(idx) != 4:
-                raise _fail(where, "surface.control_mesh",
-                            f"{path}:{no}: expected a quad control mesh, got a face of "
-                            f"{len(idx)} vertices")
-            faces.append([i - 1 if i > 0 else len(verts) + i for i in idx])
-    if not faces:
-        raise _fail(where, "surface.control_mesh", f"{path}: expected quad faces, found none")
-    v, f = np.array(verts, dtype=float), np.array(faces, dtype=np.int64)
-    if f.min() < 0 or f.max() >= len(v):
-        raise _fail(where, "surface.control_mesh", f"{path}: face indices out of range")
-    return v, f
+    """Vertices and quad faces of a scenario's OBJ control mesh (every face must be a quad);
+    errors name the scenario's field."""
+    try:
+        return read_quad_obj(path)
+    except MeshFileError as exc:
+        raise _fail(where, "surface.control_mesh", str(exc)) from None
 
 
 def inline_control_mesh(mesh: schema.InlineMesh | dict,
@@ -138,9 +125,21 @@ def inline_control_mesh(mesh: schema.InlineMesh | dict,
 
 def parse_scenario(data: dict, where: str = "<scenario>", base: Path | None = None, *,
                    files: bool = True) -> Scenario:
-    """A validated scenario from TOML data (or the HTTP API's JSON); `base` resolves relative
-    paths. With `files` False (a server's requests) nothing names a file: the control mesh is
-    inline and poses come from the library or the bundled recordings."""
+    """A validated scenario from TOML data (or the HTTP API's JSON).
+
+    Parameters
+    ----------
+    data : the scenario as `tomllib` reads it (tables as dicts, arrays as lists).
+    where : the name errors start with (the file, or "request").
+    base : folder that relative paths (control meshes, BVH poses) are relative to.
+    files : False for a server's requests: nothing may name a file, so the control mesh must
+        be inline and poses come from the library or the bundled recordings.
+
+    Returns
+    -------
+    Scenario, with the control mesh (metres), the fit's parameters and the people. Raises
+    ScenarioError naming the field (`where: surface.sigma: expected ..., got ...`).
+    """
     model = schema.validate(data, where)
     return scenario_from_model(model, where, base, files=files,
                                raw=data if isinstance(data, dict) else {})
@@ -217,7 +216,16 @@ def _person(p: schema.Person, k: int, where: str, base: Path, files: bool) -> Pe
 
 
 def load_scenario(path: str | Path) -> Scenario:
-    """Reads and validates a scenario file."""
+    """Reads and validates a scenario file.
+
+    Parameters
+    ----------
+    path : the TOML file; relative paths inside it are relative to its folder.
+
+    Returns
+    -------
+    Scenario (see `parse_scenario`). Raises ScenarioError naming the file and the field.
+    """
     path = Path(path)
     if not path.exists():
         raise ScenarioError(f"No scenario file {path}")

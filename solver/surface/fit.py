@@ -78,6 +78,17 @@ class FitError(ValueError):
 
 @dataclass(frozen=True)
 class FitParams:
+    """The fit's parameters, with their defaults (the scenario schema takes them from here).
+
+    level : subdivision level s; sigma : Laplacian smoothing weight; tau_max : ceiling of the
+    point-to-plane blend; margin : metres the surface may sink into a body; fixed : control
+    vertices held near their start, by gamma; creases : control edges kept sharp;
+    max_iterations, tolerance : the loop's stop (relative improvement over PATIENCE
+    iterations); anchor : weak pull of every control vertex to its start; pull_range : metres
+    beyond which body points do not pull yet; step : metres a control vertex may move per
+    iteration (a trust region).
+    """
+
     level: int = 3
     sigma: float = 0.003
     tau_max: float = 0.5
@@ -94,6 +105,10 @@ class FitParams:
 
 @dataclass
 class FitResult:
+    """A fitted surface: the control mesh (n0, 3) and its quads, the level-s surface (ns, 3)
+    and quads (metres), the iterations run and why the loop stopped, the judged energy per
+    iteration with the best iterate's terms, seconds, OSQP's statuses and the subdivision."""
+
     control: np.ndarray  # (n0, 3) fitted control vertices
     faces: np.ndarray  # (F0, 4) control quads
     surface: np.ndarray  # (ns, 3) level-s vertices

@@ -1,0 +1,52 @@
+"""Reading quad meshes from Wavefront OBJ files (control meshes, fitted surfaces)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+
+class MeshFileError(ValueError):
+    """A mesh file that cannot be read as a quad mesh; the message names the file (and line)."""
+
+
+def read_quad_obj(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and quad faces of an OBJ file in which every face is a quad.
+
+    Parameters
+    ----------
+    path : the OBJ file (faces 1-based or negative, `v/vt/vn` references allowed).
+
+    Returns
+    -------
+    vertices : (V, 3) float, in the file's units; faces : (F, 4) int, 0-based.
+    Raises MeshFileError with `file:line` for a malformed vertex or a face that is no quad.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise MeshFileError(f"no such file {path}")
+    verts, faces = [], []
+    for no, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
+        parts = line.split()
+        if not parts:
+            continue
+        if parts[0] == "v":
+            try:
+                verts.append([float(x) for x in parts[1:4]])
+            except ValueError:
+                raise MeshFileError(f"{path}:{no}: expected 'v x y z', got "
+                                    f"{line.strip()!r}") from None
+        elif parts[0] == "f":
+            idx = [int(p.split("/")[0]) for p in parts[1:]]
+            if len(idx) != 4:
+                raise MeshFileError(f"{path}:{no}: expected a quad control mesh, got a face "
+                                    f"of {len(idx)} vertices")
+            faces.append([i - 1 if i > 0 else len(verts) + i for i in idx])
+    if not faces:
+        raise MeshFileError(f"{path}: expected quad faces, found none")
+    v, f = np.array(verts, dtype=float), np.array(faces, dtype=np.int64)
+    if f.min() < 0 or f.max() >= len(v):
+        raise MeshFileError(f"{path}: face indices out of range")
+    return v, f
