@@ -79,7 +79,7 @@ def _cmd_pose_show(args: argparse.Namespace) -> int:
 
     body = make_body(shape_from_args(args))
     captured = load_pose(args.source, args.db)
-    lowest = None if args.as_captured or args.pelvis is not None else args.lowest
+    lowest = None if args.as_captured else args.lowest
     motion = pose_body(captured, body, lowest=lowest, pelvis=args.pelvis)
     verts, _ = skin(body, motion.frame(0), normals=False)
     _save_mesh_or_picture(args.out, verts, body.faces, captured.label, args.view)

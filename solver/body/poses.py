@@ -100,8 +100,7 @@ def pose_body(captured: CapturedPose, body: Body, *, lowest: float | None = 0.0,
     lowest : float or None, default 0.0
         Height (y, metres) of the lowest posed skin point.
     pelvis : float, optional
-        Height (y, metres) of the pelvis (the rig's root joint) instead; `lowest` must then be
-        passed as None, since `place` takes exactly one of them.
+        Height (y, metres) of the pelvis (the rig's root joint) instead of the lowest point.
 
     Returns
     -------
@@ -111,16 +110,12 @@ def pose_body(captured: CapturedPose, body: Body, *, lowest: float | None = 0.0,
 
     Raises
     ------
-    ValueError
-        If `pelvis` is given while `lowest` is not None.
     RetargetError
         If the captured skeleton cannot be retargeted.
     """
     motion = retarget_pose(captured.skeleton, captured.world, body)
-    if lowest is None and pelvis is None:
+    if pelvis is not None:
+        return place(motion, pelvis=pelvis)
+    if lowest is None:
         return motion
-    return place(motion, lowest=lowest, pelvis=pelvis)
-
-
-
-
+    return place(motion, lowest=lowest)

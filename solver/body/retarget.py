@@ -67,6 +67,8 @@ def joint_map_for(skeleton: Skeleton, profile: str | None = None,
     profile = profile or identify_profile(skeleton.names)
     if profile is not None:
         by_plain = {strip_namespace(n): n for n in skeleton.names}
+        if profile not in PROFILES:
+            raise RetargetError(f"Expected a profile from {sorted(PROFILES)}, got {profile!r}")
         for role, name in PROFILES[profile].roles.items():
             end = name.startswith("end:")
             plain = name.removeprefix("end:")

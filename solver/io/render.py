@@ -40,9 +40,9 @@ class MeshView:
 
 
 def _camera(view: str | Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    d = np.asarray(VIEWS[view] if isinstance(view, str) else view, dtype=float)
     if isinstance(view, str) and view not in VIEWS:
         raise ValueError(f"Expected a view from {sorted(VIEWS)} or a direction, got {view!r}")
+    d = np.asarray(VIEWS[view] if isinstance(view, str) else view, dtype=float)
     back = d / np.linalg.norm(d)  # towards the camera
     up = np.array([0.0, 1.0, 0.0]) if abs(back[1]) < 0.95 else np.array([0.0, 0.0, -1.0])
     right = np.cross(up, back)
