@@ -43,6 +43,8 @@ class Skeleton:
     end_sites : (E, 3) float offsets of `End Site` entries, in file units.
     end_site_parents : (E,) int joint index owning each end site.
     unit_m : metres per file unit, or None when the unit is not known.
+    joint_map : ((role, joint name), ...) the anatomical roles of the joints when no known
+        profile says them (see `solver.body.retarget.joint_map_for`); empty by default.
     """
 
     names: tuple[str, ...]
@@ -52,6 +54,7 @@ class Skeleton:
     end_sites: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     end_site_parents: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     unit_m: float | None = None
+    joint_map: tuple[tuple[str, str], ...] = ()
 
     def __post_init__(self) -> None:
         names = tuple(str(n) for n in self.names)
@@ -103,6 +106,12 @@ class Skeleton:
         object.__setattr__(self, "channels", channels)
         object.__setattr__(self, "end_sites", end_sites)
         object.__setattr__(self, "end_site_parents", end_parents)
+        mapping = tuple(sorted((str(r), str(j)) for r, j in dict(self.joint_map).items()))
+        for role, joint in mapping:
+            if joint.removeprefix("end:") not in names:
+                raise SkeletonError(f"Expected the joint map's joints in the skeleton, got "
+                                    f"{joint!r} for role {role!r}")
+        object.__setattr__(self, "joint_map", mapping)
 
     # -- layout -------------------------------------------------------------------------------
 
@@ -137,6 +146,10 @@ class Skeleton:
     def with_unit(self, unit_m: float | None) -> "Skeleton":
         """The same skeleton with another file unit (metres per file unit)."""
         return replace(self, unit_m=unit_m)
+
+    def with_joint_map(self, joint_map) -> "Skeleton":
+        """The same skeleton carrying a joint map (a mapping or pairs of role -> joint name)."""
+        return replace(self, joint_map=tuple(dict(joint_map).items()))
 
     def require_unit(self) -> float:
         if self.unit_m is None:

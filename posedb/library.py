@@ -149,6 +149,8 @@ def skeleton_key(sk: Skeleton) -> str:
     """A content hash naming a distinct skeleton (names, hierarchy, offsets, channels, unit)."""
     h = hashlib.sha1()
     h.update(json.dumps([sk.names, sk.channels, sk.unit_m]).encode())
+    if sk.joint_map:  # the same joints with roles given are a different skeleton to pose
+        h.update(json.dumps(sk.joint_map).encode())
     for arr in (sk.parents, np.round(sk.offsets, 9), np.round(sk.end_sites, 9),
                 sk.end_site_parents):
         h.update(np.ascontiguousarray(arr).tobytes())

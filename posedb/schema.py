@@ -36,6 +36,7 @@ A file of a newer schema is refused; an older one would be migrated by the funct
 
 from __future__ import annotations
 
+import json
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -144,6 +145,8 @@ def write_skeleton(g: h5py.Group, sk: Skeleton) -> None:
     g.create_dataset("end_site_parents", data=sk.end_site_parents.astype(np.int32))
     g.attrs["unit_m"] = np.nan if sk.unit_m is None else float(sk.unit_m)
     g.attrs["profile"] = identify_profile(sk.names) or ""
+    if sk.joint_map:
+        g.attrs["joint_map"] = json.dumps(dict(sk.joint_map), sort_keys=True)
 
 
 def read_skeleton(g: h5py.Group) -> Skeleton:
@@ -156,6 +159,7 @@ def read_skeleton(g: h5py.Group) -> Skeleton:
         end_sites=g["end_sites"][:],
         end_site_parents=g["end_site_parents"][:],
         unit_m=None if np.isnan(unit) else unit,
+        joint_map=tuple(json.loads(g.attrs.get("joint_map", "{}")).items()),
     )
 
 

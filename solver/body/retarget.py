@@ -74,6 +74,7 @@ def joint_map_for(skeleton: Skeleton, profile: str | None = None,
             plain = name.removeprefix("end:")
             if plain in by_plain:
                 roles[role] = ("end:" if end else "") + by_plain[plain]
+    roles.update(dict(skeleton.joint_map))  # stored with the skeleton (a library take)
     roles.update(joint_map or {})
     missing = [r for r in REQUIRED_ROLES if r not in roles]
     if missing:
