@@ -385,3 +385,11 @@ def skeleton_fk(skeleton: Skeleton, channels: np.ndarray) -> WorldPose:
         skeleton.local_translations(channels),
         skeleton.levels,
     )
+
+
+def rest_fk(skeleton: Skeleton) -> WorldPose:
+    """The skeleton's rest frames: no joint turned, each at its OFFSET from its parent (the
+    file's rest pose, whatever its position channels hold), positions (J, 3) in metres."""
+    n = skeleton.num_joints
+    return forward_kinematics(skeleton.parents, np.broadcast_to(np.eye(3), (n, 3, 3)),
+                              skeleton.offsets_m, skeleton.levels)

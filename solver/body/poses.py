@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation
 from capture import Skeleton, WorldPose, forward_kinematics, read_bvh, resolve_path, skeleton_fk
 
 from solver.body.model import Body
-from solver.body.retarget import place, retarget_pose
+from solver.body.retarget import RetargetError, place, retarget_pose
 from solver.body.rig import RigMotion
 
 _FRAME = re.compile(r"^(?P<path>.+?)#frame=(?P<frame>-?\d+)$")
@@ -64,8 +64,13 @@ def load_pose(spec: str, db: str | os.PathLike | None = None) -> CapturedPose:
 
         if db is None:
             raise PoseSourceError(f"Pose {spec!r} needs a pose library (--db)")
-        info, skeleton, quats, root = PoseLibrary(db).pose_data(spec[3:])
+        lib = PoseLibrary(db)
+        info, skeleton, quats, root = lib.pose_data(spec[3:])
         trans = skeleton.offsets_m.copy()
+        if any(c.endswith("position") for ch in skeleton.channels[1:] for c in ch):
+            # position channels on the joints (Axis exports): the frame's own bone vectors
+            channels = lib.take_data(info.take, info.frame, info.frame + 1).channels
+            trans = skeleton.local_translations(np.asarray(channels, dtype=np.float64))[0]
         trans[0] = root
         rot = Rotation.from_quat(quats).as_matrix()
         world = forward_kinematics(skeleton.parents, rot[None], trans[None], skeleton.levels)
@@ -84,6 +89,14 @@ def load_pose(spec: str, db: str | os.PathLike | None = None) -> CapturedPose:
                               f"got {frame}")
     world = skeleton_fk(bvh.skeleton, bvh.motion.channels[frame:frame + 1])
     return CapturedPose(bvh.skeleton, world, f"{Path(path).name} frame {frame}")
+
+
+def retarget_captured(captured: CapturedPose, body: Body) -> RigMotion:
+    """`retarget_pose` of a captured pose, its errors naming where the pose came from."""
+    try:
+        return retarget_pose(captured.skeleton, captured.world, body)
+    except RetargetError as exc:
+        raise RetargetError(f"{captured.label}: {exc}") from None
 
 
 def pose_body(captured: CapturedPose, body: Body, *, lowest: float | None = 0.0,
@@ -113,7 +126,7 @@ def pose_body(captured: CapturedPose, body: Body, *, lowest: float | None = 0.0,
     RetargetError
         If the captured skeleton cannot be retargeted.
     """
-    motion = retarget_pose(captured.skeleton, captured.world, body)
+    motion = retarget_captured(captured, body)
     if pelvis is not None:
         return place(motion, pelvis=pelvis)
     if lowest is None:

@@ -21,12 +21,14 @@ import numpy as np
 
 from capture import PROFILES, Skeleton, WorldPose, identify_profile, skeleton_fk
 from capture.profiles import strip_namespace
+from capture.skeleton import rest_fk
 
 from solver.body.model import Body
 from solver.body.rig import (FIT_AIMS, RIG_CHAINS, RIG_ROLES, RIG_ROLES_INV, RIG_TAILS, RigMotion,
                              kabsch, rig_pose, swing)
 from solver.body.skinning import lowest_height
 
+MIN_LEG = 0.05  # metres: captured legs shorter than this have no length to scale by
 REQUIRED_ROLES = ("hips", "neck", "head", "left_upper_leg", "left_lower_leg", "left_foot",
                   "right_upper_leg", "right_lower_leg", "right_foot", "left_upper_arm",
                   "left_forearm", "left_hand", "right_upper_arm", "right_forearm", "right_hand")
@@ -298,6 +300,8 @@ def retarget_pose(skeleton: Skeleton, pose: WorldPose, body: Body, *,
     if joint_map is None and sorted(skeleton.names) == sorted(body.joint_names) and \
             (profile or identify_profile(skeleton.names)) == "sitrelax_rig":
         return _same_rig(skeleton, pose, body)
+    _require_finite(skeleton.names, pose.positions, "the captured positions")
+    _require_finite(skeleton.names, pose.rotmats, "the captured rotations")
     roles = joint_map_for(skeleton, profile, joint_map)
     pos = role_positions(skeleton, pose, roles)
     # the captured spine and neck as polylines, for placing the rig's joints along them
@@ -305,15 +309,42 @@ def retarget_pose(skeleton: Skeleton, pose: WorldPose, body: Body, *,
         if not (roles[start].startswith("end:") or roles[end].startswith("end:")):
             path = _chain(skeleton, roles[start], roles[end])
             pos[f"_chain:{start}:{end}"] = pose.positions[:, path, :]
-    rest = skeleton_fk(skeleton, np.zeros(skeleton.num_channels))  # offsets only
-    rest_pos = role_positions(skeleton, rest,
-                              {k: v for k, v in roles.items() if not v.startswith("end:")})
     rig_rest = {role: body.joints[body.joint_index(j)] for j, role in RIG_ROLES.items()
                 if j in body.joint_names}
-    scale = leg_length(rig_rest) / leg_length(rest_pos)
+    scale = leg_length(rig_rest) / captured_leg_length(skeleton, pose, roles)
     _, local = solve_rig(body, pos)
     root = pos["hips"] * scale
-    return RigMotion(body, local, root, rig_pose(body, local, root))
+    motion = RigMotion(body, local, root, rig_pose(body, local, root))
+    _require_finite(body.joint_names, motion.world.positions, "the posed rig")
+    return motion
+
+
+def captured_leg_length(skeleton: Skeleton, pose: WorldPose, roles: Mapping[str, str]
+                        ) -> float:
+    """The captured legs' length (m): from the skeleton's OFFSETs (its rest pose), or, where
+    the offsets leave the legs without length (a file whose position channels carry the
+    bones), from the first frame's joint positions. Never 0."""
+    joints = {k: v for k, v in roles.items() if not v.startswith("end:")}
+    length = leg_length(role_positions(skeleton, rest_fk(skeleton), joints))
+    if length < MIN_LEG:
+        length = leg_length({k: v[0] for k, v in role_positions(skeleton, pose, joints).items()})
+    if not length >= MIN_LEG:
+        legs = [roles[f"{side}_{r}"] for side in ("left", "right")
+                for r in ("upper_leg", "lower_leg", "foot")]
+        raise RetargetError(f"Expected legs of some length, got {length:.3g} m from the joints "
+                            f"{legs} in the offsets and in the first frame")
+    return length
+
+
+def _require_finite(names, values: np.ndarray, what: str) -> None:
+    """RetargetError naming the first frame and joint (axis -2 of (T, J, ...)) that holds a
+    NaN or an infinity."""
+    flat = values.reshape(values.shape[0], values.shape[1], -1)
+    bad = ~np.isfinite(flat).all(axis=2)
+    if bad.any():
+        t, j = (int(i) for i in np.argwhere(bad)[0])
+        raise RetargetError(f"Expected finite values in {what}, got a NaN or an infinity at "
+                            f"joint {names[j]!r} in frame {t}")
 
 
 def _same_rig(skeleton: Skeleton, pose: WorldPose, body: Body) -> RigMotion:
@@ -325,7 +356,7 @@ def _same_rig(skeleton: Skeleton, pose: WorldPose, body: Body) -> RigMotion:
     local = np.swapaxes(parent_rot, -1, -2) @ rot
     # the captured rig's leg against this body's: hip above the ankle at rest
     hip, foot = skeleton.names.index("LeftUpLeg"), skeleton.names.index("LeftFoot")
-    rest = skeleton_fk(skeleton, np.zeros(skeleton.num_channels)).positions
+    rest = rest_fk(skeleton).positions
     own = body.joints[body.joint_index("LeftUpLeg")] - body.joints[body.joint_index("LeftFoot")]
     scale = np.linalg.norm(own) / np.linalg.norm(rest[hip] - rest[foot])
     root = np.asarray(pose.positions)[:, index[0]] * scale

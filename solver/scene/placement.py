@@ -10,8 +10,8 @@ from scipy.spatial.transform import Rotation
 
 from solver.body.model import Body, make_body
 from solver.contact.supported import SupportedBody
-from solver.body.poses import load_pose
-from solver.body.retarget import place, retarget_pose
+from solver.body.poses import load_pose, retarget_captured
+from solver.body.retarget import place
 from solver.contact.pressure import pressure_field, reachable
 from solver.mesh import triangle_mesh
 from solver.body.rig import RigMotion
@@ -77,7 +77,7 @@ def place_person(spec: PersonSpec, db: str | os.PathLike | None = None,
     """
     body = make_body(spec.body)
     captured = load_pose(spec.pose, db)
-    motion = place(retarget_pose(captured.skeleton, captured.world, body), lowest=0.0)
+    motion = place(retarget_captured(captured, body), lowest=0.0)
     verts, _ = skin(body, motion.frame(0), normals=False)  # the one full skinning
     pelvis = motion.world.positions[0, 0]
     centre = np.array([pelvis[0], 0.0, pelvis[2]])
