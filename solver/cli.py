@@ -77,8 +77,11 @@ def _cmd_pose_show(args: argparse.Namespace) -> int:
     from solver.body.poses import load_pose, pose_body
     from solver.body.skinning import skin
 
+    from capture.jointmap import read_joint_map
+
     body = make_body(shape_from_args(args))
-    captured = load_pose(args.source, args.db)
+    joint_map = read_joint_map(args.joint_map) if args.joint_map else None
+    captured = load_pose(args.source, args.db, unit=args.unit, joint_map=joint_map)
     lowest = None if args.as_captured else args.lowest
     motion = pose_body(captured, body, lowest=lowest, pelvis=args.pelvis)
     verts, _ = skin(body, motion.frame(0), normals=False)
@@ -86,11 +89,28 @@ def _cmd_pose_show(args: argparse.Namespace) -> int:
     result = {"source": args.source, "pose": captured.label, "out": args.out,
               "height_m": body.height_m, "mass_kg": body.mass_kg,
               "pelvis_height_m": float(motion.world.positions[0, 0, 1]),
-              "lowest_m": float(verts[:, 1].min())}
+              "lowest_m": float(verts[:, 1].min()), **_roles_report(captured.skeleton)}
     print(json.dumps(result, indent=2) if args.json else
           f"posed {captured.label} on a {body.height_m:.2f} m, {body.mass_kg:.1f} kg body "
           f"-> {args.out}")
     return 0
+
+
+def _roles_report(skeleton) -> dict:
+    """Which joint plays which role, and how it was found (profile, map, name, structure)."""
+    from capture import identify_profile
+    from capture.jointmap import guess_joint_map
+    from solver.body.retarget import joint_map_for
+
+    roles = joint_map_for(skeleton)
+    profile = identify_profile(skeleton.names)
+    guess = guess_joint_map(skeleton) if profile is None else None
+    given = dict(skeleton.joint_map)
+    how = {r: "map" if r in given else (guess.how.get(r, "name") if guess else "profile")
+           for r in roles}
+    used = {j.removeprefix("end:") for j in roles.values()}
+    return {"profile": profile, "roles": roles, "roles_found_by": how,
+            "joints_without_role": [n for n in skeleton.names if n not in used]}
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
@@ -229,6 +249,11 @@ def _register_bodies(sub) -> None:
     show = psub.add_parser("show", help="pose a body and write it (mesh or PNG)")
     show.add_argument("source", help="db:NAME (with --db) or [bvh:]FILE.bvh#frame=N")
     show.add_argument("--db", default=None, help="pose library for db: sources")
+    show.add_argument("--unit", default=None, help="length unit of a BVH file no profile "
+                      "knows: m, cm, mm, in, cmu or metres per unit")
+    show.add_argument("--joint-map", default=None, help="joint-map file (TOML, role = "
+                      "\"joint\") for a skeleton no profile knows (default: read from the "
+                      "joint names and the hierarchy)")
     add_shape_args(show)
     show.add_argument("--out", required=True, help="posed.obj|.ply|.glb or a .png picture")
     show.add_argument("--lowest", type=float, default=0.0,

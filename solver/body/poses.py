@@ -3,6 +3,8 @@
     db:NAME                 a pose of the library (by name or id)
     bvh:PATH#frame=N        frame N (0-based) of a BVH file; `bvh:` may be left out for a path
                             ending in .bvh, and PATH may be bundled:NAME
+    bvh:PATH#frame=N&unit=U the same for a file whose length unit no profile knows (U: m, cm,
+                            mm, in, cmu or metres per unit)
 """
 
 from __future__ import annotations
@@ -11,17 +13,19 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Mapping
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from capture import Skeleton, WorldPose, forward_kinematics, read_bvh, resolve_path, skeleton_fk
+from capture.jointmap import JointMapError, check_joint_map
 
 from solver.body.model import Body
 from solver.body.retarget import RetargetError, place, retarget_pose
 from solver.body.rig import RigMotion
 
-_FRAME = re.compile(r"^(?P<path>.+?)#frame=(?P<frame>-?\d+)$")
+_FRAME = re.compile(r"^(?P<path>.+?)#frame=(?P<frame>-?\d+)(?:&unit=(?P<unit>[^&#]+))?$")
 
 
 class PoseSourceError(ValueError):
@@ -37,7 +41,9 @@ class CapturedPose:
     label: str
 
 
-def load_pose(spec: str, db: str | os.PathLike | None = None) -> CapturedPose:
+def load_pose(spec: str, db: str | os.PathLike | None = None, *,
+              unit: str | float | None = None,
+              joint_map: Mapping[str, str] | None = None) -> CapturedPose:
     """Resolves `db:NAME` or `[bvh:]PATH#frame=N` (see the module docstring).
 
     Parameters
@@ -47,6 +53,12 @@ def load_pose(spec: str, db: str | os.PathLike | None = None) -> CapturedPose:
         frame N (0-based) of a BVH file; PATH may be ``bundled:NAME``.
     db : str or os.PathLike, optional
         The pose library file; needed for a ``db:`` pose.
+    unit : str or float, optional
+        The BVH file's length unit (a name of `capture.units.UNITS` or metres per unit), for a
+        skeleton no profile knows; ``...#frame=N&unit=U`` in `spec` says the same.
+    joint_map : mapping of str to str, optional
+        Role -> joint name of the skeleton (see `capture.jointmap`), carried by the returned
+        skeleton so retargeting uses it; a library skeleton's stored map is kept otherwise.
 
     Returns
     -------
@@ -74,21 +86,36 @@ def load_pose(spec: str, db: str | os.PathLike | None = None) -> CapturedPose:
         trans[0] = root
         rot = Rotation.from_quat(quats).as_matrix()
         world = forward_kinematics(skeleton.parents, rot[None], trans[None], skeleton.levels)
+        skeleton = _mapped(skeleton, joint_map, f"pose {spec[3:]!r}")
         return CapturedPose(skeleton, world, f"{info.name} (frame {info.frame})")
     text = spec[4:] if spec.startswith("bvh:") else spec
     m = _FRAME.match(text)
     if m is None:
         raise PoseSourceError(
-            f"Expected a pose as db:NAME or [bvh:]FILE.bvh#frame=N, got {spec!r}"
+            f"Expected a pose as db:NAME or [bvh:]FILE.bvh#frame=N[&unit=U], got {spec!r}"
         )
     path = resolve_path(m["path"])
-    bvh = read_bvh(path)
+    chosen = unit if unit is not None else m["unit"]
+    bvh = read_bvh(path, unit="auto" if chosen is None else chosen)
     frame = int(m["frame"])
     if not 0 <= frame < bvh.motion.num_frames:
         raise PoseSourceError(f"Expected a frame in 0..{bvh.motion.num_frames - 1} of {path}, "
                               f"got {frame}")
-    world = skeleton_fk(bvh.skeleton, bvh.motion.channels[frame:frame + 1])
-    return CapturedPose(bvh.skeleton, world, f"{Path(path).name} frame {frame}")
+    if bvh.skeleton.unit_m is None:
+        raise PoseSourceError(f"{path}: the file's length unit is unknown (no known skeleton "
+                              "profile): give it, e.g. --unit cm or #frame=N&unit=cm")
+    skeleton = _mapped(bvh.skeleton, joint_map, str(path))
+    world = skeleton_fk(skeleton, bvh.motion.channels[frame:frame + 1])
+    return CapturedPose(skeleton, world, f"{Path(path).name} frame {frame}")
+
+
+def _mapped(skeleton: Skeleton, joint_map: Mapping[str, str] | None, where: str) -> Skeleton:
+    if not joint_map:
+        return skeleton
+    try:
+        return skeleton.with_joint_map(check_joint_map(skeleton, dict(joint_map), where))
+    except JointMapError as exc:
+        raise PoseSourceError(str(exc)) from None
 
 
 def retarget_captured(captured: CapturedPose, body: Body) -> RigMotion:

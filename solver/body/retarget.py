@@ -20,6 +20,7 @@ from typing import Mapping
 import numpy as np
 
 from capture import PROFILES, Skeleton, WorldPose, identify_profile, skeleton_fk
+from capture.jointmap import guess_joint_map
 from capture.profiles import strip_namespace
 from capture.skeleton import rest_fk
 
@@ -40,7 +41,9 @@ class RetargetError(ValueError):
 
 def joint_map_for(skeleton: Skeleton, profile: str | None = None,
                   joint_map: Mapping[str, str] | None = None) -> dict[str, str]:
-    """Role -> joint name for a captured skeleton: the profile's, overridden by `joint_map`.
+    """Role -> joint name for a captured skeleton: the profile's, then the skeleton's own map,
+    then `joint_map`; roles still missing are guessed from the joint names and the hierarchy
+    (`capture.jointmap.guess_joint_map`).
 
     Parameters
     ----------
@@ -79,10 +82,18 @@ def joint_map_for(skeleton: Skeleton, profile: str | None = None,
     roles.update(dict(skeleton.joint_map))  # stored with the skeleton (a library take)
     roles.update(joint_map or {})
     missing = [r for r in REQUIRED_ROLES if r not in roles]
+    if missing:  # what neither a profile nor a map says, read from the names and structure
+        guess = guess_joint_map(skeleton)
+        taken = set(roles.values())
+        for role, joint in guess.roles.items():
+            if role not in roles and joint not in taken:
+                roles[role] = joint
+        missing = [r for r in REQUIRED_ROLES if r not in roles]
     if missing:
         raise RetargetError(
-            f"Expected a joint for each of the roles {missing}: the skeleton matches no known "
-            "profile, so give a joint map (role -> joint name)"
+            f"Expected a joint for each of the roles {missing}: no profile, joint map, joint "
+            "name or the skeleton's structure gives them; give a joint map (a TOML file of "
+            'role = "joint" lines, --joint-map)'
         )
     for role, name in roles.items():
         if name.removeprefix("end:") not in skeleton.names:

@@ -39,6 +39,21 @@ def placement(position, rotation_deg) -> np.ndarray:
     return m
 
 
+def facing_front(motion: RigMotion) -> np.ndarray:
+    """(3, 3) the turn about the vertical that makes the posed body (frame 0) face +Z: its hip
+    axis, right hip to left, along +X; where the hip axis stands near vertical (lying on a
+    side), the pelvis's forward axis along +Z instead."""
+    body, world = motion.body, motion.world
+    hips = world.positions[0, [body.joint_index("LeftUpLeg"), body.joint_index("RightUpLeg")]]
+    left = hips[0] - hips[1]
+    if np.hypot(left[0], left[2]) >= 0.3 * np.linalg.norm(left):
+        yaw = np.arctan2(left[2], left[0])
+    else:
+        forward = world.rotmats[0, 0] @ [0.0, 0.0, 1.0]
+        yaw = np.arctan2(-forward[0], forward[2])
+    return Rotation.from_euler("y", yaw).as_matrix()
+
+
 def place_person(spec: PersonSpec, db: str | os.PathLike | None = None,
                  index: int = 0) -> PlacedPerson:
     """Poses the person's body (lowest point on y = 0, pelvis over the origin), then places it.
@@ -82,6 +97,8 @@ def place_person(spec: PersonSpec, db: str | os.PathLike | None = None,
     pelvis = motion.world.positions[0, 0]
     centre = np.array([pelvis[0], 0.0, pelvis[2]])
     m = placement(spec.position, spec.rotation_deg)
+    if spec.facing == "front":  # turned to face +Z first, whatever the capture room's heading
+        m[:3, :3] = m[:3, :3] @ facing_front(motion)
     placed = (verts - centre) @ m[:3, :3].T + m[:3, 3]
     to_scene = m.copy()
     to_scene[:3, 3] = m[:3, 3] - m[:3, :3] @ centre

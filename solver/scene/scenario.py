@@ -42,6 +42,8 @@ from typing import Any
 
 import numpy as np
 
+from capture.jointmap import JointMapError, read_joint_map
+
 from solver.body.model import BodyShape, BodyShapeError
 from solver.io.obj import MeshFileError, read_quad_obj
 from solver.mesh import faces_problem
@@ -74,6 +76,8 @@ class PersonSpec:
     rotation_deg: tuple[float, float, float] = tuple(_PERSON["rotation_deg"])
     support: tuple[str, ...] = tuple(_PERSON["support"])
     name: str = ""
+    facing: str = _PERSON["facing"]
+    joint_map: tuple[tuple[str, str], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -212,7 +216,24 @@ def _person(p: schema.Person, k: int, where: str, base: Path, files: bool) -> Pe
         raise _fail(where, f"{at}.body", str(exc)) from None
     return PersonSpec(pose=pose, body=shape, position=tuple(p.position),
                       rotation_deg=tuple(p.rotation_deg), support=tuple(p.support),
-                      name=p.name if p.name is not None else f"person {k + 1}")
+                      name=p.name if p.name is not None else f"person {k + 1}",
+                      facing=p.facing, joint_map=_joint_map(p.joint_map, f"{at}.joint_map",
+                                                            where, base, files))
+
+
+def _joint_map(value, at: str, where: str, base: Path, files: bool) -> tuple:
+    """A person's joint map as sorted (role, joint) pairs: inline, or read from a file."""
+    if value is None:
+        return ()
+    if isinstance(value, str):
+        if not files:
+            raise _fail(where, at, "expected the joint map inline (a table of role = "
+                        "\"joint\"); files are not read here")
+        try:
+            value = read_joint_map(base / value)
+        except JointMapError as exc:
+            raise _fail(where, at, str(exc)) from None
+    return tuple(sorted(value.items()))
 
 
 def load_scenario(path: str | Path) -> Scenario:

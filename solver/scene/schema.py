@@ -151,6 +151,12 @@ class Person(_Model):
     position: Vector3 = [0.0, 0.0, 0.0]
     rotation_deg: Vector3 = [0.0, 0.0, 0.0]
     support: Annotated[list[Part], Field(min_length=1)] = ["torso", "legs"]
+    facing: Annotated[Literal["front", "capture"], Field(
+        description="front: the pelvis turned to face +Z before rotation_deg (the same for "
+                    "every recording); capture: the heading of the capture room")] = "front"
+    joint_map: Annotated[str | dict[str, str] | None, Field(
+        description="a joint-map file (TOML, role = \"joint\") or an inline table, for a "
+                    "skeleton no profile knows")] = None
 
 
 class Evaluation(_Model):
@@ -174,7 +180,8 @@ def default(model: type[BaseModel], name: str) -> Any:
 
 def person_defaults() -> dict:
     """A person's placement and support as the schema gives them when unset."""
-    return {name: default(Person, name) for name in ("position", "rotation_deg", "support")}
+    return {name: default(Person, name) for name in ("position", "rotation_deg", "support",
+                                                      "facing")}
 
 
 # error messages -------------------------------------------------------------------------------
