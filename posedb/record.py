@@ -229,7 +229,7 @@ def record(source_url: str, library: str | os.PathLike, take: str, skeleton: str
     from .tags import normalise_tags
 
     def waiting(seconds: float) -> None:
-        if on_event is not None and int(seconds) % 5 == 0:
+        if on_event is not None and (int(seconds) == 1 or int(seconds) % 5 == 0):
             on_event(f"waiting {seconds:.0f} s for another writer of {library} to finish")
 
     lib = PoseLibrary(library, create=True, lock_timeout=lock_timeout, on_wait=waiting)
