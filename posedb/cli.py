@@ -6,13 +6,14 @@ import json
 import os
 import signal
 
-from capture import resolve_path, write_bvh
+from capture import read_bvh, resolve_path, write_bvh
 from capture.cli_output import print_event, print_status
 
-from .library import PoseLibrary
+from .library import PoseLibrary, default_lock_timeout
 from .record import record, recordings, recover
 from .schema import SUPPORT_PARTS
 from .suggest import DEFAULT_MAX_SPEED, DEFAULT_MIN_DURATION, suggest_poses
+from .verify import verify
 
 DEFAULT_DB = os.environ.get("SITRELAX_DB", "poses.h5")
 
@@ -21,15 +22,40 @@ def _print(obj, as_json: bool, text: str) -> None:
     print(json.dumps(obj, indent=2) if as_json else text)
 
 
+def _lock_timeout(args) -> float | None:
+    value = getattr(args, "lock_timeout", None)
+    if value is None:
+        return default_lock_timeout()
+    return None if value < 0 else value
+
+
+def _waiting(db: str):
+    def report(seconds: float) -> None:
+        print_status(f"waiting for another writer of {db} to finish: {seconds:.0f} s")
+    return report
+
+
+def _open(args, create: bool = False) -> PoseLibrary:
+    """The library of `--db`, waiting for other writers as `--lock-timeout` says; the notes
+    of its opening (killed writers' copies removed) go to stderr."""
+    lib = PoseLibrary(args.db, create=create, lock_timeout=_lock_timeout(args),
+                      on_wait=_waiting(args.db))
+    for note in lib.notes:
+        print_event(f"note: {note}")
+    lib.notes.clear()
+    return lib
+
+
 def _cmd_import(args) -> int:
-    lib = PoseLibrary(args.db, create=True)
+    # parsed before the write lock, so other writers wait only for the commit
+    parsed = [read_bvh(resolve_path(spec), unit=args.unit) for spec in args.files]
+    lib = _open(args, create=True)
     names = []
     with lib.edit() as ed:
-        for k, spec in enumerate(args.files):
+        for bvh in parsed:
             name = args.name if (args.name and len(args.files) == 1) else None
-            tid = ed.import_bvh(resolve_path(spec), name=name, subject=args.subject,
-                                tags=args.tag, notes=args.notes, unit=args.unit)
-            names.append(tid)
+            names.append(ed.import_bvh(bvh, name=name, subject=args.subject, tags=args.tag,
+                                       notes=args.notes))
     takes = [lib.take(t).as_dict() for t in names]
     _print(takes, args.json, "\n".join(f"imported {t['name']} ({t['id']}): {t['frames']} frames, "
                                       f"{t['duration']:.2f} s" for t in takes))
@@ -37,7 +63,7 @@ def _cmd_import(args) -> int:
 
 
 def _cmd_list(args) -> int:
-    lib = PoseLibrary(args.db)
+    lib = _open(args)
     rows: list[dict] = []
     if args.kind in (None, "take"):
         rows += [t.as_dict() for t in lib.find_takes(args.tag, subject=args.subject)
@@ -64,7 +90,7 @@ def _cmd_list(args) -> int:
 
 
 def _cmd_show(args) -> int:
-    lib = PoseLibrary(args.db)
+    lib = _open(args)
     try:
         info = lib.pose(args.name).as_dict(None)
         info["take"] = lib.take(info["take_id"]).name
@@ -75,7 +101,7 @@ def _cmd_show(args) -> int:
 
 
 def _cmd_tag(args) -> int:
-    lib = PoseLibrary(args.db)
+    lib = _open(args)
     with lib.edit() as ed:
         tags = ed.tag(args.name, add=args.tags if not args.remove else (),
                       remove=args.tags if args.remove else ())
@@ -84,7 +110,7 @@ def _cmd_tag(args) -> int:
 
 
 def _cmd_pose_add(args) -> int:
-    lib = PoseLibrary(args.db)
+    lib = _open(args)
     pose = lib.add_pose(args.take, args.frame, args.name, tags=args.tag,
                         supports=args.support, notes=args.notes)
     _print(pose.as_dict(lib.take(pose.take).name), args.json,
@@ -93,7 +119,7 @@ def _cmd_pose_add(args) -> int:
 
 
 def _cmd_pose_rename(args) -> int:
-    lib = PoseLibrary(args.db)
+    lib = _open(args)
     with lib.edit() as ed:
         ed.rename(args.name, args.new_name)
     print(f"renamed {args.name} to {args.new_name}")
@@ -101,7 +127,7 @@ def _cmd_pose_rename(args) -> int:
 
 
 def _cmd_pose_delete(args) -> int:
-    lib = PoseLibrary(args.db)
+    lib = _open(args)
     with lib.edit() as ed:
         ed.delete_pose(args.name)
     print(f"deleted pose {args.name}")
@@ -109,21 +135,22 @@ def _cmd_pose_delete(args) -> int:
 
 
 def _cmd_suggest(args) -> int:
-    lib = PoseLibrary(args.db)
+    lib = _open(args)
     take = lib.take(args.take)
     rows = suggest_poses(lib, take.id, accept=args.accept, tags=args.tag,
                          supports=args.support, max_speed=args.max_speed,
                          min_duration=args.min_duration)
     text = "\n".join(
         f"frames {r['start']}-{r['end']} ({(r['end'] - r['start'] + 1) * take.frame_time:.2f} s):"
-        f" propose frame {r['frame']}" + (f" -> {r['pose']}" if "pose" in r else "")
+        f" propose frame {r['frame']}"
+        + (f" -> pose {r['name']} (tags: {' '.join(r['tags']) or '-'})" if "pose" in r else "")
         for r in rows) or "no held posture found"
     _print(rows, args.json, text)
     return 0
 
 
 def _cmd_export(args) -> int:
-    lib = PoseLibrary(args.db)
+    lib = _open(args)
     take = lib.take(args.name)
     stop = None if args.end is None else args.end + 1
     bvh = lib.take_bvh(take.id, args.start, stop)
@@ -132,15 +159,29 @@ def _cmd_export(args) -> int:
     return 0
 
 
+def _cmd_check(args) -> int:
+    problems = verify(args.db, full=not args.quick)  # without opening: it may not open
+    _print({"path": args.db, "ok": not problems, "problems": problems}, args.json,
+           "\n".join(problems) or f"{args.db}: no problem found")
+    return 1 if problems else 0
+
+
+def _cmd_compact(args) -> int:
+    sizes = _open(args).compact()
+    _print(sizes, args.json, f"compacted {sizes['path']}: {sizes['size_before'] / 1e6:.2f} MB "
+                             f"-> {sizes['size_after'] / 1e6:.2f} MB")
+    return 0
+
+
 def _cmd_recover(args) -> int:
-    rows = recover(args.db)
+    rows = recover(args.db, lock_timeout=_lock_timeout(args), on_wait=_waiting(args.db))
     _print(rows, args.json, "\n".join(f"{r['take']}: {r['status']}" for r in rows)
            or "nothing to recover")
     return 0
 
 
 def _cmd_stats(args) -> int:
-    stats = PoseLibrary(args.db).stats()
+    stats = _open(args).stats()
     stats["recordings"] = [r.as_dict() for r in recordings(args.db)]
     _print(stats, args.json, "\n".join(f"{k:<15} {v}" for k, v in stats.items()
                                       if k != "recordings"))
@@ -160,7 +201,8 @@ def _cmd_record(args) -> int:
         summary = record(args.source, args.db, args.take, args.skeleton, duration=args.duration,
                          frames=args.frames, subject=args.subject, tags=args.tag,
                          notes=args.notes, unit=args.unit, on_event=print_event,
-                         on_progress=progress, stop=lambda: stopping["flag"])
+                         on_progress=progress, stop=lambda: stopping["flag"],
+                         lock_timeout=_lock_timeout(args))
     finally:
         signal.signal(signal.SIGINT, previous)
     take = summary["take"]
@@ -185,6 +227,9 @@ def _library_options(p, json_flag: bool = True):
     """The options every library command takes: `--db` and, unless told not to, `--json`."""
     p.add_argument("--db", default=DEFAULT_DB,
                    help=f"the pose library file (default: $SITRELAX_DB or {DEFAULT_DB})")
+    p.add_argument("--lock-timeout", type=float, default=None, metavar="S",
+                   help="seconds to wait for another writer, negative: as long as it runs "
+                        "(default: $SITRELAX_LOCK_TIMEOUT or 600)")
     if json_flag:
         p.add_argument("--json", action="store_true", help="machine-readable output")
     return p
@@ -253,7 +298,8 @@ def _register_pose_commands(sub) -> None:
 
 
 def _register_library_commands(sub) -> None:
-    """`db export`, `db recover` and `db stats`: the library as a whole."""
+    """`db export`, `db recover`, `db stats`, `db check` and `db compact`: the library as a
+    whole."""
     p = _library_options(sub.add_parser("export", help="write a take (or a frame range) as BVH"),
                          json_flag=False)
     p.add_argument("name")
@@ -267,6 +313,15 @@ def _register_library_commands(sub) -> None:
 
     p = _library_options(sub.add_parser("stats", help="what the library holds"))
     p.set_defaults(func=_cmd_stats)
+
+    p = _library_options(sub.add_parser("check", help="verify the library (exit 1 if damaged)"))
+    p.add_argument("--quick", action="store_true",
+                   help="metadata and pose table only, not every chunk of every take")
+    p.set_defaults(func=_cmd_check)
+
+    p = _library_options(sub.add_parser(
+        "compact", help="rewrite the library without the bytes of deleted takes and poses"))
+    p.set_defaults(func=_cmd_compact)
 
 
 def _register_record(capture_sub) -> None:

@@ -4,14 +4,18 @@ Reading opens the file read-only and returns numpy arrays and plain records, nev
 handles. Writing is copy-on-write: every change (or batch of changes in `edit()`) is made on a
 copy of the file, which replaces the original in one rename only when the whole change has
 succeeded. A failed or killed writer therefore leaves the library exactly as it was, and readers
-never see half a change. Writers take a lock file (`<library>.lock`) so they queue instead of
-losing each other's changes.
+never see half a change. Writers take a lock (`posedb.locking`) so they queue instead of
+losing each other's changes; they hold it only to copy, change and rename (a BVH file is parsed
+before), and wait for a long writer (reporting the wait) up to `lock_timeout` seconds.
+
+The copy keeps the file's mode, owner and symbolic link (`posedb.files`); a file without write
+permission is refused. Before a change the library is verified (`posedb.verify`: fully for a
+file up to 64 MB, its structure for a larger one), so damage is reported rather than carried
+into the new copy; every error of the storage layer names the file.
 """
 
 from __future__ import annotations
 
-import errno
-import fcntl
 import hashlib
 import json
 import os
@@ -26,20 +30,35 @@ import numpy as np
 
 from capture import Bvh, Motion, Skeleton, identify_profile, read_bvh
 
-from . import schema
-from .schema import LibraryError, NotFoundError, decode_supports, encode_supports
+from . import files, schema
+from .compact import compact_into
+from .locking import LockedError, exclusive, try_exclusive
 from .posetable import PoseTable
+from .schema import LibraryError, NotFoundError, decode_supports, encode_supports
 from .tags import compile_expression, membership, normalise_tags
+from .verify import verify, verify_file
 
-_LOCK_WAIT = 10.0
+# seconds a writer waits for another one before giving up ($SITRELAX_LOCK_TIMEOUT overrides)
+DEFAULT_LOCK_TIMEOUT = 600.0
+FULL_CHECK_BYTES = 64 << 20  # libraries up to this size are read entirely before each change
+
+
+def default_lock_timeout() -> float | None:
+    """$SITRELAX_LOCK_TIMEOUT in seconds ("none": wait as long as the writer lives)."""
+    text = os.environ.get("SITRELAX_LOCK_TIMEOUT", "").strip().lower()
+    if not text:
+        return DEFAULT_LOCK_TIMEOUT
+    if text in ("none", "inf", "forever"):
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise LibraryError(f"Expected $SITRELAX_LOCK_TIMEOUT in seconds or 'none', got "
+                           f"{text!r}") from None
 
 
 class DuplicateNameError(LibraryError):
     """A name already used by another take or pose."""
-
-
-class LockedError(LibraryError):
-    """Another process holds the library's write lock for too long."""
 
 
 @dataclass(frozen=True)
@@ -160,39 +179,49 @@ def skeleton_key(sk: Skeleton) -> str:
 class PoseLibrary:
     """A pose library file. `PoseLibrary(path)` opens an existing one; `create=True` makes one.
 
-    The index of takes and poses is read once on open and refreshed after each edit.
+    The index of takes and poses is read once on open and refreshed after each edit. A writer
+    waits up to `lock_timeout` seconds for another (None: as long as that one lives; default
+    `default_lock_timeout()`), calling `on_wait(seconds waited)` about once a second. Opening
+    removes the copies killed writers left, when no writer is at work; `notes` says what went.
     """
 
-    def __init__(self, path: str | os.PathLike, *, create: bool = False):
+    def __init__(self, path: str | os.PathLike, *, create: bool = False,
+                 lock_timeout: float | None | str = "default", on_wait=None):
         self.path = Path(path)
+        self.lock_timeout = default_lock_timeout() if lock_timeout == "default" else lock_timeout
+        self.on_wait = on_wait
+        self.notes: list[str] = []
         if not self.path.exists():
             if not create:
                 raise NotFoundError(f"No pose library at {self.path} (import a take to make one)")
             with self._writer_lock():
                 if not self.path.exists():
                     self._create()
+        self._clean_up_if_idle()
         self._load()
+
+    @property
+    def target(self) -> Path:
+        """The real file (a symbolic link's target), which changes are written to."""
+        return files.real_file(self.path)
 
     # -- opening ------------------------------------------------------------------------------
 
     def _create(self) -> None:
-        with self._replacing() as tmp:
+        with files.replacing(self.target) as tmp:
             with h5py.File(tmp, "w") as f:
                 schema.initialise(f)
 
-    @contextmanager
-    def _replacing(self) -> Iterator[Path]:
-        """A temporary file that replaces the library in one rename when the block succeeds,
-        and is removed when it fails."""
-        tmp = self._tmp_path()
-        try:
-            yield tmp
-            _fsync_path(tmp)
-            os.replace(tmp, self.path)
-            _fsync_dir(self.path.parent)
-        except BaseException:
-            _unlink(tmp)
-            raise
+    def _clean_up_if_idle(self) -> None:
+        """Removes killed writers' copies when the lock is free now (never waits for it)."""
+        if not files.stale_temporaries(self.target):
+            return
+        lock = try_exclusive(self.target)
+        if lock is not None:
+            try:
+                self.notes += files.remove_stale_temporaries(self.target)
+            finally:
+                lock.release()
 
     def _load(self) -> None:
         with schema.open_checked(self.path) as f:
@@ -213,31 +242,13 @@ class PoseLibrary:
                 )
             self._table = PoseTable.read(f["poses"])
 
-    def _tmp_path(self) -> Path:
-        return self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
-
     @contextmanager
     def _writer_lock(self) -> Iterator[None]:
-        lock_path = self.path.with_name(self.path.name + ".lock")
-        fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            end = time.monotonic() + _LOCK_WAIT
-            while True:
-                try:
-                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                    break
-                except OSError as exc:
-                    if exc.errno not in (errno.EAGAIN, errno.EACCES):
-                        raise
-                    if time.monotonic() > end:
-                        raise LockedError(
-                            f"The pose library {self.path} is locked by another writer "
-                            f"(waited {_LOCK_WAIT:.0f} s)"
-                        ) from None
-                    time.sleep(0.05)
+        """The write lock, then the removal of copies earlier writers left (with a note)."""
+        target = self.target
+        with exclusive(target, timeout=self.lock_timeout, on_wait=self.on_wait):
+            self.notes += files.remove_stale_temporaries(target)
             yield
-        finally:
-            os.close(fd)
 
     # -- reading ------------------------------------------------------------------------------
 
@@ -366,26 +377,62 @@ class PoseLibrary:
 
     # -- writing ------------------------------------------------------------------------------
 
+    def check(self, *, full: bool = True) -> list[str]:
+        """What is wrong with the library (empty when nothing is); see `posedb.verify`."""
+        return verify(self.path, full=full)
+
+    def _verified_for_change(self, target: Path) -> None:
+        """Refuses a read-only or damaged library before a change is made to a copy of it."""
+        files.check_writable(target)
+        full = target.stat().st_size <= FULL_CHECK_BYTES
+        with schema.open_checked(target) as f:
+            problems = verify_file(f, target, full=full)
+        if problems:
+            raise schema.StorageError(
+                f"{target} is damaged, so it was not changed: {problems[0]}"
+                + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else "")
+                + f"; `sitrelax db check --db {self.path}` lists what is wrong")
+
     @contextmanager
     def edit(self) -> Iterator["Editor"]:
         """A batch of changes committed together, or not at all."""
         with self._writer_lock():
+            target = self.target
             self._load()  # another writer may have committed since we read
+            self._verified_for_change(target)
             try:
-                with self._replacing() as tmp:
-                    _copy_file(self.path, tmp)
+                with files.replacing(target) as tmp:
+                    files.copy_file(target, tmp)
                     with h5py.File(tmp, "r+") as f:
                         editor = Editor(self, f)
                         yield editor
-                        editor._commit()
+                        with schema.storage_errors(self.path):
+                            editor._commit()
             finally:
                 self._load()
 
+    def compact(self) -> dict:
+        """Rewrites the library with only its live content, so that nothing deleted stays in
+        its bytes (`posedb.compact`); returns the sizes before and after, in bytes."""
+        with self._writer_lock():
+            target = self.target
+            self._verified_for_change(target)
+            before = target.stat().st_size
+            with files.replacing(target) as tmp:
+                with schema.open_checked(target) as src, h5py.File(tmp, "w") as dst:
+                    compact_into(src, dst)
+            self._load()
+        return {"path": str(self.path), "size_before": before,
+                "size_after": self.target.stat().st_size}
+
     # single-change conveniences, each its own commit
 
-    def import_bvh(self, path: str | os.PathLike, **kw) -> TakeInfo:
+    def import_bvh(self, path: str | os.PathLike | Bvh, *, unit: str | float = "auto",
+                   **kw) -> TakeInfo:
+        """Imports a BVH file as a take, parsed before the write lock is taken."""
+        bvh = path if isinstance(path, Bvh) else read_bvh(path, unit=unit)
         with self.edit() as ed:
-            tid = ed.import_bvh(path, **kw)
+            tid = ed.import_bvh(bvh, **kw)
         return self.take(tid)
 
     def add_pose(self, take: str, frame: int, name: str, **kw) -> PoseInfo:
@@ -500,7 +547,9 @@ class Editor:
     def import_bvh(self, path: str | os.PathLike | Bvh, *, name: str | None = None,
                    subject: str = "", tags: Iterable[str] = (), notes: str = "",
                    unit: str | float = "auto") -> str:
-        """Imports a BVH file (or a parsed `Bvh`) as a take; returns its id."""
+        """Imports a BVH file (or a parsed `Bvh`) as a take; returns its id. Parse a large file
+        with `capture.read_bvh` before `edit()` and pass the `Bvh`: a path is parsed here,
+        inside the write lock, keeping other writers waiting meanwhile."""
         bvh = path if isinstance(path, Bvh) else read_bvh(path, unit=unit)
         source = bvh.path or ""
         default = Path(source).stem if source else "take"
@@ -621,47 +670,3 @@ class Editor:
             rot[start:] = new
         if self._table_dirty:
             self.table.write(f["poses"])
-
-
-# -- files ------------------------------------------------------------------------------------
-
-
-def _copy_file(src: Path, dst: Path) -> None:
-    """Copies a file, in the kernel (or as a reflink where the filesystem shares blocks)."""
-    with open(src, "rb") as fin, open(dst, "wb") as fout:
-        size = os.fstat(fin.fileno()).st_size
-        copied = 0
-        try:
-            while copied < size:
-                n = os.copy_file_range(fin.fileno(), fout.fileno(), size - copied)
-                if n == 0:
-                    break
-                copied += n
-        except OSError:
-            fin.seek(copied)
-            fout.seek(copied)
-            while chunk := fin.read(1 << 20):
-                fout.write(chunk)
-
-
-def _fsync_path(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path or ".", os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _unlink(path: Path) -> None:
-    try:
-        os.unlink(path)
-    except FileNotFoundError:
-        pass

@@ -7,12 +7,16 @@ journal becomes a take in one library commit and is then removed. A recorder kil
 moment leaves the library untouched and the journal holding everything received up to the
 kill; `recover` turns such journals into takes. The library itself is never held open during a
 recording, so other processes can list and read it, and several streams can be recorded at once.
+
+A recorder holds its journal's lock (`<journal>.lock`, see `posedb.locking`) from the first
+frame until the take is stored and the journal removed; `recover` takes the same lock before it
+stores a journal, so the two never both store one. The final commit waits for other writers of
+the library like any change; should it still fail, the journal stays and the error says which
+command stores it.
 """
 
 from __future__ import annotations
 
-import errno
-import fcntl
 import os
 import re
 import time
@@ -30,6 +34,7 @@ from capture.sources import RawFileTransport, Source, open_transport
 from capture.stream_layout import StreamLayout
 
 from .library import DuplicateNameError, PoseLibrary, TakeInfo
+from .locking import LockedError, exclusive, try_exclusive
 from .schema import LibraryError, NotFoundError
 
 _SYNC_EVERY = 0.5  # seconds between fsyncs of the journal
@@ -47,17 +52,26 @@ def _journal_name(take: str) -> str:
 
 
 def _locked_by_someone(path: Path) -> bool:
-    """Whether a live recorder holds the journal's lock."""
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError as exc:
-        if exc.errno in (errno.EAGAIN, errno.EACCES):
-            return True
-        raise
-    finally:
-        os.close(fd)
+    """Whether a live recorder (or a `recover`) holds the journal's lock."""
+    lock = try_exclusive(path)
+    if lock is None:
+        return True
+    lock.release()
     return False
+
+
+class _AlreadyStored(Exception):
+    """Raised inside an edit to leave the library untouched: the take exists already."""
+
+    def __init__(self, take_id: str):
+        self.take_id = take_id
+
+
+def _stored_take(takes: Iterable[TakeInfo], recording_id: str) -> TakeInfo | None:
+    for take in takes:
+        if recording_id and take.source.endswith(f"#recording={recording_id}"):
+            return take
+    return None
 
 
 @dataclass(frozen=True)
@@ -119,10 +133,10 @@ def import_journal(lib: PoseLibrary, path: Path) -> TakeInfo | None:
     header, _ = iter_raw_capture(path)
     meta = header.get("take", {})
     recording_id = meta.get("recording_id", "")
-    for take in lib.takes():
-        if recording_id and take.source.endswith(f"#recording={recording_id}"):
-            path.unlink()  # the take was stored; only the journal's removal was missed
-            return take
+    stored = _stored_take(lib.takes(), recording_id)
+    if stored is not None:
+        path.unlink()  # the take was stored; only the journal's removal was missed
+        return stored
     unit = meta.get("unit_m")
     skeleton = parse_bvh(header["skeleton_bvh"], unit=unit if unit else "auto").skeleton
     layout = StreamLayout(skeleton)
@@ -139,36 +153,64 @@ def import_journal(lib: PoseLibrary, path: Path) -> TakeInfo | None:
     notes = meta.get("notes", "")
     summary = (f"recorded from {header.get('source', '?')}: {len(frames)} frames, "
                f"{stats['dropped']} dropped, {stats['corrupt']} corrupt")
-    with lib.edit() as ed:
-        tid = ed.add_take(
-            skeleton, channels, _frame_time(frames, float(meta.get("frame_time", 1 / 120))),
-            name=meta.get("name", path.stem), subject=meta.get("subject", ""),
-            tags=meta.get("tags", ()), notes=(notes + "\n" if notes else "") + summary,
-            source=f"{header.get('source', '')}#recording={recording_id}",
-            recorded_at=header.get("started_at"), origin="stream", frame_indices=indices,
-            received_at=received,
-        )
+    try:
+        with lib.edit() as ed:
+            stored = _stored_take(ed.takes.values(), recording_id)  # as of the lock
+            if stored is not None:
+                raise _AlreadyStored(stored.id)
+            tid = ed.add_take(
+                skeleton, channels, _frame_time(frames, float(meta.get("frame_time", 1 / 120))),
+                name=meta.get("name", path.stem), subject=meta.get("subject", ""),
+                tags=meta.get("tags", ()), notes=(notes + "\n" if notes else "") + summary,
+                source=f"{header.get('source', '')}#recording={recording_id}",
+                recorded_at=header.get("started_at"), origin="stream", frame_indices=indices,
+                received_at=received,
+            )
+    except _AlreadyStored as done:
+        tid = done.take_id
     path.unlink()
     return lib.take(tid)
 
 
-def recover(library: str | os.PathLike) -> list[dict]:
+def _recover_one(lib: PoseLibrary, rec: Recording) -> dict:
+    """Stores one journal, holding its lock so that its recorder (if it is finishing) and any
+    other `recover` wait or skip it."""
+    row = {"journal": str(rec.path), "take": rec.take}
+    lock = try_exclusive(rec.path)
+    if lock is None:
+        return row | {"status": "still recording"}
+    try:
+        if not rec.path.exists():  # its recorder stored it meanwhile
+            return row | {"status": "stored by its recorder"}
+        take = import_journal(lib, rec.path)
+    except (LibraryError, RawCaptureError, ValueError) as exc:
+        return row | {"status": f"failed: {exc}"}
+    finally:
+        lock.release()
+    return row | {"status": "empty, removed" if take is None else "recovered",
+                  "frames": 0 if take is None else take.frames}
+
+
+def recover(library: str | os.PathLike, *, lock_timeout: float | None | str = "default",
+            on_wait: Callable[[float], None] | None = None) -> list[dict]:
     """Imports the journals that killed recorders left; skips those still being written."""
-    lib = PoseLibrary(library)
-    out = []
-    for rec in recordings(library):
-        if rec.running:
-            out.append({"journal": str(rec.path), "take": rec.take, "status": "still recording"})
-            continue
-        try:
-            take = import_journal(lib, rec.path)
-        except (LibraryError, RawCaptureError, ValueError) as exc:
-            out.append({"journal": str(rec.path), "take": rec.take, "status": f"failed: {exc}"})
-            continue
-        out.append({"journal": str(rec.path), "take": rec.take,
-                    "status": "empty, removed" if take is None else "recovered",
-                    "frames": 0 if take is None else take.frames})
-    return out
+    lib = PoseLibrary(library, lock_timeout=lock_timeout, on_wait=on_wait)
+    return [{"journal": str(r.path), "take": r.take, "status": "still recording"} if r.running
+            else _recover_one(lib, r) for r in recordings(library)]
+
+
+def _store_journal(lib: PoseLibrary, journal: Path, take: str) -> TakeInfo | None:
+    """The recording's final commit; on failure the journal stays and the error says so."""
+    try:
+        return import_journal(lib, journal)
+    except (LibraryError, OSError) as exc:
+        if not journal.exists():
+            raise
+        why = "another writer kept the library locked" if isinstance(exc, LockedError) else exc
+        raise LibraryError(
+            f"The recording of take {take!r} was not stored in {lib.path} ({why}); it is kept "
+            f"in {journal}: run `sitrelax db recover --db {lib.path}` to store it"
+        ) from exc
 
 
 def record(source_url: str, library: str | os.PathLike, take: str, skeleton: str, *,
@@ -176,15 +218,21 @@ def record(source_url: str, library: str | os.PathLike, take: str, skeleton: str
            tags: Iterable[str] = (), notes: str = "", unit: str | float = "auto",
            fmt: str = "auto", on_event: Callable[[str], None] | None = None,
            on_progress: Callable[[dict], None] | None = None,
-           stop: Callable[[], bool] | None = None) -> dict:
+           stop: Callable[[], bool] | None = None,
+           lock_timeout: float | None | str = "default") -> dict:
     """Records a stream into a new take; returns the listener's summary plus the take.
 
     Stops after `duration` seconds, `frames` frames, the end of a `file:` source, or when
-    `stop()` returns true.
+    `stop()` returns true. The final commit waits up to `lock_timeout` s for other writers
+    (reported through `on_event`).
     """
     from .tags import normalise_tags
 
-    lib = PoseLibrary(library, create=True)
+    def waiting(seconds: float) -> None:
+        if on_event is not None and (int(seconds) == 1 or int(seconds) % 5 == 0):
+            on_event(f"waiting {seconds:.0f} s for another writer of {library} to finish")
+
+    lib = PoseLibrary(library, create=True, lock_timeout=lock_timeout, on_wait=waiting)
     try:
         lib.take(take)
     except NotFoundError:
@@ -207,11 +255,24 @@ def record(source_url: str, library: str | os.PathLike, take: str, skeleton: str
     meta = {"name": take, "subject": subject, "tags": list(tags), "notes": notes,
             "recording_id": uuid.uuid4().hex, "unit_m": header.skeleton.unit_m,
             "frame_time": header.motion.frame_time, "pid": os.getpid()}
-    writer = RawCaptureWriter(journal, source=source_url, time_origin=time.time(),
-                              transport="datagram" if transport.datagram else "stream",
-                              skeleton_bvh=header_path.read_text(errors="replace"),
-                              extra={"take": meta})
-    fcntl.flock(writer.fileno(), fcntl.LOCK_EX)  # tells `recover` this journal is alive
+    # held until the take is stored: tells `recover` this journal is alive
+    with exclusive(journal, timeout=10.0, what="The journal"):
+        writer = RawCaptureWriter(journal, source=source_url, time_origin=time.time(),
+                                  transport="datagram" if transport.datagram else "stream",
+                                  skeleton_bvh=header_path.read_text(errors="replace"),
+                                  extra={"take": meta})
+        summary = _listen(writer, transport, layout, fmt, on_event, on_progress, duration,
+                          frames, stop)
+        # the source closed the journal; now it becomes a take
+        stored = _store_journal(lib, journal, take)
+    summary["take"] = None if stored is None else stored.as_dict()
+    summary["library"] = str(lib.path)
+    return summary
+
+
+def _listen(writer, transport, layout, fmt, on_event, on_progress, duration, frames,
+            stop) -> dict:
+    """Reads the stream into the journal until told to stop; returns the listener's summary."""
     monitor = StreamMonitor()
     start = time.monotonic()
     next_sync = start + _SYNC_EVERY
@@ -234,8 +295,4 @@ def record(source_url: str, library: str | os.PathLike, take: str, skeleton: str
                 break
         summary = monitor.summary(src.stats())
         summary["events"] = [m for _, m in src.events]
-    # the source closed the journal; now it becomes a take
-    stored = import_journal(lib, journal)
-    summary["take"] = None if stored is None else stored.as_dict()
-    summary["library"] = str(lib.path)
     return summary

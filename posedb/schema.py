@@ -72,6 +72,34 @@ class SchemaError(LibraryError):
     """A file that is not a pose library of a schema this version can read."""
 
 
+class StorageError(LibraryError):
+    """A library whose bytes cannot be read back as written (damaged, truncated)."""
+
+
+# what h5py raises for damaged files: OSError (unreadable objects, failed filters), KeyError
+# (missing links), RuntimeError (broken B-trees), ValueError and TypeError (garbled shapes,
+# types or UTF-8), and zlib's own errors through OSError
+_STORAGE_ERRORS = (OSError, KeyError, RuntimeError, ValueError, TypeError)
+
+
+def damaged(path: Path, exc: BaseException) -> StorageError:
+    """The one message of every storage error: the file, what failed, what to run."""
+    what = str(exc).strip() or type(exc).__name__
+    return StorageError(f"{path} is damaged and cannot be read ({what}); `sitrelax db check "
+                        f"--db {path}` lists what is wrong")
+
+
+@contextmanager
+def storage_errors(path: Path) -> Iterator[None]:
+    """Turns the HDF5 library's errors inside the block into a StorageError naming `path`."""
+    try:
+        yield
+    except LibraryError:
+        raise
+    except _STORAGE_ERRORS as exc:
+        raise damaged(path, exc) from exc
+
+
 def initialise(f: h5py.File) -> None:
     """Lays out an empty library in a new file."""
     f.attrs[KIND_ATTR] = KIND
@@ -127,8 +155,9 @@ def open_checked(path: Path) -> Iterator[h5py.File]:
     except OSError as exc:
         raise SchemaError(f"{path} is damaged or truncated and cannot be opened ({exc})") from None
     try:
-        check(f, path)
-        yield f
+        with storage_errors(path):
+            check(f, path)
+            yield f
     finally:
         f.close()
 

@@ -1,8 +1,12 @@
 """Finding the held postures in a take.
 
-A held posture is a stretch of at least `min_duration` seconds in which the body stays nearly
-still: the mean speed of its major joints (the profile's anatomical joints, or all joints for an
-unknown skeleton), smoothed over `smooth` seconds, stays under `max_speed` metres per second.
+A held posture is a stretch in which the body stays nearly still: the mean speed of its major
+joints (the profile's anatomical joints, or all joints for an unknown skeleton), smoothed over
+`smooth` seconds, stays under `max_speed` metres per second. It counts when it lasts at least
+`min_duration` seconds (a "hold"), or at least `min_bottom_duration` seconds at the bottom of
+a motion (a "bottom": the bottom of a squat or of a sit-down, held about 0.3 s), where the hips
+are at least `bottom_drop` metres lower than at some moment within `BOTTOM_WINDOW` seconds both
+before and after. Heights are the root joint's Y coordinate (BVH's up axis), in metres.
 One pose is proposed per stretch: its stillest frame.
 """
 
@@ -18,20 +22,25 @@ from capture.profiles import strip_namespace
 DEFAULT_MAX_SPEED = 0.2  # m/s: settling and fidgeting while seated stay under it; walking ~1 m/s
 DEFAULT_MIN_DURATION = 0.5  # s
 DEFAULT_SMOOTH = 0.2  # s
+DEFAULT_MIN_BOTTOM_DURATION = 0.2  # s: a squat's bottom holds ~0.3 s, of which the still part less
+DEFAULT_BOTTOM_DROP = 0.1  # m: the hips go down and come up again by this much (squat ~0.4 m)
+BOTTOM_WINDOW = 2.0  # s looked at before and after a short stillness for the descent and rise
 
 
 @dataclass(frozen=True)
 class HeldPosture:
-    """Frames [start, end] (inclusive, 0-based in the take) and the proposed `frame`."""
+    """Frames [start, end] (inclusive, 0-based in the take), the proposed `frame`, and `kind`:
+    "hold" (long enough on its own) or "bottom" (short, at the bottom of a motion)."""
 
     start: int
     end: int
     frame: int
     mean_speed: float
+    kind: str = "hold"
 
     def as_dict(self) -> dict:
         return {"start": self.start, "end": self.end, "frame": self.frame,
-                "mean_speed_m_s": self.mean_speed}
+                "mean_speed_m_s": self.mean_speed, "kind": self.kind}
 
 
 def _major_joints(skeleton: Skeleton, profile: str | None) -> np.ndarray:
@@ -59,35 +68,61 @@ def joint_speed(skeleton: Skeleton, channels: np.ndarray, frame_time: float,
     return speed
 
 
+def _frames(seconds: float, frame_time: float) -> int:
+    # BVH frame times are rounded (.0333333 for 1/30 s): allow that much slack
+    return max(1, int(np.ceil(seconds / frame_time * (1 - 1e-4))))
+
+
+def _is_bottom(height: np.ndarray, start: int, end: int, window: int, drop: float) -> bool:
+    """Whether the hips in frames [start, end] are `drop` m lower than at some frame of the
+    `window` frames before and of the `window` frames after."""
+    before = height[max(0, start - window):start]
+    after = height[end + 1:end + 1 + window]
+    if not len(before) or not len(after):
+        return False
+    low = height[start:end + 1].max()
+    return before.max() - low >= drop and after.max() - low >= drop
+
+
 def held_postures(skeleton: Skeleton, channels: np.ndarray, frame_time: float,
                   profile: str | None = None, *, max_speed: float = DEFAULT_MAX_SPEED,
                   min_duration: float = DEFAULT_MIN_DURATION,
-                  smooth: float = DEFAULT_SMOOTH) -> list[HeldPosture]:
-    """The held postures of a take, in time order.
+                  smooth: float = DEFAULT_SMOOTH,
+                  min_bottom_duration: float | None = DEFAULT_MIN_BOTTOM_DURATION,
+                  bottom_drop: float = DEFAULT_BOTTOM_DROP) -> list[HeldPosture]:
+    """The held postures of a take, in time order (see the module docstring).
 
     channels : (T, C) raw channels of `skeleton` (its unit must be known).
+    min_bottom_duration : s, shortest still stretch at the bottom of a motion; None: none.
     """
     speed = joint_speed(skeleton, channels, frame_time, profile, smooth)
-    still = speed < max_speed
-    # BVH frame times are rounded (.0333333 for 1/30 s): allow that much slack
-    min_frames = max(1, int(np.ceil(min_duration / frame_time * (1 - 1e-4))))
-    edges = np.diff(np.concatenate([[0], still.astype(np.int8), [0]]))
-    starts = np.flatnonzero(edges == 1)
-    ends = np.flatnonzero(edges == -1) - 1
+    height = skeleton.root_positions(channels)[:, 1]
+    min_frames = _frames(min_duration, frame_time)
+    min_bottom = min_frames if min_bottom_duration is None else min(
+        min_frames, _frames(min_bottom_duration, frame_time))
+    window = _frames(BOTTOM_WINDOW, frame_time)
+    edges = np.diff(np.concatenate([[0], (speed < max_speed).astype(np.int8), [0]]))
     out = []
-    for s, e in zip(starts, ends):
-        if e - s + 1 < min_frames:
+    for s, e in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1):
+        length = e - s + 1
+        if length >= min_frames:
+            kind = "hold"
+        elif length >= min_bottom and _is_bottom(height, s, e, window, bottom_drop):
+            kind = "bottom"
+        else:
             continue
         frame = int(s + np.argmin(speed[s:e + 1]))
-        out.append(HeldPosture(int(s), int(e), frame, float(speed[s:e + 1].mean())))
+        out.append(HeldPosture(int(s), int(e), frame, float(speed[s:e + 1].mean()), kind))
     return out
 
 
 def suggest_poses(library, take: str, *, accept: bool = False, tags=(),
                   supports=("torso", "legs"), max_speed: float = DEFAULT_MAX_SPEED,
-                  min_duration: float = DEFAULT_MIN_DURATION) -> list[dict]:
+                  min_duration: float = DEFAULT_MIN_DURATION,
+                  min_bottom_duration: float | None = DEFAULT_MIN_BOTTOM_DURATION) -> list[dict]:
     """The held postures of a library take (`posedb.PoseLibrary`), as dicts; with `accept`,
-    each becomes a pose "<take>-fNNNNN" (its `pose` entry holds the new id), all in one commit.
+    each becomes a pose "<take>-fNNNNN" carrying the take's tags and `tags`, all in one commit
+    (its entry gains `name`, the name later commands take, `pose`, the id, and `tags`).
     """
     from capture import identify_profile
 
@@ -95,12 +130,14 @@ def suggest_poses(library, take: str, *, accept: bool = False, tags=(),
     data = library.take_data(info.id)
     held = held_postures(data.skeleton, data.motion().channels, info.frame_time,
                          identify_profile(data.skeleton.names), max_speed=max_speed,
-                         min_duration=min_duration)
+                         min_duration=min_duration, min_bottom_duration=min_bottom_duration)
     rows = [h.as_dict() for h in held]
     if accept and rows:
+        inherited = tuple(info.tags) + tuple(tags)
         with library.edit() as ed:
             for row in rows:
                 row["name"] = f"{info.name}-f{row['frame']:05d}"
-                row["pose"] = ed.add_pose(info.id, row["frame"], row["name"], tags=tags,
+                row["pose"] = ed.add_pose(info.id, row["frame"], row["name"], tags=inherited,
                                           supports=supports)
+                row["tags"] = list(ed.table.tags(ed.table.row_of(row["pose"])))
     return rows

@@ -204,7 +204,7 @@ def test_a_locked_library_and_a_missing_pose_are_one_line(tmp_path, capsys, monk
     assert main(["db", "import", "bundled:cmu_75_18_high_sit.bvh", "--db", str(db)]) == 0
     capsys.readouterr()
     before = db.read_bytes()
-    monkeypatch.setattr(posedb.library, "_LOCK_WAIT", 0.3)
+    monkeypatch.setenv("SITRELAX_LOCK_TIMEOUT", "0.3")
     with open(db.with_name(db.name + ".lock"), "a") as held:  # another writer holds the lock
         fcntl.flock(held, fcntl.LOCK_EX)
         assert main(["db", "tag", "cmu_75_18_high_sit", "mine", "--db", str(db)]) == 2
