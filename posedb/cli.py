@@ -8,6 +8,7 @@ import signal
 
 from capture import read_bvh, resolve_path, write_bvh
 from capture.cli_output import print_event, print_status
+from capture.jointmap import read_joint_map
 
 from .library import PoseLibrary, default_lock_timeout
 from .record import record, recordings, recover
@@ -49,13 +50,14 @@ def _open(args, create: bool = False) -> PoseLibrary:
 def _cmd_import(args) -> int:
     # parsed before the write lock, so other writers wait only for the commit
     parsed = [read_bvh(resolve_path(spec), unit=args.unit) for spec in args.files]
+    joint_map = read_joint_map(args.joint_map) if args.joint_map else None
     lib = _open(args, create=True)
     names = []
     with lib.edit() as ed:
         for bvh in parsed:
             name = args.name if (args.name and len(args.files) == 1) else None
             names.append(ed.import_bvh(bvh, name=name, subject=args.subject, tags=args.tag,
-                                       notes=args.notes))
+                                       notes=args.notes, joint_map=joint_map))
     takes = [lib.take(t).as_dict() for t in names]
     _print(takes, args.json, "\n".join(f"imported {t['name']} ({t['id']}): {t['frames']} frames, "
                                       f"{t['duration']:.2f} s" for t in takes))
@@ -244,6 +246,8 @@ def _register_take_commands(sub) -> None:
     p.add_argument("--tag", action="append", default=[], help="a tag (repeatable)")
     p.add_argument("--notes", default="")
     p.add_argument("--unit", default="auto", help="length unit of the files (default: auto)")
+    p.add_argument("--joint-map", default=None, help="joint-map file (TOML, role = \"joint\") "
+                   "stored with the skeleton, for one no profile knows")
     p.set_defaults(func=_cmd_import)
 
     p = _library_options(sub.add_parser("list", help="list takes, poses and recordings"))

@@ -546,14 +546,20 @@ class Editor:
 
     def import_bvh(self, path: str | os.PathLike | Bvh, *, name: str | None = None,
                    subject: str = "", tags: Iterable[str] = (), notes: str = "",
-                   unit: str | float = "auto") -> str:
+                   unit: str | float = "auto", joint_map: dict | None = None) -> str:
         """Imports a BVH file (or a parsed `Bvh`) as a take; returns its id. Parse a large file
         with `capture.read_bvh` before `edit()` and pass the `Bvh`: a path is parsed here,
-        inside the write lock, keeping other writers waiting meanwhile."""
+        inside the write lock, keeping other writers waiting meanwhile. `joint_map` (role ->
+        joint) is stored with the take's skeleton, so its poses retarget by it."""
         bvh = path if isinstance(path, Bvh) else read_bvh(path, unit=unit)
         source = bvh.path or ""
         default = Path(source).stem if source else "take"
-        return self.add_take(bvh.skeleton, bvh.motion.channels, bvh.motion.frame_time,
+        skeleton = bvh.skeleton
+        if joint_map:
+            from capture.jointmap import check_joint_map
+
+            skeleton = skeleton.with_joint_map(check_joint_map(skeleton, joint_map, source))
+        return self.add_take(skeleton, bvh.motion.channels, bvh.motion.frame_time,
                              name=name or default, source=source, subject=subject, tags=tags,
                              notes=notes, origin="bvh")
 

@@ -141,6 +141,24 @@ def test_a_library_pose_imported_with_a_joint_map_just_works(course_file, tmp_pa
     assert np.isfinite(motion.world.positions).all()
 
 
+def test_db_import_stores_a_joint_map_file_with_the_skeleton(course_file, tmp_path):
+    from solver.cli import main
+
+    (tmp_path / "map.toml").write_text('left_hand = "l_wrist"\nright_hand = "r_wrist"\n'
+                                       'left_forearm = "l_elbow"\nright_forearm = "r_elbow"\n')
+    db = str(tmp_path / "poses.h5")
+    assert main(["db", "import", str(course_file), "--db", db, "--unit", "m", "--name",
+                 "course", "--joint-map", str(tmp_path / "map.toml")]) == 0
+    assert main(["db", "pose", "add", "course", "1", "--name", "perch", "--db", db]) == 0
+    captured = load_pose("db:perch", db)
+    assert dict(captured.skeleton.joint_map)["right_hand"] == "r_wrist"
+    assert np.isfinite(pose_body(captured, make_body()).world.positions).all()
+    (tmp_path / "bad.toml").write_text('left_hnd = "l_wrist"\n')
+    with pytest.raises(ValueError, match="did you mean left_hand"):
+        main(["--debug", "db", "import", str(course_file), "--db", db, "--unit", "m",
+              "--name", "course2", "--joint-map", str(tmp_path / "bad.toml")])
+
+
 def test_a_missing_required_joint_names_itself(tmp_path):
     sk = course_skeleton()
     keep = [n for n, _, _ in COURSE if n not in ("l_elbow", "l_wrist", "l_hand")]
