@@ -85,7 +85,8 @@ def test_the_readme_scenario_example_is_valid():
 
     from solver.scene.scenario import parse_scenario
 
-    (block,) = re.findall(r"```toml\n(.*?)```", (ROOT / "README.md").read_text(), flags=re.S)
+    (block,) = [b for b in re.findall(r"```toml\n(.*?)```", (ROOT / "README.md").read_text(),
+                                      flags=re.S) if "[surface]" in b]
     scenario = parse_scenario(tomllib.loads(block))
     assert scenario.surface.params.sigma == 0.003 and scenario.surface.params.margin == 0.03
     assert list(scenario.surface.params.fixed) == [0, 7]
