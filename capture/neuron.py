@@ -285,6 +285,7 @@ class StreamDecoder:
         self._lost = False
         self._last_index: int | None = None
         self._suspect: int | None = None  # an index that broke the sequence, not judged yet
+        self._pending: tuple[int, _Header, int] | None = None  # (start, header, end) offsets
 
     # -- bookkeeping --------------------------------------------------------------------------
 
@@ -518,6 +519,11 @@ class StreamDecoder:
         and _FRAME (one was emitted), _REJECT (bytes were skipped) or _WAIT (need more)."""
         n = len(buf)
         final = edge == _FINAL
+        pending = self._pending
+        if pending is not None and pending[0] == self._base + pos:
+            # a whole frame that only waited for what follows it: judged already
+            self._pending = None
+            return self._confirm(buf, pos, pending[1], pending[2] - self._base, out, edge)
         if n - pos < HEADER_SIZE:
             if final:
                 self.stats.corrupt += 1  # cut short by the end of input
@@ -544,6 +550,13 @@ class StreamDecoder:
                 self._skip(n - pos)
                 return n, _REJECT
             return pos, _WAIT
+        return self._confirm(buf, pos, head, end, out, edge)
+
+    def _confirm(self, buf: bytearray, pos: int, head: _Header, end: int, out: list,
+                 edge: int) -> tuple[int, int]:
+        """Accepts the whole, plausible frame at buf[pos:end] if what follows confirms it."""
+        n = len(buf)
+        final = edge == _FINAL
         # The format has no checksum: only what follows a frame confirms where it ends.
         if end + 2 <= n:
             confirmed = buf[end:end + 2] == TOKEN
@@ -552,6 +565,7 @@ class StreamDecoder:
         elif final:
             confirmed = False
         else:
+            self._pending = (self._base + pos, head, self._base + end)
             return pos, _WAIT
         if confirmed and self._emit_binary(buf, pos, head, end, out):
             return end, _FRAME
