@@ -85,6 +85,7 @@ def _decode(arg):
     n = 0
     for blob in frames:  # one read per frame, as TCP delivers them
         n += len(decoder.feed(blob))
+    n += len(decoder.flush())  # the last frame: nothing follows it to confirm it sooner
     assert n == STREAM_FRAMES, n
     return n
 

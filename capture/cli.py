@@ -77,7 +77,7 @@ def listen(source_url: str, skeleton: str, *, duration: float | None = None,
     """Receives a stream until `duration` seconds, `frames` frames, end of input or `stop()`
     is true; returns the summary (counters, fps, latency, connection events)."""
     from .monitor import StreamMonitor
-    from .rawcapture import RawCaptureWriter
+    from .rawcapture import RawCaptureWriter, skeleton_header_text
     from .sources import open_transport, Source
     from .stream_layout import StreamLayout
 
@@ -90,7 +90,8 @@ def listen(source_url: str, skeleton: str, *, duration: float | None = None,
         raw = RawCaptureWriter(save_raw, source=source_url,
                                transport="datagram" if transport.datagram else "stream",
                                time_origin=time.time(),
-                               skeleton_bvh=header_path.read_text(errors="replace"))
+                               skeleton_bvh=skeleton_header_text(
+                                   header_path.read_text(errors="replace")))
     monitor = StreamMonitor()
     start = time.monotonic()
     next_report = start + 1.0
@@ -138,7 +139,24 @@ def _cmd_listen(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGINT, previous)
     if args.json:
         print(json.dumps(summary, indent=2))
+    else:
+        _print_listen_summary(summary)
+    return _no_frame_status(summary)
+
+
+def _no_frame_status(summary: dict) -> int:
+    """0 once a frame came; else names why on stderr (the last event) and returns 2."""
+    if summary["frames"]:
         return 0
+    import sys
+
+    why = summary["events"][-1] if summary.get("events") else "nothing arrived"
+    print(f"sitrelax: error: no frame received from {summary['source']} ({why})",
+          file=sys.stderr)
+    return 2
+
+
+def _print_listen_summary(summary: dict) -> None:
     fps = f"{summary['fps']:.1f}" if summary["fps"] else "-"
     lat = (f"{summary['latency_ms']:.2f} ms mean, {summary['latency_max_ms']:.2f} ms max"
            if summary["latency_ms"] is not None else "-")
@@ -149,7 +167,6 @@ def _cmd_listen(args: argparse.Namespace) -> int:
     print(f"dropped     {summary['dropped']}   corrupt {summary['corrupt']}   resynced "
           f"{summary['resynced']}   reconnects {summary['reconnects']}")
     print(f"latency     {lat}")
-    return 0
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
@@ -159,10 +176,12 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     if str(path).lower().endswith(".bvh"):
         replay = Replay.from_bvh(path, fmt=args.format, with_displacement=not args.no_displacement,
                                  with_reference=args.reference, avatar_name=args.avatar,
-                                 start_index=args.start_index)
+                                 start_index=args.start_index,
+                                 restart_index=args.restart_index)
     else:
         replay = Replay.from_raw(path)
-    sink = open_sink(tcp=args.tcp, udp=args.udp, serial_url=args.serial, on_event=print_event)
+    sink = open_sink(tcp=args.tcp, udp=args.udp, serial_url=args.serial, on_event=print_event,
+                     max_datagram=args.max_datagram)
     print_event(f"replaying {replay.description} to {sink.name} at {args.rate:g}x"
                 + (", looping" if args.loop else ""))
 
@@ -233,6 +252,10 @@ def _register_capture(subparsers) -> None:
     rp.add_argument("--reference", action="store_true", help="send the 6-float reference block")
     rp.add_argument("--avatar", default="Avatar00", help="avatar name in the frames")
     rp.add_argument("--start-index", type=int, default=0, help="first frame index")
+    rp.add_argument("--restart-index", action="store_true",
+                    help="with --loop: start the frame index over on every pass")
+    rp.add_argument("--max-datagram", type=int, default=None, metavar="BYTES",
+                    help="with --udp: split each frame into datagrams of at most BYTES")
     rp.add_argument("--wait-client", action="store_true",
                     help="with --tcp: start only once a client has connected")
     rp.add_argument("--frames", type=int, default=None, help="stop after N frames")

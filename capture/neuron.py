@@ -18,7 +18,9 @@ reader of this format; a value made NaN or infinite is rejected.
 
 from __future__ import annotations
 
+import re
 import struct
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Iterable, NamedTuple
 
@@ -55,7 +57,8 @@ class NeuronFrame(NamedTuple):
     values : (N,) float32 payload as sent (degrees and centimetres, in BVH channel order).
     frame_index : the sender's frame index (current binary header), else None.
     avatar_index, avatar_name : which avatar the frame belongs to.
-    with_displacement, with_reference : the header's flags; None for string frames.
+    with_displacement, with_reference : the header's flags; for string frames, what their size
+        means for the paired skeleton (None without one).
     kind : "binary", "binary-old" or "string".
     received_at : receive time (seconds, `time.time()` clock) set by the source, else None.
     """
@@ -80,7 +83,12 @@ class DecoderStats:
         values, unparsable string line, a frame cut short by a disconnect or end of input).
     resynced : times bytes were skipped to find the next frame.
     skipped_bytes : bytes skipped in total.
-    restarts : times the frame index went backwards (a restarted sender).
+    restarts : times the frame index went backwards or jumped implausibly far (a restarted
+        sender).
+    damaged_index : frames whose index broke the sequence only for themselves (a flipped bit):
+        counted here, not as drops and a restart.
+    first_index, last_index : the sender's first and last frame index.
+    gaps : (index before, index after) of the latest gaps, at most 1,024 kept.
     """
 
     frames: int = 0
@@ -89,6 +97,7 @@ class DecoderStats:
     resynced: int = 0
     skipped_bytes: int = 0
     restarts: int = 0
+    damaged_index: int = 0
     first_index: int | None = None
     last_index: int | None = None
     gaps: list[tuple[int, int]] = field(default_factory=list)
@@ -97,7 +106,8 @@ class DecoderStats:
         return {
             "frames": self.frames, "dropped": self.dropped, "corrupt": self.corrupt,
             "resynced": self.resynced, "skipped_bytes": self.skipped_bytes,
-            "restarts": self.restarts, "first_index": self.first_index,
+            "restarts": self.restarts, "damaged_index": self.damaged_index,
+            "first_index": self.first_index,
             "last_index": self.last_index,
         }
 
@@ -213,7 +223,25 @@ def _avatar_name(raw: bytes) -> str:
 
 
 _BLANK = b"\r\n\0 \t"
+_NOISE = re.compile(rb"[|\r\n\0 \t]+")  # no frame starts with these: blanks, and "||" noise
+_NOISE_START = frozenset(b"|\r\n\0 \t")
 _MAX_LINE = 65536  # a string frame of 4096 floats fits many times over
+_U32 = 0xFFFFFFFF
+# A jump of the frame index beyond this many frames (about 2.4 hours at 120 Hz) is no gap
+# of dropped frames: it counts as a restart, never as a billion drops.
+MAX_INDEX_GAP = 1 << 20
+_MAX_GAPS_KEPT = 1024
+_OPEN, _SOFT, _FINAL = 0, 1, 2  # what may follow the bytes held: more bytes, a pause, nothing
+
+
+def _flags_by_count(counts: dict[tuple[bool, bool], int]) -> dict[int, tuple[bool, bool]]:
+    """The flags a string frame of each size was sent with. Where two layouts share a size
+    (a 3-bone skeleton: 18 floats either way) the one without the reference block wins."""
+    out: dict[int, tuple[bool, bool]] = {}
+    for flags in ((True, False), (False, False), (True, True), (False, True)):
+        if flags in counts:
+            out.setdefault(counts[flags], flags)
+    return out
 
 
 class StreamDecoder:
@@ -222,50 +250,93 @@ class StreamDecoder:
     counts : the DataCount the paired skeleton expects for each (with_displacement,
         with_reference), e.g. `StreamLayout.counts()`. With it, a frame of any other size is
         rejected (and remembered in `mismatch` so the caller can name the mismatch), and a
-        complete frame is returned at once. Without it, a frame is returned only once the
-        bytes after it start another frame (or the input or datagram ends there), so a frame
-        followed by garbage is counted corrupt.
-    datagram : each `feed` is one whole datagram (UDP); a binary frame must fill it exactly.
+        string frame gets the flags its size means for that skeleton.
+    datagram : each `feed` is one datagram (UDP). A frame may span several datagrams in
+        order (Axis splits one larger than the path's MTU); bytes held longer than
+        `reassembly_timeout` seconds, or when a datagram starts a new frame, count corrupt.
     fmt : "auto" (the first valid frame fixes the format of the stream), "binary" or "string".
 
-    `feed` returns the frames completed by the new bytes; `flush` settles what is left at the
-    end of input or on a disconnect. Counters are in `stats`.
+    With or without a skeleton, a binary frame is accepted only once what follows it is
+    another frame's token, or it ends exactly where a datagram, a pause (`settle`) or the
+    input ends. `feed` returns the frames completed by the new bytes; `settle` those a pause
+    confirms; `flush` settles what is left at the end of input or on a disconnect. Counters
+    are in `stats`; each cost is linear in the bytes received.
     """
 
     def __init__(self, counts: dict[tuple[bool, bool], int] | None = None,
-                 datagram: bool = False, fmt: str = "auto"):
+                 datagram: bool = False, fmt: str = "auto", reassembly_timeout: float = 0.5):
         if fmt not in ("auto", "binary", "string"):
             raise NeuronStreamError(f"Expected fmt 'auto', 'binary' or 'string', got {fmt!r}")
         self.strict = counts is not None
         self.counts: dict[tuple[bool, bool], int] = dict(counts or {})
-        self._lost = False
-        self._string_counts = set(self.counts.values())
+        self._string_flags = _flags_by_count(self.counts)
         self.datagram = datagram
+        self.reassembly_timeout = reassembly_timeout
         self.mode = None if fmt == "auto" else fmt
         self.stats = DecoderStats()
         self.mismatch: tuple[int, bool | None, bool | None] | None = None
         self._buf = bytearray()
-        self._pos = 0
+        self._pos = 0  # first byte not settled
+        self._base = 0  # stream offset of _buf[0]
+        self._quiet = 0  # no token and no "||" starts in _buf[_pos:_quiet]
+        self._quiet_eol = 0  # no CR or LF in _buf[_pos:_quiet_eol]
+        self._feeds: deque[tuple[int, float | None]] = deque()  # (stream offset of a read's end, time)
+        self._held_since: float | None = None
+        self._lost = False
         self._last_index: int | None = None
+        self._suspect: int | None = None  # an index that broke the sequence, not judged yet
+        self._pending: tuple[int, _Header, int] | None = None  # (start, header, end) offsets
 
     # -- bookkeeping --------------------------------------------------------------------------
 
     def _count_index(self, index: int | None) -> None:
+        """Counts gaps and restarts. An index that breaks the sequence is judged by the next
+        one: if that continues from before it, it was damaged (a flipped bit), not a jump."""
         if index is None:
             return
         st = self.stats
         if st.first_index is None:
             st.first_index = index
-        last = self._last_index
-        if last is not None:
-            step = (index - last) & 0xFFFFFFFF
-            if step == 0 or step > 0x7FFFFFFF:
-                st.restarts += 1
-            elif step > 1:
-                st.dropped += step - 1
-                st.gaps.append((last, index))
+        last, suspect = self._last_index, self._suspect
+        if last is None:
+            self._accept_index(index)
+            return
+        if suspect is None:
+            if (index - last) & _U32 == 1:
+                self._accept_index(index)
+            else:
+                self._suspect = index
+            return
+        self._suspect = None
+        if (index - suspect) & _U32 != 1 and 1 <= (index - last) & _U32 <= MAX_INDEX_GAP:
+            st.damaged_index += 1
+            self._step(last, (index - 1) & _U32)  # the damaged frame took one place
+            self._accept_index(index)
+            return
+        self._step(last, suspect)
+        self._accept_index(suspect)
+        self._count_index(index)
+
+    def _settle_index(self) -> None:
+        if self._suspect is not None:
+            self._step(self._last_index, self._suspect)
+            self._accept_index(self._suspect)
+            self._suspect = None
+
+    def _step(self, last: int, index: int) -> None:
+        st = self.stats
+        step = (index - last) & _U32
+        if step == 0 or step > MAX_INDEX_GAP:  # backwards, repeated or implausibly far
+            st.restarts += 1
+        elif step > 1:
+            st.dropped += step - 1
+            st.gaps.append((last, index))
+            if len(st.gaps) > _MAX_GAPS_KEPT:
+                del st.gaps[:_MAX_GAPS_KEPT // 2]
+
+    def _accept_index(self, index: int) -> None:
         self._last_index = index
-        st.last_index = index
+        self.stats.last_index = index
 
     def _skip(self, n: int) -> None:
         if n > 0:
@@ -278,20 +349,56 @@ class StreamDecoder:
             self.stats.resynced += 1
             self._lost = False
 
+    def _time_at(self, end: int) -> float | None:
+        """Receive time of the read that brought the byte before buffer index `end`."""
+        offset = self._base + end
+        for feed_end, t in self._feeds:
+            if feed_end >= offset:
+                return t
+        return self._feeds[-1][1] if self._feeds else None
+
+    def _drop_held(self) -> None:
+        """Forgets the bytes held (a partial frame), counting them corrupt unless blank."""
+        if self._buf[self._pos:].strip(_BLANK):
+            self.stats.corrupt += 1
+        self._base += len(self._buf)
+        self._buf = bytearray()
+        self._pos = self._quiet = self._quiet_eol = 0
+        self._feeds.clear()
+        self._held_since = None
+
     # -- public -------------------------------------------------------------------------------
 
     def feed(self, data: bytes, received_at: float | None = None) -> list[NeuronFrame]:
-        """Adds received bytes and returns the frames they complete, in order."""
+        """Adds received bytes (one read, or one datagram) and returns the frames they
+        complete, in order."""
         out: list[NeuronFrame] = []
-        if self.datagram:
-            self._datagram(bytes(data), out, received_at)
-            return out
+        if self.datagram and self._pos < len(self._buf) and self._new_frame_or_stale(
+                data, received_at):
+            self._drop_held()
         buf = self._buf
         if self._pos and self._pos * 2 > len(buf):
             del buf[:self._pos]
+            self._base += self._pos
+            self._quiet = max(0, self._quiet - self._pos)
+            self._quiet_eol = max(0, self._quiet_eol - self._pos)
             self._pos = 0
         buf += data
-        self._pos = self._scan(buf, self._pos, out, received_at, final=False)
+        self._feeds.append((self._base + len(buf), received_at))
+        self._pos = self._scan(buf, self._pos, out, _SOFT if self.datagram else _OPEN)
+        self._after_scan(received_at)
+        return out
+
+    def settle(self) -> list[NeuronFrame]:
+        """Accepts a complete frame that ends exactly where the bytes received so far end.
+
+        Call it when the stream pauses (a poll that brought nothing): like a datagram's end,
+        a pause right after a frame confirms it without waiting for the next one.
+        """
+        out: list[NeuronFrame] = []
+        if self._pos < len(self._buf):
+            self._pos = self._scan(self._buf, self._pos, out, _SOFT)
+            self._after_scan(None)
         return out
 
     def flush(self, received_at: float | None = None) -> list[NeuronFrame]:
@@ -301,14 +408,30 @@ class StreamDecoder:
         the input ends; a frame cut short counts as corrupt.
         """
         out: list[NeuronFrame] = []
-        if not self.datagram:
-            pos = self._scan(self._buf, self._pos, out, received_at, final=True)
-            if self._buf[pos:].strip(_BLANK):
-                self.stats.corrupt += 1
-            self._buf = bytearray()
-            self._pos = 0
+        self._pos = self._scan(self._buf, self._pos, out, _FINAL)
+        self._drop_held()
+        self._settle_index()
         self._lost = False  # what follows starts clean: nothing was skipped to reach it
         return out
+
+    def _after_scan(self, received_at: float | None) -> None:
+        settled = self._base + self._pos
+        feeds = self._feeds
+        while len(feeds) > 1 and feeds[0][0] <= settled:
+            feeds.popleft()
+        if self._pos >= len(self._buf):
+            self._held_since = None
+        elif self._held_since is None:
+            self._held_since = received_at
+
+    def _new_frame_or_stale(self, data: bytes, received_at: float | None) -> bool:
+        """Whether a datagram ends the partial frame held: it starts a valid binary header,
+        or the partial has waited past the reassembly timeout."""
+        if (received_at is not None and self._held_since is not None
+                and received_at - self._held_since > self.reassembly_timeout):
+            return True
+        return (self.mode != "string" and data[:2] == TOKEN and len(data) >= HEADER_SIZE
+                and _parse_header(data, 0) is not None)
 
     # -- binary -------------------------------------------------------------------------------
 
@@ -321,9 +444,8 @@ class StreamDecoder:
         self.mismatch = (head.count, head.displacement, head.reference)
         return False
 
-    def _emit_binary(self, buf, pos: int, head: _Header, out: list, received_at) -> bool:
-        start = pos + HEADER_SIZE
-        values = np.frombuffer(bytes(buf[start:start + 4 * head.count]), dtype="<f4")
+    def _emit_binary(self, buf, pos: int, head: _Header, end: int, out: list) -> bool:
+        values = np.frombuffer(bytes(buf[pos + HEADER_SIZE:end]), dtype="<f4")
         if not np.isfinite(values).all():
             self.stats.corrupt += 1
             return False
@@ -333,70 +455,75 @@ class StreamDecoder:
         self.stats.frames += 1
         out.append(NeuronFrame(values, head.frame_index, head.avatar_index,
                                _avatar_name(head.name), head.displacement, head.reference,
-                               head.kind, received_at))
+                               head.kind, self._time_at(end)))
         return True
 
-    def _datagram(self, data: bytes, out: list, received_at) -> None:
-        if self.mode != "string" and data[:2] == TOKEN:
-            head = _parse_header(data, 0) if len(data) >= HEADER_SIZE else None
-            if (head is not None and len(data) == HEADER_SIZE + 4 * head.count
-                    and self._size_fits(head)):
-                self._emit_binary(data, 0, head, out, received_at)
-            else:
-                self.stats.corrupt += 1
-            return
-        if self.mode == "binary":
-            self.stats.corrupt += 1
-            return
-        buf = bytearray(data)
-        pos = self._scan_strings(buf, 0, out, received_at, final=True)
-        if buf[pos:].strip(_BLANK):
-            self.stats.corrupt += 1
-
-    def _scan(self, buf: bytearray, pos: int, out: list, received_at, final: bool) -> int:
+    def _scan(self, buf: bytearray, pos: int, out: list, edge: int) -> int:
         """Decodes frames from buf[pos:]; returns the position of the first unsettled byte."""
-        while self.mode is None and pos < len(buf):
-            # Until a first frame fixes the format, try whichever marker comes first: a binary
-            # token, or the "||" that ends a string frame.
-            tok = buf.find(TOKEN, pos)
-            bar = buf.find(_STRING_END, pos)
-            if tok < 0 and bar < 0:
-                if final or len(buf) - pos > _MAX_LINE:
-                    self._skip(len(buf) - pos)  # no frame in it: garbage
-                    return len(buf)
-                return pos  # wait for a marker
-            if tok >= 0 and (bar < 0 or tok < bar):
-                self._skip(tok - pos)
-                pos, status = self._binary_at(buf, tok, out, received_at, final)
-                if status == _WAIT:
-                    return pos
-                continue
-            start = max(pos, buf.rfind(b"\n", pos, bar) + 1, buf.rfind(b"\r", pos, bar) + 1)
-            self._skip(start - pos)
-            pos = self._scan_strings(buf[:bar + 2], start, out, received_at, final=True)
+        if self.mode is None:
+            pos = self._scan_unknown(buf, pos, out, edge)
+            if self.mode is None:
+                return pos
         if self.mode == "string":
-            return self._scan_strings(buf, pos, out, received_at, final)
+            return self._scan_strings(buf, pos, out, edge)
         n = len(buf)
         while pos < n:
             if buf[pos:pos + 2] != TOKEN:
                 tok = buf.find(TOKEN, pos + 1)
                 if tok < 0:
                     # keep a trailing 0xFF: it may be the first half of a token
-                    keep = 1 if (buf[n - 1] == 0xFF and not final) else 0
+                    keep = 1 if (buf[n - 1] == 0xFF and edge != _FINAL) else 0
                     self._skip(n - keep - pos)
                     return n - keep
                 self._skip(tok - pos)
                 pos = tok
-            pos, status = self._binary_at(buf, pos, out, received_at, final)
+            pos, status = self._binary_at(buf, pos, out, edge)
             if status == _WAIT:
                 return pos
         return pos
 
-    def _binary_at(self, buf: bytearray, pos: int, out: list, received_at,
-                   final: bool) -> tuple[int, int]:
+    def _scan_unknown(self, buf: bytearray, pos: int, out: list, edge: int) -> int:
+        """Until a first frame fixes the format, tries whichever marker comes first: a binary
+        token, or the "||" that ends a string frame. Each marker is searched for once."""
+        n = len(buf)
+        tok = bar = -2  # -2: not searched yet; -1: none up to the end
+        while self.mode is None and pos < n:
+            if buf[pos] in _NOISE_START:
+                end = _NOISE.match(buf, pos).end()
+                self._skip(end - pos)
+                pos = end
+                continue
+            if -1 != tok < pos:
+                tok = buf.find(TOKEN, max(pos, self._quiet))
+            if -1 != bar < pos:
+                bar = buf.find(_STRING_END, max(pos, self._quiet))
+            if tok < 0 and bar < 0:
+                if edge == _FINAL or n - pos > _MAX_LINE:
+                    self._skip(n - pos)  # no frame in it: garbage
+                    return n
+                self._quiet = max(pos, n - 1)
+                return pos  # wait for a marker
+            if tok >= 0 and (bar < 0 or tok < bar):
+                self._skip(tok - pos)
+                pos, status = self._binary_at(buf, tok, out, edge)
+                if status == _WAIT:
+                    return pos
+                continue
+            start = max(pos, buf.rfind(b"\n", pos, bar) + 1, buf.rfind(b"\r", pos, bar) + 1)
+            self._skip(start - pos)
+            pos = self._scan_strings(buf, start, out, _FINAL, stop=bar + 2)
+        return pos
+
+    def _binary_at(self, buf: bytearray, pos: int, out: list, edge: int) -> tuple[int, int]:
         """Tries the binary frame whose token is at `pos`: returns the position to go on from
         and _FRAME (one was emitted), _REJECT (bytes were skipped) or _WAIT (need more)."""
         n = len(buf)
+        final = edge == _FINAL
+        pending = self._pending
+        if pending is not None and pending[0] == self._base + pos:
+            # a whole frame that only waited for what follows it: judged already
+            self._pending = None
+            return self._confirm(buf, pos, pending[1], pending[2] - self._base, out, edge)
         if n - pos < HEADER_SIZE:
             if final:
                 self.stats.corrupt += 1  # cut short by the end of input
@@ -423,50 +550,62 @@ class StreamDecoder:
                 self._skip(n - pos)
                 return n, _REJECT
             return pos, _WAIT
-        if not self.strict:  # unknown size: the next bytes must start a frame
-            if end + 2 <= n:
-                confirmed = buf[end:end + 2] == TOKEN
-            elif final:
-                confirmed = end == n
-            else:
-                return pos, _WAIT
-            if not confirmed:
-                self.stats.corrupt += 1
-                self._skip(1)
-                return pos + 1, _REJECT
-        if self._emit_binary(buf, pos, head, out, received_at):
+        return self._confirm(buf, pos, head, end, out, edge)
+
+    def _confirm(self, buf: bytearray, pos: int, head: _Header, end: int, out: list,
+                 edge: int) -> tuple[int, int]:
+        """Accepts the whole, plausible frame at buf[pos:end] if what follows confirms it."""
+        n = len(buf)
+        final = edge == _FINAL
+        # The format has no checksum: only what follows a frame confirms where it ends.
+        if end + 2 <= n:
+            confirmed = buf[end:end + 2] == TOKEN
+        elif end == n and edge != _OPEN:
+            confirmed = True
+        elif final:
+            confirmed = False
+        else:
+            self._pending = (self._base + pos, head, self._base + end)
+            return pos, _WAIT
+        if confirmed and self._emit_binary(buf, pos, head, end, out):
             return end, _FRAME
+        if not confirmed:
+            self.stats.corrupt += 1
         self._skip(1)
         return pos + 1, _REJECT
 
     # -- string -------------------------------------------------------------------------------
 
-    def _scan_strings(self, buf: bytearray, pos: int, out: list, received_at,
-                      final: bool) -> int:
-        n = len(buf)
+    def _scan_strings(self, buf: bytearray, pos: int, out: list, edge: int,
+                      stop: int | None = None) -> int:
+        """Decodes string frames from buf[pos:stop]; returns the first unsettled position."""
+        n = len(buf) if stop is None else stop
         while pos < n:
-            while pos < n and buf[pos] in _BLANK:
-                pos += 1
-            if pos >= n:
-                break
-            bar = buf.find(_STRING_END, pos)
-            eol = _line_end(buf, pos)
-            if eol >= 0 and (bar < 0 or eol < bar):
+            if buf[pos] in _NOISE_START:
+                end = _NOISE.match(buf, pos, n).end()
+                if buf.find(b"|", pos, end) >= 0:
+                    self._skip(end - pos)  # "||" with no frame before it: noise
+                pos = end
+                continue
+            bar = buf.find(_STRING_END, max(pos, self._quiet), n)
+            eol = _line_end(buf, max(pos, self._quiet_eol), bar if bar >= 0 else n)
+            if eol >= 0:
                 self.stats.corrupt += 1  # a line without a terminator
                 self._skip(eol - pos)
                 pos = eol
                 continue
             if bar < 0:
-                if final or n - pos > _MAX_LINE:
+                if edge == _FINAL or n - pos > _MAX_LINE:
                     self.stats.corrupt += 1
                     self._skip(n - pos)
                     return n
+                self._quiet, self._quiet_eol = max(pos, n - 1), n
                 return pos
-            self._emit_string(bytes(buf[pos:bar]), out, received_at)
+            self._emit_string(bytes(buf[pos:bar]), bar + 2, out)
             pos = bar + 2
         return pos
 
-    def _emit_string(self, text: bytes, out: list, received_at) -> None:
+    def _emit_string(self, text: bytes, end: int, out: list) -> None:
         words = text.split()
         try:
             if len(words) < 3:
@@ -480,14 +619,17 @@ class StreamDecoder:
         if avatar < 0 or values.size > MAX_DATA_COUNT or not np.isfinite(values).all():
             self.stats.corrupt += 1
             return
-        if self.strict and values.size not in self._string_counts:
-            self.mismatch = (int(values.size), None, None)
-            self.stats.corrupt += 1
-            return
+        flags = (None, None)
+        if self.strict:
+            if values.size not in self._string_flags:
+                self.mismatch = (int(values.size), None, None)
+                self.stats.corrupt += 1
+                return
+            flags = self._string_flags[values.size]
         self.mode = "string"
         self._found()
         self.stats.frames += 1
-        out.append(NeuronFrame(values, None, avatar, name, None, None, "string", received_at))
+        out.append(NeuronFrame(values, None, avatar, name, *flags, "string", self._time_at(end)))
 
 
 _UNDECIDED = -2
@@ -507,10 +649,10 @@ def _embedded_header(buf: bytearray, start: int, stop: int) -> int:
     return -1
 
 
-def _line_end(buf: bytearray, pos: int) -> int:
-    """Index of the next CR or LF at or after pos, or -1."""
-    cr = buf.find(b"\r", pos)
-    lf = buf.find(b"\n", pos)
+def _line_end(buf: bytearray, pos: int, stop: int) -> int:
+    """Index of the first CR or LF in buf[pos:stop], or -1."""
+    cr = buf.find(b"\r", pos, stop)
+    lf = buf.find(b"\n", pos, stop)
     if cr < 0:
         return lf
     if lf < 0:

@@ -7,7 +7,8 @@ even after the writer was killed:
     header_len   u32       length of the header that follows
     header       JSON      UTF-8 object: "source" (URL), "transport" ("stream" or "datagram"),
                            "time_origin" (Unix seconds of t = 0), "started_at" (ISO 8601 UTC),
-                           optional "skeleton_bvh" (the paired BVH header text), "note" and
+                           optional "skeleton_bvh" (the paired BVH header: its hierarchy
+                           and frame time, without motion), "note" and
                            fields of the program that wrote it (a recording's take)
     records      repeated  kind u8, t f64 (seconds since time_origin), length u32, bytes
 
@@ -21,6 +22,7 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import os
+import re
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,6 +33,21 @@ DATA, CONNECTED, DISCONNECTED = 0, 1, 2
 KIND_NAMES = {DATA: "data", CONNECTED: "connected", DISCONNECTED: "disconnected"}
 _RECORD = struct.Struct("<BdI")
 _MAX_RECORD = 64 * 1024 * 1024
+
+
+_MOTION = re.compile(r"^[ \t]*MOTION\b", re.MULTILINE)
+_FRAME_TIME = re.compile(r"Frame\s+Time\s*:\s*(\S+)", re.IGNORECASE)
+
+
+def skeleton_header_text(bvh_text: str) -> str:
+    """The header of a BVH file's text: its hierarchy, and a MOTION section with no frames
+    that keeps the frame time. Raw captures store this, not the file's motion."""
+    m = _MOTION.search(bvh_text)
+    if m is None:
+        return bvh_text
+    ft = _FRAME_TIME.search(bvh_text, m.end())
+    frame_time = ft.group(1) if ft else "0.008333333"
+    return f"{bvh_text[:m.start()]}MOTION\nFrames: 0\nFrame Time: {frame_time}\n"
 
 
 class RawCaptureError(ValueError):

@@ -112,11 +112,16 @@ class TcpServerSink:
 
 
 class UdpSink:
-    """Sends each frame as one datagram to HOST:PORT."""
+    """Sends each frame as one datagram to HOST:PORT, or, given `max_datagram`, as datagrams
+    of at most that many bytes (as Axis splits a frame larger than the path allows: 1024 +
+    the rest on macOS, 1480 + the rest on Windows)."""
 
     datagram = True
 
-    def __init__(self, host: str, port: int):
+    def __init__(self, host: str, port: int, max_datagram: int | None = None):
+        if max_datagram is not None and max_datagram < 1:
+            raise ReplayError(f"Expected a datagram size >= 1, got {max_datagram}")
+        self.max_datagram = max_datagram
         self.addr = (host, port)
         self.sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET,
                                   socket.SOCK_DGRAM)
@@ -130,7 +135,9 @@ class UdpSink:
             time.sleep(seconds)
 
     def send(self, data: bytes) -> None:
-        self.sock.sendto(data, self.addr)
+        size = self.max_datagram or len(data) or 1
+        for k in range(0, max(len(data), 1), size):
+            self.sock.sendto(data[k:k + size], self.addr)
 
     def disconnect_all(self) -> None:
         pass
@@ -175,9 +182,10 @@ class WriterSink:
 
 
 def open_sink(*, tcp: str | None = None, udp: str | None = None, serial_url: str | None = None,
-              on_event: Callable[[str], None] | None = None):
+              on_event: Callable[[str], None] | None = None, max_datagram: int | None = None):
     """The sink for exactly one of `tcp` ([HOST]:PORT to listen on; HOST defaults to
-    127.0.0.1), `udp` (HOST:PORT to send to) or `serial_url` (any pyserial URL)."""
+    127.0.0.1), `udp` (HOST:PORT to send to, frames split into datagrams of at most
+    `max_datagram` bytes if given) or `serial_url` (any pyserial URL)."""
     given = [x for x in (tcp, udp, serial_url) if x is not None]
     if len(given) != 1:
         raise ReplayError("Expected exactly one of --tcp, --udp or --serial")
@@ -186,7 +194,8 @@ def open_sink(*, tcp: str | None = None, udp: str | None = None, serial_url: str
             return TcpServerSink(*parse_host_port(tcp, what="--tcp [HOST]:PORT"),
                                  on_event=on_event)
         if udp is not None:
-            return UdpSink(*parse_host_port(udp, what="--udp HOST:PORT"))
+            return UdpSink(*parse_host_port(udp, what="--udp HOST:PORT"),
+                           max_datagram=max_datagram)
     except StreamSourceError as exc:
         raise ReplayError(str(exc)) from None
     import serial
@@ -233,7 +242,10 @@ class Replay:
     @classmethod
     def from_bvh(cls, path: str | Path, *, fmt: str = "binary", with_displacement: bool = True,
                  with_reference: bool = False, avatar_name: str = "Avatar00",
-                 avatar_index: int = 0, start_index: int = 0) -> "Replay":
+                 avatar_index: int = 0, start_index: int = 0,
+                 restart_index: bool = False) -> "Replay":
+        """Frames of a BVH file; looping, the index counts on, or with `restart_index` starts
+        over at `start_index` on every pass (as an emulator looping its file does)."""
         if fmt not in FORMATS:
             raise ReplayError(f"Expected a format from {FORMATS}, got {fmt!r}")
         bvh = read_bvh(path, unit=None)
@@ -246,7 +258,7 @@ class Replay:
                        with_displacement=with_displacement, with_reference=with_reference)
 
         def make(k: int, loop: int) -> tuple[int, bytes]:
-            index = start_index + loop * n + k
+            index = start_index + (0 if restart_index else loop * n) + k
             return DATA, encode_frame(payload[k], fmt, frame_index=index, **options)
 
         dt = bvh.motion.frame_time

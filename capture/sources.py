@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Callable, Iterator
 from urllib.parse import parse_qs, urlsplit
 
-from .neuron import NeuronFrame, StreamDecoder
+from .neuron import TOKEN, NeuronFrame, StreamDecoder
 from .rawcapture import CONNECTED, DATA, DISCONNECTED, RawCaptureWriter, iter_raw_capture
 from .stream_layout import StreamLayout
 
@@ -36,6 +36,33 @@ _PYSERIAL_SCHEMES = ("socket", "rfc2217", "loop", "spy", "alt", "hwgrep", "cp211
 
 class StreamSourceError(ValueError):
     """A source URL that cannot be opened as given."""
+
+
+class UnknownProtocolError(StreamSourceError):
+    """Bytes arrive, but no Perception Neuron frame is in them (another protocol on the port)."""
+
+
+UNKNOWN_PROTOCOL_AFTER = 1.0  # seconds of bytes without a frame before they are named
+
+
+def describe_bytes(data: bytes, first_read: int | None = None) -> str:
+    """What the first bytes of a stream look like, for a message about an unknown protocol.
+
+    data : the first bytes received; first_read : the size of the first read or datagram.
+    """
+    head = data[:16].hex(" ")
+    for order in ("big", "little"):
+        size = int.from_bytes(data[:4], order) if len(data) >= 4 else -1
+        if 0 < size < 1 << 24:
+            zlib = len(data) >= 6 and data[4] == 0x78 and data[5] in (0x01, 0x5E, 0x9C, 0xDA)
+            if zlib or (first_read is not None and size in (first_read - 4, first_read)):
+                return (f"they look like length-prefixed messages ({order}-endian u32 length "
+                        f"{size}{', zlib-compressed' if zlib else ''}), as Axis Studio's "
+                        f"advanced broadcast sends; set Axis to its BVH broadcast (binary or "
+                        f"string) for this port (first bytes {head})")
+    if data[:2] == TOKEN:
+        return f"they start with the binary token but no frame fits (first bytes {head})"
+    return f"first bytes {head}"
 
 
 def parse_host_port(text: str, *, default_host: str = "127.0.0.1", what: str = "address"
@@ -245,6 +272,10 @@ class Source:
         self._index_before_gap: int | None = None
         self._flushed = False
         self.closed = False
+        self._first_data: bytes | None = None
+        self._first_data_t = self._last_data_t = 0.0
+        self._first_datagram_size = 0
+        self._data_bytes = 0
 
     @property
     def name(self) -> str:
@@ -269,10 +300,14 @@ class Source:
         if self.closed:
             return []
         frames: list[NeuronFrame] = []
-        for kind, t, data in self.transport.poll(timeout):
+        records = self.transport.poll(timeout)
+        if not records:
+            frames.extend(self.decoder.settle())  # a pause confirms a frame ending there
+        for kind, t, data in records:
             if self.raw is not None:
                 self.raw.write(kind, t, data)
             if kind == DATA:
+                self._note_data(t, data)
                 frames.extend(self.decoder.feed(data, t))
             elif kind == DISCONNECTED:
                 frames.extend(self.decoder.flush(t))
@@ -300,7 +335,25 @@ class Source:
         if self.layout is not None and dec.mismatch and dec.stats.frames == 0 and (
                 dec.stats.corrupt >= 3 or self.transport.exhausted):
             raise self.layout.mismatch(*dec.mismatch)
+        if dec.stats.frames == 0 and self._data_span() >= UNKNOWN_PROTOCOL_AFTER:
+            raise UnknownProtocolError(
+                f"Expected a Perception Neuron BVH broadcast from {self.name}, got "
+                f"{self._data_bytes} bytes in {self._data_span():.1f} s without a frame in "
+                f"them: {describe_bytes(self._first_data, self._first_datagram_size)}")
         return frames
+
+    def _note_data(self, t: float, data: bytes) -> None:
+        if self._first_data is None:
+            self._first_data, self._first_data_t = bytes(data[:64]), t
+            self._first_datagram_size = len(data)
+        self._last_data_t = t
+        self._data_bytes += len(data)
+
+    def _data_span(self) -> float:
+        """Seconds between the first and the latest bytes received (0 before any)."""
+        if self._first_data is None:
+            return 0.0
+        return self._last_data_t - self._first_data_t
 
     def _report_resume(self, frame: NeuronFrame) -> None:
         self._resume_pending = False

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import sys
 
 from capture import read_bvh, resolve_path, write_bvh
 from capture.cli_output import print_event, print_status
@@ -212,7 +213,11 @@ def _cmd_record(args) -> int:
             f"{summary['corrupt']} corrupt) into take {args.take}" if take else
             "no frame received; no take stored")
     _print(summary, args.json, text)
-    return 0
+    if take:
+        return 0
+    why = summary["events"][-1] if summary.get("events") else "nothing arrived"
+    print(f"sitrelax: error: no frame received from {args.source} ({why})", file=sys.stderr)
+    return 2
 
 
 def register(subparsers, groups: dict) -> None:

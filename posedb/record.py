@@ -28,9 +28,10 @@ from typing import Callable, Iterable
 import numpy as np
 
 from capture import parse_bvh, read_bvh, resolve_path
-from capture.monitor import StreamMonitor
-from capture.rawcapture import RawCaptureError, RawCaptureWriter, iter_raw_capture
-from capture.sources import RawFileTransport, Source, open_transport
+from capture.monitor import StreamMonitor, sender_timing
+from capture.rawcapture import (RawCaptureError, RawCaptureWriter, iter_raw_capture,
+                                skeleton_header_text)
+from capture.sources import RawFileTransport, Source, UnknownProtocolError, open_transport
 from capture.stream_layout import StreamLayout
 
 from .library import DuplicateNameError, PoseLibrary, TakeInfo
@@ -108,15 +109,15 @@ def recordings(library: str | os.PathLike) -> list[Recording]:
 
 
 def _frame_time(frames, header_frame_time: float) -> float:
-    """The stream's frame period: from the sender's indices and arrival times, snapped to a
-    common rate within 2 %; the header's frame time when the stream cannot tell."""
-    idx = np.array([f.frame_index for f in frames if f.frame_index is not None], dtype=float)
-    t = np.array([f.received_at for f in frames if f.frame_index is not None], dtype=float)
-    if len(idx) >= 2 and idx[-1] > idx[0]:
-        period = (t[-1] - t[0]) / (idx[-1] - idx[0])
-    elif len(frames) >= 2:
+    """The stream's frame period: from the sender's indices and arrival times (split into
+    segments where the index restarts), snapped to a common rate within 2 %; the header's
+    frame time when the stream cannot tell."""
+    idx = [f.frame_index for f in frames if f.frame_index is not None]
+    t = [f.received_at for f in frames if f.frame_index is not None]
+    period = sender_timing(idx, t)[0]
+    if period is None and len(frames) >= 2:
         period = float(np.median(np.diff([f.received_at for f in frames])))
-    else:
+    if period is None:
         return header_frame_time
     if period <= 0:
         return header_frame_time
@@ -259,10 +260,16 @@ def record(source_url: str, library: str | os.PathLike, take: str, skeleton: str
     with exclusive(journal, timeout=10.0, what="The journal"):
         writer = RawCaptureWriter(journal, source=source_url, time_origin=time.time(),
                                   transport="datagram" if transport.datagram else "stream",
-                                  skeleton_bvh=header_path.read_text(errors="replace"),
+                                  skeleton_bvh=skeleton_header_text(
+                                      header_path.read_text(errors="replace")),
                                   extra={"take": meta})
-        summary = _listen(writer, transport, layout, fmt, on_event, on_progress, duration,
-                          frames, stop)
+        try:
+            summary = _receive(Source(transport, layout, fmt=fmt, raw=writer,
+                                      on_event=on_event), writer, duration, frames,
+                               on_progress, stop)
+        except UnknownProtocolError:
+            journal.unlink()  # nothing of it can become a take
+            raise
         # the source closed the journal; now it becomes a take
         stored = _store_journal(lib, journal, take)
     summary["take"] = None if stored is None else stored.as_dict()
@@ -270,14 +277,14 @@ def record(source_url: str, library: str | os.PathLike, take: str, skeleton: str
     return summary
 
 
-def _listen(writer, transport, layout, fmt, on_event, on_progress, duration, frames,
-            stop) -> dict:
-    """Reads the stream into the journal until told to stop; returns the listener's summary."""
+def _receive(source: Source, writer: RawCaptureWriter, duration, frames, on_progress,
+             stop) -> dict:
+    """Reads `source` into its journal until a limit, `stop()` or its end; the summary."""
     monitor = StreamMonitor()
     start = time.monotonic()
     next_sync = start + _SYNC_EVERY
     next_report = start + 1.0
-    with Source(transport, layout, fmt=fmt, raw=writer, on_event=on_event) as src:
+    with source as src:
         while not src.exhausted:
             left = None if duration is None else duration - (time.monotonic() - start)
             if (left is not None and left <= 0) or (stop is not None and stop()):

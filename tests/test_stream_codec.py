@@ -153,7 +153,8 @@ def _same(frame, values, index):
 
 damage = st.lists(
     st.tuples(
-        st.sampled_from(["garbage", "cut", "header_flip", "interleave"]),
+        st.sampled_from(["garbage", "cut", "header_flip", "interleave", "insert",
+                         "cut_long_tail"]),
         st.integers(0, 10**6), st.binary(min_size=1, max_size=80), st.integers(0, 10**6),
     ),
     max_size=4,
@@ -179,6 +180,19 @@ def test_damage_never_invents_frames_and_spares_intact_ones(n, seed, ops, splits
             del body[k][cut:]
             damaged.add(k)
             kept_floats[k] = min(kept_floats.get(k, 9), max(0, (cut - 64) // 4))
+        elif op == "insert":
+            # stray bytes inside the payload: the values after them would come out shifted
+            at = 64 + param % (len(blobs[k]) - 64)
+            body[k][at:at] = (data * 4)[:4]
+            damaged.add(k)
+        elif op == "cut_long_tail":
+            # cut short, then more stray bytes than it lost (fewer or as many slip through:
+            # the format has no checksum)
+            cut = 64 + param % (len(blobs[k]) - 64)
+            lost = len(body[k]) - cut
+            tail = (data * (lost // len(data) + 2))[:lost + 1 + param % 7]
+            body[k][cut:] = tail.replace(b"\xff\xdd", b"\xfe\xdd")
+            damaged.add(k)
         elif op == "header_flip":
             # a flipped bit in the framing fields: token, version, count, flags or footer
             # (without a paired skeleton nothing tells a flipped flag from a true one)
@@ -215,9 +229,9 @@ def test_damage_never_invents_frames_and_spares_intact_ones(n, seed, ops, splits
     assert len(got) == len(out)  # nothing returned twice
     for i in range(n):
         intact = i not in damaged
-        # without a skeleton, a frame is confirmed by the next one: one followed by garbage
-        # or by a damaged frame cannot be told from a frame with a damaged size
-        if not strict and i + 1 < n and pieces[i + 1] != blobs[i + 1]:
+        # with or without a skeleton, a frame is confirmed by the next one: one followed by
+        # garbage or by a damaged frame cannot be told from a frame with a damaged size
+        if i + 1 < n and pieces[i + 1] != blobs[i + 1]:
             intact = False
         if intact:
             assert 100 + i in got, (i, stats)
