@@ -206,8 +206,10 @@ async def _reply(send, status: int, detail: str) -> None:
 class Front:
     """The studio's public socket in front of viser's server (which answers only GET and its
     websocket): a request without a body passes through byte for byte (the page, then the
-    websocket), one with a body over `limit` bytes gets 413, any other with a body 405, and a
-    request head over 64 KiB 431. The first request of a connection is the one looked at: later
+    websocket), one with a body over `limit` bytes gets 413, any other with a body 405, a
+    request head over 64 KiB 431, and one whose Host or Origin is not in `names` 403 (its
+    Origin is removed before viser's server, which takes no other); a head not sent within
+    `head_timeout` seconds closes the connection. The first request of a connection is the one looked at: later
     requests on a kept-alive connection reach viser, which closes on anything but GET. Runs its
     own event loop in a thread; `port` is the one bound."""
 
