@@ -209,9 +209,9 @@ class Front:
     websocket), one with a body over `limit` bytes gets 413, any other with a body 405, a
     request head over 64 KiB 431, and one whose Host or Origin is not in `names` 403 (its
     Origin is removed before viser's server, which takes no other); a head not sent within
-    `head_timeout` seconds closes the connection. The first request of a connection is the one looked at: later
-    requests on a kept-alive connection reach viser, which closes on anything but GET. Runs its
-    own event loop in a thread; `port` is the one bound."""
+    `head_timeout` seconds closes the connection. The first request of a connection is the one
+    looked at: later requests on a kept-alive connection reach viser, which closes on anything
+    but GET. Runs its own event loop in a thread; `port` is the one bound."""
 
     HEAD_LIMIT = 64 * 1024
 
