@@ -152,13 +152,15 @@ def _cmd_batch(args: argparse.Namespace) -> int:
 
     print(f"batch: {len(jobs)} jobs", file=sys.stderr, flush=True)
     result = run_batch(jobs, args.out, db=args.db, workers=args.workers,
-                       scheduler=args.scheduler, progress=progress)
+                       scheduler=args.scheduler, progress=progress,
+                       time_limit=args.job_time_limit)
     print(file=sys.stderr)
     if args.json:
         print(json.dumps(result, indent=2))
         return 0
     c = result["counts"]
-    print(f"{c['total']} jobs: {c['done']} done, {c['failed']} failed, {c['skipped']} skipped "
+    print(f"{c['total']} jobs: {c['done']} done, {c['failed']} failed ({c['timed_out']} timed "
+          f"out), {c['skipped']} skipped "
           f"(finished before) in {result['seconds']:.1f} s; summary in {args.out}/summary.csv"
           + (f"; {len(result['stored'])} stored in {args.db}" if result["stored"] else ""))
     for row in result["jobs"]:
@@ -291,6 +293,9 @@ def _register_fitting(sub) -> None:
     batch.add_argument("--workers", type=int, default=2,
                        help="local worker processes (default 2)")
     batch.add_argument("--scheduler", help="an existing Dask scheduler, tcp://HOST:8786")
+    batch.add_argument("--job-time-limit", type=float, default=1800.0, metavar="SECONDS",
+                       help="a job running longer is stopped and recorded as timed out "
+                            "(default 1800)")
     batch.add_argument("--json", action="store_true", help="print the result as JSON")
     batch.set_defaults(func=_cmd_batch)
 

@@ -5,13 +5,17 @@ A scenario request (/api/fit, /api/relax) is the scenario schema (`solver.scene.
 TOML format as JSON, with the same defaults), within the server's own bounds (`check_limits`).
 Requests name nothing on the server's disk: control meshes come inline, poses from the
 server's pose library (`db:NAME`) or the bundled recordings (`bvh:bundled:NAME#frame=N`).
-Every request is validated (422 for a malformed one, 400 for one the solver cannot run, 404
-for an unknown pose, 413 for a body over the size limit); sizes are bounded so that no request
-runs for long.
+Every request is validated (422 for a malformed one, naming the field and never echoing the
+input; 400 for one the solver cannot run; 404 for an unknown pose or recording; 413 for a body
+over the size limit or a fit over the compute budget; 403 for a foreign Host or Origin): every
+error is a 4xx with a short body. The compute budget is a bound known before a fit runs
+(control vertices x 4^level x iterations x people, MAX_WORK) and a wall-clock limit checked at
+every iteration of the fit, which stops it.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import threading
 import time
@@ -19,17 +23,26 @@ from typing import Annotated
 
 import numpy as np
 from fastapi import FastAPI, HTTPException, Query, Request
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from solver.scene import schema
 from solver.surface.fit import FitParams
 
-from .net import BodyLimit
+from .net import HEAD_TIMEOUT, BodyLimit, HostCheck, allowed_names, head_timeout_protocol
 
 DEFAULT_LIMIT = 8 * 1024 * 1024  # bytes of request body
+DEFAULT_TIME_LIMIT = 60.0  # seconds of computing a request may take
 MAX_CONTROL_VERTICES = 2000
 MAX_PEOPLE = 6
+# control vertices x 4^level x max_iterations x people: ~15 us each on one core, so a fit at the
+# bound takes about a minute (the wall-clock limit stops one that takes longer)
+MAX_WORK = 3_000_000
+MAX_EVAL_VERTICES = 200_000
+MAX_EVAL_WORK = 600_000  # evaluated surface vertices x people
+MAX_ERRORS, MAX_MESSAGE = 10, 300  # an error body lists this many problems of this length
 COORD = 100.0  # metres: the largest coordinate a request may give
 # the server's own ceilings on top of the scenario schema's bounds, so no request runs long
 CEILINGS = {"level": 3, "max_iterations": 100, "sigma": 100.0, "gamma": 1e6, "anchor": 1e6,
@@ -38,7 +51,7 @@ MAX_FOAM_STIFFNESS = 1e5
 
 Coord = Annotated[float, Field(ge=-COORD, le=COORD)]
 Point = Annotated[list[Coord], Field(min_length=3, max_length=3)]
-Index = Annotated[int, Field(ge=0, le=10 * MAX_CONTROL_VERTICES)]
+Index = Annotated[int, Field(ge=0, le=MAX_EVAL_VERTICES - 1)]
 Quad = Annotated[list[Index], Field(min_length=4, max_length=4)]
 Triangle = Annotated[list[Index], Field(min_length=3, max_length=3)]
 
@@ -57,7 +70,7 @@ class RelaxRequest(_Model):
 
 
 class EvaluateRequest(_Model):
-    vertices: Annotated[list[Point], Field(min_length=3, max_length=200_000)]
+    vertices: Annotated[list[Point], Field(min_length=3, max_length=MAX_EVAL_VERTICES)]
     faces: Annotated[list[Quad] | list[Triangle], Field(min_length=1, max_length=400_000)]
     person: Annotated[list[schema.Person], Field(min_length=1, max_length=MAX_PEOPLE)]
     margin: schema.FIT_FIELDS["margin"] = FitParams.margin  # type: ignore[valid-type]
@@ -80,14 +93,61 @@ class FitResponse(BaseModel):
     persons: list[dict]
 
 
-def _limit(loc: list, message: str) -> HTTPException:
-    return HTTPException(422, [{"type": "limit", "loc": ["body", *loc], "msg": message}])
+ERRORS = {
+    400: {"description": "A request the solver cannot run (the reason in `detail`)"},
+    403: {"description": "A Host or Origin header naming another site"},
+    404: {"description": "An unknown pose or bundled recording (the field in `detail`)"},
+    409: {"description": "No pose library on this server, or it is gone or locked"},
+    413: {"description": "A body over the size limit, or a fit over the compute budget: "
+                         f"control vertices x 4^level x max_iterations x people over "
+                         f"{MAX_WORK:,}, or past the time limit (default "
+                         f"{DEFAULT_TIME_LIMIT:g} s); the field in `detail`"},
+    422: {"description": "A malformed request or one beyond the server's bounds; `detail` "
+                         "lists the fields (never the input)"},
+}
+
+
+class TimeLimit(Exception):
+    """A request's computing went past the server's time limit."""
+
+
+def _limit(loc: list, message: str, status: int = 422, kind: str = "limit") -> HTTPException:
+    return HTTPException(status, [{"type": kind, "loc": ["body", *loc], "msg": message}])
 
 
 def _check_person(p: schema.Person, loc: list) -> None:
+    from capture.recordings import bundled_recordings
+
     if max(abs(c) for c in p.position) > COORD:
         raise _limit([*loc, "position"], f"expected coordinates within {COORD:g} m here, got "
                                          f"{p.position}")
+    if p.pose.startswith("bvh:bundled:"):
+        name = p.pose[len("bvh:bundled:"):].split("#", 1)[0]
+        if name not in bundled_recordings():
+            raise _limit([*loc, "pose"], f"No bundled recording {name[:100]!r} (the bundled "
+                                         "ones are at /api/recordings)", 404, "not_found")
+    _check_finite(p.model_dump(), loc)
+
+
+def _check_finite(data, loc: list) -> None:
+    """422 naming the first NaN or infinity in `data` (nested dicts and lists)."""
+    if isinstance(data, float) and not math.isfinite(data):
+        raise _limit(loc, f"expected a finite number, got {data}")
+    if isinstance(data, dict):
+        for key, value in data.items():
+            _check_finite(value, [*loc, key])
+    elif isinstance(data, (list, tuple)) and data and not isinstance(data[0], int):
+        for k, value in enumerate(data):
+            _check_finite(value, [*loc, k])
+
+
+def _check_work(count: int, level: int, iterations: int, people: int, loc: list) -> None:
+    work = count * 4 ** level * iterations * max(1, people)
+    if work > MAX_WORK:
+        raise _limit([*loc, "surface", "max_iterations"],
+                     f"expected control vertices x 4^level x max_iterations x people at most "
+                     f"{MAX_WORK:,} here (the server's compute budget), got {count} x 4^{level}"
+                     f" x {iterations} x {people} = {work:,}: lower one of them", 413, "budget")
 
 
 def check_limits(s: schema.Scenario, loc: tuple = ()) -> None:
@@ -100,7 +160,11 @@ def check_limits(s: schema.Scenario, loc: tuple = ()) -> None:
         count, extent = (nx + 1) * (nz + 1), max(*surf.grid.size, abs(surf.grid.height))
     elif isinstance(surf.control_mesh, schema.InlineMesh):
         count = len(surf.control_mesh.vertices)
-        extent = max(abs(c) for v in surf.control_mesh.vertices for c in v)
+        vertices = np.asarray(surf.control_mesh.vertices, dtype=np.float64)
+        if not np.isfinite(vertices).all():
+            raise _limit([*loc, "surface", "control_mesh", "vertices"],
+                         "expected finite coordinates, got NaN or infinity")
+        extent = float(np.abs(vertices).max(initial=0.0))
     else:
         count, extent = 0, 0.0  # a file name: refused as such by the parse
     if count > MAX_CONTROL_VERTICES:
@@ -108,6 +172,7 @@ def check_limits(s: schema.Scenario, loc: tuple = ()) -> None:
                                         f"vertices here, got {count}")
     if extent > COORD:
         raise _limit([*loc, "surface"], f"expected coordinates within {COORD:g} m here")
+    _check_finite(s.model_dump(exclude={"surface": {"control_mesh"}}), list(loc))
     for name, ceiling in CEILINGS.items():
         if getattr(surf, name) > ceiling:
             raise _limit([*loc, "surface", name], f"expected at most {ceiling:g} here, got "
@@ -120,6 +185,7 @@ def check_limits(s: schema.Scenario, loc: tuple = ()) -> None:
                                        f"{len(s.person)}")
     for k, p in enumerate(s.person):
         _check_person(p, [*loc, "person", k])
+    _check_work(count, surf.level, surf.max_iterations, len(s.person), list(loc))
 
 
 def request_scenario(s: schema.Scenario, loc: tuple = ()):
@@ -135,32 +201,80 @@ def _mesh(vertices: np.ndarray, faces: np.ndarray, decimals: int = 5) -> dict:
     return {"vertices": np.round(vertices, decimals).tolist(), "faces": faces.tolist()}
 
 
-def create_app(db: str | os.PathLike | None = None, limit: int = DEFAULT_LIMIT) -> FastAPI:
-    """The API over the pose library `db` (or none), refusing request bodies over `limit`."""
+def create_app(db: str | os.PathLike | None = None, limit: int = DEFAULT_LIMIT,
+               time_limit: float = DEFAULT_TIME_LIMIT,
+               hosts: frozenset[str] | None = None) -> FastAPI:
+    """The API over the pose library `db` (or none), refusing request bodies over `limit`
+    bytes, computing past `time_limit` seconds, and Host or Origin names not in `hosts`
+    (default: the loopback names)."""
     db = str(db) if db is not None else None
-    app = FastAPI(title="sitrelax", version="1",
+    app = FastAPI(title="sitrelax", version="1", responses=ERRORS,
                   description="Fit supporting surfaces to captured poses: poses, posed bodies, "
                               "pressure fields, fits, relaxation and evaluation, in metres.")
     _error_handlers(app)
     place = _placer(db)
     _library_routes(app, db)
-    _person_routes(app, place)
-    _fit_routes(app, place)
+    _person_routes(app, place, time_limit)
+    _fit_routes(app, place, time_limit)
     app.add_middleware(BodyLimit, limit=limit)
+    app.add_middleware(HostCheck, names=hosts if hosts is not None else allowed_names(""))
     return app
+
+
+def _short(text: str) -> str:
+    text = str(text)
+    return text if len(text) <= MAX_MESSAGE else text[:MAX_MESSAGE - 3] + "..."
 
 
 def _error_handlers(app: FastAPI) -> None:
     from posedb.schema import LibraryError, NotFoundError
 
+    def reply(status: int, detail) -> JSONResponse:
+        if isinstance(detail, list):
+            detail = [{"type": e.get("type", "value"), "loc": list(e.get("loc", ()))[:12],
+                       "msg": _short(e.get("msg", ""))} for e in detail[:MAX_ERRORS]]
+        else:
+            detail = _short(detail)
+        return JSONResponse({"detail": detail}, status_code=status)
+
+    @app.exception_handler(RequestValidationError)
+    async def malformed(_: Request, exc: RequestValidationError):
+        return reply(422, exc.errors())  # the fields and what is wrong, never the input
+
+    @app.exception_handler(StarletteHTTPException)
+    async def http_error(_: Request, exc: StarletteHTTPException):
+        return reply(exc.status_code, exc.detail)
+
     @app.exception_handler(NotFoundError)
     async def not_found(_: Request, exc: NotFoundError):
-        return JSONResponse({"detail": str(exc)}, status_code=404)
+        return reply(404, str(exc))
+
+    @app.exception_handler(TimeLimit)
+    async def too_long(_: Request, exc: TimeLimit):
+        return reply(413, [{"type": "time_limit", "loc": ["body"], "msg": str(exc)}])
 
     @app.exception_handler(ValueError)
     async def bad_value(_: Request, exc: ValueError):
         status = 409 if isinstance(exc, LibraryError) and "locked" in str(exc).lower() else 400
-        return JSONResponse({"detail": str(exc)}, status_code=status)
+        return reply(status, str(exc))
+
+    @app.exception_handler(OSError)
+    async def unreadable(_: Request, exc: OSError):
+        return reply(409, f"The server could not read what this needs ({exc.strerror or exc})"
+                          "; its pose library may have moved")
+
+
+def _deadline(seconds: float):
+    """progress(iteration, energy, tau) for a fit: raises TimeLimit (stopping the fit) once
+    `seconds` have passed since this was made; `check()` does the same between stages."""
+    end = time.monotonic() + seconds
+
+    def progress(iteration: int = 0, energy: float = 0.0, tau: float = 0.0) -> None:
+        if time.monotonic() > end:
+            raise TimeLimit(f"The request took over this server's time limit of {seconds:g} "
+                            "s (stopped); lower the level, the iterations or the control mesh")
+
+    return progress
 
 
 def _placer(db: str | None):
@@ -172,7 +286,7 @@ def _placer(db: str | None):
     lock = threading.Lock()
 
     def place(spec, index: int):
-        stamp = os.stat(db).st_mtime_ns if db is not None else 0
+        stamp = _library_stamp(db) if spec.pose.startswith("db:") else 0
         key = (spec, index, stamp)
         with lock:
             hit = cache.get(key)
@@ -187,12 +301,22 @@ def _placer(db: str | None):
     return place
 
 
+def _library_stamp(db: str | None) -> int:
+    """The library file's modification time (409 when the server has none or it is gone)."""
+    if db is None:
+        raise HTTPException(409, "This server has no pose library (start it with --db)")
+    try:
+        return os.stat(db).st_mtime_ns
+    except OSError:
+        raise HTTPException(409, "This server's pose library is gone (moved or deleted); "
+                                 "restart the server with its new --db") from None
+
+
 def _library_routes(app: FastAPI, db: str | None) -> None:
     def library():
         from posedb import PoseLibrary
 
-        if db is None:
-            raise HTTPException(409, "This server has no pose library (start it with --db)")
+        _library_stamp(db)
         return PoseLibrary(db)
 
     @app.get("/api/health", summary="Whether the server runs, and its library")
@@ -222,7 +346,7 @@ def _library_routes(app: FastAPI, db: str | None) -> None:
         return info.as_dict(lib.take(info.take).name)
 
 
-def _person_routes(app: FastAPI, place) -> None:
+def _person_routes(app: FastAPI, place, time_limit: float) -> None:
     from solver.scene.scenario import parse_scenario
 
     def placed(person: schema.Person, loc: list):
@@ -248,10 +372,16 @@ def _person_routes(app: FastAPI, place) -> None:
         from solver.contact.evaluate import evaluate_person
         from solver.mesh import SurfaceMesh, faces_problem
 
+        check = _deadline(time_limit)
+        _check_finite({"margin": req.margin, "evaluation": req.evaluation.model_dump()}, [])
         if req.margin > CEILINGS["margin"] or (req.evaluation.foam_stiffness
                                                > MAX_FOAM_STIFFNESS):
             raise _limit(["margin"], f"expected margin <= {CEILINGS['margin']:g} and "
                                      f"foam_stiffness <= {MAX_FOAM_STIFFNESS:g} here")
+        if len(req.vertices) * len(req.person) > MAX_EVAL_WORK:
+            raise _limit(["vertices"], f"expected vertices x people at most {MAX_EVAL_WORK:,} "
+                                       f"here (the server's compute budget), got "
+                                       f"{len(req.vertices)} x {len(req.person)}", 413, "budget")
         v = np.asarray(req.vertices, dtype=np.float64)
         f = np.asarray(req.faces, dtype=np.int64)
         problem = faces_problem(v, f)
@@ -260,21 +390,24 @@ def _person_routes(app: FastAPI, place) -> None:
         mesh = SurfaceMesh.from_faces(v, f)
         out = []
         for k, person in enumerate(req.person):
+            check()
             p = placed(person, ["person", k])
             figures, _ = evaluate_person(mesh, p, req.margin, req.evaluation.foam_stiffness)
             out.append({"name": p.label, **figures})
         return {"persons": out}
 
 
-def _fit_routes(app: FastAPI, place) -> None:
+def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
     @app.post("/api/fit", summary="Fit a surface to a scenario, with each person's evaluation")
     def fit(s: schema.Scenario) -> FitResponse:
         from solver.scene.run import fit_scene, report_parameters
 
         start = time.perf_counter()
+        check = _deadline(time_limit)
         scenario = request_scenario(s)
-        result, persons, _ = fit_scene(scenario, [place(p, k) for k, p in
-                                                  enumerate(scenario.persons)])
+        people = [place(p, k) for k, p in enumerate(scenario.persons)]
+        check()
+        result, persons, _ = fit_scene(scenario, people, check)
         return FitResponse(control=_mesh(result.control, result.faces),
                            surface=_mesh(result.surface, result.surface_faces),
                            parameters=report_parameters(scenario),
@@ -290,8 +423,10 @@ def _fit_routes(app: FastAPI, place) -> None:
         if req.index >= len(scenario.persons):
             raise HTTPException(400, f"Expected index in 0..{len(scenario.persons) - 1}, got "
                                      f"{req.index}")
+        check = _deadline(time_limit)
         people = [place(p, k) for k, p in enumerate(scenario.persons)]
-        result = fit_people(scenario, people)
+        check()
+        result = fit_people(scenario, people, check)
         person = people[req.index]
         res, before, after, seconds = relax_person(scenario, person, result.surface,
                                                    result.surface_faces)
@@ -302,19 +437,28 @@ def _fit_routes(app: FastAPI, place) -> None:
                 "body": _mesh(res.vertices, person.body.triangles)}
 
 
+def server_config(app: FastAPI, host: str, port: int, head_timeout: float = HEAD_TIMEOUT):
+    """uvicorn's configuration for the API: a request head must arrive within `head_timeout`
+    seconds and an idle kept-alive connection closes after 5, so idle connections cannot hold
+    the server; past 512 open connections a new one gets 503."""
+    import uvicorn
+
+    return uvicorn.Config(app, host=host, port=port, log_level="warning", timeout_keep_alive=5,
+                          limit_concurrency=512, http=head_timeout_protocol(head_timeout),
+                          ws="none")
+
+
 class ApiThread:
     """The API served from a background thread (for benchmarks, tests and embedding):
     `url` once started; `stop()` ends it."""
 
     def __init__(self, db: str | os.PathLike | None = None, host: str = "127.0.0.1",
-                 port: int = 0, limit: int = DEFAULT_LIMIT):
-        import threading
-
+                 port: int = 0, limit: int = DEFAULT_LIMIT, head_timeout: float = HEAD_TIMEOUT,
+                 **app_options):
         import uvicorn
 
-        config = uvicorn.Config(create_app(db, limit), host=host, port=port,
-                                log_level="warning", timeout_keep_alive=5)
-        self.server = uvicorn.Server(config)
+        self.server = uvicorn.Server(server_config(create_app(db, limit, **app_options),
+                                                   host, port, head_timeout))
         self.server.install_signal_handlers = lambda: None  # not the main thread
         self.thread = threading.Thread(target=self.server.run, name="sitrelax-api", daemon=True)
         self.thread.start()

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .net import LOOPBACK, exposure_warning
+from .net import LOOPBACK, allowed_names, exposure_warning
 
 
 def _say(message: str) -> None:
@@ -18,16 +18,16 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 
     import uvicorn
 
-    from .api import create_app
+    from .api import create_app, server_config
 
     _check_db(args.db)
     warning = exposure_warning(args.host, "API")
     if warning:
         _say(f"sitrelax serve: {warning}")
-    app = create_app(args.db, limit=int(args.max_request_mb * 1024 * 1024))
-    config = uvicorn.Config(app, host=args.host, port=args.port, log_level="warning",
-                            timeout_keep_alive=5, limit_concurrency=32)
-    server = uvicorn.Server(config)
+    app = create_app(args.db, limit=int(args.max_request_mb * 1024 * 1024),
+                     time_limit=args.time_limit,
+                     hosts=allowed_names(args.host, args.allow_host))
+    server = uvicorn.Server(server_config(app, args.host, args.port))
 
     async def run() -> None:
         task = asyncio.create_task(server.serve())
@@ -55,7 +55,8 @@ def _cmd_studio(args: argparse.Namespace) -> int:
     warning = exposure_warning(args.host, "studio")
     if warning:
         _say(f"sitrelax studio: {warning}")
-    studio = Studio(db=args.db, host=args.host, port=args.port, out=args.out)
+    studio = Studio(db=args.db, host=args.host, port=args.port, out=args.out,
+                    allow_hosts=tuple(args.allow_host))
     _say(f"sitrelax studio: open http://{studio.host}:{studio.port} in a browser "
          "(Ctrl-C stops it)")
     try:
@@ -77,6 +78,12 @@ def _check_db(db: str | None) -> None:
     PoseLibrary(db)  # opens and checks it
 
 
+def _allow_host(parser) -> None:
+    parser.add_argument("--allow-host", action="append", default=[], metavar="NAME",
+                        help="a Host/Origin name to answer besides the loopback names and "
+                             "--host (repeat it); others get 403")
+
+
 def register(sub) -> None:
     serve = sub.add_parser("serve", help="the solver as a JSON HTTP API (OpenAPI at "
                                          "/openapi.json)")
@@ -87,6 +94,10 @@ def register(sub) -> None:
                                                               "a free one)")
     serve.add_argument("--max-request-mb", type=float, default=8.0,
                        help="largest request body accepted, MB (default 8; larger: 413)")
+    serve.add_argument("--time-limit", type=float, default=60.0,
+                       help="seconds of computing a request may take (default 60; longer: "
+                            "stopped, 413)")
+    _allow_host(serve)
     serve.set_defaults(func=_cmd_serve)
     studio = sub.add_parser("studio", help="the interactive design studio in the browser")
     studio.add_argument("--db", help="pose library (HDF5) to pick people from and save to")
@@ -95,7 +106,8 @@ def register(sub) -> None:
     studio.add_argument("--port", type=int, default=8080, help="port (default 8080; 0 picks "
                                                                "a free one)")
     studio.add_argument("--out", default="sitrelax-studio",
-                        help="folder that Export and Save TOML write into")
+                        help="folder that Export and Save TOML write into (made if missing)")
+    _allow_host(studio)
     studio.set_defaults(func=_cmd_studio)
 
 

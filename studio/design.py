@@ -37,6 +37,21 @@ class DesignError(ValueError):
     """An edit or a run the session cannot make (the message says why)."""
 
 
+NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789-_. ")
+MAX_NAME = 80
+
+
+def check_name(name: str) -> str:
+    """A design's name (stripped): letters, digits, '-', '_', '.' and spaces, at most MAX_NAME
+    characters, not starting with '.'; it names a file or a folder inside --out, never a path."""
+    name = name.strip()
+    if (not name or len(name) > MAX_NAME or name.startswith(".")
+            or not set(name) <= NAME_CHARS):
+        raise DesignError(f"Expected a name of letters, digits, '-', '_', '.' and spaces (at "
+                          f"most {MAX_NAME}, not starting with '.'), got {name[:100]!r}")
+    return name
+
+
 @dataclass
 class FitOutcome:
     """A fit of the session: the result, the people as posed for it, each person's figures
@@ -213,6 +228,7 @@ class Design:
             raise DesignError(f"Expected a .toml file name, got {path.name!r}")
         text = scenario_toml(self.scenario_data())
         self._parse(tomllib.loads(text))  # what is written reads back
+        path.parent.mkdir(parents=True, exist_ok=True)
         write_atomic(path, text.encode())
         return path
 
@@ -221,8 +237,7 @@ class Design:
 
         if self.db is None:
             raise DesignError("Saving to the library needs one: start the studio with --db")
-        if not name or "/" in name:
-            raise DesignError(f"Expected a scenario name without '/', got {name!r}")
+        name = check_name(name)
         result = {}
         if self.last is not None:
             result = {"iterations": self.last.result.iterations,

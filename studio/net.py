@@ -1,12 +1,19 @@
-"""What both servers share: which addresses count as loopback, and a request size limit."""
+"""What both servers share: which addresses count as loopback, which Host and Origin names
+they answer (DNS rebinding and cross-site pages are refused), a request size limit, and the
+timeouts that keep idle connections from holding the server."""
 
 from __future__ import annotations
 
+import asyncio
 import ipaddress
 import json
 import socket
+from urllib.parse import urlsplit
 
 LOOPBACK = "127.0.0.1"
+LOOPBACK_NAMES = frozenset({"127.0.0.1", "localhost", "::1"})
+HEAD_TIMEOUT = 10.0  # seconds a client has to send a request head
+BODY_TIMEOUT = 30.0  # seconds a request body may pause between chunks
 DRAIN_FACTOR, DRAIN_MAX = 4, 64 * 1024 * 1024  # bytes of a refused body still read and dropped
 
 
@@ -33,13 +40,89 @@ def exposure_warning(host: str, what: str) -> str | None:
             "authentication, and anyone who reaches it can run fits and read the pose library")
 
 
+def allowed_names(host: str, extra=()) -> frozenset[str]:
+    """The Host/Origin names a server answers: the loopback names, the address it listens on
+    (unless a wildcard) and `extra` (lower case, no port)."""
+    names = set(LOOPBACK_NAMES) | {n.strip().lower().strip("[]") for n in extra if n.strip()}
+    if host not in ("0.0.0.0", "::", ""):
+        names.add(host.lower().strip("[]"))
+    return frozenset(names)
+
+
+def host_name(value: str) -> str | None:
+    """The name part of a Host header (`name`, `name:port`, `[v6]:port`) or of an Origin
+    (`scheme://name:port`); None when it has none."""
+    value = value.strip()
+    try:
+        name = urlsplit(value if "://" in value else f"//{value}").hostname
+    except ValueError:
+        return None
+    return name.lower() if name else None
+
+
+def foreign(headers: dict, names: frozenset[str]) -> str | None:
+    """Why a request is refused for its Host or Origin header (None when both are ours; a
+    request without Origin is not a browser's cross-site one and passes)."""
+    host = headers.get("host")
+    if host is None or host_name(host) not in names:
+        return f"Host {(host or '')[:100]!r} is not one this server answers (see --allow-host)"
+    origin = headers.get("origin")
+    if origin is not None and host_name(origin) not in names:
+        return f"Origin {origin[:100]!r} is not one this server answers (see --allow-host)"
+    return None
+
+
+class HostCheck:
+    """ASGI middleware: 403 for a request whose Host or Origin names another site."""
+
+    def __init__(self, app, names: frozenset[str]):
+        self.app, self.names = app, names
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] in ("http", "websocket"):
+            headers = {k.decode("latin-1").lower(): v.decode("latin-1")
+                       for k, v in scope.get("headers") or ()}
+            problem = foreign(headers, self.names)
+            if problem:
+                return await _reply(send, 403, problem)
+        return await self.app(scope, receive, send)
+
+
+def head_timeout_protocol(head_timeout: float = HEAD_TIMEOUT):
+    """uvicorn's h11 protocol with a deadline for each request head: a connection that has not
+    sent a whole head `head_timeout` seconds after connecting (or after its last answer) is
+    closed, so idle connections cannot use up the server."""
+    from uvicorn.protocols.http.h11_impl import H11Protocol
+
+    class HeadTimeoutProtocol(H11Protocol):
+        def connection_made(self, transport) -> None:
+            super().connection_made(transport)
+            self._arm_head_timer()
+
+        def on_response_complete(self) -> None:
+            super().on_response_complete()
+            self._arm_head_timer()
+
+        def _arm_head_timer(self) -> None:
+            self.loop.call_later(head_timeout, self._head_overdue, self.scope)
+
+        def _head_overdue(self, scope) -> None:
+            idle = self.cycle is None or self.cycle.response_complete
+            if self.scope is scope and idle and not self.transport.is_closing():
+                self.transport.close()
+
+    return HeadTimeoutProtocol
+
+
 class BodyLimit:
     """ASGI middleware: a request whose body is larger than `limit` bytes gets 413 (checked on
-    Content-Length when given, and on the bytes as they arrive)."""
+    Content-Length when given, and on the bytes as they arrive); a body that pauses over
+    `timeout` seconds gets 408."""
 
-    def __init__(self, app, limit: int):
+    def __init__(self, app, limit: int, timeout: float = BODY_TIMEOUT):
         self.app = app
         self.limit = int(limit)
+        self.timeout = float(timeout)
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
@@ -62,7 +145,13 @@ class BodyLimit:
             nonlocal seen, refused
             if refused:
                 return {"type": "http.disconnect"}
-            message = await receive()
+            try:
+                message = await asyncio.wait_for(receive(), self.timeout)
+            except asyncio.TimeoutError:
+                refused = True
+                if not started:
+                    await _reply(send, 408, f"Request body paused over {self.timeout:g} s")
+                return {"type": "http.disconnect"}
             if message["type"] == "http.request":
                 seen += len(message.get("body", b""))
                 if seen > self.limit:
@@ -90,7 +179,10 @@ class BodyLimit:
         A body larger still is cut off."""
         cap = min(DRAIN_FACTOR * self.limit, DRAIN_MAX)
         while seen <= cap:
-            message = await receive()
+            try:
+                message = await asyncio.wait_for(receive(), self.timeout)
+            except asyncio.TimeoutError:
+                return
             if message["type"] != "http.request":
                 return
             seen += len(message.get("body", b""))
@@ -114,18 +206,22 @@ async def _reply(send, status: int, detail: str) -> None:
 class Front:
     """The studio's public socket in front of viser's server (which answers only GET and its
     websocket): a request without a body passes through byte for byte (the page, then the
-    websocket), one with a body over `limit` bytes gets 413, any other with a body 405, and a
-    request head over 64 KiB 431. The first request of a connection is the one looked at: later
-    requests on a kept-alive connection reach viser, which closes on anything but GET. Runs its
-    own event loop in a thread; `port` is the one bound."""
+    websocket), one with a body over `limit` bytes gets 413, any other with a body 405, a
+    request head over 64 KiB 431, and one whose Host or Origin is not in `names` 403 (its
+    Origin is removed before viser's server, which takes no other); a head not sent within
+    `head_timeout` seconds closes the connection. The first request of a connection is the one
+    looked at: later requests on a kept-alive connection reach viser, which closes on anything
+    but GET. Runs its own event loop in a thread; `port` is the one bound."""
 
     HEAD_LIMIT = 64 * 1024
 
-    def __init__(self, host: str, port: int, backend_port: int, limit: int):
-        import asyncio
+    def __init__(self, host: str, port: int, backend_port: int, limit: int,
+                 names: frozenset[str] | None = None, head_timeout: float = HEAD_TIMEOUT):
         import threading
 
         self.backend_port, self.limit = backend_port, int(limit)
+        self.names = names if names is not None else allowed_names(host)
+        self.head_timeout = float(head_timeout)
         self.loop = asyncio.new_event_loop()
         started = threading.Event()
         failure: list[BaseException] = []
@@ -152,13 +248,11 @@ class Front:
             raise failure[0]
 
     async def _serve(self, reader, writer) -> None:
-        import asyncio
-
         try:
-            head = await reader.readuntil(b"\r\n\r\n")
+            head = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), self.head_timeout)
         except asyncio.LimitOverrunError:
             return await self._answer(writer, 431, "Request head larger than 64 KiB")
-        except (asyncio.IncompleteReadError, ConnectionError):
+        except (asyncio.IncompleteReadError, asyncio.TimeoutError, ConnectionError):
             writer.close()
             return
         lines = head.decode("latin-1").split("\r\n")
@@ -167,6 +261,13 @@ class Front:
         for line in lines[1:]:
             name, _, value = line.partition(":")
             headers[name.strip().lower()] = value.strip()
+        problem = foreign(headers, self.names)
+        if problem:
+            return await self._answer(writer, 403, problem)
+        # checked here; viser's server takes only requests without an Origin (a foreign page
+        # that finds its port directly is refused there)
+        head = "\r\n".join(line for line in lines
+                            if not line.lower().startswith("origin:")).encode("latin-1")
         try:
             length = int(headers.get("content-length", "0") or 0)
         except ValueError:
@@ -189,8 +290,6 @@ class Front:
         await asyncio.gather(self._pipe(reader, up_writer), self._pipe(up_reader, writer))
 
     async def _drain(self, reader, length: int) -> None:
-        import asyncio
-
         left = min(length, DRAIN_FACTOR * self.limit, DRAIN_MAX)
         try:
             while left > 0:

@@ -25,10 +25,11 @@ from solver.io.render import SKIN, SURFACE
 from solver.scene.run import pressure_on_skin
 from solver.mesh import quad_triangles
 
-from .design import Design, DesignError
-from .net import LOOPBACK, Front
+from .design import Design, DesignError, check_name
+from .net import LOOPBACK, Front, allowed_names
 
 MAX_UPLOAD = 5 * 1024 * 1024  # bytes: the largest control mesh file the studio takes
+MAX_MESSAGE = 1024 * 1024 + 64 * 1024  # bytes of one websocket message (uploads: 512 KiB parts)
 CONTROL_COLOR = (40, 40, 48)
 FIXED_COLOR = (220, 50, 40)
 FREE_COLOR = (40, 110, 220)
@@ -36,6 +37,24 @@ FREE_COLOR = (40, 110, 220)
 
 def _rgb(color) -> tuple[int, int, int]:
     return tuple(int(round(255 * c)) for c in color)
+
+
+@contextlib.contextmanager
+def _guarded_websocket():
+    """viser's websocket server, made while this is entered, takes only connections without an
+    Origin (the front checks the browser's and removes it) and messages up to MAX_MESSAGE."""
+    import websockets.asyncio.server as ws_server
+
+    original = ws_server.serve
+
+    def serve(*args, **kwargs):
+        return original(*args, **{**kwargs, "origins": [None], "max_size": MAX_MESSAGE})
+
+    ws_server.serve = serve
+    try:
+        yield
+    finally:
+        ws_server.serve = original
 
 
 def _quat_wxyz(rotation_deg) -> np.ndarray:
@@ -53,18 +72,22 @@ class Studio:
     """The studio server; `port` is the one bound (ask for 0 to get a free one)."""
 
     def __init__(self, db: str | None = None, host: str = "127.0.0.1", port: int = 8080,
-                 out: str = "sitrelax-studio", limit: int = MAX_UPLOAD):
+                 out: str = "sitrelax-studio", limit: int = MAX_UPLOAD,
+                 allow_hosts: tuple[str, ...] = ()):
         import viser
 
         self.design = Design(db)
         self.out = Path(out)
+        self.limit = int(limit)
         self.lock = threading.RLock()
-        with contextlib.redirect_stdout(io.StringIO()):  # viser's start-up banner
+        with contextlib.redirect_stdout(io.StringIO()), _guarded_websocket():  # its banner
             self.server = viser.ViserServer(host=LOOPBACK, port=0, verbose=False)
+        self._bound_uploads()
         # the address the designer asked for is ours: it passes the page and the websocket to
-        # viser, and refuses request bodies (413 past the limit)
+        # viser (Host and Origin ours only), and refuses request bodies (413 past the limit)
         try:
-            self.front = Front(host, port, self.server.get_port(), limit)
+            self.front = Front(host, port, self.server.get_port(), limit,
+                               names=allowed_names(host, allow_hosts))
         except OSError:
             self.stop()
             raise
@@ -85,6 +108,35 @@ class Studio:
         self._build_gui()
         self._draw_control()
         self._status("Add people from the library, then press **Fit**.")
+
+    def _bound_uploads(self) -> None:
+        """Uploads over the limit are dropped as they arrive: refused on their declared size,
+        and their parts discarded once the bytes received pass it."""
+        from viser import _messages
+
+        gui = self.server.gui
+        handlers = self.server._websock_server._incoming_handlers
+        start, part = gui._handle_file_transfer_start, gui._handle_file_transfer_part
+
+        def on_start(client_id, message) -> None:
+            if message.size_bytes > self.limit:
+                self._status(f"**Problem:** {message.filename[:100]} is {message.size_bytes} "
+                             f"bytes; the studio takes control meshes up to {self.limit} bytes")
+                return
+            start(client_id, message)
+
+        def on_part(client_id, message) -> None:
+            state = gui._current_file_upload_states.get(message.transfer_uuid)
+            if state is not None and (state["transferred_bytes"] + len(message.content)
+                                      > self.limit):
+                gui._current_file_upload_states.pop(message.transfer_uuid, None)
+                self._status(f"**Problem:** the upload passed {self.limit} bytes; dropped")
+                return
+            part(client_id, message)
+
+        for cls, old, new in ((_messages.FileTransferStartUpload, start, on_start),
+                              (_messages.FileTransferPart, part, on_part)):
+            handlers[cls] = [new if h == old else h for h in handlers[cls]]
 
     # GUI ----------------------------------------------------------------------------------
     def _build_gui(self) -> None:
@@ -389,15 +441,15 @@ class Studio:
                      f"{100 * res.after['mean_support_distance_m']:.1f} cm (green).")
 
     def _save_db(self) -> None:
-        name = self.design.save_to_library(self.name.value.strip())
+        name = self.design.save_to_library(check_name(self.name.value))
         self._status(f"Saved the scenario {name!r} to {self.design.db}.")
 
     def _save_toml(self) -> None:
-        path = self.design.save_toml(self.out / f"{self.name.value.strip()}.toml")
+        path = self.design.save_toml(self.out / f"{check_name(self.name.value)}.toml")
         self._status(f"Wrote {path}.")
 
     def _export(self) -> None:
-        folder = self.out / self.name.value.strip()
+        folder = self.out / check_name(self.name.value)
         report = self.design.export(folder)
         self.server.send_file_download("surface.obj", (folder / "surface.obj").read_bytes())
         self._status(f"Exported to {folder} ({len(report['files'])} files); surface.obj "

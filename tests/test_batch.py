@@ -60,7 +60,7 @@ def test_batch_runs_records_failures_stores_and_skips(library, tmp_path, capsys)
     assert main(args) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["counts"] == {"total": 4, "skipped": 0, "done": 4, "failed": 0,
-                                "running": 0}
+                                "timed_out": 0, "running": 0}
     # a broken file among good ones: recorded, the rest done
     assert main(["batch", str(broken), str(EXAMPLES / "single_seated.toml"), "--out",
                  str(tmp_path / "mixed"), "--workers", "1", "--json"]) == 0

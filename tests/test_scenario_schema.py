@@ -19,7 +19,7 @@ POSE = "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"
 
 @pytest.fixture(scope="module")
 def client():
-    with TestClient(create_app(None)) as c:
+    with TestClient(create_app(None), base_url="http://127.0.0.1") as c:
         yield c
 
 

@@ -5,6 +5,11 @@ Each job fits, evaluates and exports as `sitrelax fit` does, into `OUT/jobs/<job
 `result.json` marks it finished (a re-run skips it). A job that raises is recorded with its
 error and the batch goes on; a job whose worker dies is given to another worker by Dask. Workers
 only read the pose library; the client alone writes (the results, as scenarios, in one commit).
+
+Each job runs in a child process of its worker (kept from job to job, so the imports are paid
+once), which is killed when the job passes its time limit: the job is recorded as timed out and
+the worker goes on. Setting up a batch reads nothing that can block (scenario files must be
+regular files; control mesh files are read by the job, under its time limit).
 """
 
 from __future__ import annotations
@@ -16,6 +21,11 @@ import io
 import itertools
 import json
 import os
+import select
+import stat
+import subprocess
+import sys
+import threading
 import time
 import tomllib
 from dataclasses import dataclass
@@ -26,6 +36,8 @@ from capture.files import write_atomic
 
 SURFACE_SHORTCUTS = {"level", "sigma", "tau_max", "margin", "gamma", "max_iterations",
                      "tolerance"}
+DEFAULT_JOB_TIME_LIMIT = 1800.0  # seconds
+MAX_SCENARIO_BYTES = 64 * 1024 * 1024
 SUMMARY_FIELDS = ("job", "scenario", "parameters", "status", "seconds", "coverage_min",
                   "max_penetration_m", "peak_pressure_kpa_max", "flat_peak_pressure_kpa_max",
                   "iterations", "error")
@@ -101,8 +113,6 @@ def expand_jobs(scenarios: Sequence[str | os.PathLike] = (), *, grid: dict | Non
                 db: str | os.PathLike | None = None) -> list[Job]:
     """The batch's jobs: every scenario (or every library pose matching `from_db`, put into
     each person of `template`) at every point of `grid`."""
-    from solver.scene.scenario import ScenarioError, parse_scenario
-
     grid = grid or {}
     sources: list[tuple[str, dict, Path]] = []
     if from_db is not None:
@@ -136,27 +146,50 @@ def expand_jobs(scenarios: Sequence[str | os.PathLike] = (), *, grid: dict | Non
             if not problem:
                 for k, v in point.items():
                     _apply(job_data, k, v)
-                try:  # each grid point is checked here, before anything runs
-                    parse_scenario(copy.deepcopy(job_data), scenario, base)
-                except ScenarioError as exc:
-                    problem = str(exc)
+                problem = _problem(job_data, scenario, base)  # checked before anything runs
             jobs.append(Job(_job_id(scenario, job_data, point), scenario, job_data,
                             str(base.resolve()), point, problem))
     return jobs
 
 
+def _problem(data: dict, scenario: str, base: Path) -> str:
+    """Why a job's scenario cannot run, as far as can be told without reading a file (a
+    control mesh file could block: the job reads it, under its time limit); "" if none."""
+    from solver.scene import schema
+    from solver.scene.scenario import ScenarioError, parse_scenario
+
+    try:
+        model = schema.validate(copy.deepcopy(data), scenario)
+        mesh = model.surface.control_mesh
+        if isinstance(mesh, str):
+            if not (base / mesh).exists():  # a stat: it does not block
+                return f"{scenario}: surface.control_mesh: no file {base / mesh}"
+            return ""
+        parse_scenario(copy.deepcopy(data), scenario, base)
+    except ScenarioError as exc:
+        return str(exc)
+    return ""
+
+
 def _read_toml(path: str | os.PathLike) -> dict:
     path = Path(path)
-    if not path.exists():
-        raise BatchError(f"No scenario file {path}")
+    try:
+        info = path.stat()
+    except OSError:
+        raise BatchError(f"No scenario file {path}") from None
+    if not stat.S_ISREG(info.st_mode):  # a FIFO or a device could block the batch
+        raise BatchError(f"{path}: a scenario must be a regular file")
+    if info.st_size > MAX_SCENARIO_BYTES:
+        raise BatchError(f"{path}: {info.st_size} bytes; a scenario file has at most "
+                         f"{MAX_SCENARIO_BYTES}")
     try:
         return tomllib.loads(path.read_text())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise BatchError(f"{path}: not a valid TOML scenario: {exc}") from None
 
 
-def run_job(job: Job, db: str | None, out_root: str) -> dict:
-    """Runs one job on a worker; returns its summary row (a failure is a row too)."""
+def _run_here(job: Job, db: str | None, out_root: str) -> dict:
+    """Runs one job in this process; returns its summary row (a failure is a row too)."""
     from solver.scene.run import run_fit
     from solver.scene.scenario import parse_scenario
 
@@ -185,6 +218,88 @@ def run_job(job: Job, db: str | None, out_root: str) -> dict:
     return row
 
 
+class _Runner:
+    """A child process running jobs one at a time (JSON lines in and out), so that a job
+    past its time limit can be killed without the worker."""
+
+    def __init__(self):
+        root = str(Path(__file__).resolve().parents[2])  # where `solver` is importable from
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", "from solver.scene.batch import _serve_jobs; _serve_jobs()"],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
+        # the imports are not a job's time: the child says when it is ready
+        self.ready = self.proc.stdout.readline() == b"ready\n"
+
+    def run(self, job: Job, db: str | None, out_root: str, time_limit: float) -> dict | str:
+        """The job's row, or why there is none ("timeout", or the child's end)."""
+        message = {"job": {**job.__dict__}, "db": db, "out_root": out_root}
+        try:
+            self.proc.stdin.write(json.dumps(message).encode() + b"\n")
+            self.proc.stdin.flush()
+        except OSError:
+            return f"its process ended (exit code {self.proc.poll()})"
+        ready, _, _ = select.select([self.proc.stdout], [], [], time_limit)
+        if not ready:
+            self.kill()
+            return "timeout"
+        line = self.proc.stdout.readline()
+        if not line:
+            return f"its process ended (exit code {self.proc.wait()})"
+        return json.loads(line)
+
+    def kill(self) -> None:
+        self.proc.kill()
+        self.proc.wait()
+
+
+def _serve_jobs() -> None:
+    """The child's loop: a job a line on stdin, its row a line on stdout."""
+    out = os.fdopen(os.dup(1), "w")
+    os.dup2(2, 1)  # whatever the job prints goes to stderr, not into the answers
+    # what a job uses, imported before the first job's clock starts
+    import solver.io.export  # noqa: F401
+    import solver.io.render  # noqa: F401
+    import solver.scene.run  # noqa: F401
+
+    out.write("ready\n")
+    out.flush()
+    for line in sys.stdin:
+        m = json.loads(line)
+        row = _run_here(Job(**m["job"]), m["db"], m["out_root"])
+        out.write(json.dumps(row) + "\n")
+        out.flush()
+
+
+_runners = threading.local()
+
+
+def run_job(job: Job, db: str | None, out_root: str,
+            time_limit: float = DEFAULT_JOB_TIME_LIMIT) -> dict:
+    """Runs one job on a worker, in its child process, for at most `time_limit` seconds;
+    returns its summary row (a failure or a timeout is a row too)."""
+    start = time.perf_counter()
+    runner = getattr(_runners, "runner", None)
+    if runner is None or runner.proc.poll() is not None:
+        runner = _runners.runner = _Runner()
+    got = runner.run(job, db, out_root, time_limit) if runner.ready else "it did not start"
+    if isinstance(got, dict):
+        return got
+    _runners.runner = None
+    if got == "timeout":
+        status, error = "timeout", (f"TimeoutError: the job ran over the batch's time limit "
+                                    f"of {time_limit:g} s and was stopped")
+    else:
+        status, error = "failed", f"ChildProcessError: {got}"
+    row = {"job": job.id, "scenario": job.scenario, "parameters": job.parameters,
+           "status": status, "seconds": time.perf_counter() - start, "error": error}
+    folder = Path(out_root) / "jobs" / job.id
+    folder.mkdir(parents=True, exist_ok=True)
+    write_atomic(folder / "result.json", json.dumps(row, indent=2).encode())
+    return row
+
+
 def _finished(out: Path, job: Job) -> dict | None:
     path = out / "jobs" / job.id / "result.json"
     try:
@@ -196,9 +311,11 @@ def _finished(out: Path, job: Job) -> dict | None:
 def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *,
               db: str | os.PathLike | None = None, workers: int = 2,
               scheduler: str | None = None, store: bool = True,
-              progress: Callable[[dict], None] | None = None) -> dict:
-    """Runs the jobs not finished before; writes summary.csv and summary.json; stores the
-    finished jobs' scenarios and results in the library (when `db` and `store`)."""
+              progress: Callable[[dict], None] | None = None,
+              time_limit: float = DEFAULT_JOB_TIME_LIMIT) -> dict:
+    """Runs the jobs not finished before, each for at most `time_limit` seconds (then it is
+    stopped and counted as failed and as timed out); writes summary.csv and summary.json;
+    stores the finished jobs' scenarios and results in the library (when `db` and `store`)."""
     from distributed import Client, LocalCluster, as_completed
 
     out = Path(out_dir)
@@ -214,7 +331,7 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *,
             todo.append(job)
     start = time.perf_counter()
     counts = {"total": len(jobs), "skipped": len(rows), "done": 0, "failed": 0,
-              "running": len(todo)}
+              "timed_out": 0, "running": len(todo)}
     cluster = None
     if todo:
         if scheduler is None:
@@ -230,13 +347,14 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *,
         else:
             client = Client(scheduler)
         try:
-            futures = [client.submit(run_job, job, db_path, str(out.resolve()),
+            futures = [client.submit(run_job, job, db_path, str(out.resolve()), time_limit,
                                      key=f"sitrelax-job-{job.id}", pure=False, retries=2)
                        for job in todo]
             for future in as_completed(futures):
                 row = future.result()
                 rows[row["job"]] = row
                 counts["done" if row["status"] == "ok" else "failed"] += 1
+                counts["timed_out"] += row["status"] == "timeout"
                 counts["running"] -= 1
                 if progress is not None:
                     finished = counts["done"] + counts["failed"]

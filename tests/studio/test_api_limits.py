@@ -1,0 +1,141 @@
+"""The HTTP API refuses what it cannot serve quickly: unknown names, work over its budget,
+foreign Host and Origin names, and idle connections; every refusal a short 4xx."""
+
+from __future__ import annotations
+
+import http.client
+import json
+import shutil
+import socket
+import time
+import tomllib
+
+import pytest
+
+from capture.recordings import resolve_path
+from posedb import PoseLibrary
+from solver.bench import _example_path
+from studio.api import ApiThread
+
+SINGLE = tomllib.loads(_example_path("single_seated").read_text())
+HIGH_SIT = "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"
+
+
+@pytest.fixture(scope="module")
+def api():
+    server = ApiThread(None, time_limit=2.0, head_timeout=1.0)
+    yield server
+    server.stop()
+
+
+def _request(api, method, path, body=None, headers=None, timeout=60):
+    conn = http.client.HTTPConnection(api.host, api.port, timeout=timeout)
+    data = body if isinstance(body, bytes) or body is None else json.dumps(body).encode()
+    conn.request(method, path, body=data,
+                 headers={"Content-Type": "application/json", **(headers or {})})
+    response = conn.getresponse()
+    payload = response.read()
+    conn.close()
+    return response.status, payload
+
+
+def _scenario(surface=None, person=None) -> dict:
+    body = json.loads(json.dumps(SINGLE))
+    body["surface"].update(surface or {})
+    body["person"][0].update(person or {})
+    return body
+
+
+@pytest.mark.parametrize("path, body, status, words", [
+    ("/api/fit", _scenario(person={"pose": "bvh:bundled:../../../../etc/passwd#frame=0"}), 404,
+     '"person", 0, "pose"'),
+    ("/api/body", {"person": {"pose": "bvh:bundled:nope.bvh#frame=1"}}, 404, "nope.bvh"),
+    ("/api/body", {"person": {"pose": "db:perch"}}, 409, "no pose library"),
+    ("/api/fit", b'{"surface": {"grid": {}}, "person": [{"pose": "' + HIGH_SIT.encode()
+     + b'", "position": [NaN, 0, 0]}]}', 422, '"position", 0'),
+    ("/api/fit", _scenario({"grid": None, "control_mesh": {
+        "vertices": [[0, 0.4, 0], [1, 0.4, 0], [1, 0.4, 1], [0, 0.4, 1e999]],
+        "faces": [[0, 1, 2, 3]]}}), 422, "finite"),
+    ("/api/fit", _scenario({"grid": {"size": [1, 1], "resolution": [40, 40], "height": 0.4},
+                            "max_iterations": 100}), 413, "compute budget"),
+    ("/api/evaluate", {"vertices": [["x", 0, 0]] * 50_000, "faces": [[0, 1, 2]],
+                       "person": [{"pose": HIGH_SIT}]}, 422, "vertices"),
+])
+def test_refusals_are_short_4xx_naming_the_field(api, path, body, status, words):
+    got, payload = _request(api, "POST", path, body)
+    assert got == status, payload[:300]
+    assert len(payload) < 2000  # never the input echoed (the evaluate body is ~1 MB)
+    assert words in json.dumps(json.loads(payload)).replace("[", "").replace("]", "")
+
+
+def test_evaluate_takes_face_indices_as_far_as_its_vertices_go(api):
+    n = 25_000
+    vertices = [[0.001 * k, 0.4, 0.0] for k in range(n - 3)] + [[0, 0.4, 0.5], [0.5, 0.4, 0.5],
+                                                                  [0.5, 0.4, 0.0]]
+    body = {"vertices": vertices, "faces": [[n - 4, n - 1, n - 2, n - 3]],
+            "person": [{"pose": HIGH_SIT, "position": [0.25, 0, 0.25]}]}
+    status, payload = _request(api, "POST", "/api/evaluate", body)
+    assert status != 422, payload[:300]
+
+
+def test_a_fit_past_the_time_limit_is_stopped_and_refused(api):
+    import resource
+
+    body = _scenario({"grid": {"size": [0.5, 0.6], "resolution": [24, 18], "height": 0.42},
+                      "max_iterations": 10, "tolerance": 0.0})  # ~15 s of fitting
+    start = time.monotonic()
+    status, payload = _request(api, "POST", "/api/fit", body)
+    assert status == 413 and b"time limit" in payload
+    assert time.monotonic() - start < 8.0
+    cpu = resource.getrusage(resource.RUSAGE_SELF)
+    time.sleep(1.5)
+    after = resource.getrusage(resource.RUSAGE_SELF)
+    # the fit itself stopped, not only the answer
+    assert (after.ru_utime + after.ru_stime) - (cpu.ru_utime + cpu.ru_stime) < 0.5
+
+
+@pytest.mark.parametrize("headers", [{"Host": "rebound.example:8765"},
+                                     {"Origin": "http://evil.example"},
+                                     {"Origin": "http://127.0.0.1.evil.example"}])
+def test_a_foreign_host_or_origin_is_refused(api, headers):
+    status, payload = _request(api, "GET", "/api/health", headers=headers)
+    assert status == 403 and b"not one this server answers" in payload
+    ok, _ = _request(api, "GET", "/api/health", headers={"Origin": f"http://localhost:{api.port}"})
+    assert ok == 200
+
+
+def test_a_hundred_idle_connections_do_not_block_a_client(api):
+    idle = []
+    try:
+        for k in range(100):
+            sock = socket.create_connection((api.host, api.port), timeout=5)
+            if k % 2:
+                sock.sendall(b"POST /api/fit HTTP/1.1\r\nHost: 127.0.0.1\r\n")  # never ends
+            idle.append(sock)
+        start = time.monotonic()
+        status, _ = _request(api, "GET", "/api/health", timeout=5)
+        assert status == 200 and time.monotonic() - start < 1.0
+        time.sleep(2.0)  # past the head timeout (1 s here): the server has closed them
+        for sock in idle:
+            sock.settimeout(2)
+            assert sock.recv(1) == b""
+    finally:
+        for sock in idle:
+            sock.close()
+
+
+def test_a_library_moved_away_gives_409(tmp_path):
+    db = tmp_path / "poses.h5"
+    lib = PoseLibrary(db, create=True)
+    take = lib.import_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"), name="high_sit")
+    lib.add_pose(take.id, 39, "perch", tags=["sit"])
+    server = ApiThread(db)
+    try:
+        assert _request(server, "GET", "/api/poses")[0] == 200
+        shutil.move(db, tmp_path / "elsewhere.h5")
+        for path, body in (("/api/poses", None), ("/api/poses/perch", None),
+                           ("/api/body", {"person": {"pose": "db:perch"}})):
+            status, payload = _request(server, "POST" if body else "GET", path, body)
+            assert status == 409 and b"gone" in payload, payload
+    finally:
+        server.stop()
