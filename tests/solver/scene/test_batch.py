@@ -17,7 +17,7 @@ from posedb import PoseLibrary
 from solver.scene.batch import BatchError, expand_jobs, parse_grid, run_batch
 from solver.cli import main
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "fixtures" / "scenarios"
+EXAMPLES = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios"
 
 
 @pytest.fixture()

@@ -17,7 +17,7 @@ from capture import (
 )
 from capture.profiles import AXIS_NEURON_JOINTS, AXIS_STUDIO_JOINTS, CMU_JOINTS
 
-from .conftest import recording
+from tests.conftest import recording
 
 SMALL = """HIERARCHY
 ROOT Hips

@@ -16,7 +16,7 @@ from capture.replay import Replay, ReplayThread, TcpServerSink, UdpSink, WriterS
 from capture.sources import SerialTransport, Source, open_source
 from capture.stream_layout import StreamLayout
 
-from .conftest import recording
+from tests.conftest import recording
 
 FILES = ["cmu_75_18_high_sit.bvh", "cmu_75_17_medium_sit.bvh", "cmu_82_05_floor_sit_excerpt.bvh",
          "axis_neuron_standing_yxz.bvh"]

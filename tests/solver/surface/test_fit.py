@@ -230,7 +230,7 @@ def test_fit_command_writes_files_that_open_again(tmp_path):
     assert (out / "pressure.png").stat().st_size > 10_000
 
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "fixtures" / "scenarios"
+EXAMPLES = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios"
 
 
 @pytest.mark.parametrize("name", [

@@ -11,7 +11,7 @@ from capture.recordings import bundled_dir
 from capture.sources import RawFileTransport, Source
 from capture.stream_layout import StreamLayout
 
-from .conftest import FIXTURES
+from tests.conftest import FIXTURES
 
 STREAMS = FIXTURES / "streams"
 EXPECTED = json.loads((STREAMS / "expected.json").read_text())

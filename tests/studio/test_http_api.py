@@ -22,7 +22,7 @@ from solver.bench import _example_path
 from studio.api import ApiThread, create_app
 from studio.net import exposure_warning, is_loopback
 
-from .conftest import listening_addresses
+from tests.conftest import listening_addresses
 
 SINGLE = tomllib.loads(_example_path("single_seated").read_text())
 

@@ -16,9 +16,9 @@ from capture.recordings import resolve_path
 from posedb import PoseLibrary
 from studio.design import Design, DesignError
 
-from .conftest import listening_addresses
+from tests.conftest import listening_addresses
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 ARTIFACTS = Path(os.environ.get("SITRELAX_ARTIFACTS", ROOT / "test-artifacts"))
 CHROMIUM, DRIVER = shutil.which("chromium"), shutil.which("chromedriver")
 HIGH_SIT = "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"

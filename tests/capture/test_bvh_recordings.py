@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 from capture import bundled_recordings, read_bvh
 from capture.recordings import bundled_dir
 
-from .conftest import SHARED_BVH, recording
+from tests.conftest import SHARED_BVH, recording
 
 ALL_FILES = sorted(
     {p.name for p in SHARED_BVH.glob("*.bvh")} | set(bundled_recordings())

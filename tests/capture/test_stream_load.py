@@ -12,7 +12,7 @@ from capture import read_bvh
 from capture.sources import open_source
 from capture.stream_layout import StreamLayout
 
-from .conftest import recording
+from tests.conftest import recording
 
 STREAMS = 10
 SECONDS = 30

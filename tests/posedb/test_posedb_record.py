@@ -14,7 +14,7 @@ from capture.replay import Replay, ReplayThread, TcpServerSink
 from posedb.library import PoseLibrary
 from posedb.record import journal_dir, record, recordings, recover
 
-from .conftest import recording
+from tests.conftest import recording
 
 AXIS = "axis_neuron_standing_yxz.bvh"
 
@@ -94,7 +94,7 @@ def test_killed_recorder_loses_at_most_a_second_and_readers_carry_on(tmp_path):
 
 
 def test_record_in_process_from_a_raw_capture(tmp_path):
-    from .test_stream_fixtures import STREAMS
+    from tests.capture.test_stream_fixtures import STREAMS
 
     db = tmp_path / "poses.h5"
     events = []

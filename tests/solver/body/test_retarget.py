@@ -9,7 +9,7 @@ from solver.body.poses import PoseSourceError, load_pose, pose_body
 from solver.body.retarget import RetargetError, joint_map_for, place, retarget, role_positions
 from solver.body.skinning import skin
 
-from .conftest import recording
+from tests.conftest import recording
 
 FILES = ["cmu_75_18_high_sit.bvh", "cmu_75_17_medium_sit.bvh", "cmu_82_05_floor_sit_excerpt.bvh",
          "axis_neuron_standing_yxz.bvh"]

@@ -12,7 +12,7 @@ from posedb.library import DuplicateNameError, PoseLibrary
 from posedb.schema import SCHEMA_VERSION, LibraryError, NotFoundError, SchemaError
 from posedb.tags import TagError, compile_expression, membership
 
-from .conftest import SHARED_BVH, recording
+from tests.conftest import SHARED_BVH, recording
 
 NAMES = ["cmu_75_18_high_sit.bvh", "cmu_75_17_medium_sit.bvh", "cmu_82_05_floor_sit_excerpt.bvh",
          "axis_neuron_standing_yxz.bvh"]

@@ -28,7 +28,7 @@ from solver.body.rig import pose_channels, rig_pose, rig_skeleton
 from solver.body.skinning import skin
 from solver.surface.subdivision import grid_mesh
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "fixtures" / "scenarios"
+EXAMPLES = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios"
 
 
 @pytest.fixture(scope="module")

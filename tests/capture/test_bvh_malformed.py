@@ -7,7 +7,7 @@ import pytest
 
 from capture import BvhParseError, read_bvh
 
-from .conftest import FIXTURES
+from tests.conftest import FIXTURES
 
 CORPUS = FIXTURES / "bvh" / "malformed"
 EXPECTED = json.loads((CORPUS / "expected.json").read_text())
