@@ -9,7 +9,7 @@ from pathlib import Path
 
 from solver.scene.batch import expand_jobs, run_batch
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "fixtures" / "scenarios"
+EXAMPLES = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios"
 FOREVER = """[surface]
 control_mesh = "{mesh}"
 
