@@ -248,23 +248,13 @@ def retarget(skeleton: Skeleton, channels: np.ndarray, body: Body, *,
     channels : (T, C) float
         Raw channels of `skeleton`: positions in the skeleton's file unit, rotations in degrees.
         A single frame (C,) is taken as T = 1.
-    body : Body
-        The body whose rig is posed.
-    profile : str, optional
-        The skeleton's profile (see `joint_map_for`); recognised from its joint names by default.
-    joint_map : mapping of str to str, optional
-        Role -> joint name overrides (see `joint_map_for`).
+    body, profile, joint_map
+        As for `retarget_pose`.
 
     Returns
     -------
     RigMotion
-        The rig over the T frames: local rotations (T, J, 3, 3), root positions (T, 3) in metres
-        and world frames (T, J), J the body's rig joints.
-
-    Raises
-    ------
-    RetargetError
-        If the skeleton's joints cannot be given the roles the retargeting needs.
+        As `retarget_pose` returns it, over the T frames.
     """
     channels = np.atleast_2d(np.asarray(channels, dtype=np.float64))
     return retarget_pose(skeleton, skeleton_fk(skeleton, channels), body, profile=profile,

@@ -373,6 +373,28 @@ def converged(energies: Sequence[float], tolerance: float) -> bool:
     return len(post) > PATIENCE and min(post) > min(post[:-PATIENCE]) * (1 - tolerance)
 
 
+def iterate(fit: _Fit, v: np.ndarray, member: np.ndarray, tau: float
+            ) -> tuple[np.ndarray, str, float, float, dict]:
+    """One iteration from control vertices v (n0, 3): pair, assemble, constrain, solve, judge.
+    Returns the new control vertices, OSQP's status, the largest row residual (m), and the
+    judged energy with its terms."""
+    surf = fit.sub.matrix @ v
+    surf_n = fit.sub.normals(surf)
+    pairing = pair(fit, surf)
+    h, g = assemble(fit, pairing, surf_n, tau)
+    rows = constrain(fit, surf, surf_n, member)
+    x0 = v.T.reshape(-1)
+    g += fit.proximal * x0  # the proximal pull to the current iterate
+    try:
+        x, status, residual = fit.programme.solve(2 * h, -2 * g, rows.rows, rows.normals,
+                                                  rows.lower, x0, fit.params.step)
+    except ProgrammeError as exc:
+        raise FitError(str(exc)) from None
+    v = x.reshape(3, fit.n0).T
+    energy, terms = judge(fit, v, pairing, surf_n, tau, rows)
+    return v, status, residual, energy, terms
+
+
 def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedBody],
                 params: FitParams = FitParams(),
                 progress: Callable[[int, float, float], None] | None = None) -> FitResult:
@@ -413,7 +435,6 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
     """
     start = time.perf_counter()
     fit = prepare(control, faces, targets, params)
-    s, n0 = fit.sub.matrix, fit.n0
     v = fit.v0.copy()
     energies: list[float] = []
     statuses: list[str] = []
@@ -424,22 +445,9 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
     iteration = 0
     for iteration in range(1, params.max_iterations + 1):
         tau = params.tau_max * min(1.0, (iteration - 1) / TAU_RAMP)
-        surf = s @ v
-        surf_n = fit.sub.normals(surf)
-        pairing = pair(fit, surf)
-        h, g = assemble(fit, pairing, surf_n, tau)
-        rows = constrain(fit, surf, surf_n, member)
-        x0 = v.T.reshape(-1)
-        g += fit.proximal * x0  # the proximal pull to the current iterate
-        try:
-            x, status, residual = fit.programme.solve(2 * h, -2 * g, rows.rows, rows.normals,
-                                                      rows.lower, x0, params.step)
-        except ProgrammeError as exc:
-            raise FitError(str(exc)) from None
+        v, status, residual, energy, terms = iterate(fit, v, member, tau)
         statuses.append(status)
         residuals.append(residual)
-        v = x.reshape(3, n0).T
-        energy, terms = judge(fit, v, pairing, surf_n, tau, rows)
         energies.append(energy)
         # energies are comparable only at the same tau: keep and judge those after the ramp
         if best is None or energy < best[0] or iteration <= TAU_RAMP + 1:
@@ -454,8 +462,8 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
     terms["best_iteration"] = best_iteration
     terms["qp_setups"] = fit.programme.setups
     terms["largest_row_residual_m"] = residuals[best_iteration - 1] if residuals else 0.0
-    return FitResult(v, fit.faces, s @ v, fit.sub.faces, iteration, stop, energies, terms,
-                     time.perf_counter() - start, statuses, fit.sub)
+    return FitResult(v, fit.faces, fit.sub.matrix @ v, fit.sub.faces, iteration, stop, energies,
+                     terms, time.perf_counter() - start, statuses, fit.sub)
 
 
 def _energy(surf, v, v0, pair, b, w, surf_n, tau, smooth, fixed) -> tuple[float, dict]:
