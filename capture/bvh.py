@@ -534,11 +534,20 @@ def _diagnose_motion(data: bytes, pos: int, line: int, n_channels: int, frames: 
                      frames_line: int, path) -> None:
     """Finds the first malformed motion line from byte `pos` (line `line`) and raises; used
     only when the fast parse failed."""
+    # A well-formed line is passed by one regex match (in C); only the others, and lines with an
+    # exponent (which may overflow), are taken apart in Python.
+    number = _NUMBER.pattern.encode()
+    well_formed = re.compile(rb"\s*%s(?:\s+%s){%d}\s*"
+                             % (number, number, max(n_channels - 1, 0)))
     data_rows = 0
     while pos < len(data):
         end = data.find(b"\n", pos)
         end = len(data) if end < 0 else end
-        data_rows += _check_motion_line(data[pos:end], line, n_channels, path)
+        raw = data[pos:end]
+        if n_channels and well_formed.fullmatch(raw) and b"e" not in raw and b"E" not in raw:
+            data_rows += 1
+        else:
+            data_rows += _check_motion_line(raw, line, n_channels, path)
         pos, line = end + 1, line + 1
     if data_rows != frames:
         raise BvhParseError(
