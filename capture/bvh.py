@@ -96,6 +96,8 @@ _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?", re.ASCII)
 _DIGITS = re.compile(r"[0-9]+", re.ASCII)
 _DECIMAL_COMMA = re.compile(r"[+-]?[0-9]*,[0-9]+", re.ASCII)
 _TOKEN = re.compile(rb"[{}]|[^\s{}]+")
+_NON_SPACE = re.compile(rb"\S")
+_LONE_CR = re.compile(rb"\r(?!\n)")
 _MAX_SHOWN = 40
 
 # Limits of the reader (README, "BVH support"): far beyond any real skeleton, they keep hostile
@@ -127,7 +129,7 @@ class _Tokens:
     Braces are tokens of their own even when glued to a word ("Hips{", "}}"). Tokens are found
     one at a time by a regex scan of the bytes, so a pathological line costs time linear in what
     is read and no memory beyond one token; a token is decoded when it is reached.
-    data : the file's bytes with LF line ends.
+    data : the file's bytes with LF or CRLF line ends.
     """
 
     def __init__(self, data: bytes, path: str | None):
@@ -588,15 +590,18 @@ def _parse_motion(cur: _Tokens, n_channels: int) -> Motion:
 
 
 def _prepared(data: bytes | str, path: str | None) -> bytes:
-    """The file's bytes with LF line ends (CRLF and CR-only files alike), checked for text."""
+    """The file's bytes with LF or CRLF line ends (CR-only files rewritten), checked for
+    text."""
     if isinstance(data, str):
         data = data.encode("utf-8")
-    if b"\r" in data:
+    # CRLF needs no rewriting (CR is whitespace, lines are counted at LF); a lone CR, as in
+    # CR-only files, ends a line too, so those files are rewritten to LF.
+    if _LONE_CR.search(data):
         data = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
     if b"\x00" in data:
         line = data.count(b"\n", 0, data.index(b"\x00")) + 1
         raise BvhParseError(path, line, "expected a text BVH file, got binary data (NUL byte)")
-    if not data or data.isspace():  # isspace, unlike strip, copies nothing
+    if _NON_SPACE.search(data) is None:  # stops at the first word; strip would copy the file
         raise BvhParseError(path, 1, "expected 'HIERARCHY', got an empty file")
     return data
 
