@@ -2,13 +2,18 @@
 
 A BVH file is a HIERARCHY block (joints with OFFSET, CHANNELS and End Site entries) followed by a
 MOTION block (`Frames:`, `Frame Time:`, then one line of channel values per frame). The hierarchy
-is tokenised line by line (it is small); the motion block, which holds nearly all of the bytes, is
-parsed in one vectorised call and only re-read line by line when it is malformed, to name the line.
+is read as a lazy stream of tokens that remember their line, by an iterative parser (an explicit
+stack, no recursion), so its time is linear in the input and its memory and depth are bounded by
+the limits below; the motion block, which holds nearly all of the bytes, is parsed in one
+vectorised call and only re-read line by line when it is malformed, to name the line. Every
+failure is a `BvhParseError` naming the file and the line.
 
-Accepted variations: any of the six rotation orders per joint (and subsets of axes), position
-channels on any joint, keywords in any capitalisation (`End Site`, `END SITE`, `EndSite`), tabs,
-CRLF or LF line ends, braces on the keyword's line or their own, joint names containing spaces,
-`:` or `.`. See `capture.skeleton` for the frame and channel conventions.
+Accepted variations: any of the six rotation orders per joint (and subsets of axes, in any
+order), position channels on any joint and before or after the rotations, keywords in any
+capitalisation (`End Site`, `END SITE`, `EndSite`, `End <name>`, `End Site <name>`), tabs, blank
+lines, LF, CRLF or CR-only line ends, braces on the keyword's line, glued to it (`JOINT X{`) or
+on their own (`}}`), joint names containing spaces, `:` or `.`, several roots, `Frame Time`
+with a decimal comma (`0,008333`). See `capture.skeleton` for the frame and channel conventions.
 """
 
 from __future__ import annotations
@@ -86,85 +91,118 @@ class Bvh:
 
 
 _CHANNEL_LOOKUP = {c.lower(): c for c in CHANNEL_NAMES}
-_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
+# ASCII digits only: str.isdigit() and a Unicode \d accept "²" or "٣", which int() then refuses.
+_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?", re.ASCII)
+_DIGITS = re.compile(r"[0-9]+", re.ASCII)
+_DECIMAL_COMMA = re.compile(r"[+-]?[0-9]*,[0-9]+", re.ASCII)
+_TOKEN = re.compile(rb"[{}]|[^\s{}]+")
+_NON_SPACE = re.compile(rb"\S")
+_LONE_CR = re.compile(rb"\r(?!\n)")
 _MAX_SHOWN = 40
+
+# Limits of the reader (README, "BVH support"): far beyond any real skeleton, they keep hostile
+# input to a line-numbered error in bounded time and memory.
+#: joints nested inside one another (real skeletons: under 30).
+MAX_DEPTH = 1_000
+#: joints in a file (real skeletons: under 300, with face rigs).
+MAX_JOINTS = 10_000
+#: characters of a joint name.
+MAX_NAME_CHARS = 256
+#: words after a keyword on its line (OFFSET takes 3, CHANNELS at most 7).
+MAX_LINE_WORDS = 16
+#: characters of a `Frames:` or `Frame Time:` line.
+MAX_HEADER_LINE = 4_096
+#: digits of a `Frames:` count.
+MAX_FRAME_DIGITS = 15
+#: seconds per frame: at most 1 MHz, at least one frame an hour, so fps and duration are finite.
+MIN_FRAME_TIME = 1e-6
+MAX_FRAME_TIME = 3_600.0
 
 
 def _show(token: str) -> str:
     return repr(token if len(token) <= _MAX_SHOWN else token[:_MAX_SHOWN] + "...")
 
 
-class _Lines:
-    """Cursor over the header's tokens, each tagged with its 1-based line number.
+class _Tokens:
+    """Cursor over the hierarchy's tokens, each tagged with its 1-based line.
 
-    lines : the file's raw lines (bytes); a line is decoded only when the cursor reaches it.
+    Braces are tokens of their own even when glued to a word ("Hips{", "}}"). Tokens are found
+    one at a time by a regex scan of the bytes, so a pathological line costs time linear in what
+    is read and no memory beyond one token; a token is decoded when it is reached.
+    data : the file's bytes with LF or CRLF line ends.
     """
 
-    def __init__(self, lines: list[bytes], path: str | None):
-        self.lines = lines
+    def __init__(self, data: bytes, path: str | None):
+        self.data = data
         self.path = path
-        self.i = 0
-        self.tokens: list[str] = []
-        self.line_no = 0
+        self._scan = _TOKEN.finditer(data)
+        self._counted = 0  # byte offset up to which line ends have been counted
+        self._line = 1  # the line of byte `_counted`
+        self._ahead: tuple[bytes, int, int] | None = None  # next token, its line, its end
+        self.line_no = 1  # line of the last token taken
+        self.end = 0  # byte offset just after the last token taken
 
-    def text(self, k: int) -> str:
+    def _next(self) -> tuple[bytes, int, int] | None:
+        if self._ahead is None:
+            m = next(self._scan, None)
+            if m is None:
+                return None
+            start = m.start()
+            self._line += self.data.count(b"\n", self._counted, start)
+            self._counted = start
+            self._ahead = (m.group(), self._line, m.end())
+        return self._ahead
+
+    def _decode(self, raw: bytes, line: int) -> str:
         try:
-            return self.lines[k].decode("utf-8")
+            return raw.decode("utf-8")
         except UnicodeDecodeError:
-            raise BvhParseError(self.path, k + 1, "expected UTF-8 text, got undecodable bytes "
+            raise BvhParseError(self.path, line, "expected UTF-8 text, got undecodable bytes "
                                 "(is this a binary file?)") from None
 
     def error(self, message: str, line: int | None = None) -> BvhParseError:
-        return BvhParseError(self.path, line if line is not None else max(self.line_no, 1), message)
-
-    def _fill(self) -> bool:
-        while not self.tokens:
-            if self.i >= len(self.lines):
-                return False
-            raw = self.text(self.i)
-            self.i += 1
-            self.line_no = self.i
-            self.tokens = _tokenise_line(raw)
-        return True
-
-    def peek(self) -> str | None:
-        return self.tokens[0] if self._fill() else None
+        return BvhParseError(self.path, line if line is not None else self.line_no, message)
 
     @property
     def last_line(self) -> int:
         """1-based number of the last line that holds anything: where end of file is met."""
-        k = len(self.lines)
-        while k > 1 and not self.lines[k - 1].strip():
-            k -= 1
-        return k
+        end = len(self.data)
+        while end > 0:  # back over trailing whitespace, a slice at a time (no whole copy)
+            piece = self.data[max(0, end - 65_536):end]
+            kept = len(piece.rstrip())
+            end -= len(piece) - kept
+            if kept:
+                break
+        return self.data.count(b"\n", 0, end) + 1
+
+    def peek(self) -> str | None:
+        ahead = self._next()
+        return None if ahead is None else self._decode(ahead[0], ahead[1])
+
+    def on_line(self, braces: bool = True) -> bool:
+        """Whether another token follows on the line of the last one taken (a brace counts
+        only if `braces`)."""
+        ahead = self._next()
+        return (ahead is not None and ahead[1] == self.line_no
+                and (braces or ahead[0] not in (b"{", b"}")))
 
     def take(self, what: str) -> str:
-        if not self._fill():
+        ahead = self._next()
+        if ahead is None:
             raise self.error(f"expected {what}, got end of file", line=self.last_line)
-        return self.tokens.pop(0)
+        self._ahead = None
+        raw, self.line_no, self.end = ahead
+        return self._decode(raw, self.line_no)
 
-    def rest_of_line(self) -> list[str]:
-        rest, self.tokens = self.tokens, []
-        return rest
-
-
-def _tokenise_line(raw: str) -> list[str]:
-    # Braces are tokens of their own even when glued to a word ("Hips{").
-    text = raw.replace("{", " { ").replace("}", " } ")
-    words = text.split()
-    if not words:
-        return []
-    head = words[0].lower()
-    if head in ("root", "joint"):
-        # A joint name is the rest of the line (3ds Max names such as "Bip01 L Thigh" have spaces).
-        body = words[1:]
-        tail = []
-        while body and body[-1] in ("{", "}"):
-            tail.insert(0, body.pop())
-        return [words[0].upper(), " ".join(body)] + tail if body else [words[0].upper()] + tail
-    if head == "endsite" or (head == "end" and len(words) > 1 and words[1].lower() == "site"):
-        return ["END SITE"] + words[(1 if head == "endsite" else 2):]
-    return words
+    def line_words(self, keyword: str) -> list[str]:
+        """The words after `keyword` on its line, up to a brace or the end of the line."""
+        words: list[str] = []
+        while self.on_line(braces=False):
+            if len(words) == MAX_LINE_WORDS:
+                raise self.error(f"expected at most {MAX_LINE_WORDS} words after {keyword}, "
+                                 "got more")
+            words.append(self.take(keyword))
+        return words
 
 
 @dataclass
@@ -172,6 +210,7 @@ class _Tree:
     """The hierarchy's tables as they are read, in file (depth-first) order."""
 
     names: list[str] = field(default_factory=list)
+    known: set[str] = field(default_factory=set)
     parents: list[int] = field(default_factory=list)
     offsets: list[tuple[float, float, float]] = field(default_factory=list)
     channels: list[tuple[str, ...]] = field(default_factory=list)
@@ -189,59 +228,66 @@ class _Tree:
         )
 
 
-def _parse_hierarchy(cur: _Lines) -> Skeleton:
+@dataclass
+class _OpenJoint:
+    """A joint whose closing brace is still to come."""
+
+    index: int
+    name: str
+    line: int
+    have_offset: bool = False
+    have_channels: bool = False
+
+
+def _parse_hierarchy(cur: _Tokens) -> Skeleton:
     tree = _Tree()
     _hierarchy_keyword(cur)
     while _next_root(cur, tree):
-        _parse_joint(cur, tree, -1, "ROOT")
+        _parse_joint(cur, tree)
     return tree.skeleton()
 
 
-def _hierarchy_keyword(cur: _Lines) -> None:
+def _hierarchy_keyword(cur: _Tokens) -> None:
     """The file's first line: `HIERARCHY` alone."""
     first = cur.peek()
     if first is None:
         raise cur.error("expected 'HIERARCHY', got an empty file", line=1)
+    cur.take("HIERARCHY")
     if first.upper() != "HIERARCHY":
         raise cur.error(f"expected 'HIERARCHY' to start a BVH file, got {_show(first)}")
-    cur.take("HIERARCHY")
-    extra = cur.rest_of_line()
-    if extra:
-        raise cur.error(f"expected nothing after 'HIERARCHY', got {_show(extra[0])}")
+    if cur.on_line():
+        raise cur.error(f"expected nothing after 'HIERARCHY', got {_show(cur.peek())}")
 
 
-def _next_root(cur: _Lines, tree: _Tree) -> bool:
+def _next_root(cur: _Tokens, tree: _Tree) -> bool:
     """Takes a ROOT keyword (True) or the `MOTION` line that ends the hierarchy (False)."""
-    tok = cur.peek()
-    if tok is None:
+    if cur.peek() is None:
         raise cur.error("expected 'MOTION' after the hierarchy, got end of file",
                         line=cur.last_line)
+    tok = cur.take("ROOT or MOTION")
     key = tok.upper()
     if key == "ROOT":
-        cur.take("ROOT")
         return True
     if key == "MOTION":
         if not tree.names:
             raise cur.error("expected a ROOT joint before 'MOTION', got none")
-        cur.take("MOTION")
-        extra = cur.rest_of_line()
-        if extra:
-            raise cur.error(f"expected nothing after 'MOTION', got {_show(extra[0])}")
+        if cur.on_line():
+            raise cur.error(f"expected nothing after 'MOTION', got {_show(cur.peek())}")
         return False
     if tok == "}":
         raise cur.error("expected ROOT or MOTION, got an unmatched '}'")
     raise cur.error(f"expected ROOT or MOTION, got {_show(tok)}")
 
 
-def _open_brace(cur: _Lines, owner: str) -> None:
+def _open_brace(cur: _Tokens, owner: str) -> None:
     tok = cur.take(f"'{{' after {owner}")
     if tok != "{":
         raise cur.error(f"expected '{{' after {owner}, got {_show(tok)}")
 
 
-def _offset_triplet(cur: _Lines) -> tuple[float, float, float]:
-    """The three numbers after OFFSET, the rest of its line."""
-    values = cur.rest_of_line()
+def _offset_triplet(cur: _Tokens) -> tuple[float, float, float]:
+    """The three numbers after OFFSET on its line."""
+    values = cur.line_words("OFFSET")
     if len(values) != 3:
         raise cur.error(f"expected 3 numbers after OFFSET, got {len(values)}")
     out = []
@@ -255,13 +301,16 @@ def _offset_triplet(cur: _Lines) -> tuple[float, float, float]:
     return tuple(out)  # type: ignore[return-value]
 
 
-def _channel_list(cur: _Lines) -> tuple[str, ...]:
-    """The count and names after CHANNELS, the rest of its line, in canonical spelling."""
-    count_tok = cur.take("channel count")
-    if not count_tok.isdigit():
-        raise cur.error(f"expected a channel count after CHANNELS, got {_show(count_tok)}")
-    count = int(count_tok)
-    listed = cur.rest_of_line()
+def _channel_list(cur: _Tokens) -> tuple[str, ...]:
+    """The count and names after CHANNELS on its line, in canonical spelling."""
+    words = cur.line_words("CHANNELS")
+    if not words or not _DIGITS.fullmatch(words[0]):
+        got = _show(words[0]) if words else "none"
+        raise cur.error(f"expected a channel count after CHANNELS, got {got}")
+    if len(words[0]) > 2 or int(words[0]) > len(CHANNEL_NAMES):
+        raise cur.error(f"expected at most {len(CHANNEL_NAMES)} channels (each one once), "
+                        f"got a count of {_show(words[0])}")
+    count, listed = int(words[0]), words[1:]
     if len(listed) != count:
         raise cur.error(
             f"expected {count} channel names after 'CHANNELS {count}', got {len(listed)}"
@@ -279,8 +328,12 @@ def _channel_list(cur: _Lines) -> tuple[str, ...]:
     return tuple(chans)
 
 
-def _parse_end_site(cur: _Lines, tree: _Tree, parent: int) -> None:
-    """An `End Site { OFFSET x y z }` block of joint `parent` (its keyword already taken)."""
+def _parse_end_site(cur: _Tokens, tree: _Tree, parent: int) -> None:
+    """An `End Site { OFFSET x y z }` block of joint `parent` (its keyword already taken).
+
+    Whatever follows `End` on its line (`Site`, a name as in `End LeftToe_End`) is ignored.
+    """
+    cur.line_words("End Site")
     _open_brace(cur, "End Site")
     off = None
     while True:
@@ -298,55 +351,82 @@ def _parse_end_site(cur: _Lines, tree: _Tree, parent: int) -> None:
     tree.end_parents.append(parent)
 
 
-def _joint_header(cur: _Lines, tree: _Tree, parent: int, keyword: str) -> tuple[int, str]:
-    """The name after ROOT/JOINT and the opening brace; adds the joint and returns its index."""
-    if not cur.tokens or cur.tokens[0] == "{":
+def _joint_name(cur: _Tokens, keyword: str) -> str:
+    """The words after ROOT/JOINT on its line, up to a brace: names may hold spaces (3ds Max's
+    "Bip01 L Thigh")."""
+    words: list[str] = []
+    size = -1
+    while cur.on_line(braces=False):
+        words.append(cur.take("joint name"))
+        size += len(words[-1]) + 1
+        if size > MAX_NAME_CHARS:
+            raise cur.error(f"expected a joint name of at most {MAX_NAME_CHARS} characters "
+                            f"after {keyword}, got {_show(' '.join(words))}")
+    if not words:
         raise cur.error(f"expected a joint name after {keyword}, got none")
-    name = cur.take("joint name")
-    if name in tree.names:
+    return " ".join(words)
+
+
+def _open_joint(cur: _Tokens, tree: _Tree, parent: int, keyword: str) -> _OpenJoint:
+    """The name after ROOT/JOINT (its keyword already taken) and the opening brace; adds the
+    joint to the tables."""
+    line = cur.line_no
+    if len(tree.names) >= MAX_JOINTS:
+        raise cur.error(f"expected at most {MAX_JOINTS} joints in a file, got more")
+    name = _joint_name(cur, keyword)
+    if name in tree.known:
         raise cur.error(f"expected a unique joint name, got {name!r} a second time")
+    tree.known.add(name)
     tree.names.append(name)
     tree.parents.append(parent)
     tree.offsets.append((math.nan, math.nan, math.nan))
     tree.channels.append(())
     _open_brace(cur, f"{keyword} {name}")
-    return len(tree.names) - 1, name
+    return _OpenJoint(len(tree.names) - 1, name, line)
 
 
-def _parse_joint(cur: _Lines, tree: _Tree, parent: int, keyword: str) -> None:
-    """A ROOT or JOINT block (its keyword already taken), with its children, to its '}'."""
-    decl_line = cur.line_no
-    j, name = _joint_header(cur, tree, parent, keyword)
-    have_offset = have_channels = False
-    while True:
-        tok = cur.take(f"'}}' closing joint {name!r} (opened at line {decl_line})")
-        if tok == "}":
-            break
+def _close_joint(cur: _Tokens, joint: _OpenJoint) -> None:
+    if not joint.have_offset:
+        raise cur.error(f"expected an OFFSET for joint {joint.name!r}, got none", line=joint.line)
+    if not joint.have_channels:
+        raise cur.error(f"expected a CHANNELS line for joint {joint.name!r}, got none",
+                        line=joint.line)
+
+
+def _parse_joint(cur: _Tokens, tree: _Tree) -> None:
+    """A ROOT block (its keyword already taken) with all its descendants, to its '}'.
+
+    Iterative, with an explicit stack of open joints, so depth costs no Python recursion.
+    """
+    stack = [_open_joint(cur, tree, -1, "ROOT")]
+    while stack:
+        top = stack[-1]
+        tok = cur.take(f"'}}' closing joint {top.name!r} (opened at line {top.line})")
         key = tok.upper()
-        if key == "OFFSET":
-            if have_offset:
-                raise cur.error(f"expected one OFFSET for joint {name!r}, got a second one")
-            tree.offsets[j] = _offset_triplet(cur)
-            have_offset = True
+        if tok == "}":
+            _close_joint(cur, stack.pop())
+        elif key == "OFFSET":
+            if top.have_offset:
+                raise cur.error(f"expected one OFFSET for joint {top.name!r}, got a second one")
+            tree.offsets[top.index] = _offset_triplet(cur)
+            top.have_offset = True
         elif key == "CHANNELS":
-            if have_channels:
-                raise cur.error(f"expected one CHANNELS line for joint {name!r}, got a second")
-            tree.channels[j] = _channel_list(cur)
-            have_channels = True
+            if top.have_channels:
+                raise cur.error(f"expected one CHANNELS line for joint {top.name!r}, "
+                                "got a second")
+            tree.channels[top.index] = _channel_list(cur)
+            top.have_channels = True
         elif key == "JOINT":
-            _parse_joint(cur, tree, j, "JOINT")
-        elif key == "END SITE":
-            _parse_end_site(cur, tree, j)
+            if len(stack) >= MAX_DEPTH:
+                raise cur.error(f"expected joints nested at most {MAX_DEPTH} deep, got deeper")
+            stack.append(_open_joint(cur, tree, top.index, "JOINT"))
+        elif key in ("END", "ENDSITE"):
+            _parse_end_site(cur, tree, top.index)
         else:
-            raise _unexpected_in_joint(cur, tok, name, decl_line)
-    if not have_offset:
-        raise cur.error(f"expected an OFFSET for joint {name!r}, got none", line=decl_line)
-    if not have_channels:
-        raise cur.error(f"expected a CHANNELS line for joint {name!r}, got none",
-                        line=decl_line)
+            raise _unexpected_in_joint(cur, tok, top.name, top.line)
 
 
-def _unexpected_in_joint(cur: _Lines, tok: str, name: str, decl_line: int) -> BvhParseError:
+def _unexpected_in_joint(cur: _Tokens, tok: str, name: str, decl_line: int) -> BvhParseError:
     """The error for a token that has no place inside a joint's braces."""
     key = tok.upper()
     if key == "ROOT":
@@ -362,79 +442,168 @@ def _unexpected_in_joint(cur: _Lines, tok: str, name: str, decl_line: int) -> Bv
     )
 
 
-_FRAMES = re.compile(r"frames\s*:\s*(\S*)\s*(.*)", re.IGNORECASE)
-_FRAME_TIME = re.compile(r"frame\s*time\s*:\s*(\S*)\s*(.*)", re.IGNORECASE)
+_FRAMES = re.compile(r"frames\s*:\s*(\S*)\s*(.*)", re.IGNORECASE | re.ASCII)
+_FRAME_TIME = re.compile(r"frame\s*time\s*:\s*(\S*)\s*(.*)", re.IGNORECASE | re.ASCII)
 
 
-def _motion_header(cur: _Lines) -> tuple[int, float, int]:
-    """Parses `Frames:` and `Frame Time:`; returns frames, frame time and the Frames line."""
+def _next_text_line(cur: _Tokens, pos: int, line: int, what: str) -> tuple[str, int, int]:
+    """The next non-blank line from byte `pos` (line `line`): its stripped text, its line
+    number and the offset after it."""
+    data = cur.data
+    while pos < len(data):
+        end = data.find(b"\n", pos)
+        end = len(data) if end < 0 else end
+        raw = data[pos:end].strip()
+        pos = end + 1
+        if raw:
+            if len(raw) > MAX_HEADER_LINE:
+                raise cur.error(f"expected {what}, got a line of {len(raw)} characters",
+                                line=line)
+            return cur._decode(raw, line), line, pos
+        line += 1
+    raise cur.error(f"expected {what}, got end of file", line=cur.last_line)
 
-    def next_line(what: str) -> tuple[str, int]:
-        while cur.i < len(cur.lines):
-            text = cur.text(cur.i).strip()
-            cur.i += 1
-            if text:
-                return text, cur.i
-        raise cur.error(f"expected {what}, got end of file", line=cur.last_line)
 
-    text, frames_line = next_line("'Frames: N'")
+def _frame_count(cur: _Tokens, text: str, line: int) -> int:
     m = _FRAMES.fullmatch(text)
     if not m:
-        raise cur.error(f"expected 'Frames: N', got {_show(text)}", line=frames_line)
-    if not m.group(1).isdigit() or m.group(2):
-        raise cur.error(f"expected a whole number of frames, got {_show(text)}", line=frames_line)
-    frames = int(m.group(1))
-    text, line = next_line("'Frame Time: SECONDS'")
+        raise cur.error(f"expected 'Frames: N', got {_show(text)}", line=line)
+    count = m.group(1)
+    if not _DIGITS.fullmatch(count) or m.group(2):
+        raise cur.error(f"expected a whole number of frames, got {_show(text)}", line=line)
+    if len(count.lstrip("0")) > MAX_FRAME_DIGITS:
+        raise cur.error(f"expected a frame count of at most {MAX_FRAME_DIGITS} digits, got "
+                        f"{len(count.lstrip('0'))} digits", line=line)
+    return int(count)
+
+
+def _frame_time(cur: _Tokens, text: str, line: int) -> float:
     m = _FRAME_TIME.fullmatch(text)
     if not m:
         raise cur.error(f"expected 'Frame Time: SECONDS', got {_show(text)}", line=line)
     token = m.group(1)
+    if _DECIMAL_COMMA.fullmatch(token):  # "0,008333" from a decimal-comma locale
+        token = token.replace(",", ".")
     if not _NUMBER.fullmatch(token) or m.group(2):
         raise cur.error(f"expected a number of seconds per frame, got {_show(text)}", line=line)
     frame_time = float(token)
     if not (math.isfinite(frame_time) and frame_time > 0):
         raise cur.error(f"expected a positive frame time, got {_show(token)}", line=line)
-    return frames, frame_time, frames_line
+    if not MIN_FRAME_TIME <= frame_time <= MAX_FRAME_TIME:
+        raise cur.error(f"expected a frame time from {MIN_FRAME_TIME:g} to "
+                        f"{MAX_FRAME_TIME:g} s, got {_show(token)}", line=line)
+    return frame_time
 
 
-def _diagnose_motion(
-    lines: list[bytes], first: int, n_channels: int, frames: int, frames_line: int, path
-) -> None:
-    """Finds the first malformed motion line and raises; used only when the fast parse failed."""
+def _count_words(raw: bytes) -> int:
+    """Whitespace-separated words in `raw`, counted in slices so memory stays bounded."""
+    count, in_word, step = 0, False, 1 << 16
+    for k in range(0, len(raw), step):
+        piece = raw[k:k + step]
+        count += len(piece.split())
+        if in_word and not piece[:1].isspace():
+            count -= 1  # a word cut by the slice boundary was counted twice
+        in_word = not piece[-1:].isspace()
+    return count
+
+
+def _check_motion_line(raw: bytes, line: int, n_channels: int, path) -> bool:
+    """Raises for a malformed motion line; returns whether it holds data (is not blank)."""
+    if not raw.isascii():
+        raise BvhParseError(path, line, "expected ASCII numbers in the motion data, got "
+                            "non-ASCII bytes")
+    words = raw.split(None, n_channels)  # at most n_channels + 1 pieces: bounded memory
+    if not words:
+        return False
+    got = len(words) if len(words) <= n_channels else n_channels + _count_words(words[-1])
+    if got != n_channels:
+        raise BvhParseError(path, line, f"expected {n_channels} values per frame (the "
+                            f"channels of the hierarchy), got {got}")
+    for col, word in enumerate(words, start=1):
+        token = word.decode("ascii")
+        if not _NUMBER.fullmatch(token):
+            low = token.lower().lstrip("+-")
+            kind = "a finite number" if low in ("nan", "inf", "infinity") else "a number"
+            raise BvhParseError(path, line, f"expected {kind} in column {col}, got "
+                                f"{_show(token)}")
+        if not math.isfinite(float(token)):
+            raise BvhParseError(path, line,
+                                f"expected a finite number in column {col}, got {_show(token)}")
+    return True
+
+
+def _diagnose_motion(data: bytes, pos: int, line: int, n_channels: int, frames: int,
+                     frames_line: int, path) -> None:
+    """Finds the first malformed motion line from byte `pos` (line `line`) and raises; used
+    only when the fast parse failed."""
+    # A well-formed line is passed by one regex match (in C); only the others, and lines with an
+    # exponent (which may overflow), are taken apart in Python.
+    number = _NUMBER.pattern.encode()
+    well_formed = re.compile(rb"\s*%s(?:\s+%s){%d}\s*"
+                             % (number, number, max(n_channels - 1, 0)))
     data_rows = 0
-    for k in range(first, len(lines)):
-        line_no = k + 1
-        try:
-            text = lines[k].decode("ascii")
-        except UnicodeDecodeError:
-            raise BvhParseError(path, line_no, "expected ASCII numbers in the motion data, got "
-                                "non-ASCII bytes") from None
-        tokens = text.split()
-        if not tokens:
-            continue
-        data_rows += 1
-        if len(tokens) != n_channels:
-            raise BvhParseError(
-                path, line_no,
-                f"expected {n_channels} values per frame (the channels of the hierarchy), "
-                f"got {len(tokens)}",
-            )
-        for col, token in enumerate(tokens, start=1):
-            if not _NUMBER.fullmatch(token):
-                low = token.lower().lstrip("+-")
-                if low in ("nan", "inf", "infinity"):
-                    raise BvhParseError(path, line_no,
-                                        f"expected a finite number in column {col}, got {_show(token)}")
-                raise BvhParseError(path, line_no,
-                                    f"expected a number in column {col}, got {_show(token)}")
-            if not math.isfinite(float(token)):
-                raise BvhParseError(path, line_no,
-                                    f"expected a finite number in column {col}, got {_show(token)}")
+    while pos < len(data):
+        end = data.find(b"\n", pos)
+        end = len(data) if end < 0 else end
+        raw = data[pos:end]
+        if n_channels and well_formed.fullmatch(raw) and b"e" not in raw and b"E" not in raw:
+            data_rows += 1
+        else:
+            data_rows += _check_motion_line(raw, line, n_channels, path)
+        pos, line = end + 1, line + 1
     if data_rows != frames:
         raise BvhParseError(
             path, frames_line,
             f"expected {frames} frames as declared by 'Frames:', got {data_rows} lines of data",
         )
+
+
+def _parse_motion(cur: _Tokens, n_channels: int) -> Motion:
+    """The MOTION block after the hierarchy (the cursor stands on the `MOTION` keyword)."""
+    data, path = cur.data, cur.path
+    end = data.find(b"\n", cur.end)
+    pos, line = (len(data) if end < 0 else end + 1), cur.line_no + 1
+    text, frames_line, pos = _next_text_line(cur, pos, line, "'Frames: N'")
+    frames = _frame_count(cur, text, frames_line)
+    text, line, pos = _next_text_line(cur, pos, frames_line + 1, "'Frame Time: SECONDS'")
+    frame_time = _frame_time(cur, text, line)
+    line += 1
+    block = data[pos:]
+    if frames == 0 or n_channels == 0:
+        if block and not block.isspace():
+            _diagnose_motion(data, pos, line, n_channels, frames, frames_line, path)
+            raise BvhParseError(path, frames_line, "expected no motion data, got some")
+        if frames:
+            raise BvhParseError(path, frames_line, "expected channels for the declared frames")
+        return Motion(np.zeros((0, n_channels)), frame_time)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            channels = np.loadtxt(io.BytesIO(block), dtype=np.float64, comments=None, ndmin=2)
+    except ValueError:
+        channels = None
+    if (channels is None or channels.shape != (frames, n_channels)
+            or not np.isfinite(channels).all()):
+        _diagnose_motion(data, pos, line, n_channels, frames, frames_line, path)
+        raise BvhParseError(path, line, "expected numeric motion data")
+    return Motion(channels, frame_time)
+
+
+def _prepared(data: bytes | str, path: str | None) -> bytes:
+    """The file's bytes with LF or CRLF line ends (CR-only files rewritten), checked for
+    text."""
+    if isinstance(data, str):
+        data = data.encode("utf-8")
+    # CRLF needs no rewriting (CR is whitespace, lines are counted at LF); a lone CR, as in
+    # CR-only files, ends a line too, so those files are rewritten to LF.
+    if _LONE_CR.search(data):
+        data = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+    if b"\x00" in data:
+        line = data.count(b"\n", 0, data.index(b"\x00")) + 1
+        raise BvhParseError(path, line, "expected a text BVH file, got binary data (NUL byte)")
+    if _NON_SPACE.search(data) is None:  # stops at the first word; strip would copy the file
+        raise BvhParseError(path, 1, "expected 'HIERARCHY', got an empty file")
+    return data
 
 
 def parse_bvh(data: bytes | str, *, unit: str | float | None = "auto",
@@ -445,49 +614,15 @@ def parse_bvh(data: bytes | str, *, unit: str | float | None = "auto",
     unit : metres per file unit, a unit name ("cm", "cmu", ... see `capture.units`), "auto" to
         take the unit of the recognised profile (None when no profile matches), or None.
     path : used in error messages only.
+    Raises `BvhParseError` (a ValueError naming the file and line) for a malformed file.
     """
-    if isinstance(data, str):
-        data = data.encode("utf-8")
     path = None if path is None else str(path)
-    if b"\x00" in data:
-        line = data.count(b"\n", 0, data.index(b"\x00")) + 1
-        raise BvhParseError(path, line, "expected a text BVH file, got binary data (NUL byte)")
-    if not data.strip():
-        raise BvhParseError(path, 1, "expected 'HIERARCHY', got an empty file")
-    raw_lines = data.split(b"\n")
-    # The hierarchy and motion header are decoded as text; the motion data stays as bytes.
-    cur = _Lines(raw_lines, path)
+    cur = _Tokens(_prepared(data, path), path)
     skeleton = _parse_hierarchy(cur)
-    frames, frame_time, frames_line = _motion_header(cur)
-    first_data = cur.i
-    n_channels = skeleton.num_channels
-
-    offset = sum(len(raw_lines[k]) + 1 for k in range(first_data))
-    block = data[offset:]
-    channels = None
-    if frames == 0 or n_channels == 0:
-        if block.strip():
-            _diagnose_motion(raw_lines, first_data, n_channels, frames, frames_line, path)
-            raise BvhParseError(path, frames_line, "expected no motion data, got some")
-        channels = np.zeros((0 if frames == 0 else frames, n_channels))
-        if frames and n_channels == 0:
-            raise BvhParseError(path, frames_line, "expected channels for the declared frames")
-    else:
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                channels = np.loadtxt(io.BytesIO(block), dtype=np.float64, comments=None, ndmin=2)
-        except ValueError:
-            channels = None
-        if (channels is None or channels.shape != (frames, n_channels)
-                or not np.isfinite(channels).all()):
-            _diagnose_motion(raw_lines, first_data, n_channels, frames, frames_line, path)
-            raise BvhParseError(path, first_data + 1, "expected numeric motion data")
-
+    motion = _parse_motion(cur, skeleton.num_channels)
     profile = identify_profile(skeleton.names)
-    unit_m = _choose_unit(unit, profile)
-    skeleton = skeleton.with_unit(unit_m)
-    return Bvh(skeleton, Motion(channels, frame_time), profile, path)
+    skeleton = skeleton.with_unit(_choose_unit(unit, profile))
+    return Bvh(skeleton, motion, profile, path)
 
 
 def _choose_unit(unit: str | float | None, profile: str | None) -> float | None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import signal
 import time
 
@@ -40,10 +41,23 @@ def bvh_info(spec: str, unit: str = "auto") -> dict:
     return info
 
 
+def _json_safe(value):
+    """`value` with every non-finite float as None: JSON has no NaN or Infinity."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    return value
+
+
 def _cmd_info(args: argparse.Namespace) -> int:
     info = bvh_info(args.file, args.unit)
     if args.json:
-        print(json.dumps(info, indent=2))
+        # The reader bounds the frame time, so fps is finite; the guard keeps the output valid
+        # JSON whatever a future field holds.
+        print(json.dumps(_json_safe(info), indent=2, allow_nan=False))
         return 0
     print(f"file        {info['file']}")
     print(f"profile     {info['profile'] or 'unknown'}")
