@@ -13,6 +13,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from studio.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -47,14 +49,15 @@ def test_readme_lists_the_commands_it_shows():
         assert any(c.startswith(f"sitrelax {needed} ") for c in commands), needed
 
 
-def test_every_readme_command_runs_as_written(tmp_path, monkeypatch, capsys):
+def _run_as_written(commands, tmp_path, monkeypatch, capsys):
+    """Runs `commands` in order in the fresh folder `tmp_path`, as `sitrelax` would."""
     monkeypatch.chdir(tmp_path)
     monkeypatch.delenv("SITRELAX_DB", raising=False)
     (tmp_path / "fixtures").symlink_to(ROOT / "fixtures")
     ports = {fixed: str(_free_port()) for fixed in ("7001", "8080", "8765")}
     background = []
     try:
-        for command in readme_commands():
+        for command in commands:
             for fixed, free in ports.items():
                 command = command.replace(fixed, free)
             args = shlex.split(command.rstrip("&").strip())[1:]
@@ -72,11 +75,28 @@ def test_every_readme_command_runs_as_written(tmp_path, monkeypatch, capsys):
         for proc in background:
             proc.terminate()
             proc.wait(10)
+
+
+@pytest.mark.slow
+def test_every_readme_command_runs_as_written(tmp_path, monkeypatch, capsys):
+    _run_as_written(readme_commands(), tmp_path, monkeypatch, capsys)
     # what the commands say they make
     assert (tmp_path / "session.raw").stat().st_size > 0
     assert (tmp_path / "poses.h5").exists()
     for made in ("body.obj", "seated.png", "seated.obj", "result/report.json",
                  "thin/report.json", "heavy_on_thin/report.json", "sweep/summary.csv"):
+        assert (tmp_path / made).exists(), made
+
+
+# the README's commands that need no stream, server, fit or worker: the default run's smoke test
+QUICK = ("sitrelax bvh ", "sitrelax db ", "sitrelax body ", "sitrelax pose ")
+
+
+def test_the_readme_library_and_body_commands_run_as_written(tmp_path, monkeypatch, capsys):
+    quick = [c for c in readme_commands() if c.startswith(QUICK)]
+    assert len(quick) >= 15
+    _run_as_written(quick, tmp_path, monkeypatch, capsys)
+    for made in ("poses.h5", "body.obj", "seated.png", "seated.obj", "seated_part.bvh"):
         assert (tmp_path / made).exists(), made
 
 

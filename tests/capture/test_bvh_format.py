@@ -6,6 +6,7 @@ from scipy.spatial.transform import Rotation
 
 from capture import (
     PROFILES,
+    Bvh,
     Motion,
     Skeleton,
     UnitUnknownError,
@@ -119,6 +120,7 @@ def _to_six_channels_zxy(bvh):
     return six, Motion(six.channels_from_pose(rot, trans), bvh.motion.frame_time)
 
 
+@pytest.mark.slow
 def test_six_channels_on_every_joint_in_zxy(axis_standing, tmp_path):
     import bvhio
 
@@ -136,6 +138,30 @@ def test_six_channels_on_every_joint_in_zxy(axis_standing, tmp_path):
     root.loadPose(1000)
     theirs = np.array([tuple(j.PositionWorld) for j, _, _ in root.layout()]) * 0.01
     np.testing.assert_allclose(again.world_positions()[1000], theirs, atol=1e-4)
+
+
+def test_six_channels_on_every_joint_in_zxy_on_a_sample_of_frames(axis_standing, tmp_path):
+    """The default run's version of the test above: three frames of the recording (bvhio
+    takes seconds to read all 2156)."""
+    import bvhio
+
+    whole = read_bvh(axis_standing)
+    frames = [0, 1000, 2155]
+    original = Bvh(whole.skeleton, Motion(whole.motion.channels[frames], whole.motion.frame_time),
+                   whole.profile)
+    six, motion = _to_six_channels_zxy(original)
+    assert six.num_channels == 354
+    path = tmp_path / "axis_6ch_zxy.bvh"
+    write_bvh(path, six, motion)
+    again = read_bvh(path)
+    assert again.skeleton.num_channels == 354
+    assert again.profile == "axis_neuron"
+    np.testing.assert_allclose(again.world_positions(), whole.world_positions()[frames],
+                               atol=1e-5)
+    root = bvhio.readAsHierarchy(str(path))
+    root.loadPose(1)
+    theirs = np.array([tuple(j.PositionWorld) for j, _, _ in root.layout()]) * 0.01
+    np.testing.assert_allclose(again.world_positions()[1], theirs, atol=1e-4)
 
 
 @pytest.mark.parametrize("order", ["XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX"])

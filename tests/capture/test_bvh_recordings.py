@@ -6,7 +6,7 @@ import pytest
 import bvhio
 from scipy.spatial.transform import Rotation
 
-from capture import bundled_recordings, read_bvh
+from capture import Motion, bundled_recordings, read_bvh, write_bvh
 from capture.recordings import bundled_dir
 
 from tests.conftest import SHARED_BVH, recording
@@ -60,7 +60,11 @@ def _bvhio_world_positions(path, unit_m):
     return [joint.Name for joint, _, _ in layout], out * unit_m
 
 
-@pytest.mark.parametrize("name", ["cmu_75_18_high_sit.bvh", "axis_neuron_standing_yxz.bvh"])
+# bvhio takes seconds to read the 2156-frame Axis Neuron file: every frame of it is compared
+# under `-m slow`, a sample in the default run (test_a_sample_of_the_axis_recording_matches_bvhio)
+@pytest.mark.parametrize("name", [
+    "cmu_75_18_high_sit.bvh",
+    pytest.param("axis_neuron_standing_yxz.bvh", marks=pytest.mark.slow)])
 def test_world_positions_match_bvhio(name):
     path = recording(name)
     bvh = read_bvh(path)
@@ -71,6 +75,7 @@ def test_world_positions_match_bvhio(name):
     np.testing.assert_allclose(ours, expected, rtol=0, atol=1e-4)
 
 
+@pytest.mark.slow
 def test_world_rotations_match_bvhio_on_sampled_frames(axis_standing):
     # bvhio's joint frames carry a constant rest orientation per joint (its bones point along
     # their local Y), so compare motion relative to frame 0: R(f) R(0)^-1 is free of it.
@@ -92,6 +97,32 @@ def test_world_rotations_match_bvhio_on_sampled_frames(axis_standing):
         rel_ours = Rotation.from_quat(ours[f]) * base_ours.inv()
         angle = (rel_ours * rel_theirs.inv()).magnitude()
         assert angle.max() < 1e-5, (f, angle.max())
+
+
+def test_a_sample_of_the_axis_recording_matches_bvhio(axis_standing, tmp_path):
+    """The default run's bvhio check of the Axis Neuron recording: the frames sampled above,
+    written as a file of their own, read by bvhio; positions and rotations (relative to the
+    first sampled frame) agree with ours from the whole recording."""
+    frames = [0, 1, 500, 1500, 2155]
+    bvh = read_bvh(axis_standing)
+    sample = tmp_path / "sample.bvh"
+    write_bvh(sample, bvh.skeleton, Motion(bvh.motion.channels[frames], bvh.motion.frame_time))
+    names, expected = _bvhio_world_positions(sample, bvh.skeleton.unit_m)
+    assert names == list(bvh.skeleton.names)
+    world = bvh.fk()
+    np.testing.assert_allclose(world.positions[frames], expected, rtol=0, atol=1e-4)
+    root = bvhio.readAsHierarchy(str(sample))
+    layout = root.layout()
+
+    def theirs(k):
+        root.loadPose(k)
+        return Rotation.from_quat([(j.RotationWorld.x, j.RotationWorld.y, j.RotationWorld.z,
+                                    j.RotationWorld.w) for j, _, _ in layout])
+
+    ours = [Rotation.from_matrix(world.rotmats[f]) for f in frames]
+    for k in range(1, len(frames)):
+        angle = ((ours[k] * ours[0].inv()) * (theirs(k) * theirs(0).inv()).inv()).magnitude()
+        assert angle.max() < 1e-5, (frames[k], angle.max())
 
 
 def test_seated_phase_of_the_high_sit(cmu_high_sit):

@@ -15,6 +15,7 @@ import pytest
 import schemathesis
 from hypothesis import HealthCheck, settings
 from schemathesis.checks import not_a_server_error
+from schemathesis.config import SchemathesisConfig
 
 from capture.recordings import resolve_path
 from posedb import PoseLibrary
@@ -208,7 +209,21 @@ def test_serve_refuses_a_missing_library(tmp_path):
 fuzzed = schemathesis.openapi.from_dict(create_app(None).openapi())
 
 
+@pytest.mark.slow
 @fuzzed.parametrize()
 @settings(max_examples=25, deadline=None, suppress_health_check=list(HealthCheck))
 def test_fuzzing_the_openapi_description_finds_no_server_error_and_no_hang(case, api):
+    case.call_and_validate(base_url=api.url, checks=[not_a_server_error], timeout=60)
+
+
+# the default run's smoke test: every operation, ten generated requests each (the schema's
+# examples and a short fuzz, without the coverage phase's every boundary value)
+quick = schemathesis.openapi.from_dict(
+    create_app(None).openapi(),
+    config=SchemathesisConfig.from_dict({"phases": {"coverage": {"enabled": False}}}))
+
+
+@quick.parametrize()
+@settings(max_examples=10, deadline=None, suppress_health_check=list(HealthCheck))
+def test_a_short_fuzz_of_every_operation_finds_no_server_error(case, api):
     case.call_and_validate(base_url=api.url, checks=[not_a_server_error], timeout=60)

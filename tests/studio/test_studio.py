@@ -114,6 +114,9 @@ def _rgb(png: bytes) -> np.ndarray:
     return imread(io.BytesIO(png), format="png")[..., :3]
 
 
+# a browser, the studio and a fit, end to end (half a minute on two loaded cores): under the slow
+# mark; the default run keeps the studio serving its client on loopback and the design session
+@pytest.mark.slow
 @pytest.mark.skipif(not (CHROMIUM and DRIVER) and not os.environ.get("CI"),
                     reason="needs Debian's chromium and chromium-driver (apt-get install "
                            "chromium chromium-driver)")

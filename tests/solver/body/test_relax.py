@@ -175,6 +175,7 @@ def test_forearms_hovering_over_armrests_come_down_onto_them():
     assert np.all(turned <= 3 * allowed + 1e-3)
 
 
+@pytest.mark.slow
 def test_figure_8_heavy_body_fits_the_thin_seat_worse(tmp_path, capsys):
     """The paper's figure 8 through the command line: a seat fitted for a thin body and one for
     an overweight body, each relaxed into by the other body."""

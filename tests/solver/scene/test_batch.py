@@ -49,6 +49,7 @@ def test_grid_and_template_expand_to_jobs(library, tmp_path):
         expand_jobs(from_db="lying", template=EXAMPLES / "single_seated.toml", db=library)
 
 
+@pytest.mark.slow
 def test_batch_runs_records_failures_stores_and_skips(library, tmp_path, capsys):
     broken = tmp_path / "broken.toml"
     broken.write_text("[surface]\nsigma = -1\n")
@@ -94,6 +95,32 @@ def test_batch_runs_records_failures_stores_and_skips(library, tmp_path, capsys)
     assert json.loads((out / "summary.json").read_text()) == rows
 
 
+def test_a_batch_on_one_local_worker_records_a_failure_stores_and_skips(library, tmp_path,
+                                                                       capsys):
+    """The default run's smoke test of `sitrelax batch`: one good job and one broken one on a
+    single local worker, stored in the library; a re-run of the good one skips it."""
+    broken = tmp_path / "broken.toml"
+    broken.write_text("[surface]\nsigma = -1\n")
+    out = tmp_path / "out"
+    good = str(EXAMPLES / "single_seated.toml")
+    assert main(["batch", str(broken), good, "--db", str(library), "--out", str(out),
+                 "--workers", "1", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["counts"] == {"total": 2, "skipped": 0, "done": 1, "failed": 1,
+                                "running": 0}
+    status = {Path(r["scenario"]).name: r for r in result["jobs"]}
+    assert status["single_seated.toml"]["status"] == "ok"
+    assert status["single_seated.toml"]["coverage_min"] > 0.5
+    assert status["broken.toml"]["status"] == "failed"
+    assert "surface" in status["broken.toml"]["error"]
+    assert len((out / "summary.csv").read_text().strip().splitlines()) == 3
+    ok = status["single_seated.toml"]["job"]
+    assert [s["name"] for s in PoseLibrary(library).scenarios()] == [ok]
+    assert main(["batch", good, "--out", str(out), "--json"]) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert again["counts"]["skipped"] == 1 and again["jobs"][0]["job"] == ok
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -105,6 +132,7 @@ def _start(args, **kw):
                             stderr=subprocess.DEVNULL, start_new_session=True, **kw)
 
 
+@pytest.mark.slow
 def test_a_dask_scheduler_with_two_workers_and_one_killed(tmp_path):
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"

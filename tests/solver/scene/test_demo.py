@@ -3,12 +3,14 @@
 import json
 
 import numpy as np
+import pytest
 import trimesh
 
 from posedb import PoseLibrary
 from solver.cli import main
 
 
+@pytest.mark.slow
 def test_demo_makes_everything(tmp_path, capsys):
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out), "--json"]) == 0
@@ -54,3 +56,44 @@ def test_demo_makes_everything(tmp_path, capsys):
     assert masses[1] > masses[0] + 10  # two different builds
     assert np.isclose(summary["timing"]["total_s"], sum(
         v for k, v in summary["timing"].items() if k != "total_s"), rtol=0.05)
+
+
+# The demo's own scene, cut to one slight person on a coarser seat, and a shorter standing
+# stream: every stage of `sitrelax demo` in a few seconds (the default run's smoke test).
+QUICK_SCENARIO = """\
+[surface]
+grid = {{ size = [0.6, 0.6], resolution = [6, 4], height = 0.42 }}
+level = 2
+sigma = 0.003
+tau_max = 0.5
+margin = 0.03
+
+[[person]]
+name = "slight"
+pose = "db:{pose}"
+body = {{ gender = 0.2, weight = 0.3, height = 0.4 }}
+position = [0.0, 0.0, -0.1]
+support = ["legs"]
+"""
+
+
+def test_the_demo_command_runs_every_stage_on_a_smaller_scene(tmp_path, capsys, monkeypatch):
+    from solver.scene import demo
+
+    monkeypatch.setattr(demo, "STANDING_SECONDS", 0.5)
+    monkeypatch.setattr(demo, "SCENARIO", QUICK_SCENARIO)
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    lib = PoseLibrary(out / "poses.h5")
+    takes = {t.name: t for t in lib.takes()}
+    assert set(takes) == {"standing", "sitting"}
+    assert takes["sitting"].frames == 77 and summary["takes"]["sitting"]["dropped"] == 0
+    assert lib.search_poses("sit and demo") == summary["takes"]["sitting"]["poses"]
+    for made in ("fit/report.json", "fit/surface.obj", "fit/person_1.ply",
+                 "relax/report.json", "relax/person_1_relaxed.bvh", "relax/relax.png"):
+        assert (out / made).stat().st_size > 0, made
+    (person,) = summary["persons"]
+    assert person["coverage"] > 0.5 and person["relaxed"]["coverage"] > 0.5
+    # a second run into the same folder is refused
+    assert main(["demo", "--out", str(out)]) != 0

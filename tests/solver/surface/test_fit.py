@@ -233,10 +233,10 @@ def test_fit_command_writes_files_that_open_again(tmp_path):
 EXAMPLES = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios"
 
 
-@pytest.mark.parametrize("name", [
-    "single_seated", "reclining", "facing_pair", "seat_for_thin", "seat_for_heavy",
-    "six_overlapping",
-])
+# single_seated is the default run's smoke test; the other examples run under `-m slow`
+@pytest.mark.parametrize("name", ["single_seated", *(
+    pytest.param(name, marks=pytest.mark.slow) for name in (
+        "reclining", "facing_pair", "seat_for_thin", "seat_for_heavy", "six_overlapping"))])
 def test_example_scenarios_meet_the_bar(name, tmp_path):
     """Coverage at least 0.9, no cut deeper than the margin plus 5 mm, and a peak pressure at
     most 60 % of the flat seat's at the same height."""
