@@ -104,7 +104,7 @@ def _hold_lock(path: Path, seconds: float) -> subprocess.Popen:
 
 
 def _record_from_file(db, take, **kw):
-    from ..test_stream_fixtures import STREAMS
+    from tests.capture.test_stream_fixtures import STREAMS
 
     return record(f"file:{STREAMS / 'skipped_indices.raw'}", db, take, str(recording(CMU)), **kw)
 
@@ -180,7 +180,9 @@ def test_recover_and_a_finishing_recorder_store_the_take_once(db):
         thread = threading.Thread(
             target=lambda: outcome.update(_record_from_file(db, f"race{k}")))
         thread.start()
+        deadline = time.monotonic() + 30
         while not list(journal_dir(db).glob("*.raw")):
+            assert thread.is_alive() and time.monotonic() < deadline, "the recorder never began"
             time.sleep(0.01)
         time.sleep(0.2)
         statuses = [r["status"] for r in recover(db)]
