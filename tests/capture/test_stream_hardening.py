@@ -75,6 +75,7 @@ def test_datagram_reassembly_at_every_split_and_its_bounds():
     assert dec.feed(blobs[2][100:], 2.0) == [] and dec.stats.corrupt == 2
 
 
+@pytest.mark.slow  # test_sender_timing_splits_at_restarts_... checks the estimate itself
 def test_looping_sender_that_restarts_its_index_keeps_frame_time_and_latency(tmp_path):
     from posedb.record import record
 

@@ -99,13 +99,14 @@ def _cases():
     for transport in ("tcp", "udp", "loop", "pty"):
         for name in FILES:
             for fmt in FORMATS:
-                # the 17 s, 59-bone recording through loop:// takes up to half a minute; on the
-                # other transports it takes 2 s a format: the default run sends it in binary,
-                # `-m slow` in the older binary and the string formats too; likewise the
-                # medium sit in strings through loop:// (4 s; the other two recordings remain)
-                slow = (name.startswith("axis") and (transport == "loop" or fmt != "binary")
-                        or (transport, name, fmt) == ("loop", "cmu_75_17_medium_sit.bvh",
-                                                      "string"))
+                # the default run: every format of every file over TCP (the 17 s, 59-bone
+                # recording in binary), the small high sit in every format over every transport
+                # and the Axis recording in binary over UDP; `-m slow` runs every combination
+                axis = name.startswith("axis")
+                fast = (transport == "tcp" and (not axis or fmt == "binary")
+                        or name == "cmu_75_18_high_sit.bvh"
+                        or (transport == "udp" and axis and fmt == "binary"))
+                slow = not fast
                 yield pytest.param(transport, name, fmt,
                                    marks=[pytest.mark.slow] if slow else [])
 
@@ -155,6 +156,7 @@ def _replay_process(port, start_index):
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
+@pytest.mark.slow
 def test_peer_killed_and_restarted_is_reconnected_and_the_gap_reported():
     port = _free_port()
     bvh = read_bvh(recording("cmu_75_17_medium_sit.bvh"), unit=None)

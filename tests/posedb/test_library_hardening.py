@@ -173,8 +173,9 @@ def test_a_recording_that_cannot_commit_keeps_its_journal_and_says_what_to_run(d
     assert PoseLibrary(db).take("later").frames == 60
 
 
-def test_recover_and_a_finishing_recorder_store_the_take_once(db):
-    for k in range(6):
+@pytest.mark.parametrize("races", [pytest.param(2), pytest.param(6, marks=pytest.mark.slow)])
+def test_recover_and_a_finishing_recorder_store_the_take_once(db, races):
+    for k in range(races):
         holder = _hold_lock(db, 0.6)  # the recorder's final commit waits: the old race window
         outcome = {}
         thread = threading.Thread(

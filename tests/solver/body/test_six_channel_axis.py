@@ -195,7 +195,7 @@ def test_the_api_poses_a_six_channel_library_pose(axis_studio_seated, tmp_path):
     lib = PoseLibrary(tmp_path / "poses.h5", create=True)
     take = lib.import_bvh(axis_studio_seated, name="studio_seated")
     lib.add_pose(take.id, 3, "perch")
-    client = TestClient(create_app(tmp_path / "poses.h5"))
+    client = TestClient(create_app(tmp_path / "poses.h5"), base_url="http://127.0.0.1")
     reply = client.post("/api/body", json={"person": {"pose": "db:perch"}})
     assert reply.status_code == 200, reply.text
     v = np.asarray(reply.json()["vertices"])

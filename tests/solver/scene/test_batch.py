@@ -107,7 +107,7 @@ def test_a_batch_on_one_local_worker_records_a_failure_stores_and_skips(library,
                  "--workers", "1", "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["counts"] == {"total": 2, "skipped": 0, "done": 1, "failed": 1,
-                                "running": 0}
+                                "timed_out": 0, "running": 0}
     status = {Path(r["scenario"]).name: r for r in result["jobs"]}
     assert status["single_seated.toml"]["status"] == "ok"
     assert status["single_seated.toml"]["coverage_min"] > 0.5

@@ -7,6 +7,8 @@ import os
 import time
 from pathlib import Path
 
+import pytest
+
 from solver.scene.batch import expand_jobs, run_batch
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios"
@@ -18,6 +20,18 @@ pose = "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"
 """
 
 
+def test_a_never_ending_job_times_out(tmp_path):
+    """The default run's smoke test: one FIFO job on one worker, a 2 s limit."""
+    os.mkfifo(tmp_path / "never.obj")
+    path = tmp_path / "forever.toml"
+    path.write_text(FOREVER.format(mesh="never.obj"))
+    start = time.monotonic()
+    result = run_batch(expand_jobs([path]), tmp_path / "out", workers=1, time_limit=2.0)
+    assert [row["status"] for row in result["jobs"]] == ["timeout"]
+    assert result["counts"]["timed_out"] == 1 and time.monotonic() - start < 30
+
+
+@pytest.mark.slow
 def test_two_never_ending_jobs_time_out_and_the_others_finish(tmp_path):
     scenarios = [EXAMPLES / "single_seated.toml"]
     for k in range(2):
