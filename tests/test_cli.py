@@ -185,6 +185,7 @@ def test_pose_show_writes_a_picture_and_a_mesh(tmp_path, capsys):
     assert obj.read_text().count("\nf ") == 13378
 
 
+@pytest.mark.slow
 def test_validate_pressure_command(tmp_path, capsys):
     assert main(["validate", "pressure", "--json", "--out", str(tmp_path)]) == 0
     rows = json.loads(capsys.readouterr().out)

@@ -8,6 +8,7 @@ import sys
 import time
 
 import numpy as np
+import pytest
 
 from capture import read_bvh
 from capture.replay import Replay, ReplayThread, TcpServerSink
@@ -37,6 +38,7 @@ def _cli(*args, **kw):
                           text=True, timeout=60, **kw)
 
 
+@pytest.mark.slow
 def test_killed_recorder_loses_at_most_a_second_and_readers_carry_on(tmp_path):
     db = tmp_path / "poses.h5"
     lib = PoseLibrary(db, create=True)

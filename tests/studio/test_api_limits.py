@@ -78,6 +78,7 @@ def test_evaluate_takes_face_indices_as_far_as_its_vertices_go(api):
     assert status != 422, payload[:300]
 
 
+@pytest.mark.slow
 def test_a_fit_past_the_time_limit_is_stopped_and_refused(api):
     import resource
 

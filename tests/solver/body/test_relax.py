@@ -207,6 +207,7 @@ def test_figure_8_heavy_body_fits_the_thin_seat_worse(tmp_path, capsys):
     assert heavy["after"]["max_penetration_m"] > margin
 
 
+@pytest.mark.slow
 def test_relaxed_poses_saved_to_the_library_link_their_origin(tmp_path, capsys):
     import json
 
