@@ -10,20 +10,8 @@ from solver.contact.evaluate import evaluate_person
 from solver.mesh import SurfaceMesh
 from solver.contact.supported import SupportedBody
 from solver.surface.fit import FitError, FitParams, fit_surface
-from solver.contact.pressure import pressure_field
-from solver.mesh import triangle_mesh
 from solver.scene.scenario import ScenarioError, load_scenario, parse_scenario
 from solver.surface.subdivision import grid_mesh
-
-
-@pytest.fixture(scope="module")
-def ball():
-    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.2)
-    v = np.asarray(sphere.vertices) + [0.0, 0.62, 0.0]
-    t = np.asarray(sphere.faces)
-    areas, normals = triangle_mesh(t, len(v)).measures(v)
-    importance = pressure_field(v, t, normals=normals, areas=areas).importance
-    return v, t, normals, areas, importance
 
 
 def _fit(ball, **kw):

@@ -5,23 +5,16 @@ against the full skin."""
 
 import numpy as np
 import pytest
-import trimesh
 from scipy.spatial.transform import Rotation
 
-from solver.contact.pressure import pressure_field
 from solver.contact.supported import SupportedBody
-from solver.mesh import triangle_mesh
 from solver.surface import fit as F
 from solver.surface.subdivision import grid_mesh
 
 
 @pytest.fixture(scope="module")
-def ball_fit():
-    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.2)
-    v = np.asarray(sphere.vertices) + [0.0, 0.62, 0.0]
-    t = np.asarray(sphere.faces)
-    areas, normals = triangle_mesh(t, len(v)).measures(v)
-    importance = pressure_field(v, t, normals=normals, areas=areas).importance
+def ball_fit(ball):
+    v, t, normals, areas, importance = ball
     grid_v, grid_f = grid_mesh((1.2, 0.8), (8, 6), 0.45)
     params = F.FitParams(margin=0.02, sigma=0.01, pull_range=0.1)
     return F.prepare(grid_v, grid_f, [SupportedBody(v, normals, importance, "ball", t)],
