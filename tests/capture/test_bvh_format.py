@@ -120,11 +120,8 @@ def _to_six_channels_zxy(bvh):
     return six, Motion(six.channels_from_pose(rot, trans), bvh.motion.frame_time)
 
 
-@pytest.mark.slow
-def test_six_channels_on_every_joint_in_zxy(axis_standing, tmp_path):
-    import bvhio
-
-    original = read_bvh(axis_standing)
+def _six_channels_written_and_read(original, tmp_path):
+    """The recording as Axis writes it with displacement, written and read back."""
     six, motion = _to_six_channels_zxy(original)
     assert six.num_channels == 354
     path = tmp_path / "axis_6ch_zxy.bvh"
@@ -132,6 +129,15 @@ def test_six_channels_on_every_joint_in_zxy(axis_standing, tmp_path):
     again = read_bvh(path)
     assert again.skeleton.num_channels == 354
     assert again.profile == "axis_neuron"
+    return path, again
+
+
+@pytest.mark.slow
+def test_six_channels_on_every_joint_in_zxy(axis_standing, tmp_path):
+    import bvhio
+
+    original = read_bvh(axis_standing)
+    path, again = _six_channels_written_and_read(original, tmp_path)
     np.testing.assert_allclose(again.world_positions(), original.world_positions(), atol=1e-5)
     # bvhio agrees on the layout with position channels on every joint
     root = bvhio.readAsHierarchy(str(path))
@@ -149,13 +155,7 @@ def test_six_channels_on_every_joint_in_zxy_on_a_sample_of_frames(axis_standing,
     frames = [0, 1000, 2155]
     original = Bvh(whole.skeleton, Motion(whole.motion.channels[frames], whole.motion.frame_time),
                    whole.profile)
-    six, motion = _to_six_channels_zxy(original)
-    assert six.num_channels == 354
-    path = tmp_path / "axis_6ch_zxy.bvh"
-    write_bvh(path, six, motion)
-    again = read_bvh(path)
-    assert again.skeleton.num_channels == 354
-    assert again.profile == "axis_neuron"
+    path, again = _six_channels_written_and_read(original, tmp_path)
     np.testing.assert_allclose(again.world_positions(), whole.world_positions()[frames],
                                atol=1e-5)
     root = bvhio.readAsHierarchy(str(path))
