@@ -370,6 +370,7 @@ def _person_routes(app: FastAPI, place, time_limit: float) -> None:
     @app.post("/api/evaluate", summary="Evaluate any surface mesh against posed people")
     def evaluate(req: EvaluateRequest) -> dict:
         from solver.contact.evaluate import evaluate_person
+        from solver.scene.run import foams
         from solver.mesh import SurfaceMesh, faces_problem
 
         check = _deadline(time_limit)
@@ -392,7 +393,7 @@ def _person_routes(app: FastAPI, place, time_limit: float) -> None:
         for k, person in enumerate(req.person):
             check()
             p = placed(person, ["person", k])
-            figures, _ = evaluate_person(mesh, p, req.margin, req.evaluation.foam_stiffness)
+            figures, _ = evaluate_person(mesh, p, req.margin, *foams(req.evaluation))
             out.append({"name": p.label, **figures})
         return {"persons": out}
 

@@ -3,16 +3,15 @@
 * coverage: the share of the body's importance within the margin of the surface;
 * largest penetration: how deep the surface cuts into the body: the largest depth of a surface
   vertex inside the (closed) body mesh, by the winding number and the distance to the skin;
-* a simulated pressure map: the body, with its estimated weight, settles straight down onto the
-  surface as onto foam of a given stiffness (pressure = stiffness x how far the foam is pressed
-  in, along the surface normal). The sinking depth is found so the vertical reactions carry the
-  weight; the map gives peak and mean pressure (kPa), contact area and centre of pressure, the
-  figures a pressure mat reports. Only the body parts the designer asked the surface to support
-  take part. A vertex already behind the surface is pressed into the foam only where the surface
-  cuts into the body (its closest surface point lies inside the body); otherwise it is on the
-  surface's other side (an ankle under a seat's front edge) and not in contact. Muscles and the
-  feet on the floor are what a mat cannot see, so the body does not tip: the model is a straight
-  sinking.
+* the settle: the body, with its estimated weight, comes to rest in static equilibrium on the
+  surface's foam and the floor (`solver.contact.settle`): force and moment balance, friction
+  within its cone. Its contact forces give the pressure on the skin (kPa), the load each support
+  carries, and the figures a pressure mat reports (peak, peak pressure index, mean, contact
+  area, centre of pressure). A body vertex behind the surface presses the foam only where the
+  surface cuts into the body (its closest surface point lies inside the body); otherwise it is
+  on the surface's other side (an ankle under a seat's front edge) and not in contact. A body
+  that does not come to rest (it tips over, slides off) is reported as such, without pressure
+  figures.
 
 The flat-seat baseline evaluates the same body on a horizontal plane at the height of the
 fitted surface under the body's most important points.
@@ -24,12 +23,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from solver.contact.settle import DEPTH, Foam, Settled, Support, settle
 from solver.contact.supported import SupportedBody
 from solver.mesh import SurfaceMesh
 
-G = 9.81
-FOAM_DEPTH = 0.05  # metres: a body vertex deeper than this behind the surface is not in contact
-MAX_SINK = 0.2  # metres: a body that needs to sink deeper than this is reported unsupported
+FLOOR = Foam(stiffness=30000e3, thickness=0.02)  # a hard floor under shoes and heels
 
 
 PEAK_AREA = 10e-4  # m^2: the peak pressure index averages over 10 cm^2, as seating studies do
@@ -55,64 +53,66 @@ def peak_pressure_index(vertices: np.ndarray, areas: np.ndarray, pressure: np.nd
 
 @dataclass(frozen=True, eq=False)
 class PressureMap:
-    """Per body vertex pressure (kPa) and the figures of a pressure mat."""
+    """Per body vertex pressure (V,) in kPa, and the settle it comes from."""
 
     pressure_kpa: np.ndarray
-    peak_kpa: float
-    mean_kpa: float
-    contact_area_m2: float
-    centre_of_pressure: list[float] | None
-    sink_m: float
-    supported: bool
+    settled: Settled
 
 
-def pressure_map(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, mass_kg: float,
-                 signed: np.ndarray, surface_normals: np.ndarray, over: np.ndarray,
-                 stiffness_kpa_per_m: float, mask: np.ndarray | None = None,
-                 cut_into_body: np.ndarray | None = None) -> PressureMap:
-    """The body sinking straight down into foam until the vertical reactions carry its weight.
+def skin_pressure(settled: Settled, areas: np.ndarray) -> np.ndarray:
+    """(V,) kPa on each body vertex: its normal contact force over its area, summed over the
+    supports."""
+    p = np.zeros(len(areas))
+    for c in settled.contacts:
+        np.add.at(p, c.vertices, c.normal_force / areas[c.vertices] / 1e3)
+    return p
 
-    signed : (V,) signed distance of each body vertex from the surface (positive: in front);
-    surface_normals : (V, 3) the surface normal at each vertex's closest point;
-    mask : (V,) bool, the vertices of the supported parts (all when None);
-    cut_into_body : (V,) bool, whether each vertex's closest surface point lies inside the body
-        (a vertex behind the surface counts only then).
-    """
-    k = stiffness_kpa_per_m * 1e3  # Pa per metre
-    up = surface_normals[:, 1]
-    facing = np.einsum("ij,ij->i", normals, surface_normals) < 0
-    candidate = facing & over & (up > 1e-3) & (signed > -FOAM_DEPTH) & (signed < 0.5)
-    if mask is not None:
-        candidate &= mask
-    if cut_into_body is not None:
-        candidate &= (signed >= 0) | cut_into_body
-    d, a, u = signed[candidate], areas[candidate], up[candidate]
-    weight = mass_kg * G
 
-    def lift(t: float) -> float:
-        return float(np.sum(k * np.maximum(0.0, t * u - d) * a * u))
+def surface_figures(settled: Settled, vertices: np.ndarray, areas: np.ndarray,
+                    names=("seat", "back")) -> dict:
+    """The pressure mat's figures over the contacts of the named supports: peak and peak
+    pressure index and mean pressure (kPa), contact area (m^2), centre of pressure (m); all
+    None when the body does not rest or nothing touches them."""
+    none = dict.fromkeys(("peak_pressure_kpa", "peak_pressure_index_kpa", "mean_pressure_kpa",
+                          "centre_of_pressure_m"))
+    chosen = [c for c in settled.contacts if c.name in names]
+    if not settled.stable or not chosen:
+        return {**none, "contact_area_m2": 0.0}
+    idx = np.concatenate([c.vertices for c in chosen])
+    force = np.concatenate([c.normal_force for c in chosen])
+    kpa = np.zeros(len(areas))
+    np.add.at(kpa, idx, force / areas[idx] / 1e3)
+    touched = np.unique(idx)
+    area = float(areas[touched].sum())
+    points = settled.vertices[idx]
+    return {
+        "peak_pressure_kpa": float(kpa.max()),
+        "peak_pressure_index_kpa": peak_pressure_index(settled.vertices, areas, kpa),
+        "mean_pressure_kpa": float(force.sum() / area / 1e3),
+        "contact_area_m2": area,
+        "centre_of_pressure_m": [float(v) for v in force @ points / force.sum()],
+    }
 
-    zeros = np.zeros(len(vertices))
-    if not candidate.any() or lift(MAX_SINK) < weight:
-        return PressureMap(zeros, 0.0, 0.0, 0.0, None, MAX_SINK, False)
-    lo, hi = -MAX_SINK, MAX_SINK
-    for _ in range(80):
-        mid = 0.5 * (lo + hi)
-        if lift(mid) < weight:
-            lo = mid
-        else:
-            hi = mid
-    t = 0.5 * (lo + hi)
-    p = np.zeros(len(vertices))
-    p[candidate] = k * np.maximum(0.0, t * u - d)
-    touching = p > 0
-    force = p * areas
-    cop = (force[:, None] * vertices).sum(axis=0) / force.sum()
-    return PressureMap(
-        p / 1e3, float(p.max() / 1e3),
-        float(np.sum(p[touching] * areas[touching]) / np.sum(areas[touching]) / 1e3),
-        float(areas[touching].sum()), [float(x) for x in cop], t, True,
-    )
+
+def equilibrium_figures(settled: Settled) -> dict:
+    """report.json's `equilibrium`: whether the body rests (and why not), the force and moment
+    left over (N, N m), the settle's motion, and per support its load (N, the magnitude of its
+    total force) and share of the weight."""
+    out = {"stable": settled.stable, "reason": settled.reason}
+    if not settled.stable:
+        return {**out, "net_force_n": None, "net_moment_nm": None, "supports": {}}
+    supports = {}
+    for c in settled.contacts:
+        f = (c.normal_force[:, None] * c.normals + c.tangential_force).sum(axis=0)
+        supports[c.name] = {"load_n": float(np.linalg.norm(f)),
+                            "load_share": float(np.linalg.norm(f) / settled.weight_n),
+                            "friction_n": float(np.linalg.norm(c.tangential_force.sum(axis=0)))}
+    return {**out, "net_force_n": float(np.linalg.norm(settled.net_force)),
+            "net_moment_nm": float(np.linalg.norm(settled.net_moment)),
+            "weight_n": settled.weight_n,
+            "translation_m": [float(v) for v in settled.translation],
+            "rotation_deg": float(np.degrees(np.linalg.norm(settled.rotation))),
+            "supports": supports}
 
 
 def penetration_depth(surface_points: np.ndarray, body_vertices: np.ndarray,
@@ -128,9 +128,9 @@ def penetration_depth(surface_points: np.ndarray, body_vertices: np.ndarray,
     return float(max(0.0, -signed.min()))
 
 
-def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float,
-                    stiffness_kpa_per_m: float) -> tuple[dict, PressureMap]:
-    """Coverage, penetration and the pressure map of one body on one surface.
+def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float, foam: Foam,
+                    floor: Foam | None = FLOOR) -> tuple[dict, PressureMap]:
+    """Coverage, penetration and the settle of one body on one surface (and the floor).
 
     Parameters
     ----------
@@ -143,23 +143,23 @@ def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float,
     margin : float
         Metres of softness the surface may sink into the body (coverage counts the importance
         within it).
-    stiffness_kpa_per_m : float
-        The foam's kPa per metre pressed in.
+    foam : Foam
+        The surface's foam (stiffness in Pa per metre, thickness, friction).
+    floor : Foam or None, default FLOOR
+        The floor's (the plane y = 0), or None for no floor.
 
     Returns
     -------
     figures : dict
         The figures, lengths in metres, pressures in kPa, areas in m^2: ``coverage`` (share of
         the importance within `margin` of the surface, in [0, 1]), ``max_penetration_m``,
-        ``contact_area_m2``, ``peak_pressure_kpa``, ``mean_pressure_kpa``,
-        ``centre_of_pressure_m`` ((3,) list of metres, or None when unsupported), ``sink_m``
-        (the sinking depth, metres, at which the reactions carry the weight; `MAX_SINK` when
-        unsupported),
-        ``supported`` (bool: the foam carries the body's weight within `MAX_SINK`) and
         ``mean_support_distance_m`` (importance-weighted mean distance to the surface, None
-        without importance).
+        without importance), ``supported`` (bool: the body comes to rest), over the surface's
+        contacts ``peak_pressure_kpa``, ``peak_pressure_index_kpa``, ``mean_pressure_kpa``,
+        ``contact_area_m2`` and ``centre_of_pressure_m`` ((3,) list; None when the body does
+        not rest), and ``equilibrium`` (`equilibrium_figures`).
     pressure_map : PressureMap
-        The simulated pressure mat: per body vertex pressure (V,) in kPa and the same figures.
+        The pressure (V,) in kPa on each body vertex, and the settle.
 
     Raises
     ------
@@ -180,26 +180,25 @@ def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float,
     penetration = penetration_depth(surface.vertices[near], vertices, triangles) \
         if near.any() else 0.0
     cut = np.zeros(len(vertices), dtype=bool)
-    behind = np.flatnonzero(signed < 0)
+    behind = np.flatnonzero((signed < 0) & (signed > -DEPTH))
     if behind.size:
         wn = igl.fast_winding_number(np.asarray(vertices, dtype=np.float64),
                                      np.asarray(triangles, dtype=np.int64), closest[behind])
         cut[behind] = wn > 0.5
-    pm = pressure_map(vertices, person.normals, person.areas, person.mass_kg, signed,
-                      surface.face_normals[face], over, stiffness_kpa_per_m, person.supported,
-                      cut)
+    supports = [Support("surface", foam, surface, split_back=True)]
+    if floor is not None:
+        supports.append(Support("floor", floor))
+    settled = settle(vertices, person.normals, person.areas, triangles, person.mass_kg,
+                     supports, cut=cut)
     figures = {
         "coverage": coverage,
         "max_penetration_m": penetration,
-        "contact_area_m2": pm.contact_area_m2,
-        "peak_pressure_kpa": pm.peak_kpa,
-        "mean_pressure_kpa": pm.mean_kpa,
-        "centre_of_pressure_m": pm.centre_of_pressure,
-        "sink_m": pm.sink_m,
-        "supported": pm.supported,
         "mean_support_distance_m": float(np.sum(importance * dist) / total) if total else None,
+        "supported": settled.stable,
+        **surface_figures(settled, vertices, person.areas),
+        "equilibrium": equilibrium_figures(settled),
     }
-    return figures, pm
+    return figures, PressureMap(skin_pressure(settled, person.areas), settled)
 
 
 def flat_seat_height(surface: SurfaceMesh, person: SupportedBody) -> float:

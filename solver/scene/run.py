@@ -14,8 +14,9 @@ import numpy as np
 from capture.files import write_atomic
 
 from solver.mesh import SurfaceMesh
-from solver.contact.evaluate import (evaluate_person, flat_seat_height, flat_surface,
-                       support_inside)
+from solver.contact.evaluate import (FLOOR, evaluate_person, flat_seat_height, flat_surface,
+                                     support_inside)
+from solver.contact.settle import Foam
 from solver.io.export import write_mesh
 from solver.body.relax import (PENETRATION_SHIFT, PENETRATION_WIDTH, RelaxError, RelaxProblem,
                                relax)
@@ -27,19 +28,29 @@ from solver.scene.placement import PlacedPerson, place_person
 from solver.mesh import quad_triangles
 
 
+def foams(evaluation) -> tuple[Foam, Foam | None]:
+    """The surface's foam and the floor's (None without a floor) of a scenario's
+    `evaluation` (kPa per metre in the scenario, Pa per metre here)."""
+    foam = Foam(evaluation.foam_stiffness * 1e3, evaluation.foam_thickness,
+                evaluation.friction)
+    floor = Foam(evaluation.floor_stiffness * 1e3, FLOOR.thickness, evaluation.friction) \
+        if evaluation.floor else None
+    return foam, floor
+
+
 def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.ndarray,
                    faces: np.ndarray) -> tuple[list[dict], list[np.ndarray]]:
     """Per person: the fitted surface's figures (with `flat`, the flat-seat baseline, and
     `support_inside_others`, the share of the person's importance inside other people's bodies)
     and the pressure (kPa) per body vertex."""
     mesh = SurfaceMesh.from_quads(surface, faces)
-    margin, stiffness = scenario.surface.params.margin, scenario.foam_stiffness
+    margin, (foam, floor) = scenario.surface.params.margin, foams(scenario.evaluation)
     rows, maps = [], []
     for k, p in enumerate(people):
-        figures, pm = evaluate_person(mesh, p, margin, stiffness)
+        figures, pm = evaluate_person(mesh, p, margin, foam, floor)
         height = flat_seat_height(mesh, p)
         flat, _ = evaluate_person(flat_surface(height, p.vertices.mean(axis=0)), p, margin,
-                                  stiffness)
+                                  foam, floor)
         flat["height_m"] = height
         others = [(q.vertices, q.triangles) for j, q in enumerate(people) if j != k]
         rows.append({"name": p.label, "body": p.spec.body.as_dict(),
@@ -125,7 +136,7 @@ def relax_person(scenario: Scenario, person: PlacedPerson, surface: np.ndarray,
     """Relaxes one posed person onto a surface (vertices, quads): the solver's result, the
     person's figures before and after (as `evaluate_person` gives them), and the solver's
     seconds."""
-    margin, stiffness = scenario.surface.params.margin, scenario.foam_stiffness
+    margin, (foam, floor) = scenario.surface.params.margin, foams(scenario.evaluation)
     t = time.perf_counter()
     res = relax(relax_problem(person, surface, quad_triangles(quads), margin=margin))
     seconds = time.perf_counter() - t
@@ -133,8 +144,8 @@ def relax_person(scenario: Scenario, person: PlacedPerson, surface: np.ndarray,
     areas, normals = triangle_mesh(person.body.triangles, len(res.vertices)).measures(
         res.vertices)
     relaxed = dataclasses.replace(person, vertices=res.vertices, normals=normals, areas=areas)
-    return (res, evaluate_person(mesh, person, margin, stiffness)[0],
-            evaluate_person(mesh, relaxed, margin, stiffness)[0], seconds)
+    return (res, evaluate_person(mesh, person, margin, foam, floor)[0],
+            evaluate_person(mesh, relaxed, margin, foam, floor)[0], seconds)
 
 
 def report_parameters(scenario: Scenario) -> dict:
@@ -145,6 +156,7 @@ def report_parameters(scenario: Scenario) -> dict:
     return {**dataclasses.asdict(params), "fixed": list(params.fixed),
             "creases": [list(c) for c in params.creases],
             "foam_stiffness_kpa_per_m": scenario.foam_stiffness,
+            "evaluation": scenario.evaluation.model_dump(),
             "control_mesh": scenario.surface.source}
 
 

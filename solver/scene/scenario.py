@@ -17,6 +17,10 @@
 
     [evaluation]
     foam_stiffness = 200.0  # kPa of pressure per metre the foam is pressed in
+    foam_thickness = 0.1    # metres of foam (past it the foam is bottomed out)
+    friction = 0.5          # Coulomb friction between the body and its supports
+    floor = true            # the floor (y = 0) supports the body too (the feet)
+    floor_stiffness = 30000.0  # kPa per metre under feet and shoes
 
     [[person]]
     name = "reader"                   # optional
@@ -83,14 +87,19 @@ class PersonSpec:
 @dataclass(frozen=True)
 class Scenario:
     """A validated scenario: the surface to fit (`SurfaceSpec`: control mesh and parameters),
-    the people (`PersonSpec`), the foam's stiffness (kPa per metre), the file it came from and
-    the data as read."""
+    the people (`PersonSpec`), how they settle on it (`schema.Evaluation`: foam, friction,
+    floor), the file it came from and the data as read."""
 
     surface: SurfaceSpec
     persons: tuple[PersonSpec, ...]
-    foam_stiffness: float = schema.default(schema.Evaluation, "foam_stiffness")  # kPa per m
+    evaluation: schema.Evaluation = field(default_factory=schema.Evaluation)
     path: str | None = None
     raw: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def foam_stiffness(self) -> float:
+        """The seat foam's kPa per metre pressed in."""
+        return self.evaluation.foam_stiffness
 
 
 def _fail(where: str, field_name: str, message: str) -> ScenarioError:
@@ -177,7 +186,7 @@ def scenario_from_model(model: schema.Scenario, where: str = "<scenario>",
             raise _fail(where, "surface.creases", str(exc)) from None
     persons = tuple(_person(p, k, where, base, files) for k, p in enumerate(model.person))
     return Scenario(SurfaceSpec(verts, faces, params, source), persons,
-                    model.evaluation.foam_stiffness, where,
+                    model.evaluation, where,
                     raw if raw is not None else model.model_dump(exclude_none=True))
 
 

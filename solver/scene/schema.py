@@ -5,7 +5,8 @@ HTTP API's requests and the studio, and the one place every scenario default com
       surface: Surface      exactly one of grid {size, resolution, height} or control_mesh (a
                             file name, or inline {vertices, faces}), and one field per
                             `FitParams` field, its default taken from `FitParams`
-      evaluation: Evaluation  foam_stiffness (kPa per metre)
+      evaluation: Evaluation  foam_stiffness (kPa per metre), foam_thickness (m), friction,
+                            floor (bool), floor_stiffness (kPa per metre)
       person: [Person]      pose, name, body (the `BodyShape` fields, each in [0, 1]),
                             position (m), rotation_deg (about x, then y, then z), support
 
@@ -159,9 +160,23 @@ class Person(_Model):
                     "skeleton no profile knows")] = None
 
 
+def _number(ge: float, le: float | None, description: str):
+    return Field(strict=True, allow_inf_nan=False, ge=ge, le=le, description=description)
+
+
 class Evaluation(_Model):
-    foam_stiffness: Annotated[float, Field(strict=True, allow_inf_nan=False, ge=1e-3,
-                                           description="kPa per metre of compression")] = 200.0
+    """How the body settles on the surface (see README, "Contact in equilibrium")."""
+
+    foam_stiffness: Annotated[float, _number(1e-3, None, "the seat foam's kPa of pressure per "
+                                             "metre pressed in")] = 200.0
+    foam_thickness: Annotated[float, _number(1e-3, 1.0, "metres of foam; past it the foam is "
+                                             "bottomed out")] = 0.1
+    friction: Annotated[float, _number(0.0, 2.0, "Coulomb friction between body and "
+                                       "supports")] = 0.5
+    floor: Annotated[bool, Field(strict=True, description="whether the floor (y = 0) supports "
+                                                          "the body too")] = True
+    floor_stiffness: Annotated[float, _number(1e-3, None, "kPa per metre of the floor under "
+                                              "feet and shoes")] = 30000.0
 
 
 class Scenario(_Model):

@@ -1,0 +1,386 @@
+"""A body settling in static equilibrium on the supports of a scene.
+
+The posed body is a rigid body under gravity. Each support (the fitted surface, the floor, an
+armrest) carries a foam layer: a Winkler foundation whose normal pressure is `stiffness` times how
+far the skin presses in, `bottom_factor` times stiffer past the foam's `thickness` (the frame
+beneath), and whose shear is an elastic slip of stiffness `shear_ratio x stiffness` capped by
+Coulomb friction (|t| <= mu p). Contact is unilateral: a vertex that leaves the foam carries
+nothing.
+
+The body's small rigid motion (translation u and rotation theta about its centre of mass) is
+solved so that the contact forces balance the weight and its moment: a Newton iteration on the
+six balance equations with the exact Jacobian of the linearised contact laws (scipy's hybrid
+root finder), repeated on the moved body with fresh closest points until the motion stops. The
+friction displacement counts from where the body was placed. What does not settle is reported as
+such: no contact at all, a rotation past `MAX_TURN` (the pose tips over), a translation past
+`MAX_SHIFT` (the body slides off or sinks through), or balance equations without a root.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from solver.contact.mat import SupportContact
+from solver.mesh import SurfaceMesh, volume_centroid
+
+G = 9.81
+UP = np.array([0.0, 1.0, 0.0])
+BAND = 0.03  # metres above a support within which a vertex may come into contact
+MAX_TURN = np.radians(12.0)  # a settle turning the body further tips it over
+MAX_SHIFT = 0.12  # metres: a settle moving the body further slides it off or sinks it through
+DEPTH = 0.06  # metres: a vertex deeper behind a support than this is not in contact
+MAX_OUTER = 30
+FORCE_TOL = 3e-3  # the settle stops when the net force is below this share of the weight
+MOMENT_TOL = 0.3  # ... and the net moment below this, N m
+LEVER = 0.5  # metres: the moment scale for the Newton's residual
+STEP = 0.03  # metres (at LEVER for a turn): the most the body moves between fresh contacts
+
+
+@dataclass(frozen=True)
+class Foam:
+    """A support's foam: `stiffness` Pa per metre pressed in, `thickness` m (past it the foam is
+    bottomed out and `bottom_factor` times stiffer), Coulomb `friction`, and its shear stiffness
+    as `shear_ratio` of the normal one (a foam layer's G / E, about 1 / (2 (1 + nu)))."""
+
+    stiffness: float
+    thickness: float = 0.1
+    friction: float = 0.5
+    shear_ratio: float = 0.4
+    bottom_factor: float = 20.0
+
+
+@dataclass(frozen=True, eq=False)
+class Support:
+    """Something a body can rest on: a surface `mesh` (face normals towards the body), or the
+    floor, the plane y = `height`, when `mesh` is None. `name` is what the report calls it;
+    `split_back` reports the surface's parts steeper than 45 degrees as "back" and the rest as
+    "seat"."""
+
+    name: str
+    foam: Foam
+    mesh: SurfaceMesh | None = None
+    height: float = 0.0
+    split_back: bool = False
+
+
+@dataclass(frozen=True, eq=False)
+class Settled:
+    """The settle's outcome for one body.
+
+    stable : whether the body came to rest; `reason` says why not ("tips over", ...).
+    vertices : (V, 3) the body's vertices after the settle, metres.
+    translation : (3,) m, rotation : (3,) rotation vector (rad) about `centre` (the body's centre
+        of mass before the settle).
+    contacts : one `SupportContact` per support part that carries load.
+    net_force : (3,) N and net_moment : (3,) N m, the balance left over on the settled body
+        (contact forces plus weight; moments about the settled centre of mass).
+    weight_n : m g.
+    """
+
+    stable: bool
+    reason: str | None
+    vertices: np.ndarray
+    translation: np.ndarray
+    rotation: np.ndarray
+    centre: np.ndarray
+    contacts: list[SupportContact]
+    net_force: np.ndarray
+    net_moment: np.ndarray
+    weight_n: float
+    iterations: int = 0
+    extra: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
+class _Candidates:
+    """The vertices that may touch one support, with their linearised contact geometry."""
+
+    support: int
+    index: np.ndarray  # (K,) body vertices
+    depth: np.ndarray  # (K,) how far each is pressed in (negative: above the foam)
+    normal: np.ndarray  # (K, 3) the support's normal at the closest point
+    point: np.ndarray  # (K, 3) the closest point on the support
+    face: np.ndarray  # (K,) the support triangle (-1: the floor)
+
+
+def _prepare(support: Support, vertices: np.ndarray, normals: np.ndarray,
+             cut: np.ndarray | None, inside, k: int) -> tuple[np.ndarray, _Candidates]:
+    """(N,) the body vertices that may touch `support` during the settle: within 2 BAND above
+    it or pressed in less than DEPTH, facing it, and behind a surface only where the surface
+    cuts into the body (`cut` (V,) bool says so, or `inside(points) -> bool` for the closest
+    points); and their contact geometry as placed."""
+    x = vertices
+    if support.mesh is None:
+        depth = support.height - x[:, 1]
+        facing = normals[:, 1] < 0
+        idx = np.flatnonzero(facing & (depth > -2 * BAND) & (depth < DEPTH))
+        return idx, _candidates(support, k, x, idx)
+    from scipy.spatial import cKDTree
+
+    mesh = support.mesh
+    edge = np.linalg.norm(mesh.vertices[mesh.triangles[:, 0]] - mesh.vertices[mesh.triangles[:, 1]],
+                          axis=1).max()
+    reach = max(2 * BAND, DEPTH) + edge
+    dist, _ = cKDTree(mesh.vertices).query(x, distance_upper_bound=reach)
+    idx = np.flatnonzero(np.isfinite(dist))
+    _, signed, over, face, point = mesh.closest(x[idx])
+    depth = -signed
+    ok = over & (depth > -2 * BAND) & (depth < DEPTH)
+    ok &= np.einsum("ij,ij->i", normals[idx], mesh.face_normals[face]) < 0
+    behind = np.flatnonzero(ok & (depth > 0))
+    if behind.size:
+        ok[behind] = cut[idx[behind]] if cut is not None else inside(point[behind])
+    keep = ok & (depth > -BAND)
+    return idx[ok], _Candidates(k, idx[keep], depth[keep], mesh.face_normals[face[keep]],
+                                point[keep], face[keep])
+
+
+def _candidates(support: Support, k: int, vertices: np.ndarray, subset: np.ndarray
+                ) -> _Candidates:
+    """The contact geometry of the `subset` of vertices on `support` (linearised: each vertex
+    against the tangent plane at its closest point)."""
+    x = vertices[subset]
+    if support.mesh is None:
+        depth = support.height - x[:, 1]
+        n = np.broadcast_to(UP, x.shape)
+        point = x.copy()
+        point[:, 1] = support.height
+        face = np.full(len(x), -1)
+    else:
+        _, signed, _, face, point = support.mesh.closest(x)
+        depth = -signed
+        n = support.mesh.face_normals[face]
+    keep = np.flatnonzero(depth > -BAND)
+    return _Candidates(k, subset[keep], depth[keep], np.array(n[keep]), point[keep], face[keep])
+
+
+def _skew(r: np.ndarray) -> np.ndarray:
+    """(K, 3, 3) the cross-product matrices [r]x of (K, 3) vectors."""
+    m = np.zeros((len(r), 3, 3))
+    m[:, 0, 1], m[:, 0, 2] = -r[:, 2], r[:, 1]
+    m[:, 1, 0], m[:, 1, 2] = r[:, 2], -r[:, 0]
+    m[:, 2, 0], m[:, 2, 1] = -r[:, 1], r[:, 0]
+    return m
+
+
+def _laws(q, c: _Candidates, foam: Foam, area, arm, slip0):
+    """The loaded contacts at motion q = (u, theta): which (K,) bool, their forces (L, 3), the
+    Jacobian of those (L, 3, 6), and the normal (L,) and tangential (L, 3) parts."""
+    d = q[:3] + _cross(q[3:], arm)
+    depth = c.depth - np.einsum("ij,ij->i", c.normal, d)
+    on = depth > 0
+    n, arm, area, depth = c.normal[on], arm[on], area[on], depth[on]
+    k, h = foam.stiffness, foam.thickness
+    normal_force = area * (k * depth + foam.bottom_factor * k * np.maximum(depth - h, 0.0))
+    stiff = k + foam.bottom_factor * k * (depth > h)
+    nj = np.concatenate([n, _cross(arm, n)], axis=1)  # n . d = nj . q
+    dn = -(area * stiff)[:, None] * nj  # (L, 6)
+    total = slip0[on] + d[on]
+    slip = total - np.einsum("ij,ij->i", n, total)[:, None] * n
+    jac = np.zeros((len(n), 3, 6))
+    jac[:, :, :3] = np.eye(3)
+    jac[:, :, 3:] = -_skew(arm)  # d = u + theta x r = u - [r]x theta
+    pj = jac - n[:, :, None] * nj[:, None, :]
+    kt = foam.shear_ratio * k * area
+    tangent = -kt[:, None] * slip
+    cap = foam.friction * normal_force
+    size = np.linalg.norm(slip, axis=1)
+    dt = -kt[:, None, None] * pj
+    slides = kt * size > cap
+    if slides.any():
+        s_hat = slip[slides] / size[slides, None]
+        sj = np.concatenate([s_hat, _cross(arm[slides], s_hat)], axis=1)
+        tangent[slides] = -cap[slides, None] * s_hat
+        dt[slides] = (-foam.friction * s_hat[:, :, None] * dn[slides, None, :]
+                      - (cap[slides] / size[slides])[:, None, None]
+                      * (pj[slides] - s_hat[:, :, None] * sj[:, None, :]))
+    forces = normal_force[:, None] * n + tangent
+    dforce = n[:, :, None] * dn[:, None, :] + dt
+    return on, forces, dforce, normal_force, tangent
+
+
+def _balance(q, groups, weight):
+    """Net force and moment (6,) at motion q, and their Jacobian (6, 6)."""
+    total = np.zeros(6)
+    jac = np.zeros((6, 6))
+    total[:3] = weight
+    for c, foam, area, arm, slip0 in groups:
+        on, f, df, _, _ = _laws(q, c, foam, area, arm, slip0)
+        r = arm[on]
+        moved = r + _cross(q[3:], r)  # the arms turn with the body
+        total[:3] += f.sum(axis=0)
+        total[3:] += _cross(moved, f).sum(axis=0)
+        jac[:3] += df.sum(axis=0)
+        jac[3:] += np.matmul(_skew(moved), df).sum(axis=0)
+        jac[3:, 3:] += np.matmul(_skew(f), _skew(r)).sum(axis=0)  # d (theta x r) x f / d theta
+    return total, jac
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross products of (K, 3) arrays (or a (3,) with a (K, 3))."""
+    a = np.broadcast_to(a, b.shape)
+    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
+
+
+def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangles: np.ndarray,
+           mass_kg: float, supports: list[Support], *, gravity=(0.0, -1.0, 0.0),
+           centre: np.ndarray | None = None, cut: np.ndarray | None = None) -> Settled:
+    """The body at rest on `supports` (see the module docstring).
+
+    Parameters
+    ----------
+    vertices, normals : (V, 3) float, the posed skin (metres) and its unit outward normals.
+    areas : (V,) float, Voronoi areas, m^2.
+    triangles : (F, 3) int, the closed skin (for the centre of mass and the inside tests).
+    mass_kg : the body's mass.
+    supports : what it may rest on.
+    gravity : the direction of gravity.
+    centre : (3,) where the weight acts (default: the centroid of the skin's volume).
+    cut : (V,) bool, optional: the vertices behind a surface whose closest surface point lies
+        inside the body (the surface cuts into the body there, so they press its foam); the
+        others behind a surface are on its far side. Computed here when not given.
+
+    Returns
+    -------
+    Settled, with `stable` False and a `reason` when the body does not come to rest; the net
+    force and moment left over are below `FORCE_TOL` m g and `MOMENT_TOL` when it does.
+    """
+    import igl
+
+    x0 = np.asarray(vertices, dtype=np.float64)
+    g = np.asarray(gravity, dtype=np.float64)
+    weight = mass_kg * G * g / np.linalg.norm(g)
+    c0 = volume_centroid(x0, triangles) if centre is None else np.asarray(centre, float)
+    tri = np.asarray(triangles, dtype=np.int64)
+    first = [_prepare(s, x0, normals, cut, lambda p: igl.fast_winding_number(x0, tri, p) > 0.5,
+                      k) for k, s in enumerate(supports)]
+    near = [f[0] for f in first]
+    rot, shift = np.eye(3), np.zeros(3)
+    scale = np.array([1.0] * 3 + [1.0 / LEVER] * 3) / np.linalg.norm(weight)
+    for outer in range(1, MAX_OUTER + 1):
+        x = (x0 - c0) @ rot.T + c0 + shift
+        c = c0 + shift
+        groups = [g for g in (_group(s, k, x, x0, c, areas, near[k],
+                                     first[k][1] if outer == 1 else None)
+                              for k, s in enumerate(supports)) if g is not None]
+        if not groups:
+            return _unsettled("no support touches the body", x, c0, shift, rot, weight)
+        residual, jac = _balance(np.zeros(6), groups, weight)
+        if (np.linalg.norm(residual[:3]) < FORCE_TOL * np.linalg.norm(weight)
+                and np.linalg.norm(residual[3:]) < MOMENT_TOL):
+            return _settled(x, c0, shift, rot, groups, supports, residual, weight, outer)
+        # later steps move little: only what was near contact stays a candidate
+        near = [np.concatenate([g[0].index for g in groups if g[0].support == k] + [near[k][:0]])
+                for k in range(len(supports))]
+        q = _newton(groups, weight, scale, residual, jac)
+        if q is None:
+            return _unsettled("the balance has no solution (slides off?)", x, c0, shift, rot,
+                              weight)
+        q = q * min(1.0, STEP / max(np.linalg.norm(q[:3]), LEVER * np.linalg.norm(q[3:]), 1e-12))
+        rot = Rotation.from_rotvec(q[3:]).as_matrix() @ rot
+        shift = shift + q[:3]
+        reason = _too_far(np.concatenate([shift, Rotation.from_matrix(rot).as_rotvec()]))
+        if reason:
+            return _unsettled(reason, x, c0, shift, rot, weight)
+    return _unsettled(f"no rest within {MAX_OUTER} steps", x, c0, shift, rot, weight)
+
+
+def _group(support: Support, k: int, x, x0, c, areas, subset, cand=None):
+    """One support's contact candidates (`cand` when known) with what the contact laws need,
+    or None."""
+    cand = _candidates(support, k, x, subset) if cand is None else cand
+    if not cand.index.size:
+        return None
+    i = cand.index
+    return cand, support.foam, areas[i], x[i] - c, x[i] - x0[i]
+
+
+def _newton(groups, weight, scale, r, jac) -> np.ndarray | None:
+    """The motion (6,) that balances the linearised contact laws, from no motion (where the
+    balance is `r` with Jacobian `jac`): Newton's method with a backtracking line search on the
+    scaled residual, or the least-squares solver where it stalls (then the motion towards the
+    least imbalance); None when neither gives a finite motion."""
+    q = np.zeros(6)
+    size = np.linalg.norm(r * scale)
+    for _ in range(60):
+        if size < 1e-10:
+            return q
+        try:
+            step = np.linalg.solve(jac, -r)
+        except np.linalg.LinAlgError:
+            step = np.linalg.lstsq(jac, -r, rcond=None)[0]
+        t = 1.0
+        while t > 1e-3:
+            trial = q + t * step
+            r_t, jac_t = _balance(trial, groups, weight)
+            size_t = np.linalg.norm(r_t * scale)
+            if np.isfinite(size_t) and size_t < (1 - 1e-4 * t) * size:
+                break
+            t *= 0.5
+        else:
+            return _least_squares(q, groups, weight, scale)
+        q, r, jac, size = trial, r_t, jac_t, size_t
+    return q if size < 1e-6 else _least_squares(q, groups, weight, scale)
+
+
+def _least_squares(q, groups, weight, scale) -> np.ndarray | None:
+    """Where Newton's steps stall on a change of contact (a body tipping onto its feet): the
+    least-squares root by scipy's trust-region solver, limited to steps the linearisation can
+    follow; None when it finds no root."""
+    from scipy.optimize import least_squares
+
+    def fun(z):
+        return _balance(z, groups, weight)[0] * scale
+
+    def jac(z):
+        return _balance(z, groups, weight)[1] * scale[:, None]
+
+    sol = least_squares(fun, q, jac=jac, method="trf", x_scale=np.array([0.01] * 3 + [0.02] * 3),
+                        xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=200)
+    return sol.x if np.all(np.isfinite(sol.x)) else None
+
+
+def _too_far(q: np.ndarray) -> str | None:
+    if np.linalg.norm(q[3:]) > MAX_TURN:
+        return f"tips over (turns {np.degrees(np.linalg.norm(q[3:])):.0f} degrees)"
+    if np.linalg.norm(q[:3]) > MAX_SHIFT:
+        return f"slides off or sinks through (moves {np.linalg.norm(q[:3]) * 100:.0f} cm)"
+    return None
+
+
+def _unsettled(reason, x, c0, shift, rot, weight) -> Settled:
+    nan3 = np.zeros(3)
+    return Settled(False, reason, x, shift, Rotation.from_matrix(rot).as_rotvec(), c0, [],
+                   nan3, nan3, float(np.linalg.norm(weight)))
+
+
+def _settled(x, c0, shift, rot, groups, supports, residual, weight, outer) -> Settled:
+    """The body at rest: its contacts per support part and the balance left over."""
+    contacts = []
+    for cand, foam, area, arm, slip0 in groups:
+        on, _, _, fn, ft = _laws(np.zeros(6), cand, foam, area, arm, slip0)
+        contacts += _contacts(supports[cand.support], cand, on, fn, ft)
+    return Settled(True, None, x, shift, Rotation.from_matrix(rot).as_rotvec(), c0, contacts,
+                   residual[:3].copy(), residual[3:].copy(), float(np.linalg.norm(weight)),
+                   outer)
+
+
+def _contacts(s: Support, cand: _Candidates, on, fn, ft) -> list[SupportContact]:
+    """The loaded contacts (`on`, with normal forces `fn` and friction `ft`) of one support,
+    split into seat and back where asked."""
+    idx = np.flatnonzero(on)
+    parts = [(s.name, np.ones(len(idx), dtype=bool))]
+    if s.split_back:
+        steep = cand.normal[idx, 1] < np.cos(np.radians(45.0))
+        parts = [("seat", ~steep), ("back", steep)]
+    out = []
+    for name, m in parts:
+        if m.any():
+            i = idx[m]
+            out.append(SupportContact(name, cand.index[i], fn[m], ft[m], cand.normal[i],
+                                      cand.point[i], cand.face[i]))
+    return out
