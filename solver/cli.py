@@ -116,6 +116,7 @@ def _roles_report(skeleton) -> dict:
 def _cmd_fit(args: argparse.Namespace) -> int:
     import sys
 
+    from solver.contact.evaluate import peak_text
     from solver.scene.run import run_fit
 
     def progress(message: str) -> None:
@@ -129,10 +130,12 @@ def _cmd_fit(args: argparse.Namespace) -> int:
           f"{report['stop_reason']}")
     for p in report["persons"]:
         flat = p["flat"]
+        loads = ", ".join(f"{name} {v['load_share'] * 100:.0f} %" for name, v in
+                          p["equilibrium"]["supports"].items())
         print(f"{p['name']}: coverage {p['coverage']:.2f}, penetration "
-              f"{p['max_penetration_m'] * 1000:.0f} mm, peak {p['peak_pressure_kpa']:.1f} kPa "
-              f"(flat seat {flat['peak_pressure_kpa']:.1f} kPa), contact "
-              f"{p['contact_area_m2']:.3f} m^2")
+              f"{p['max_penetration_m'] * 1000:.0f} mm, peak {peak_text(p)} "
+              f"(flat seat {peak_text(flat)}), contact {p['contact_area_m2']:.3f} m^2"
+              + (f"; load on {loads}" if loads else ""))
     print(f"wrote {args.out}/report.json and the surface, control mesh, bodies and pictures")
     return 0
 
@@ -179,6 +182,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_relax(args: argparse.Namespace) -> int:
+    from solver.contact.evaluate import peak_text
     import sys
 
     from solver.scene.run import run_relax
@@ -193,8 +197,8 @@ def _cmd_relax(args: argparse.Namespace) -> int:
         b, a = p["before"], p["after"]
         print(f"{p['name']}: support distance {b['mean_support_distance_m'] * 100:.1f} -> "
               f"{a['mean_support_distance_m'] * 100:.1f} cm, coverage {b['coverage']:.2f} -> "
-              f"{a['coverage']:.2f}, peak {b['peak_pressure_kpa']:.1f} -> "
-              f"{a['peak_pressure_kpa']:.1f} kPa ({p['seconds']:.2f} s)")
+              f"{a['coverage']:.2f}, peak {peak_text(b)} -> {peak_text(a)} "
+              f"({p['seconds']:.2f} s)")
         if "saved_pose" in p:
             print(f"  saved as pose {p['saved_pose']['name']!r} ({p['saved_pose']['id']})")
     return 0

@@ -20,6 +20,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from solver.body.model import SHAPE_KEYS, SUPPORT_PARTS, BodyShape
+from solver.contact.evaluate import peak_text
 from solver.scene import schema
 from solver.io.render import SKIN, SURFACE
 from solver.scene.run import pressure_on_skin
@@ -419,7 +420,7 @@ class Studio:
         self.fits += 1
         rows = "\n".join(
             f"| {p['name'].split(' (')[0]} | {p['coverage']:.2f} | "
-            f"{p['peak_pressure_kpa']:.1f} / {p['flat']['peak_pressure_kpa']:.1f} | "
+            f"{peak_text(p)} / {peak_text(p['flat'])} | "
             f"{1000 * p['max_penetration_m']:.0f} |" for p in outcome.persons)
         self._status(f"**Fitted** in {r.iterations} iterations, {outcome.seconds:.2f} s "
                      f"({r.stop_reason.split(':')[0]}).\n\n"

@@ -94,6 +94,14 @@ def surface_figures(settled: Settled, vertices: np.ndarray, areas: np.ndarray,
     }
 
 
+def peak_text(figures: dict) -> str:
+    """A person's peak pressure for people ("7.9 kPa"), or why the body does not rest."""
+    if figures.get("peak_pressure_kpa") is None:
+        reason = (figures.get("equilibrium") or {}).get("reason") or "does not rest"
+        return f"no rest: {reason}"
+    return f"{figures['peak_pressure_kpa']:.1f} kPa"
+
+
 def equilibrium_figures(settled: Settled) -> dict:
     """report.json's `equilibrium`: whether the body rests (and why not), the force and moment
     left over (N, N m), the settle's motion, and per support its load (N, the magnitude of its

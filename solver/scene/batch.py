@@ -40,7 +40,7 @@ DEFAULT_JOB_TIME_LIMIT = 1800.0  # seconds
 MAX_SCENARIO_BYTES = 64 * 1024 * 1024
 SUMMARY_FIELDS = ("job", "scenario", "parameters", "status", "seconds", "coverage_min",
                   "max_penetration_m", "peak_pressure_kpa_max", "flat_peak_pressure_kpa_max",
-                  "iterations", "error")
+                  "all_rest", "iterations", "error")
 
 
 class BatchError(ValueError):
@@ -211,9 +211,10 @@ def _run_here(job: Job, db: str | None, out_root: str) -> dict:
                    iterations=report["iterations"],
                    coverage_min=min(p["coverage"] for p in persons),
                    max_penetration_m=max(p["max_penetration_m"] for p in persons),
-                   peak_pressure_kpa_max=max(p["peak_pressure_kpa"] for p in persons),
-                   flat_peak_pressure_kpa_max=max(p["flat"]["peak_pressure_kpa"]
-                                                  for p in persons))
+                   peak_pressure_kpa_max=_max_or_none(p["peak_pressure_kpa"] for p in persons),
+                   flat_peak_pressure_kpa_max=_max_or_none(p["flat"]["peak_pressure_kpa"]
+                                                           for p in persons),
+                   all_rest=all(p["equilibrium"]["stable"] for p in persons))
     write_atomic(folder / "result.json", json.dumps(row, indent=2).encode())
     return row
 
@@ -400,3 +401,9 @@ def _store(db: str, jobs: Sequence[Job], rows: list[dict], out: Path) -> list[st
                             source=job.scenario)
             stored.append(job.id)
     return stored
+
+
+def _max_or_none(values) -> float | None:
+    """The largest value, or None when any is None (a person that does not rest has no peak)."""
+    values = list(values)
+    return None if any(v is None for v in values) else max(values)

@@ -173,6 +173,10 @@ def run_demo(out_dir: str | os.PathLike, progress: Callable[[str], None] | None 
     }
 
 
+def _kpa(value: float | None) -> str:
+    return "no rest" if value is None else f"{value:.1f} kPa"
+
+
 def format_summary(summary: dict) -> str:
     """The demo's summary for people."""
     t = summary["timing"]
@@ -186,8 +190,8 @@ def format_summary(summary: dict) -> str:
     for p in summary["persons"]:
         lines.append(f"  {p['name']} ({p['mass_kg']:.0f} kg): coverage {p['coverage']:.2f}, "
                      f"deepest cut {p['max_penetration_m'] * 1000:.0f} mm, peak "
-                     f"{p['peak_pressure_kpa']:.1f} kPa (flat seat "
-                     f"{p['flat_peak_pressure_kpa']:.1f} kPa); relaxed coverage "
+                     f"{_kpa(p['peak_pressure_kpa'])} (flat seat "
+                     f"{_kpa(p['flat_peak_pressure_kpa'])}); relaxed coverage "
                      f"{p['relaxed']['coverage']:.2f}")
     lines.append(f"  time: capture {t['capture_s']:.1f} s, poses {t['poses_s']:.1f} s, fit and "
                  f"export {t['fit_s']:.1f} s, relax {t['relax_s']:.1f} s, total "

@@ -8,6 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from capture import Motion, identify_profile, read_bvh, resolve_path, write_bvh
 from solver.body.model import make_body
+from solver.contact.settle import Foam
 from solver.contact.evaluate import evaluate_person
 from solver.contact.supported import SupportedBody
 from solver.mesh import SurfaceMesh
@@ -83,9 +84,9 @@ def test_hovering_body_settles_onto_the_seat(hovering):
     result = relax(problem)
     surface = SurfaceMesh.from_quads(gv, gf)
     before, _ = evaluate_person(surface, _supported(body, verts, field.importance, mask), 0.03,
-                                200.0)
+                                Foam(200e3))
     after, _ = evaluate_person(surface, _supported(body, result.vertices, field.importance, mask),
-                               0.03, 200.0)
+                               0.03, Foam(200e3))
     assert after["mean_support_distance_m"] <= 0.5 * before["mean_support_distance_m"]
     assert after["max_penetration_m"] <= 0.03
     lo, hi = joint_bounds(body)
@@ -156,7 +157,7 @@ def test_forearms_hovering_over_armrests_come_down_onto_them():
 
     def evaluate(v, part):
         return evaluate_person(surface, _supported(body, v, field.importance * part, mask),
-                               margin, 200.0)[0]
+                               margin, Foam(200e3))[0]
 
     before, after = evaluate(verts, forearms), evaluate(result.vertices, forearms)
     # the forearms hovered: nothing of them touched before

@@ -45,12 +45,15 @@ def test_demo_makes_everything(tmp_path, capsys):
     assert (out / "relax" / "relax.png").stat().st_size > 10_000
 
     # the figures: both supported, neither cut deeper than the margin plus 5 mm, and the fitted
-    # surface presses less than a flat seat at its height
+    # surface presses less than a flat seat at its height where that carries them at all
     masses = []
     for person, relaxed in zip(summary["persons"], relax["persons"]):
         assert person["coverage"] >= 0.9
         assert person["max_penetration_m"] <= 0.035
-        assert person["peak_pressure_kpa"] < person["flat_peak_pressure_kpa"]
+        # the fitted surface carries the body; a flat seat without a back may let it tip over
+        assert person["peak_pressure_kpa"] is not None
+        assert (person["flat_peak_pressure_kpa"] is None
+                or person["peak_pressure_kpa"] < person["flat_peak_pressure_kpa"])
         assert relaxed["after"] == person["relaxed"]
         masses.append(person["mass_kg"])
     assert masses[1] > masses[0] + 10  # two different builds

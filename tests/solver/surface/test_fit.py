@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from solver.contact.settle import Foam
 from solver.contact.evaluate import evaluate_person
 from solver.mesh import SurfaceMesh
 from solver.contact.supported import SupportedBody
@@ -21,7 +22,7 @@ def _fit(ball, **kw):
     target = SupportedBody(v, normals, importance, "ball", t, areas, mass_kg=30.0)
     result = fit_surface(grid_v, grid_f, [target], params)
     figures, _ = evaluate_person(SurfaceMesh.from_quads(result.surface, result.surface_faces),
-                                 target, params.margin, 200.0)
+                                 target, params.margin, Foam(200e3))
     return grid_v, result, figures
 
 
@@ -226,8 +227,10 @@ EXAMPLES = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios"
     pytest.param(name, marks=pytest.mark.slow) for name in (
         "reclining", "facing_pair", "seat_for_thin", "seat_for_heavy", "six_overlapping"))])
 def test_example_scenarios_meet_the_bar(name, tmp_path):
-    """Coverage at least 0.9, no cut deeper than the margin plus 5 mm, and a peak pressure at
-    most 60 % of the flat seat's at the same height."""
+    """Coverage at least 0.9, no cut deeper than the margin plus 5 mm, the body at rest on the
+    surface (and the floor) in equilibrium, and where a flat seat at the same height carries
+    the body too, a peak pressure at most 60 % of its (these poses lean back: on a flat seat
+    without a back most of them tip over, which the report says)."""
     from solver.scene.run import run_fit
 
     report = run_fit(EXAMPLES / f"{name}.toml", tmp_path)
@@ -236,7 +239,16 @@ def test_example_scenarios_meet_the_bar(name, tmp_path):
         assert person["support_inside_others"] <= 0.02, person
         assert person["coverage"] >= 0.9, person
         assert person["max_penetration_m"] <= margin + 0.005, person
-        assert person["peak_pressure_kpa"] <= 0.6 * person["flat"]["peak_pressure_kpa"], person
+        balance = person["equilibrium"]
+        assert balance["stable"], person
+        assert balance["net_force_n"] <= 0.01 * balance["weight_n"], person
+        assert balance["net_moment_nm"] <= 1.0, person
+        flat = person["flat"]
+        assert flat["supported"] == flat["equilibrium"]["stable"]
+        if flat["supported"]:
+            assert person["peak_pressure_kpa"] <= 0.6 * flat["peak_pressure_kpa"], person
+        else:
+            assert flat["peak_pressure_kpa"] is None and flat["equilibrium"]["reason"], person
 
 
 def test_support_inside_other_bodies_is_the_share_of_importance_they_contain():
