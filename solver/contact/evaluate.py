@@ -60,16 +60,18 @@ class PressureMap:
 
 
 def skin_pressure(settled: Settled, areas: np.ndarray) -> np.ndarray:
-    """(V,) kPa on each body vertex: its normal contact force over its area, summed over the
-    supports."""
-    p = np.zeros(len(areas))
+    """(V,) kPa on each body vertex: its normal contact force over its footprint on the
+    support (`areas` (V,) gives the length), summed over the supports."""
+    force, footprint = np.zeros(len(areas)), np.zeros(len(areas))
     for c in settled.contacts:
-        np.add.at(p, c.vertices, c.normal_force / areas[c.vertices] / 1e3)
-    return p
+        np.add.at(force, c.vertices, c.normal_force)
+        np.add.at(footprint, c.vertices, c.areas)
+    touched = footprint > 0
+    force[touched] /= footprint[touched] * 1e3
+    return force
 
 
-def surface_figures(settled: Settled, vertices: np.ndarray, areas: np.ndarray,
-                    names=("seat", "back")) -> dict:
+def surface_figures(settled: Settled, names=("seat", "back")) -> dict:
     """The pressure mat's figures over the contacts of the named supports: peak and peak
     pressure index and mean pressure (kPa), contact area (m^2), centre of pressure (m); all
     None when the body does not rest or nothing touches them."""
@@ -80,14 +82,13 @@ def surface_figures(settled: Settled, vertices: np.ndarray, areas: np.ndarray,
         return {**none, "contact_area_m2": 0.0}
     idx = np.concatenate([c.vertices for c in chosen])
     force = np.concatenate([c.normal_force for c in chosen])
-    kpa = np.zeros(len(areas))
-    np.add.at(kpa, idx, force / areas[idx] / 1e3)
-    touched = np.unique(idx)
-    area = float(areas[touched].sum())
+    footprint = np.concatenate([c.areas for c in chosen])
+    kpa = force / footprint / 1e3
+    area = float(footprint.sum())
     points = settled.vertices[idx]
     return {
         "peak_pressure_kpa": float(kpa.max()),
-        "peak_pressure_index_kpa": peak_pressure_index(settled.vertices, areas, kpa),
+        "peak_pressure_index_kpa": peak_pressure_index(points, footprint, kpa),
         "mean_pressure_kpa": float(force.sum() / area / 1e3),
         "contact_area_m2": area,
         "centre_of_pressure_m": [float(v) for v in force @ points / force.sum()],
@@ -203,7 +204,7 @@ def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float, 
         "max_penetration_m": penetration,
         "mean_support_distance_m": float(np.sum(importance * dist) / total) if total else None,
         "supported": settled.stable,
-        **surface_figures(settled, vertices, person.areas),
+        **surface_figures(settled),
         "equilibrium": equilibrium_figures(settled),
     }
     return figures, PressureMap(skin_pressure(settled, person.areas), settled)

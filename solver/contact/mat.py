@@ -18,3 +18,4 @@ class SupportContact:
     normals: np.ndarray
     points: np.ndarray
     faces: np.ndarray
+    areas: np.ndarray  # (K,) m^2, the skin's footprint on the support at each contact

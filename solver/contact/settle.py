@@ -264,7 +264,8 @@ def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangl
     for outer in range(1, MAX_OUTER + 1):
         x = (x0 - c0) @ rot.T + c0 + shift
         c = c0 + shift
-        groups = [g for g in (_group(s, k, x, x0, c, areas, near[k],
+        nrm = normals @ rot.T
+        groups = [g for g in (_group(s, k, x, x0, c, areas, nrm, near[k],
                                      first[k][1] if outer == 1 else None)
                               for k, s in enumerate(supports)) if g is not None]
         if not groups:
@@ -272,11 +273,18 @@ def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangl
         residual, jac = _balance(np.zeros(6), groups, weight)
         if (np.linalg.norm(residual[:3]) < FORCE_TOL * np.linalg.norm(weight)
                 and np.linalg.norm(residual[3:]) < MOMENT_TOL):
+            if _tips(jac):
+                return _unsettled("tips over (its rest is a balance on an edge)", x, c0, shift,
+                                  rot, weight)
             return _settled(x, c0, shift, rot, groups, supports, residual, weight, outer)
         # later steps move little: only what was near contact stays a candidate
         near = [np.concatenate([g[0].index for g in groups if g[0].support == k] + [near[k][:0]])
                 for k in range(len(supports))]
-        q = _newton(groups, weight, scale, residual, jac)
+        if not any((g[0].depth > 0).any() for g in groups):  # hovering: drop onto the nearest
+            gap = min(-g[0].depth.max() for g in groups)
+            q = np.concatenate([(gap + 1e-3) * weight / np.linalg.norm(weight), np.zeros(3)])
+        else:
+            q = _newton(groups, weight, scale, residual, jac)
         if q is None:
             return _unsettled("the balance has no solution (slides off?)", x, c0, shift, rot,
                               weight)
@@ -289,14 +297,16 @@ def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangl
     return _unsettled(f"no rest within {MAX_OUTER} steps", x, c0, shift, rot, weight)
 
 
-def _group(support: Support, k: int, x, x0, c, areas, subset, cand=None):
+def _group(support: Support, k: int, x, x0, c, areas, normals, subset, cand=None):
     """One support's contact candidates (`cand` when known) with what the contact laws need,
-    or None."""
+    or None. `normals` are the body's as it now stands."""
     cand = _candidates(support, k, x, subset) if cand is None else cand
     if not cand.index.size:
         return None
     i = cand.index
-    return cand, support.foam, areas[i], x[i] - c, x[i] - x0[i]
+    # the skin's footprint on the support: its area projected along the support's normal
+    footprint = areas[i] * np.maximum(-np.einsum("ij,ij->i", normals[i], cand.normal), 0.0)
+    return cand, support.foam, footprint, x[i] - c, x[i] - x0[i]
 
 
 def _newton(groups, weight, scale, r, jac) -> np.ndarray | None:
@@ -344,6 +354,17 @@ def _least_squares(q, groups, weight, scale) -> np.ndarray | None:
     return sol.x if np.all(np.isfinite(sol.x)) else None
 
 
+def _tips(jac: np.ndarray) -> bool:
+    """Whether a rest is unstable: the stiffness -d(balance)/d(motion) (with the turning of
+    the contact forces' arms that gravity drives) has a direction in which it gives way. By
+    Sylvester's law the sign of its symmetric part's eigenvalues does not depend on scaling
+    the turn by a length, so the turn is measured at LEVER."""
+    d = np.array([1.0] * 3 + [LEVER] * 3)
+    k = -(jac * d[None, :]) * d[:, None]  # the moment rows per LEVER, the turn columns at LEVER
+    eig = np.linalg.eigvalsh(0.5 * (k + k.T))
+    return bool(eig.min() < -1e-6 * max(eig.max(), 1e-12))
+
+
 def _too_far(q: np.ndarray) -> str | None:
     if np.linalg.norm(q[3:]) > MAX_TURN:
         return f"tips over (turns {np.degrees(np.linalg.norm(q[3:])):.0f} degrees)"
@@ -363,24 +384,25 @@ def _settled(x, c0, shift, rot, groups, supports, residual, weight, outer) -> Se
     contacts = []
     for cand, foam, area, arm, slip0 in groups:
         on, _, _, fn, ft = _laws(np.zeros(6), cand, foam, area, arm, slip0)
-        contacts += _contacts(supports[cand.support], cand, on, fn, ft)
+        contacts += _contacts(supports[cand.support], cand, area, on, fn, ft)
     return Settled(True, None, x, shift, Rotation.from_matrix(rot).as_rotvec(), c0, contacts,
                    residual[:3].copy(), residual[3:].copy(), float(np.linalg.norm(weight)),
                    outer)
 
 
-def _contacts(s: Support, cand: _Candidates, on, fn, ft) -> list[SupportContact]:
-    """The loaded contacts (`on`, with normal forces `fn` and friction `ft`) of one support,
-    split into seat and back where asked."""
+def _contacts(s: Support, cand: _Candidates, area, on, fn, ft) -> list[SupportContact]:
+    """The loaded contacts (`on`, with normal forces `fn` and friction `ft`, over their
+    footprints `area`) of one support, split into seat and back where asked."""
     idx = np.flatnonzero(on)
-    parts = [(s.name, np.ones(len(idx), dtype=bool))]
+    loaded = fn > 0
+    parts = [(s.name, loaded)]
     if s.split_back:
         steep = cand.normal[idx, 1] < np.cos(np.radians(45.0))
-        parts = [("seat", ~steep), ("back", steep)]
+        parts = [("seat", loaded & ~steep), ("back", loaded & steep)]
     out = []
     for name, m in parts:
         if m.any():
             i = idx[m]
             out.append(SupportContact(name, cand.index[i], fn[m], ft[m], cand.normal[i],
-                                      cand.point[i], cand.face[i]))
+                                      cand.point[i], cand.face[i], area[i]))
     return out

@@ -1,0 +1,113 @@
+"""The settle against statics worked out by hand: boxes on foam, on a slope, on two pads."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from solver.contact.settle import G, Foam, Support, settle
+from solver.mesh import SurfaceMesh, triangle_mesh
+
+
+def _box(size, centre, pitch=0.05):
+    """A closed box mesh with edges about `pitch` long: vertices, normals, areas, triangles."""
+    mesh = trimesh.creation.box(extents=size)
+    v, f = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, pitch)
+    m = trimesh.Trimesh(v, f, process=True)
+    v = np.asarray(m.vertices) + centre
+    t = np.asarray(m.faces)
+    areas, normals = triangle_mesh(t, len(v)).measures(v)
+    return v, normals, areas, t
+
+
+def _plane(height=0.0, slope_deg=0.0, half=2.0):
+    """A square plane facing up, turned `slope_deg` about z."""
+    v = np.array([[-half, 0, -half], [-half, 0, half], [half, 0, half], [half, 0, -half]], float)
+    a = np.radians(slope_deg)
+    rot = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    return SurfaceMesh.from_quads(v @ rot.T + [0, height, 0], np.array([[0, 1, 2, 3]]))
+
+
+def _load(settled, name):
+    c = next(c for c in settled.contacts if c.name == name)
+    return (c.normal_force[:, None] * c.normals + c.tangential_force).sum(axis=0), c
+
+
+def test_box_on_foam_sinks_by_weight_over_area_and_stiffness():
+    """A 0.4 x 0.3 m box of 20 kg on 200 kPa/m foam: pressure m g / A = 1635 Pa everywhere
+    under it, so it sinks 8.2 mm, straight down, carried wholly by the foam (within 3 %: the
+    bottom edge's vertices share their areas with the sides)."""
+    v, n, a, t = _box((0.4, 0.2, 0.3), [0, 0.1, 0], pitch=0.0125)
+    foam = Foam(200e3, thickness=0.1)
+    s = settle(v, n, a, t, 20.0, [Support("seat", foam, _plane())])
+    assert s.stable and s.reason is None
+    force, c = _load(s, "seat")
+    weight = 20.0 * G
+    assert np.linalg.norm(force - [0, weight, 0]) < 0.01 * weight
+    assert np.linalg.norm(s.net_force) < 0.01 * weight and np.linalg.norm(s.net_moment) < 1.0
+    assert s.translation[1] == pytest.approx(-weight / 0.12 / 200e3, rel=0.03)
+    assert np.abs(s.translation[[0, 2]]).max() < 1e-4 and np.abs(s.rotation).max() < 1e-3
+    pressure = c.normal_force / a[c.vertices]
+    interior = np.all(np.abs(v[c.vertices][:, [0, 2]]) < [0.15, 0.1], axis=1)
+    assert pressure[interior] == pytest.approx(weight / 0.12, rel=0.02)
+
+
+@pytest.mark.parametrize("slope, mu, rests", [(10.0, 0.5, True), (20.0, 0.5, True),
+                                              (35.0, 0.5, False), (20.0, 0.2, False)])
+def test_box_on_a_slope_rests_while_friction_holds_it(slope, mu, rests):
+    """On a slope the foam carries m g cos(a) and friction m g sin(a), which it can while
+    tan(a) <= mu; past that the box slides off and the settle says so."""
+    v, n, a, t = _box((0.4, 0.2, 0.3), [0, 0.1, 0])
+    rot = np.radians(slope)
+    turn = np.array([[np.cos(rot), -np.sin(rot), 0], [np.sin(rot), np.cos(rot), 0], [0, 0, 1]])
+    v, n = v @ turn.T, n @ turn.T
+    s = settle(v, n, a, t, 20.0, [Support("seat", Foam(200e3, friction=mu), _plane(0.0, slope))])
+    assert s.stable is rests, s.reason
+    if rests:
+        force, c = _load(s, "seat")
+        weight = 20.0 * G
+        assert np.linalg.norm(force - [0, weight, 0]) < 0.01 * weight
+        assert c.normal_force.sum() == pytest.approx(weight * np.cos(rot), rel=0.01)
+        assert np.linalg.norm(c.tangential_force.sum(axis=0)) == pytest.approx(
+            weight * np.sin(rot), rel=0.01)
+    else:
+        assert "slide" in s.reason or "no rest" in s.reason or "tips" in s.reason
+
+
+def test_a_plank_on_two_supports_splits_its_weight_by_the_lever_rule():
+    """A 1 m plank whose centre of mass sits 0.2 m from one end's pad and 0.6 m from the other
+    (pads 0.8 m apart): 3/4 of the weight on the near pad, 1/4 on the far one, whichever is
+    the stiffer (a stiff floor pad and a soft seat)."""
+    v, n, a, t = _box((1.0, 0.05, 0.2), [0, 0.025, 0])
+    pad = lambda x0, x1, h: SurfaceMesh.from_quads(  # noqa: E731
+        np.array([[x0, h, -0.2], [x0, h, 0.2], [x1, h, 0.2], [x1, h, -0.2]]),
+        np.array([[0, 1, 2, 3]]))
+    near = Support("near", Foam(300e3), pad(0.1, 0.3, 0.0))  # pad centred 0.2 m right of the centre
+    far = Support("far", Foam(3e6), pad(-0.7, -0.5, 0.0))  # reaches the plank's end at -0.5
+    s = settle(v, n, a, t, 10.0, [near, far], centre=np.array([0.0, 0.025, 0.0]))
+    assert s.stable, s.reason
+    w = 10.0 * G
+    f_near, _ = _load(s, "near")
+    f_far, _ = _load(s, "far")
+    # the far pad touches the plank over x in [-0.5, -0.45] (its last vertex row): the lever
+    # arms are about the near pad's and the far contact's centres of pressure
+    x_near = (lambda c: (c.normal_force @ c.points[:, 0]) / c.normal_force.sum())(_load(s, "near")[1])
+    x_far = (lambda c: (c.normal_force @ c.points[:, 0]) / c.normal_force.sum())(_load(s, "far")[1])
+    share_far = (x_near - 0.0) / (x_near - x_far)
+    assert f_far[1] == pytest.approx(share_far * w, rel=0.02)
+    assert f_near[1] + f_far[1] == pytest.approx(w, rel=0.01)
+
+
+def test_a_tall_box_on_a_pad_off_its_centre_tips_over():
+    """A tall box whose centre of mass stands beside the one pad under it has no rest."""
+    v, n, a, t = _box((0.2, 1.0, 0.2), [0, 0.5, 0])
+    pad = SurfaceMesh.from_quads(np.array([[0.05, 0, -0.2], [0.05, 0, 0.2], [0.3, 0, 0.2],
+                                           [0.3, 0, -0.2]]), np.array([[0, 1, 2, 3]]))
+    s = settle(v, n, a, t, 30.0, [Support("pad", Foam(200e3), pad)])
+    assert not s.stable and s.contacts == []
+    assert "tips over" in s.reason or "no rest" in s.reason
+
+
+def test_nothing_under_the_body_is_reported_not_a_number():
+    v, n, a, t = _box((0.4, 0.2, 0.3), [0, 1.0, 0])
+    s = settle(v, n, a, t, 20.0, [Support("seat", Foam(200e3), _plane())])
+    assert not s.stable and "no support" in s.reason
