@@ -263,9 +263,7 @@ def _axis_name(axis, fallback: str) -> str:
 def _map_cmap():
     from matplotlib import colormaps
 
-    cmap = colormaps["viridis"].copy()
-    cmap.set_bad((0.93, 0.93, 0.93))  # unloaded cells: the mat's bare grey
-    return cmap
+    return colormaps["viridis"].with_extremes(bad=(0.93, 0.93, 0.93))  # unloaded: bare grey
 
 
 def _rectangle(cols: np.ndarray, rows: np.ndarray):
