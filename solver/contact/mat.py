@@ -208,6 +208,29 @@ def _region_figures(contacts: Sequence[SupportContact], areas: np.ndarray, regio
     return out
 
 
+def _support_figures(c: SupportContact, areas: np.ndarray, regions: np.ndarray | None,
+                     region_names, weight_n: float, orientation: np.ndarray) -> dict:
+    _, force, points, area = _vertex_loads([c], areas)
+    if (area <= 0).any():
+        raise MatError(f"{c.name}: expected contact vertices of area > 0 m^2")
+    figures = _figures(force, points, area, c.force, weight_n)
+    figures["distribution"] = _distribution(c, force, points, area, orientation)
+    figures["regions"] = {} if regions is None or not len(c.vertices) else \
+        _region_figures([c], areas, regions, region_names, weight_n)
+    return figures
+
+
+def _checked_regions(regions, names, areas: np.ndarray) -> tuple[np.ndarray, tuple]:
+    regions = np.asarray(regions)
+    if regions.shape != areas.shape:
+        raise MatError(f"Expected regions of shape {areas.shape}, got {regions.shape}")
+    names = BODY_REGIONS if names is None else tuple(names)
+    if regions.size and (regions.min() < 0 or regions.max() >= len(names)):
+        raise MatError(f"Expected region indices in 0..{len(names) - 1}, got "
+                       f"{regions.min()}..{regions.max()}")
+    return regions, names
+
+
 def mat_figures(contacts: Sequence[SupportContact], areas: np.ndarray, mass_kg: float,
                 regions: np.ndarray | None = None, region_names: Sequence[str] | None = None,
                 *, orientation: np.ndarray | None = None) -> dict:
@@ -270,25 +293,11 @@ def mat_figures(contacts: Sequence[SupportContact], areas: np.ndarray, mass_kg: 
     if not mass_kg > 0:
         raise MatError(f"Expected a body mass > 0 kg, got {mass_kg}")
     if regions is not None:
-        regions = np.asarray(regions)
-        if regions.shape != areas.shape:
-            raise MatError(f"Expected regions of shape {areas.shape}, got {regions.shape}")
-        region_names = BODY_REGIONS if region_names is None else tuple(region_names)
-        if regions.size and (regions.min() < 0 or regions.max() >= len(region_names)):
-            raise MatError(f"Expected region indices in 0..{len(region_names) - 1}, got "
-                           f"{regions.min()}..{regions.max()}")
+        regions, region_names = _checked_regions(regions, region_names, areas)
     orientation = np.eye(3) if orientation is None else np.asarray(orientation, dtype=float)
     weight_n = mass_kg * G
-    supports = {}
-    for c in contacts:
-        _, force, points, area = _vertex_loads([c], areas)
-        if (area <= 0).any():
-            raise MatError(f"{c.name}: expected contact vertices of area > 0 m^2")
-        figures = _figures(force, points, area, c.force, weight_n)
-        figures["distribution"] = _distribution(c, force, points, area, orientation)
-        figures["regions"] = {} if regions is None or not len(c.vertices) else \
-            _region_figures([c], areas, regions, region_names, weight_n)
-        supports[c.name] = figures
+    supports = {c.name: _support_figures(c, areas, regions, region_names, weight_n,
+                                         orientation) for c in contacts}
     _, force, points, area = _vertex_loads(list(contacts), areas)
     total = _figures(force, points, area, sum((c.force for c in contacts), np.zeros(3)),
                      weight_n)
@@ -674,12 +683,18 @@ def pressure_grid(contact: SupportContact, surface_vertices: np.ndarray | None =
         half = 0.5 * np.sqrt(areas[contact.vertices[loaded]])[:, None] / np.array(size)
     force = _splat(place[loaded], contact.normal_force[loaded], half, area.shape)
     force, area, nodes = _orient(force, area, nodes, normal, across)
-    force, area, nodes = _crop(force, area, nodes, margin_m)
+    return _grid(contact.name, *_crop(force, area, nodes, margin_m), grid is not None)
+
+
+def _grid(name: str, force: np.ndarray, area: np.ndarray, nodes: np.ndarray, draped: bool
+          ) -> PressureGrid:
+    """The PressureGrid of cells carrying force (R, C) N over areas (R, C) m^2 with nodes
+    (R + 1, C + 1, 3)."""
     centres = 0.25 * (nodes[:-1, :-1] + nodes[1:, :-1] + nodes[:-1, 1:] + nodes[1:, 1:])
     row_axis = np.diff(nodes, axis=0).reshape(-1, 3).mean(axis=0)
     col_axis = np.diff(nodes, axis=1).reshape(-1, 3).mean(axis=0)
     row_axis, col_axis = row_axis / np.linalg.norm(row_axis), col_axis / np.linalg.norm(col_axis)
-    if grid is not None:  # arc length along the mat, the mean over its rows or columns
+    if draped:  # arc length along the mat, the mean over its rows or columns
         row_edges = np.concatenate([[0.0], np.cumsum(np.linalg.norm(
             np.diff(nodes, axis=0), axis=-1).mean(axis=1))])
         col_edges = np.concatenate([[0.0], np.cumsum(np.linalg.norm(
@@ -687,8 +702,8 @@ def pressure_grid(contact: SupportContact, surface_vertices: np.ndarray | None =
     else:
         row_edges, col_edges = nodes[:, 0] @ row_axis, nodes[0] @ col_axis
     pressure = np.divide(force, area, out=np.zeros_like(force), where=area > 0) / 1e3
-    return PressureGrid(contact.name, pressure, area, row_edges, col_edges, centres, row_axis,
-                        col_axis, grid is not None)
+    return PressureGrid(name, pressure, area, row_edges, col_edges, centres, row_axis, col_axis,
+                        draped)
 
 
 def _csv_block(grid: PressureGrid) -> str:

@@ -274,7 +274,7 @@ def _rectangle(cols: np.ndarray, rows: np.ndarray):
 
 
 def render_pressure_maps(path: str | os.PathLike, maps: Sequence, *, columns: int = 3,
-                         panel_size: tuple[int, int] = (380, 420), title: str | None = None,
+                         panel_size: tuple[int, int] | None = None, title: str | None = None,
                          high_kpa: float | None = None) -> Path:
     """Renders pressure maps as a mat's screen shows them, one panel each, into one PNG.
 
@@ -288,8 +288,9 @@ def render_pressure_maps(path: str | os.PathLike, maps: Sequence, *, columns: in
         contact areas compare at a glance.
     columns : int, default 3
         Panels per row.
-    panel_size : (2,) int, default (380, 420)
-        Width and height of a panel, pixels.
+    panel_size : (2,) int, optional
+        Width and height of a panel, pixels (default: 380 wide, as high as the maps' common
+        extent needs, between 260 and 560).
     title : str, optional
         A title over the picture.
     high_kpa : float, optional
@@ -319,6 +320,8 @@ def render_pressure_maps(path: str | os.PathLike, maps: Sequence, *, columns: in
         if np.size(m.pressure_kpa):
             span[0] = max(span[0], float(np.ptp(m.row_edges_m)) * 100)
             span[1] = max(span[1], float(np.ptp(m.column_edges_m)) * 100)
+    if panel_size is None:
+        panel_size = (380, int(np.clip(300 * span[0] / span[1] + 110, 260, 560)))
     width, height = panel_size[0] * columns / 100 + 1.0, panel_size[1] * rows / 100 + \
         (0.5 if title else 0.1)
     fig = Figure(figsize=(width, height), dpi=100, layout="constrained")
