@@ -46,6 +46,20 @@ _BONE_PART = {
     "LeftFoot": "feet", "LeftToeBase": "feet", "RightFoot": "feet", "RightToeBase": "feet",
 }
 
+# Body regions, as seating studies report them: each is a piece of one part (REGION_PART), made
+# of the bones that move it. The trunk's regions span front and back and are named for the side
+# a seat or backrest touches; "pelvis" includes the buttocks, which the hip bones carry.
+BODY_REGIONS = ("head", "shoulders", "upper_back", "lower_back", "pelvis", "arms", "hands",
+                "thighs", "calves", "feet")
+REGION_PART = {"head": "head", "shoulders": "torso", "upper_back": "torso",
+               "lower_back": "torso", "pelvis": "torso", "arms": "arms", "hands": "hands",
+               "thighs": "legs", "calves": "legs", "feet": "feet"}
+_REGION_BONES = {
+    "shoulders": ("LeftShoulder", "RightShoulder"), "upper_back": ("Spine", "Spine1"),
+    "lower_back": ("LowerBack",), "pelvis": ("Hips", "LHipJoint", "RHipJoint"),
+    "thighs": LEG_SEGMENTS["thighs"], "calves": LEG_SEGMENTS["calves"],
+}
+
 
 class BodyShapeError(ValueError):
     """Shape parameters outside what the body model accepts."""
@@ -216,6 +230,29 @@ class Body:
         w = {seg: np.asarray(self.weights[:, [self.joint_index(b) for b in bones]].sum(axis=1))
              .ravel() for seg, bones in LEG_SEGMENTS.items()}
         return (self.parts == BODY_PARTS.index("legs")) & (w["thighs"] >= w["calves"])
+
+    @cached_property
+    def regions(self) -> np.ndarray:
+        """(V,) int8 index into BODY_REGIONS: of the regions of the vertex's part, the one whose
+        bones weigh most on it (a tie goes to the region listed first, so the thighs and calves
+        are exactly `thigh` and the rest of the legs).
+
+        Regions refine the parts: every vertex of a region belongs to its REGION_PART. A part's
+        bones not named in a region (the head's, the arms', the hands', the feet's) form the
+        region of the part's own name."""
+        bones = {r: _REGION_BONES.get(r, tuple(b for b, p in _BONE_PART.items() if p == r))
+                 for r in BODY_REGIONS}
+        rows, cols = [], []
+        for r, region in enumerate(BODY_REGIONS):
+            for b in bones[region]:
+                rows.append(self.joint_index(b))
+                cols.append(r)
+        incidence = sp.csr_matrix((np.ones(len(rows)), (rows, cols)),
+                                  shape=(len(self.joint_names), len(BODY_REGIONS)))
+        per_region = (self.weights @ incidence).toarray()
+        region_part = np.array([BODY_PARTS.index(REGION_PART[r]) for r in BODY_REGIONS])
+        per_region[region_part[None, :] != self.parts[:, None]] = -1.0
+        return per_region.argmax(axis=1).astype(np.int8)
 
     def part_mask(self, parts) -> np.ndarray:
         """(V,) bool: vertices of the named body parts (SUPPORT_PARTS: the parts, or the legs'

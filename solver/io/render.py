@@ -194,3 +194,154 @@ def render_png(path: str | os.PathLike, meshes: Sequence[MeshView], *,
     path = Path(path)
     fig.savefig(path, facecolor="white")
     return path
+
+
+@dataclass
+class MapPanel:
+    """A pressure map to draw: cells (R, C) in kPa, 0 where nothing presses, with their edges
+    (R + 1,) and (C + 1,) in metres (row 0 drawn at the top), a title, and whether the edges
+    are arc lengths along a draped mat (else plane coordinates). A
+    `solver.contact.mat.PressureGrid` has the same fields (its `name` is the title)."""
+
+    pressure_kpa: np.ndarray
+    row_edges_m: np.ndarray
+    column_edges_m: np.ndarray
+    title: str | None = None
+    draped: bool = False
+
+
+def _map_title(m) -> str:
+    name = getattr(m, "title", None) or getattr(m, "name", None) or "map"
+    p = np.asarray(m.pressure_kpa)
+    if not p.size or not (p > 0).any():
+        return f"{name}\nno contact"
+    text = f"{name}\npeak cell {p.max():.1f} kPa"
+    area = getattr(m, "cell_area_m2", None)
+    if area is not None:
+        text += f", {np.asarray(area)[p > 0].sum() * 1e4:.0f} cm\u00b2 loaded"
+    return text
+
+
+def _draw_map(ax, m, norm, span: tuple[float, float]) -> None:
+    p = np.asarray(m.pressure_kpa, dtype=float)
+    ax.set_facecolor("white")
+    if p.size:
+        rows, cols = np.asarray(m.row_edges_m) * 100, np.asarray(m.column_edges_m) * 100
+        cmap = _map_cmap()
+        ax.pcolormesh(cols, rows, np.ma.masked_less_equal(p, 0.0), cmap=cmap, norm=norm,
+                      edgecolors="none", antialiased=False)
+        ax.add_patch(_rectangle(cols, rows))
+        mid_c, mid_r = (cols[0] + cols[-1]) / 2, (rows[0] + rows[-1]) / 2
+    else:
+        mid_c = mid_r = 0.0
+        ax.text(0.5, 0.5, "no contact", ha="center", va="center", transform=ax.transAxes,
+                color="0.5")
+    ax.set_xlim(mid_c - span[1] / 2, mid_c + span[1] / 2)
+    ax.set_ylim(mid_r + span[0] / 2, mid_r - span[0] / 2)  # row 0 at the top
+    ax.set_aspect("equal")
+    if getattr(m, "draped", False):
+        ax.set_xlabel("across the mat, cm", fontsize=8)
+        ax.set_ylabel("along the mat, cm", fontsize=8)
+    else:
+        ax.set_xlabel(f"{_axis_name(getattr(m, 'column_axis', None), 'column')}, cm",
+                      fontsize=8)
+        ax.set_ylabel(f"{_axis_name(getattr(m, 'row_axis', None), 'row')}, cm", fontsize=8)
+    ax.tick_params(labelsize=7)
+
+
+def _axis_name(axis, fallback: str) -> str:
+    """"x", "-z", ... for a direction along a world axis, else the fallback."""
+    if axis is None or not np.size(axis):
+        return fallback
+    a = np.asarray(axis, dtype=float)
+    k = int(np.argmax(np.abs(a)))
+    if abs(a[k]) < 0.99 * np.linalg.norm(a):
+        return f"{fallback} axis"
+    return ("" if a[k] > 0 else "-") + "xyz"[k]
+
+
+def _map_cmap():
+    from matplotlib import colormaps
+
+    return colormaps["viridis"].with_extremes(bad=(0.93, 0.93, 0.93))  # unloaded: bare grey
+
+
+def _rectangle(cols: np.ndarray, rows: np.ndarray):
+    from matplotlib.patches import Rectangle
+
+    return Rectangle((cols[0], rows[0]), cols[-1] - cols[0], rows[-1] - rows[0], fill=False,
+                     edgecolor="0.6", linewidth=0.8)
+
+
+def render_pressure_maps(path: str | os.PathLike, maps: Sequence, *, columns: int = 3,
+                         panel_size: tuple[int, int] | None = None, title: str | None = None,
+                         high_kpa: float | None = None) -> Path:
+    """Renders pressure maps as a mat's screen shows them, one panel each, into one PNG.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The PNG file to write.
+    maps : sequence of MapPanel or PressureGrid
+        The maps (one per support: seat, back, floor, ...). Cells at 0 kPa are drawn grey,
+        loaded ones on the viridis scale; every panel has the same centimetre scale, so the
+        contact areas compare at a glance.
+    columns : int, default 3
+        Panels per row.
+    panel_size : (2,) int, optional
+        Width and height of a panel, pixels (default: 380 wide, as high as the maps' common
+        extent needs, between 260 and 560).
+    title : str, optional
+        A title over the picture.
+    high_kpa : float, optional
+        The top of one colour scale shared by all panels (one colour bar). By default each
+        panel has its own scale, from 0 to its largest cell, and its own colour bar, so that
+        a seat's few kPa stay readable next to the feet's tens.
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.colors import Normalize
+    from matplotlib.figure import Figure
+
+    maps = list(maps)
+    if not maps:
+        raise ValueError("Expected at least one pressure map, got none")
+    columns = max(1, min(columns, len(maps)))
+    rows = -(-len(maps) // columns)
+    span = [1e-2, 1e-2]
+    for m in maps:
+        if np.size(m.pressure_kpa):
+            span[0] = max(span[0], float(np.ptp(m.row_edges_m)) * 100)
+            span[1] = max(span[1], float(np.ptp(m.column_edges_m)) * 100)
+    if panel_size is None:
+        panel_size = (380, int(np.clip(300 * span[0] / span[1] + 110, 260, 560)))
+    width, height = panel_size[0] * columns / 100 + 1.0, panel_size[1] * rows / 100 + \
+        (0.5 if title else 0.1)
+    fig = Figure(figsize=(width, height), dpi=100, layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = [fig.add_subplot(rows, columns, k + 1) for k in range(len(maps))]
+    from matplotlib import cm
+
+    for ax, m in zip(axes, maps):
+        peak = float(np.max(m.pressure_kpa)) if np.size(m.pressure_kpa) else 0.0
+        norm = Normalize(0.0, high_kpa if high_kpa is not None else max(peak, 1e-3))
+        _draw_map(ax, m, norm, (span[0], span[1]))
+        ax.set_title(_map_title(m), fontsize=10)
+        if high_kpa is None:
+            fig.colorbar(cm.ScalarMappable(norm=norm, cmap=_map_cmap()), ax=ax, fraction=0.05,
+                         pad=0.02, shrink=0.8, label="kPa")
+    if title:
+        fig.suptitle(title, fontsize=12)
+    if high_kpa is not None:
+        fig.colorbar(cm.ScalarMappable(norm=Normalize(0.0, high_kpa), cmap=_map_cmap()),
+                     ax=axes, fraction=0.04, pad=0.02, label="pressure, kPa")
+    path = Path(path)
+    fig.savefig(path, facecolor="white")
+    return path

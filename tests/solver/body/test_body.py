@@ -145,3 +145,33 @@ def test_package_data_is_compact():
 
     data = resources.files("solver") / "data" / "makehuman_body.npz.xz"
     assert len(data.read_bytes()) < 10e6
+
+
+def test_regions_partition_the_body_and_sit_where_they_should(body):
+    """Every vertex has one region, inside its part; the thighs and calves are the legs' split;
+    each region lies around its bones (the pelvis about the Hips joint, and so on)."""
+    from solver.body.model import BODY_REGIONS, REGION_PART
+
+    regions = body.regions
+    assert regions.shape == (len(body.vertices),)
+    assert regions.min() >= 0 and regions.max() < len(BODY_REGIONS)
+    part_of = np.array([BODY_PARTS.index(REGION_PART[r]) for r in BODY_REGIONS])
+    np.testing.assert_array_equal(part_of[regions], body.parts)
+    counts = np.bincount(regions, minlength=len(BODY_REGIONS))
+    assert (counts > 50).all(), dict(zip(BODY_REGIONS, counts))
+    mask = {r: regions == k for k, r in enumerate(BODY_REGIONS)}
+    np.testing.assert_array_equal(mask["thighs"], body.part_mask(["thighs"]))
+    np.testing.assert_array_equal(mask["calves"], body.part_mask(["calves"]))
+    centre = {r: body.vertices[m].mean(axis=0) for r, m in mask.items()}
+    joint = {n: body.joints[body.joint_index(n)] for n in ("Hips", "LowerBack", "Spine1", "Neck")}
+    assert np.linalg.norm(centre["pelvis"] - joint["Hips"]) < 0.06
+    assert np.linalg.norm(centre["lower_back"] - joint["LowerBack"]) < 0.1
+    heights = [centre[r][1] for r in ("feet", "calves", "thighs", "pelvis", "lower_back",
+                                      "upper_back", "shoulders", "head")]
+    assert heights == sorted(heights)
+    assert body.vertices[mask["head"], 1].min() > joint["Neck"][1] - 0.05
+    assert body.vertices[mask["feet"], 1].max() < 0.15
+    # the buttocks (behind the hips, at their height) are pelvis, not thighs
+    behind = (body.vertices[:, 2] < joint["Hips"][2] - 0.08) & \
+        (np.abs(body.vertices[:, 1] - joint["Hips"][1] + 0.03) < 0.04)
+    assert mask["pelvis"][behind].mean() > 0.8
