@@ -207,8 +207,9 @@ class Design:
         start = time.perf_counter()
         scenario = self.scenario()
         people = [self.place(p) for p in self.people]
-        result, persons, pressure = fit_scene(scenario, people, progress)
-        self.last = FitOutcome(result, people, persons, pressure, time.perf_counter() - start)
+        result, persons, settles = fit_scene(scenario, people, progress)
+        self.last = FitOutcome(result, people, persons, [m.pressure_kpa for m in settles],
+                               time.perf_counter() - start)
         return self.last
 
     def relax(self, k: int) -> RelaxOutcome:

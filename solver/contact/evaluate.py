@@ -23,32 +23,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from solver.contact.mat import mat_figures, peak_pressure_index
 from solver.contact.settle import DEPTH, Foam, Settled, Support, settle
 from solver.contact.supported import SupportedBody
 from solver.mesh import SurfaceMesh
 
 FLOOR = Foam(stiffness=30000e3, thickness=0.02)  # a hard floor under shoes and heels
-
-
-PEAK_AREA = 10e-4  # m^2: the peak pressure index averages over 10 cm^2, as seating studies do
-
-
-def peak_pressure_index(vertices: np.ndarray, areas: np.ndarray, pressure: np.ndarray) -> float:
-    """The highest area-weighted mean pressure over a disc of PEAK_AREA around a loaded vertex
-    (the "peak pressure index" of seating research: a mat's 3 x 3 sensor cells)."""
-    from scipy.spatial import cKDTree
-
-    loaded = np.flatnonzero(pressure > 0)
-    if not loaded.size:
-        return 0.0
-    radius = np.sqrt(PEAK_AREA / np.pi)
-    tree = cKDTree(vertices[loaded])
-    order = loaded[np.argsort(pressure[loaded])[::-1][:64]]  # the peak lies near a high vertex
-    best = 0.0
-    for i in order:
-        near = loaded[tree.query_ball_point(vertices[i], radius)]
-        best = max(best, float(np.sum(pressure[near] * areas[near]) / np.sum(areas[near])))
-    return best
 
 
 @dataclass(frozen=True, eq=False)
@@ -59,19 +39,48 @@ class PressureMap:
     settled: Settled
 
 
-def skin_pressure(settled: Settled, areas: np.ndarray) -> np.ndarray:
-    """(V,) kPa on each body vertex: its normal contact force over its footprint on the
-    support (`areas` (V,) gives the length), summed over the supports."""
-    force, footprint = np.zeros(len(areas)), np.zeros(len(areas))
+LEG_REGIONS = ("thighs", "calves", "feet")
+STEEP = np.cos(np.radians(45.0))  # a support steeper than 45 degrees is no seat
+
+
+def surface_parts(regions: np.ndarray | None):
+    """The names of a fitted surface's parts for `Support.parts`: "seat" where its normal is
+    within 45 degrees of up, and where steeper "leg rest" under the legs and feet and "back"
+    under the rest of the body (all "back" without `regions`)."""
+    from solver.body.model import BODY_REGIONS
+
+    legs = np.array([r in LEG_REGIONS for r in BODY_REGIONS])
+
+    def parts(vertices: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        names = np.where(normals[:, 1] >= STEEP, "seat", "back").astype(object)
+        if regions is not None:
+            names[(names == "back") & legs[regions[vertices]]] = "leg rest"
+        return names
+
+    return parts
+
+
+def contact_footprint(settled: Settled, n: int) -> np.ndarray:
+    """(n,) m^2: each body vertex's footprint on the supports it presses (0 elsewhere)."""
+    footprint = np.zeros(n)
+    for c in settled.contacts:
+        np.add.at(footprint, c.vertices, c.areas)
+    return footprint
+
+
+def skin_pressure(settled: Settled, n: int) -> np.ndarray:
+    """(n,) kPa on each of the n body vertices: its normal contact force over its footprint
+    on the supports, summed over them."""
+    force = np.zeros(n)
     for c in settled.contacts:
         np.add.at(force, c.vertices, c.normal_force)
-        np.add.at(footprint, c.vertices, c.areas)
+    footprint = contact_footprint(settled, n)
     touched = footprint > 0
     force[touched] /= footprint[touched] * 1e3
     return force
 
 
-def surface_figures(settled: Settled, names=("seat", "back")) -> dict:
+def surface_figures(settled: Settled, names=("seat", "back", "leg rest")) -> dict:
     """The pressure mat's figures over the contacts of the named supports: peak and peak
     pressure index and mean pressure (kPa), contact area (m^2), centre of pressure (m); all
     None when the body does not rest or nothing touches them."""
@@ -194,7 +203,7 @@ def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float, 
         wn = igl.fast_winding_number(np.asarray(vertices, dtype=np.float64),
                                      np.asarray(triangles, dtype=np.int64), closest[behind])
         cut[behind] = wn > 0.5
-    supports = [Support("surface", foam, surface, split_back=True)]
+    supports = [Support("surface", foam, surface, parts=surface_parts(person.regions))]
     if floor is not None:
         supports.append(Support("floor", floor))
     settled = settle(vertices, person.normals, person.areas, triangles, person.mass_kg,
@@ -206,8 +215,11 @@ def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float, 
         "supported": settled.stable,
         **surface_figures(settled),
         "equilibrium": equilibrium_figures(settled),
+        "mat": mat_figures(settled.contacts, contact_footprint(settled, len(vertices)),
+                           person.mass_kg, person.regions, orientation=person.orientation)
+        if settled.stable else None,
     }
-    return figures, PressureMap(skin_pressure(settled, person.areas), settled)
+    return figures, PressureMap(skin_pressure(settled, len(vertices)), settled)
 
 
 def flat_seat_height(surface: SurfaceMesh, person: SupportedBody) -> float:

@@ -32,7 +32,6 @@ import numpy as np
 
 from capture.files import write_atomic
 from solver.body.model import BODY_REGIONS
-from solver.contact.evaluate import G, peak_pressure_index
 
 # seat pressure distribution bands, kPa: [0, 2), [2, 4), ... [10, inf)
 PRESSURE_BANDS_KPA = (0.0, 2.0, 4.0, 6.0, 8.0, 10.0)
@@ -42,6 +41,28 @@ SEATED_REFERENCE = {"seat_mean_kpa": 2.4, "seat_peak_kpa": 6.7,
                     "noticeable_change_kpa": (2.0, 3.5), "noticeable_at_kpa": (13.0, 26.0)}
 MAP_CELL_M = 0.02  # metres: the largest side of a mat cell (mat sensors are 1-2 cm)
 MAP_MARGIN_M = 0.03  # metres of unloaded mat shown around the loaded cells
+
+
+G = 9.81
+PEAK_AREA = 10e-4  # m^2: the peak pressure index averages over 10 cm^2, as seating studies do
+
+
+def peak_pressure_index(vertices: np.ndarray, areas: np.ndarray, pressure: np.ndarray) -> float:
+    """The highest area-weighted mean pressure over a disc of PEAK_AREA around a loaded vertex
+    (the "peak pressure index" of seating research: a mat's 3 x 3 sensor cells)."""
+    from scipy.spatial import cKDTree
+
+    loaded = np.flatnonzero(pressure > 0)
+    if not loaded.size:
+        return 0.0
+    radius = np.sqrt(PEAK_AREA / np.pi)
+    tree = cKDTree(vertices[loaded])
+    order = loaded[np.argsort(pressure[loaded])[::-1][:64]]  # the peak lies near a high vertex
+    best = 0.0
+    for i in order:
+        near = loaded[tree.query_ball_point(vertices[i], radius)]
+        best = max(best, float(np.sum(pressure[near] * areas[near]) / np.sum(areas[near])))
+    return best
 
 
 class MatError(ValueError):

@@ -19,14 +19,15 @@ such: no contact at all, a rotation past `MAX_TURN` (the pose tips over), a tran
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from solver.contact.mat import SupportContact
+from solver.contact.mat import G, SupportContact
 from solver.mesh import SurfaceMesh, volume_centroid
 
-G = 9.81
+
 UP = np.array([0.0, 1.0, 0.0])
 BAND = 0.03  # metres above a support within which a vertex may come into contact
 MAX_TURN = np.radians(12.0)  # a settle turning the body further tips it over
@@ -55,15 +56,15 @@ class Foam:
 @dataclass(frozen=True, eq=False)
 class Support:
     """Something a body can rest on: a surface `mesh` (face normals towards the body), or the
-    floor, the plane y = `height`, when `mesh` is None. `name` is what the report calls it;
-    `split_back` reports the surface's parts steeper than 45 degrees as "back" and the rest as
-    "seat"."""
+    floor, the plane y = `height`, when `mesh` is None. `name` is what the report calls it,
+    unless `parts(vertices, normals) -> (K,) str` names each contact's part (the body vertices
+    in contact, the support's normals there), as a seat, a back or a leg rest."""
 
     name: str
     foam: Foam
     mesh: SurfaceMesh | None = None
     height: float = 0.0
-    split_back: bool = False
+    parts: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -392,13 +393,13 @@ def _settled(x, c0, shift, rot, groups, supports, residual, weight, outer) -> Se
 
 def _contacts(s: Support, cand: _Candidates, area, on, fn, ft) -> list[SupportContact]:
     """The loaded contacts (`on`, with normal forces `fn` and friction `ft`, over their
-    footprints `area`) of one support, split into seat and back where asked."""
+    footprints `area`) of one support, one per part where the support names them."""
     idx = np.flatnonzero(on)
     loaded = fn > 0
     parts = [(s.name, loaded)]
-    if s.split_back:
-        steep = cand.normal[idx, 1] < np.cos(np.radians(45.0))
-        parts = [("seat", loaded & ~steep), ("back", loaded & steep)]
+    if s.parts is not None:
+        names = np.asarray(s.parts(cand.index[idx], cand.normal[idx]))
+        parts = [(str(n), loaded & (names == n)) for n in dict.fromkeys(names.tolist())]
     out = []
     for name, m in parts:
         if m.any():

@@ -20,6 +20,10 @@ class SupportedBody:
     areas : (V,) float, m^2, Voronoi areas (needed by the evaluation).
     supported : (V,) bool, the body parts the surface is asked to support (all when None).
     mass_kg : the body's mass (needed by the evaluation).
+    regions : (V,) int, optional, each vertex's body region (`solver.body.model.BODY_REGIONS`),
+        for the evaluation's figures per region.
+    orientation : (3, 3) float, optional, the body's left, up and forward directions as
+        columns (how the evaluation names halves: front/back, left/right).
     """
 
     vertices: np.ndarray
@@ -30,3 +34,5 @@ class SupportedBody:
     areas: np.ndarray | None = None
     supported: np.ndarray | None = None
     mass_kg: float | None = None
+    regions: np.ndarray | None = None
+    orientation: np.ndarray | None = None

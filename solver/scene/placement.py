@@ -110,5 +110,6 @@ def place_person(spec: PersonSpec, db: str | os.PathLike | None = None,
     field = pressure_field(placed, body.triangles, mask=reach, normals=normals, areas=areas)
     label = spec.name or f"person {index + 1}"
     return PlacedPerson(placed, normals, field.importance, f"{label} ({captured.label})",
-                        body.triangles, areas, parts, body.mass_kg, spec=spec, body=body,
+                        body.triangles, areas, parts, body.mass_kg, body.regions,
+                        m[:3, :3].copy(), spec=spec, body=body,
                         motion=motion, transform=to_scene)

@@ -16,13 +16,16 @@ from capture.files import write_atomic
 from solver.mesh import SurfaceMesh
 from solver.contact.evaluate import (FLOOR, evaluate_person, flat_seat_height, flat_surface,
                                      support_inside)
+from solver.contact.evaluate import PressureMap, contact_footprint
+from solver.contact.mat import PressureGrid, pressure_grid, write_pressure_csv
 from solver.contact.settle import Foam
 from solver.io.export import write_mesh
 from solver.body.relax import (PENETRATION_SHIFT, PENETRATION_WIDTH, RelaxError, RelaxProblem,
                                relax)
 from solver.mesh import triangle_mesh
 from solver.surface.fit import FitResult, fit_surface
-from solver.io.render import SKIN, SURFACE, MeshView, Panel, field_colors, render_panels
+from solver.io.render import (SKIN, SURFACE, MeshView, Panel, field_colors, render_panels,
+                              render_pressure_maps)
 from solver.scene.scenario import Scenario, load_scenario
 from solver.scene.placement import PlacedPerson, place_person
 from solver.mesh import quad_triangles
@@ -42,7 +45,7 @@ def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.n
                    faces: np.ndarray) -> tuple[list[dict], list[np.ndarray]]:
     """Per person: the fitted surface's figures (with `flat`, the flat-seat baseline, and
     `support_inside_others`, the share of the person's importance inside other people's bodies)
-    and the pressure (kPa) per body vertex."""
+    and the settle's `PressureMap` (the pressure in kPa per body vertex, the contacts)."""
     mesh = SurfaceMesh.from_quads(surface, faces)
     margin, (foam, floor) = scenario.surface.params.margin, foams(scenario.evaluation)
     rows, maps = [], []
@@ -58,7 +61,7 @@ def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.n
                      "support": list(p.spec.support), **figures,
                      "support_inside_others": support_inside(p.vertices, p.importance, others),
                      "flat": flat})
-        maps.append(pm.pressure_kpa)
+        maps.append(pm)
     return rows, maps
 
 
@@ -79,7 +82,8 @@ def fit_scene(scenario: Scenario, people: list[PlacedPerson],
     result : FitResult, the fitted control mesh and its level-s surface (metres).
     persons : per person the report's figures (coverage, max_penetration_m, pressures in kPa,
         contact_area_m2, ...), with the flat-seat baseline under `flat`.
-    pressure : per person (V,) float, kPa on each body vertex.
+    pressure : per person the settle's `PressureMap`: `pressure_kpa` (V,) float, kPa on each
+        body vertex, and `settled`, the body at rest with its contacts.
     """
     timing = timing if timing is not None else {}
     t = time.perf_counter()
@@ -216,9 +220,11 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
 
 
 def export_scene(out: Path, result: FitResult, people: list[PlacedPerson],
-                 maps: list[np.ndarray]) -> dict:
-    """Surface, control mesh, posed bodies and pictures; returns the file names."""
+                 settles: list[PressureMap]) -> dict:
+    """Surface, control mesh, posed bodies, pictures and the pressure mats' maps; returns the
+    file names."""
     files = {}
+    maps = [m.pressure_kpa for m in settles]
     files["control_obj"] = write_mesh(out / "control.obj", result.control, result.faces,
                                       comment="sitrelax control mesh (quads): Rhino ToSubD "
                                               "gives the same Catmull-Clark surface").name
@@ -249,7 +255,33 @@ def export_scene(out: Path, result: FitResult, people: list[PlacedPerson],
     render_panels(out / "pressure.png", panels, columns=min(3, len(panels)),
                   colorbar=("pressure, kPa", 0.0, peak))
     files["pressure_png"] = "pressure.png"
+    grids = mat_maps(result, people, settles)
+    if grids:
+        write_pressure_csv(out / "pressure_map.csv", grids)
+        render_pressure_maps(out / "pressure_map.png", grids,
+                             title="Pressure as a mat on each support shows it (kPa)")
+        files["pressure_map_csv"], files["pressure_map_png"] = "pressure_map.csv", \
+            "pressure_map.png"
     return files
+
+
+def mat_maps(result: FitResult, people: list[PlacedPerson],
+             settles: list[PressureMap]) -> list[PressureGrid]:
+    """The pressure mats' grids: per person at rest, one per support part it loads (the
+    surface's draped on it, the floor's on the floor), named "person: support"."""
+    grids = []
+    for p, m in zip(people, settles):
+        if not m.settled.stable:
+            continue
+        footprint = contact_footprint(m.settled, len(p.vertices))
+        for c in m.settled.contacts:
+            on_surface = c.faces.min() >= 0
+            grid = pressure_grid(c, result.surface if on_surface else None,
+                                 result.surface_faces if on_surface else None, footprint)
+            if grid.pressure_kpa.size:
+                grids.append(dataclasses.replace(grid, name=f"{p.label.split(' (')[0]}: "
+                                                            f"{c.name}"))
+    return grids
 
 
 def pressure_on_skin(pressure: np.ndarray, peak: float) -> np.ndarray:
