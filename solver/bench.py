@@ -128,6 +128,62 @@ def _relax_numeric(problem):
     return relax(problem, numeric_jacobian=True)
 
 
+def _settle_setup():
+    """The seated person on its fitted seat (and the floor), with what the evaluation has
+    already computed for the settle (the vertices the seat cuts into, the supports)."""
+    import igl
+    import numpy as np
+
+    from solver.contact.evaluate import surface_parts
+    from solver.contact.settle import DEPTH, Support
+    from solver.mesh import SurfaceMesh
+    from solver.scene.run import foams
+    from solver.surface.fit import fit_surface
+
+    scenario, people, params = _fit_setup()
+    fit = fit_surface(scenario.surface.vertices, scenario.surface.faces, people, params)
+    mesh = SurfaceMesh.from_quads(fit.surface, fit.surface_faces)
+    person = people[0]
+    _, signed, _, _, closest = mesh.closest(person.vertices)
+    cut = np.zeros(len(person.vertices), dtype=bool)
+    behind = np.flatnonzero((signed < 0) & (signed > -DEPTH))
+    cut[behind] = igl.fast_winding_number(person.vertices, person.triangles.astype(np.int64),
+                                          closest[behind]) > 0.5
+    foam, floor = foams(scenario.evaluation)
+    supports = [Support("surface", foam, mesh, parts=surface_parts(person.regions)),
+                Support("floor", floor)]
+    return person, supports, cut
+
+
+def _settle(arg):
+    from solver.contact.settle import settle
+
+    person, supports, cut = arg
+    rest = settle(person.vertices, person.normals, person.areas, person.triangles,
+                  person.mass_kg, supports, cut=cut)
+    if not rest.stable:
+        raise RuntimeError(f"settle bench: {rest.reason}")
+    return rest
+
+
+def _evaluate_setup():
+    from solver.scene.run import foams
+    from solver.surface.fit import fit_surface
+
+    scenario, people, params = _fit_setup()
+    fit = fit_surface(scenario.surface.vertices, scenario.surface.faces, people, params)
+    return fit, people[0], params.margin, foams(scenario.evaluation)
+
+
+def _evaluate(arg):
+    from solver.contact.evaluate import evaluate_person
+    from solver.mesh import SurfaceMesh
+
+    fit, person, margin, (foam, floor) = arg
+    mesh = SurfaceMesh.from_quads(fit.surface, fit.surface_faces)  # a fresh surface each time
+    return evaluate_person(mesh, person, margin, foam, floor)
+
+
 def _batch_setup():
     """24 fits: single_seated at 24 values of sigma."""
     from solver.scene.batch import expand_jobs
@@ -164,6 +220,12 @@ def solver_cases() -> list[BenchCase]:
                   "loop's stop", _fit_setup, _fit, repeats=5),
         BenchCase("fit_six", "fit a 52x6 grid, level 3, to six seated people, to the loop's "
                   "stop", _fit_six_setup, _fit, repeats=3),
+        BenchCase("settle", "the seated 13,380-vertex body settling in equilibrium on its "
+                  "fitted seat and the floor (given the vertices the seat cuts into)",
+                  _settle_setup, _settle, repeats=15),
+        BenchCase("evaluate", "the whole evaluation of that body on a fresh surface: coverage, "
+                  "penetration, the settle, mat figures", _evaluate_setup, _evaluate,
+                  repeats=7),
         BenchCase("relax", "relax one pose (the overweight body onto the thin body's seat) "
                   "with the analytic Jacobian", _relax_setup, _relax, _relax_numeric,
                   "finite-difference Jacobian", repeats=7, baseline_repeats=1),

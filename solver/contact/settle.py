@@ -222,9 +222,12 @@ def _balance(q, groups, weight):
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Row-wise cross products of (K, 3) arrays (or a (3,) with a (K, 3))."""
-    a = np.broadcast_to(a, b.shape)
-    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
+    a0, a1, a2 = (a[0], a[1], a[2]) if a.ndim == 1 else (a[:, 0], a[:, 1], a[:, 2])
+    out = np.empty(b.shape)
+    out[:, 0] = a1 * b[:, 2] - a2 * b[:, 1]
+    out[:, 1] = a2 * b[:, 0] - a0 * b[:, 2]
+    out[:, 2] = a0 * b[:, 1] - a1 * b[:, 0]
+    return out
 
 
 def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangles: np.ndarray,
