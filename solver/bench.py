@@ -49,9 +49,9 @@ def _pressure(arg):
 
 
 def _pressure_reference(arg):
-    from solver.contact.reference import rigid_contact
+    from solver.contact.rigid_mould import rigid_mould_contact
 
-    return rigid_contact(*arg)
+    return rigid_mould_contact(*arg)
 
 
 def _grid_setup():

@@ -10,7 +10,8 @@ from solver.body.model import make_body
 from solver.body.poses import load_pose, pose_body
 from solver.contact.pressure import pressure_field
 from solver.mesh import vertex_normals, voronoi_areas
-from solver.contact.reference import mould_vertices, rigid_contact
+from solver.contact.pressure import mould_vertices
+from solver.contact.rigid_mould import rigid_mould_contact
 from solver.mesh import volume_centroid
 from solver.body.skinning import skin
 
@@ -77,7 +78,7 @@ def test_reference_without_friction_is_the_model_on_a_sphere():
     every contact force is then exactly k A max(0, -n_y): the model's."""
     sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
     v, t = np.asarray(sphere.vertices), np.asarray(sphere.faces)
-    sol = rigid_contact(v, t, mu=0.0)
+    sol = rigid_mould_contact(v, t, mu=0.0)
     assert sol.residual < 1e-6
     np.testing.assert_allclose(sol.rotation, 0.0, atol=1e-15)
     model = pressure_field(v, t).reaction[sol.vertices]
@@ -87,7 +88,7 @@ def test_reference_without_friction_is_the_model_on_a_sphere():
 
 def test_reference_balances_the_load(seated):
     body, verts = seated
-    sol = rigid_contact(verts, body.triangles, load=735.0)
+    sol = rigid_mould_contact(verts, body.triangles, load=735.0)
     total = (sol.normal_force + sol.tangential_force).sum(axis=0)
     np.testing.assert_allclose(total, [0.0, 735.0, 0.0], atol=1e-6)
     centre = volume_centroid(verts, body.triangles)
