@@ -27,39 +27,57 @@ def _cross_matrices(x: np.ndarray) -> np.ndarray:
     return m
 
 
-def _forces(z, n, a, x, cross, mu, shear):
-    """Spring forces (K, 3) on the support under the motion z = (u, theta) and their
-    derivatives (K, 3, 6)."""
-    lever = np.concatenate([np.broadcast_to(np.eye(3), cross.shape), -cross], axis=2)  # d = L z
+def _lever_gram(a: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """(6, 6) sum_k a_k L_k' L_k with L_k = [I, -[x_k]_x] (the rigid motion's displacement at
+    x_k), from the sums of a, a x and a x x' alone."""
+    sa, sx, sxx = a.sum(), a @ x, (a[:, None] * x).T @ x
+    cx = _cross_matrices(sx[None])[0]
+    out = np.empty((6, 6))
+    out[:3, :3] = sa * np.eye(3)
+    out[:3, 3:] = -cx
+    out[3:, :3] = cx
+    out[3:, 3:] = np.trace(sxx) * np.eye(3) - sxx  # -sum a [x]_x [x]_x
+    return out
+
+
+def _balance(z, n, a, x, w, mu, shear):
+    """Net wrench (6,) of the spring forces on the support under the motion z = (u, theta),
+    its Jacobian (6, 6), and the normal compressions (K,). w (K, 6) are the wrenches [n, x X n]
+    of the unit normals, also the derivatives of the compressions."""
     d = z[:3] + np.cross(z[3:], x)
-    delta = np.einsum("ij,ij->i", d, n)
+    delta = w @ z
     active = delta > 0
-    rows = np.einsum("ij,ijk->ik", n, lever)  # d delta / dz (K, 6)
-    f = (a * np.maximum(delta, 0.0))[:, None] * n
-    jac = np.where(active[:, None, None], (a[:, None] * n)[:, :, None] * rows[:, None, :], 0.0)
     slip = d - delta[:, None] * n
-    size = np.linalg.norm(slip, axis=1)
-    stick_f = (shear * a)[:, None] * slip
-    cap = mu * a * np.maximum(delta, 0.0)
-    slipping = shear * a * size > cap
-    proj = np.eye(3) - n[:, :, None] * n[:, None, :]
-    dslip = proj @ lever  # (K, 3, 6)
-    jt = (shear * a)[:, None, None] * dslip
+    size = np.sqrt(np.einsum("ij,ij->i", slip, slip))
+    cap = mu * np.maximum(delta, 0.0)
+    slipping = active & (shear * size > cap)
+    stick = active & ~slipping
+    f = np.where(stick[:, None], delta[:, None] * n + shear * slip, 0.0)
+    aw = a[:, None] * w
+    jac = aw[active].T @ w[active]
+    jac += shear * (_lever_gram(a[stick], x[stick]) - aw[stick].T @ w[stick])
     if slipping.any():
         s = slipping
         unit = slip[s] / np.maximum(size[s], 1e-300)[:, None]
-        stick_f[s] = cap[s, None] * unit
-        perp = (np.eye(3) - unit[:, :, None] * unit[:, None, :]) / np.maximum(size[s], 1e-300)[
-            :, None, None]
-        jt[s] = (mu * a[s] * active[s])[:, None, None] * unit[:, :, None] * rows[s][:, None, :] \
-            + cap[s, None, None] * (perp @ dslip[s])
-    return f + stick_f, jac + jt, delta
+        f[s] = delta[s, None] * n[s] + cap[s, None] * unit
+        lever = np.concatenate([np.broadcast_to(np.eye(3), (s.sum(), 3, 3)),
+                                -_cross_matrices(x[s])], axis=2)
+        proj = np.eye(3) - n[s][:, :, None] * n[s][:, None, :]
+        perp = (np.eye(3) - unit[:, :, None] * unit[:, None, :]) @ proj
+        dt = mu * unit[:, :, None] * w[s][:, None, :] \
+            + (cap[s] / np.maximum(size[s], 1e-300))[:, None, None] * (perp @ lever)
+        wrench = np.concatenate([np.broadcast_to(np.eye(3), dt.shape[:1] + (3, 3)),
+                                 _cross_matrices(x[s])], axis=1)
+        jac += np.einsum("kij,kjl->il", wrench * a[s][:, None, None], dt)
+    fa = a[:, None] * f
+    net = np.concatenate([fa.sum(axis=0), np.cross(x, fa).sum(axis=0)])
+    return net, jac, delta
 
 
 def equilibrium_compression(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray,
                             gravity: np.ndarray, centre: np.ndarray, *, mu: float = 0.5,
                             shear_ratio: float = SHEAR_RATIO, max_iterations: int = 40,
-                            tol: float = 1e-9) -> np.ndarray:
+                            tol: float = 1e-8) -> np.ndarray:
     """(V,) the normal compression max(0, delta) of each vertex when the body balances a unit
     load along `gravity` (unit (3,)) through `centre` (3,) on its envelope of springs (module
     docstring); zero on vertices facing up. vertices, normals (V, 3), areas (V,) m^2."""
@@ -67,21 +85,20 @@ def equilibrium_compression(vertices: np.ndarray, normals: np.ndarray, areas: np
     n, a, x = normals[contact], areas[contact], vertices[contact] - centre
     reach = np.linalg.norm(x, axis=1).max()
     x = x / reach  # theta in units of 1 / reach
-    cross = _cross_matrices(x)
-    wrench = np.concatenate([np.broadcast_to(np.eye(3), cross.shape), cross], axis=1)  # (K,6,3)
+    w = np.concatenate([n, np.cross(x, n)], axis=1)
     z = np.zeros(6)
     z[:3] = gravity / np.sum(a * np.maximum(n @ gravity, 0.0) ** 2)  # the paper's sinking
     target = np.concatenate([gravity, np.zeros(3)])
 
     def residual(z):
-        f, jac, delta = _forces(z, n, a, x, cross, mu, shear_ratio)
-        return np.einsum("kij,kj->i", wrench, f) - target, jac, delta
+        net, jac, delta = _balance(z, n, a, x, w, mu, shear_ratio)
+        return net - target, jac, delta
 
     r, jac, delta = residual(z)
     for _ in range(max_iterations):
         if np.abs(r).max() < tol:
             break
-        step = np.linalg.solve(np.einsum("kij,kjl->il", wrench, jac), -r)
+        step = np.linalg.solve(jac, -r)
         scale = 1.0
         while scale > 1e-4:  # backtrack on the residual's size
             trial = residual(z + scale * step)
