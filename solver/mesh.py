@@ -50,9 +50,11 @@ def enclosed_volume(vertices: np.ndarray, triangles: np.ndarray) -> float:
 
 def volume_centroid(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """(3,) centroid of the volume a closed triangle mesh encloses."""
-    p = np.asarray(vertices, dtype=np.float64)[np.asarray(triangles)]
-    vol = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])) / 6.0
-    return (vol[:, None] * p.sum(axis=1) / 4.0).sum(axis=0) / vol.sum()
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.asarray(triangles, dtype=np.int64)
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    vol = np.einsum("ij,ij->i", a, np.cross(b, c))  # six times each tetrahedron's volume
+    return vol @ (a + b + c) / (4.0 * vol.sum())
 
 
 def faces_problem(vertices: np.ndarray, faces: np.ndarray) -> str | None:

@@ -56,19 +56,14 @@ def _balance(z, n, a, x, w, mu, shear):
     aw = a[:, None] * w
     jac = aw[active].T @ w[active]
     jac += shear * (_lever_gram(a[stick], x[stick]) - aw[stick].T @ w[stick])
-    if slipping.any():
+    if slipping.any():  # tau = cap u, u the unit slip: d tau = mu u dw' + cap/|s| (I - uu') P L
         s = slipping
-        unit = slip[s] / np.maximum(size[s], 1e-300)[:, None]
+        unit = slip[s] / size[s, None]
         f[s] = delta[s, None] * n[s] + cap[s, None] * unit
-        lever = np.concatenate([np.broadcast_to(np.eye(3), (s.sum(), 3, 3)),
-                                -_cross_matrices(x[s])], axis=2)
-        proj = np.eye(3) - n[s][:, :, None] * n[s][:, None, :]
-        perp = (np.eye(3) - unit[:, :, None] * unit[:, None, :]) @ proj
-        dt = mu * unit[:, :, None] * w[s][:, None, :] \
-            + (cap[s] / np.maximum(size[s], 1e-300))[:, None, None] * (perp @ lever)
-        wrench = np.concatenate([np.broadcast_to(np.eye(3), dt.shape[:1] + (3, 3)),
-                                 _cross_matrices(x[s])], axis=1)
-        jac += np.einsum("kij,kjl->il", wrench * a[s][:, None, None], dt)
+        wu = np.concatenate([unit, np.cross(x[s], unit)], axis=1)  # L' u
+        c = a[s] * cap[s] / size[s]
+        jac += (mu * a[s, None] * wu).T @ w[s]
+        jac += _lever_gram(c, x[s]) - (c[:, None] * w[s]).T @ w[s] - (c[:, None] * wu).T @ wu
     fa = a[:, None] * f
     net = np.concatenate([fa.sum(axis=0), np.cross(x, fa).sum(axis=0)])
     return net, jac, delta
