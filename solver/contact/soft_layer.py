@@ -216,7 +216,8 @@ def soft_layer_contact(vertices: np.ndarray, triangles: np.ndarray, *, load: flo
     moment = np.cross(arms, force).sum(axis=0)
     residual = float(max(np.linalg.norm(net), np.linalg.norm(moment)))
     share = np.zeros(len(coarse_v))
-    np.add.at(share, mould_t, (np.linalg.norm(face_cross(coarse_v, mould_t), axis=1) / 6.0)[:, None])
+    third = np.linalg.norm(face_cross(coarse_v, mould_t), axis=1) / 6.0  # a third of the area
+    np.add.at(share, mould_t, third[:, None])
     traction = np.zeros((len(coarse_v), 3))
     traction[mesh.base] = force / share[mesh.base, None]
     normal_force, tangential_force, contact = _on_full_body(v, t, g, coarse_v, coarse_t,
