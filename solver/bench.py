@@ -48,10 +48,16 @@ def _pressure(arg):
     return pressure_field(*arg)
 
 
-def _pressure_reference(arg):
-    from solver.contact.reference import rigid_contact
+def _pressure_equilibrium(arg):
+    from solver.contact.pressure import pressure_field
 
-    return rigid_contact(*arg)
+    return pressure_field(*arg, model="equilibrium")
+
+
+def _pressure_reference(arg):
+    from solver.contact.rigid_mould import rigid_mould_contact
+
+    return rigid_mould_contact(*arg)
 
 
 def _grid_setup():
@@ -212,7 +218,10 @@ def solver_cases() -> list[BenchCase]:
                   _skinning_setup, _skinning, repeats=50),
         BenchCase("pressure", "pressure field of the seated 13,380-vertex body (areas, normals, "
                   "importance)", _posed_setup, _pressure, repeats=50),
-        BenchCase("pressure_reference", "rigid-contact physics reference on the same body",
+        BenchCase("pressure_equilibrium", "equilibrium-aware importance (force and moment "
+                  "balance, friction) on the same body", _posed_setup, _pressure_equilibrium,
+                  _pressure, "the paper's model", repeats=30, baseline_repeats=30),
+        BenchCase("pressure_reference", "rigid-mould reference on the same body",
                   _posed_setup, _pressure_reference, repeats=5),
         BenchCase("subdivision", "Catmull-Clark operator of an 8x6 grid to level 3, from "
                   "scratch, applied", _grid_setup, _subdivide_fresh, repeats=30),

@@ -205,17 +205,44 @@ def _cmd_relax(args: argparse.Namespace) -> int:
 
 
 def _cmd_validate_pressure(args: argparse.Namespace) -> int:
-    from solver.scene.validate import validate_pressure
+    from solver.scene.validate import REFERENCES, validate_pressure
 
-    rows = validate_pressure(args.out)
+    refs = args.reference or [r for r in REFERENCES if not (args.quick and r == "soft layer FE")]
+    rows = validate_pressure(args.out, mus=args.mu, references=refs,
+                             progress=lambda line: print(line, file=sys.stderr, flush=True))
     if args.json:
         print(json.dumps(rows, indent=2))
         return 0
+    print("RMSE of each field normalised by its largest value, over all mould vertices and the "
+          "loaded ones (reference above 5 % of its largest); the all-zero model's RMSE in "
+          "brackets; Pearson r")
+    pose = None
     for r in rows:
-        print(f"{r['pose']:<14} RMSE reaction {r['rmse_reaction']:.4f}  RMSE normal "
-              f"{r['rmse_normal']:.4f}  model {r['model_s'] * 1e3:.1f} ms  reference "
-              f"{r['reference_s'] * 1e3:.0f} ms  ({r['contact_vertices']} contact vertices)"
-              + (f"  -> {r['picture']}" if "picture" in r else ""))
+        if r["pose"] != pose:
+            pose = r["pose"]
+            print(f"\n{pose} ({r['vertices']} mould vertices)")
+            print(f"  {'reference':<18} {'mu':>4} {'model':<12} {'RMSE all':>17} "
+                  f"{'RMSE loaded':>17} {'r':>6} {'model':>8} {'reference':>9}")
+        print(f"  {r['reference']:<18} {r['mu']:>4.1f} {r['model']:<12} "
+              f"{r['rmse_all']:.3f} ({r['zero_all']:.3f}) {r['rmse_loaded']:>9.3f} "
+              f"({r['zero_loaded']:.3f}) {r['pearson_r']:>6.3f} {r['model_ms']:>5.1f} ms "
+              f"{r['reference_s']:>7.1f} s")
+    paper = [r for r in rows if r["model"] == "paper"]
+    if paper:
+        worst = min(paper, key=lambda r: r["zero_all"] / r["rmse_all"])
+        print(f"\npaper model vs the all-zero model: at least "
+              f"{worst['zero_all'] / worst['rmse_all']:.1f}x better over all vertices "
+              f"({worst['pose']}, {worst['reference']}, mu = {worst['mu']})")
+    for model in sorted({r["model"] for r in rows}):
+        fe = [r for r in rows if r["model"] == model and r["reference"] == "soft layer FE"]
+        if fe:
+            top = max(fe, key=lambda r: r["rmse_loaded"])
+            print(f"{model} model vs the FE reference: RMSE all at most "
+                  f"{max(r['rmse_all'] for r in fe):.3f}, loaded at most {top['rmse_loaded']:.3f}"
+                  f" ({top['pose']}, mu = {top['mu']})")
+    pictures = sorted({r["picture"] for r in rows if "picture" in r})
+    for path in pictures:
+        print(f"-> {path}")
     return 0
 
 
@@ -325,8 +352,17 @@ def _register_checks(sub) -> None:
     """`validate` and `bench`."""
     validate = sub.add_parser("validate", help="check models against physical references")
     vsub = validate.add_subparsers(dest="validate_command", required=True)
-    vp = vsub.add_parser("pressure", help="the pressure model against a rigid-contact reference")
+    vp = vsub.add_parser("pressure", help="the importance model against physical references "
+                         "(finite elements, a contact programme, the rigid mould), about a "
+                         "minute; --quick skips the finite elements")
     vp.add_argument("--out", help="folder for the side-by-side pictures")
+    vp.add_argument("--mu", type=float, nargs="+", default=[0.3, 0.5, 0.8],
+                    help="friction coefficients (default: 0.3 0.5 0.8)")
+    vp.add_argument("--reference", action="append",
+                    choices=["soft layer FE", "contact programme", "rigid mould"],
+                    help="only this reference (repeatable; default: all three)")
+    vp.add_argument("--quick", action="store_true",
+                    help="skip the finite-element reference (a few seconds instead of a minute)")
     vp.add_argument("--json", action="store_true", help="machine-readable output")
     vp.set_defaults(func=_cmd_validate_pressure)
 

@@ -51,12 +51,10 @@ def enclosed_volume(vertices: np.ndarray, triangles: np.ndarray) -> float:
 def volume_centroid(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """(3,) centroid of the volume a closed triangle mesh encloses."""
     v = np.asarray(vertices, dtype=np.float64)
-    t = np.asarray(triangles)
+    t = np.asarray(triangles, dtype=np.int64)
     a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
-    vol = (a[:, 0] * (b[:, 1] * c[:, 2] - b[:, 2] * c[:, 1])
-           + a[:, 1] * (b[:, 2] * c[:, 0] - b[:, 0] * c[:, 2])
-           + a[:, 2] * (b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0])) / 6.0
-    return vol @ (a + b + c) / 4.0 / vol.sum()
+    vol = np.einsum("ij,ij->i", a, np.cross(b, c))  # six times each tetrahedron's volume
+    return vol @ (a + b + c) / (4.0 * vol.sum())
 
 
 def faces_problem(vertices: np.ndarray, faces: np.ndarray) -> str | None:
@@ -182,23 +180,14 @@ class SurfaceMesh:
         return cls.from_quads(vertices, faces) if faces.shape[1] == 4 else \
             cls.from_triangles(vertices, faces)
 
-    def tree(self):
-        """The surface's bounding-box tree (libigl's AABB), built on first use and kept."""
-        tree = self.__dict__.get("_tree")
-        if tree is None:
-            import igl
-
-            tree = igl.AABB()
-            tree.init(self.vertices, self.triangles)
-            object.__setattr__(self, "_tree", tree)
-        return tree
-
     def closest(self, points: np.ndarray):
         """Unsigned distance (P,), signed distance along the closest face's normal (P,), whether
         the closest point lies inside its face (not on the surface's border) (P,), the closest
         face (P,) and the closest point (P, 3)."""
+        import igl
+
         points = np.asarray(points, dtype=np.float64)
-        sq, face, closest = self.tree().squared_distance(self.vertices, self.triangles, points)
+        sq, face, closest = igl.point_mesh_squared_distance(points, self.vertices, self.triangles)
         dist = np.sqrt(sq)
         offset = points - closest
         signed = np.einsum("ij,ij->i", offset, self.face_normals[face])

@@ -187,13 +187,21 @@ def test_pose_show_writes_a_picture_and_a_mesh(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_validate_pressure_command(tmp_path, capsys):
-    assert main(["validate", "pressure", "--json", "--out", str(tmp_path)]) == 0
+    assert main(["validate", "pressure", "--json", "--quick", "--mu", "0.5",
+                 "--out", str(tmp_path)]) == 0
     rows = json.loads(capsys.readouterr().out)
-    assert [r["pose"] for r in rows] == ["seated", "lying T-pose"]
+    assert {r["pose"] for r in rows} == {"seated", "lying", "reclining"}
+    assert {r["reference"] for r in rows} == {"contact programme", "rigid mould"}
     for r in rows:
-        assert {"pose", "rmse_reaction", "rmse_normal", "model_s", "reference_s"} <= set(r)
-        assert r["rmse_reaction"] <= 0.07 and r["model_s"] < r["reference_s"]
+        assert {"rmse_all", "zero_all", "rmse_loaded", "zero_loaded", "pearson_r", "model_ms",
+                "reference_s"} <= set(r)
+        if r["model"] == "paper":
+            assert r["zero_all"] >= 2 * r["rmse_all"], r
         assert (tmp_path / r["picture"].rsplit("/", 1)[-1]).stat().st_size > 10_000
+    assert main(["validate", "pressure", "--quick", "--mu", "0.5",
+                 "--reference", "rigid mould"]) == 0
+    text = capsys.readouterr().out
+    assert "all-zero" in text and "reclining" in text
 
 
 def test_a_locked_library_and_a_missing_pose_are_one_line(tmp_path, capsys, monkeypatch):

@@ -8,6 +8,10 @@ unit normal, g the unit direction of gravity and A its Voronoi area,
 
 Vertices facing up carry nothing. The importance rho weights the surface fit; vertices outside
 the body parts the designer chose get zero importance.
+
+`model="equilibrium"` replaces max(0, n . g) by the normal compression of an envelope of springs
+when the body, turning and leaning on friction, balances its weight and the weight's moment
+(`solver.contact.equilibrium`); the default is the paper's model.
 """
 
 from __future__ import annotations
@@ -17,9 +21,10 @@ from typing import Sequence
 
 import numpy as np
 
-from solver.mesh import triangle_mesh
+from solver.mesh import face_cross, triangle_mesh
 
 GRAVITY = (0.0, -1.0, 0.0)
+MODELS = ("paper", "equilibrium")
 
 
 @dataclass(frozen=True, eq=False)
@@ -35,7 +40,8 @@ class PressureField:
 
 def pressure_field(vertices: np.ndarray, triangles: np.ndarray, *,
                    gravity: Sequence[float] = GRAVITY, mask: np.ndarray | None = None,
-                   normals: np.ndarray | None = None, areas: np.ndarray | None = None
+                   normals: np.ndarray | None = None, areas: np.ndarray | None = None,
+                   model: str = "paper", mu: float = 0.5, centre: np.ndarray | None = None
                    ) -> PressureField:
     """The pressure model on a posed body mesh.
 
@@ -53,36 +59,67 @@ def pressure_field(vertices: np.ndarray, triangles: np.ndarray, *,
         Precomputed unit vertex normals (otherwise from the mesh).
     areas : (V,) float, optional
         Precomputed Voronoi areas, m^2 (otherwise from the mesh).
+    model : {"paper", "equilibrium"}, default "paper"
+        The paper's p = max(0, n . g), or the normal compression of a balanced body in an
+        envelope of springs, scaled to a largest value of 1 (`solver.contact.equilibrium`).
+    mu : float, default 0.5
+        Friction coefficient of the equilibrium model.
+    centre : (3,) float, optional
+        Where the weight acts in the equilibrium model (default: the centroid of the enclosed
+        volume).
 
     Returns
     -------
     PressureField
-        Per-vertex (V,) fields: pressure p = max(0, n . g) in [0, 1], area A (m^2), reaction
+        Per-vertex (V,) fields: pressure p in [0, 1], area A (m^2), reaction
         |r_n| = A p (m^2), and importance rho = |r_n| / max |r_n| in [0, 1], taken over the
         masked vertices (all zero when none carries any reaction).
 
     Raises
     ------
     ValueError
-        If `gravity` is not a finite, non-zero (3,) direction.
+        If `gravity` is not a finite, non-zero (3,) direction, or `model` or `mu` unknown.
     """
     g = np.asarray(gravity, dtype=np.float64)
     norm = np.linalg.norm(g)
     if g.shape != (3,) or not np.isfinite(norm) or norm == 0:
         raise ValueError(f"Expected a non-zero gravity direction (3,), got {gravity!r}")
     g = g / norm
+    if model not in MODELS or not mu >= 0:
+        raise ValueError(f"Expected model in {MODELS} and mu >= 0, got {model!r} and {mu!r}")
     if normals is None or areas is None:
         a, n = triangle_mesh(triangles, len(vertices)).measures(vertices)
         n = n if normals is None else np.asarray(normals)
         a = a if areas is None else np.asarray(areas)
     else:
         n, a = np.asarray(normals), np.asarray(areas)
-    pressure = np.maximum(0.0, n @ g)
+    if model == "paper":
+        pressure = np.maximum(0.0, n @ g)
+    else:
+        from solver.contact.equilibrium import equilibrium_compression
+        from solver.mesh import volume_centroid
+
+        v = np.asarray(vertices, dtype=np.float64)
+        c = volume_centroid(v, triangles) if centre is None else np.asarray(centre, float)
+        pressure = equilibrium_compression(v, n, a, g, c, mu=mu)
+        pressure = pressure / max(pressure.max(), 1e-300)
     reaction = a * pressure
     supported = reaction if mask is None else np.where(mask, reaction, 0.0)
     peak = supported.max(initial=0.0)
     importance = supported / peak if peak > 0 else np.zeros_like(supported)
     return PressureField(pressure, a, reaction, importance)
+
+
+def mould_vertices(vertices: np.ndarray, triangles: np.ndarray,
+                   gravity=GRAVITY) -> np.ndarray:
+    """(K,) the vertices of the faces that point down or sideways: the mould's contact set."""
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.asarray(triangles)
+    g = np.asarray(gravity, dtype=np.float64)
+    g = g / np.linalg.norm(g)
+    fn = face_cross(v, t)
+    facing = fn @ g >= 0  # not pointing up
+    return np.unique(t[facing])
 
 
 REACH_STEPS = (0.01, 0.02, 0.04, 0.08, 0.16)  # metres along the normal

@@ -1,15 +1,29 @@
-"""`sitrelax validate pressure`: the pressure model against the physical reference.
+"""`sitrelax validate pressure`: the importance model against physical references.
 
-Two poses, as in the paper's figure 4: a seated pose (frame 39 of `cmu_75_18_high_sit.bvh`, in
-the middle of the held seated phase) and a lying T-pose, both on the default body. For each, the
-model's |r_n| and the reference's reactions are normalised by their largest normal force and
-compared over the mould's contact vertices (the vertices of the faces pointing down or sideways).
+Three poses on the default body: seated (frame 39 of `cmu_75_18_high_sit.bvh`, in the middle of
+the held seated phase), a lying T-pose (on the back), and reclining (frame 200 of
+`cmu_75_17_medium_sit.bvh` turned 35 degrees back about x, as the `reclining` scenario places
+it). Three references, each loaded with 735 N through the centre of mass:
+
+* ``soft layer FE``: the body rigid in a 1 cm elastic layer, finite elements with unilateral
+  contact and Coulomb friction (`solver.contact.soft_layer`);
+* ``contact programme``: the least complementary energy contact forces of a compliant support
+  in the exact friction cone, a conic programme (`solver.contact.programme`);
+* ``rigid mould``: the paper's section 4.3 set-up, a penalty solved by root finding
+  (`solver.contact.rigid_mould`); it agrees with the model nearly by construction.
+
+Each is run with friction mu = 0.3, 0.5 and 0.8. Every field, the model's |r_n| and the
+reference's normal force, is normalised by its own largest value over the mould's vertices (the
+vertices of faces pointing down or sideways) and compared there: RMSE over all of them and over
+the loaded ones (reference above `LOADED` of its largest value), each next to the score of a
+model that predicts zero everywhere, and Pearson's r.
 """
 
 from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Callable, Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -17,76 +31,154 @@ from scipy.spatial.transform import Rotation
 from solver.body.model import BodyShape, make_body
 from solver.body.poses import load_pose, pose_body
 from solver.body.rig import t_pose
-from solver.contact.pressure import pressure_field
-from solver.contact.reference import rigid_contact
 from solver.body.skinning import skin
+from solver.contact.pressure import MODELS, mould_vertices, pressure_field
 
 SEATED = "bundled:cmu_75_18_high_sit.bvh#frame=39"
+RECLINING = "bundled:cmu_75_17_medium_sit.bvh#frame=200"
+RECLINE_DEG = 35.0
+MUS = (0.3, 0.5, 0.8)
+LOADED = 0.05  # a vertex is loaded where the reference is above 5 % of its largest value
+REFERENCES = ("soft layer FE", "contact programme", "rigid mould")
 
 
 def validation_poses(shape: BodyShape = BodyShape()) -> dict[str, np.ndarray]:
-    """Posed vertices (V, 3) of the two validation poses."""
+    """Posed vertices (V, 3) of the three validation poses: seated, lying, reclining."""
     body = make_body(shape)
     seated = pose_body(load_pose(SEATED), body)
     lying = t_pose(body, Rotation.from_euler("x", -90, degrees=True).as_matrix())
+    recline = skin(body, pose_body(load_pose(RECLINING), body).frame(0), normals=False)[0]
+    back = Rotation.from_euler("x", -RECLINE_DEG, degrees=True).as_matrix()
     return {"seated": skin(body, seated.frame(0), normals=False)[0],
-            "lying T-pose": skin(body, lying, normals=False)[0]}
+            "lying": skin(body, lying, normals=False)[0],
+            "reclining": (recline - recline.mean(axis=0)) @ back.T}
 
 
-def compare(vertices: np.ndarray, triangles: np.ndarray) -> dict:
-    """Model and reference on one posed mesh: RMSEs, times and the normalised fields."""
-    start = time.perf_counter()
-    field = pressure_field(vertices, triangles)
-    model_s = time.perf_counter() - start
-    start = time.perf_counter()
-    ref = rigid_contact(vertices, triangles)
-    reference_s = time.perf_counter() - start
-    k = ref.vertices
-    ours = field.reaction[k] / field.reaction[k].max()
-    scale = ref.normal.max()
-    reaction, normal = ref.reaction / scale, ref.normal / scale
+def field_metrics(model: np.ndarray, reference: np.ndarray, loaded: float = LOADED) -> dict:
+    """Agreement of two fields (K,) over the same vertices, each normalised by its largest
+    value: RMSE over all and over the loaded ones (reference above `loaded`), the all-zero
+    model's RMSE on the same sets (the root mean square of the reference), and Pearson's r."""
+    ours = model / model.max()
+    ref = reference / reference.max()
+    mask = ref > loaded
     return {
-        "rmse_reaction": float(np.sqrt(np.mean((ours - reaction) ** 2))),
-        "rmse_normal": float(np.sqrt(np.mean((ours - normal) ** 2))),
-        "model_s": model_s, "reference_s": reference_s,
-        "contact_vertices": int(len(k)), "equilibrium_residual_n": ref.residual,
-        "tangential_share": float(np.linalg.norm(ref.tangential_force, axis=1).sum()
-                                  / ref.normal.sum()),
-        "_fields": (k, ours, reaction, normal),
+        "rmse_all": float(np.sqrt(np.mean((ours - ref) ** 2))),
+        "zero_all": float(np.sqrt(np.mean(ref ** 2))),
+        "rmse_loaded": float(np.sqrt(np.mean((ours[mask] - ref[mask]) ** 2))),
+        "zero_loaded": float(np.sqrt(np.mean(ref[mask] ** 2))),
+        "pearson_r": float(np.corrcoef(ours, ref)[0, 1]),
+        "vertices": int(len(ref)), "loaded_vertices": int(mask.sum()),
     }
 
 
-def validate_pressure(out_dir: str | Path | None = None) -> list[dict]:
-    """Runs the comparison on both poses; writes pictures into `out_dir` when given."""
+def run_reference(name: str, vertices: np.ndarray, triangles: np.ndarray, mu: float):
+    """One reference's solution (with `vertices`, `normal`, `reaction` and `residual`)."""
+    if name == "soft layer FE":
+        from solver.contact.soft_layer import soft_layer_contact
+
+        return soft_layer_contact(vertices, triangles, mu=mu)
+    if name == "contact programme":
+        from solver.contact.programme import contact_programme
+
+        return contact_programme(vertices, triangles, mu=mu)
+    if name == "rigid mould":
+        from solver.contact.rigid_mould import rigid_mould_contact
+
+        return rigid_mould_contact(vertices, triangles, mu=mu)
+    raise ValueError(f"Expected a reference in {REFERENCES}, got {name!r}")
+
+
+def _model_fields(vertices, triangles, contact, repeats: int = 5) -> dict:
+    """Each model's |r_n| on the contact vertices and its median time in ms."""
+    out = {}
+    for model in MODELS:
+        times = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            field = pressure_field(vertices, triangles, model=model)
+            times.append(time.perf_counter() - start)
+        out[model] = (field.reaction[contact], 1e3 * float(np.median(times)))
+    return out
+
+
+def validate_pressure(out_dir: str | Path | None = None, *, mus: Sequence[float] = MUS,
+                      references: Sequence[str] = REFERENCES,
+                      progress: Callable[[str], None] | None = None) -> list[dict]:
+    """The comparison on the three poses, every reference and friction coefficient.
+
+    Parameters
+    ----------
+    out_dir : str or Path, optional
+        Where to write a picture per pose (the first reference at mu = 0.5, or the first mu).
+    mus : sequence of float
+        Friction coefficients.
+    references : sequence of str
+        Names from `REFERENCES`.
+    progress : callable, optional
+        Called with a line of text before each reference run.
+
+    Returns
+    -------
+    list of dict
+        One row per pose, reference, mu and model: `field_metrics`, the model's time
+        (`model_ms`), the reference's (`reference_s`), its equilibrium residual, and for the
+        first model of a pose with pictures, `picture`.
+    """
     body = make_body()
     rows = []
-    for name, verts in validation_poses().items():
-        row = {"pose": name, **compare(verts, body.triangles)}
-        k, ours, reaction, _ = row.pop("_fields")
-        if out_dir is not None:
-            row["picture"] = str(_picture(Path(out_dir), name, body, k, ours, reaction))
-        rows.append(row)
+    for pose, verts in validation_poses().items():
+        contact = mould_vertices(verts, body.triangles)
+        models = _model_fields(verts, body.triangles, contact)
+        shown = None
+        for ref_name in references:
+            for mu in mus:
+                if progress is not None:
+                    progress(f"{pose}: {ref_name}, mu = {mu}")
+                start = time.perf_counter()
+                ref = run_reference(ref_name, verts, body.triangles, mu)
+                seconds = time.perf_counter() - start
+                assert np.array_equal(ref.vertices, contact)
+                if shown is None or (ref_name == shown[0] and mu == 0.5):
+                    shown = (ref_name, mu, ref.normal)
+                for model, (field, ms) in models.items():
+                    rows.append({"pose": pose, "reference": ref_name, "mu": float(mu),
+                                 "model": model, **field_metrics(field, ref.normal),
+                                 "rmse_all_reaction": float(np.sqrt(np.mean(
+                                     (field / field.max() - ref.reaction / ref.normal.max())
+                                     ** 2))),
+                                 "model_ms": ms, "reference_s": seconds,
+                                 "residual": float(ref.residual)})
+        if out_dir is not None and shown is not None:
+            path = _picture(Path(out_dir), pose, body, contact, shown,
+                            {m: f for m, (f, _) in models.items()})
+            for row in rows:
+                if row["pose"] == pose:
+                    row["picture"] = str(path)
     return rows
 
 
-def _picture(out_dir: Path, name: str, body, k, ours, reaction) -> Path:
+def _picture(out_dir: Path, pose: str, body, contact, shown, models) -> Path:
     from solver.io.render import MeshView, Panel, field_colors, render_panels
 
     out_dir.mkdir(parents=True, exist_ok=True)
     display = skin(body, t_pose(body), normals=False)[0]  # shown on a standing T-pose
-    panels = []
-    diff = np.abs(reaction - ours)
-    for label, values in (("reference: |normal + tangential|", reaction),
-                          ("model: |r_n| = A max(0, n.g)", ours),
-                          (f"|difference| (max {diff.max():.2f})", diff)):
+    ref_name, mu, normal = shown
+    ref = normal / normal.max()
+    paper = models["paper"] / models["paper"].max()
+    columns = [(f"{ref_name}, mu = {mu}: normal force", ref),
+               ("paper: A max(0, n.g)", paper)]
+    columns += [(f"{m} model", f / f.max()) for m, f in models.items() if m != "paper"]
+    diff = np.abs(paper - ref)
+    columns.append((f"|paper - reference| (max {diff.max():.2f})", diff))
+    panels = {}
+    for label, values in columns:
         field = np.zeros(len(display))
-        field[k] = values
-        colors = field_colors(field)
+        field[contact] = values
+        colors = field_colors(field, 0.0, 1.0)
         for view in ("back", "below"):
-            panels.append(Panel([MeshView(display, body.faces, colors)], view,
-                                f"{label}, {view}"))
-    order = [0, 2, 4, 1, 3, 5]  # rows: back, below; columns: reference, model, difference
-    path = out_dir / f"pressure_{name.replace(' ', '_').replace('-', '_').lower()}.png"
-    return render_panels(path, [panels[i] for i in order], columns=3,
-                         title=f"Pressure on the body, {name}: normalised by the largest normal "
-                               "force", colorbar=("normalised force", 0.0, 1.0))
+            panels[label, view] = Panel([MeshView(display, body.faces, colors)], view,
+                                        f"{label}, {view}")
+    order = [panels[label, view] for view in ("back", "below") for label, _ in columns]
+    return render_panels(out_dir / f"pressure_{pose}.png", order, columns=len(columns),
+                         title=f"Pressure on the body, {pose}: each field normalised by its "
+                               "largest value", colorbar=("normalised force", 0.0, 1.0))

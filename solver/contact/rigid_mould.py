@@ -1,4 +1,5 @@
-"""A physical reference for the pressure model: the paper's section 4.3 set-up, in our own code.
+"""The rigid-mould reference for the pressure model: the paper's section 4.3 set-up, in our own
+code.
 
 The body is a rigid body resting in a rigid mould made of its own faces that point down or
 sideways. A load (735 N, a 75 kg person) pushes it through its centre of mass. Contact is a linear
@@ -11,6 +12,12 @@ its moment; the reaction at each vertex is then split into its normal and tangen
 
 Defaults follow the paper's ABAQUS set-up: contact stiffness 8e12 Pa/m, mu = 0.5, elastic slip
 1e-10 m, load 735 N.
+
+This reference agrees with the model nearly by construction: a rigid body that sinks straight
+into a mould of linear springs loads each face by k A (n . g) d, the model's A max(0, n . g);
+only the small rotation that balances the moment and the friction differ. It is kept as the
+paper's set-up; `solver.contact.soft_layer` (finite elements) and `solver.contact.programme`
+(a conic programme) are the independent references.
 """
 
 from __future__ import annotations
@@ -20,12 +27,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import root
 
-from solver.contact.pressure import GRAVITY
-from solver.mesh import face_cross, triangle_mesh, volume_centroid
+from solver.contact.pressure import GRAVITY, mould_vertices
+from solver.mesh import triangle_mesh, volume_centroid
 
 
 @dataclass(frozen=True, eq=False)
-class ContactSolution:
+class RigidMouldSolution:
     """The equilibrium: `vertices` (K,) indices of the contact vertices, their `normal_force`
     and `tangential_force` vectors (K, 3) in newtons, the rigid `translation` (3,) m and
     `rotation` (3,) rad, and the equilibrium `residual` (N and N m)."""
@@ -47,22 +54,10 @@ class ContactSolution:
         return np.linalg.norm(self.normal_force, axis=1)
 
 
-def mould_vertices(vertices: np.ndarray, triangles: np.ndarray,
-                   gravity=GRAVITY) -> np.ndarray:
-    """(K,) the vertices of the faces that point down or sideways: the mould's contact set."""
-    v = np.asarray(vertices, dtype=np.float64)
-    t = np.asarray(triangles)
-    g = np.asarray(gravity, dtype=np.float64)
-    g = g / np.linalg.norm(g)
-    fn = face_cross(v, t)
-    facing = fn @ g >= 0  # not pointing up
-    return np.unique(t[facing])
-
-
-def rigid_contact(vertices: np.ndarray, triangles: np.ndarray, *, load: float = 735.0,
-                  gravity=GRAVITY, centre: np.ndarray | None = None,
-                  stiffness: float = 8e12, mu: float = 0.5, slip_limit: float = 1e-10
-                  ) -> ContactSolution:
+def rigid_mould_contact(vertices: np.ndarray, triangles: np.ndarray, *, load: float = 735.0,
+                         gravity=GRAVITY, centre: np.ndarray | None = None,
+                         stiffness: float = 8e12, mu: float = 0.5, slip_limit: float = 1e-10
+                         ) -> RigidMouldSolution:
     """Static equilibrium of the rigid body in its mould (see the module docstring).
 
     vertices : (V, 3) metres; triangles : (F, 3); centre : where the load acts (default: the
@@ -118,5 +113,5 @@ def rigid_contact(vertices: np.ndarray, triangles: np.ndarray, *, load: float = 
             break
     z, err = best
     fn, ft = forces(z)
-    return ContactSolution(contact, fn, ft, z[:3] * length, z[3:] * length / arm,
+    return RigidMouldSolution(contact, fn, ft, z[:3] * length, z[3:] * length / arm,
                            err * load)
