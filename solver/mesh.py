@@ -180,14 +180,23 @@ class SurfaceMesh:
         return cls.from_quads(vertices, faces) if faces.shape[1] == 4 else \
             cls.from_triangles(vertices, faces)
 
+    def tree(self):
+        """The surface's bounding-box tree (libigl's AABB), built on first use and kept."""
+        tree = self.__dict__.get("_tree")
+        if tree is None:
+            import igl
+
+            tree = igl.AABB()
+            tree.init(self.vertices, self.triangles)
+            object.__setattr__(self, "_tree", tree)
+        return tree
+
     def closest(self, points: np.ndarray):
         """Unsigned distance (P,), signed distance along the closest face's normal (P,), whether
         the closest point lies inside its face (not on the surface's border) (P,), the closest
         face (P,) and the closest point (P, 3)."""
-        import igl
-
         points = np.asarray(points, dtype=np.float64)
-        sq, face, closest = igl.point_mesh_squared_distance(points, self.vertices, self.triangles)
+        sq, face, closest = self.tree().squared_distance(self.vertices, self.triangles, points)
         dist = np.sqrt(sq)
         offset = points - closest
         signed = np.einsum("ij,ij->i", offset, self.face_normals[face])

@@ -29,8 +29,8 @@ from solver.mesh import SurfaceMesh, volume_centroid
 
 
 UP = np.array([0.0, 1.0, 0.0])
-BAND = 0.03  # metres above a support within which a vertex may come into contact
-MAX_TURN = np.radians(12.0)  # a settle turning the body further tips it over
+BAND = 0.06  # metres above a support within which a vertex may come into contact
+MAX_TURN = np.radians(30.0)  # a settle turning the body further tips it over
 MAX_SHIFT = 0.12  # metres: a settle moving the body further slides it off or sinks it through
 DEPTH = 0.06  # metres: a vertex deeper behind a support than this is not in contact
 MAX_OUTER = 30
@@ -109,7 +109,7 @@ class _Candidates:
 
 def _prepare(support: Support, vertices: np.ndarray, normals: np.ndarray,
              cut: np.ndarray | None, inside, k: int) -> tuple[np.ndarray, _Candidates]:
-    """(N,) the body vertices that may touch `support` during the settle: within 2 BAND above
+    """(N,) the body vertices that may touch `support` during the settle: within BAND above
     it or pressed in less than DEPTH, facing it, and behind a surface only where the surface
     cuts into the body (`cut` (V,) bool says so, or `inside(points) -> bool` for the closest
     points); and their contact geometry as placed."""
@@ -117,19 +117,19 @@ def _prepare(support: Support, vertices: np.ndarray, normals: np.ndarray,
     if support.mesh is None:
         depth = support.height - x[:, 1]
         facing = normals[:, 1] < 0
-        idx = np.flatnonzero(facing & (depth > -2 * BAND) & (depth < DEPTH))
+        idx = np.flatnonzero(facing & (depth > -BAND) & (depth < DEPTH))
         return idx, _candidates(support, k, x, idx)
     from scipy.spatial import cKDTree
 
     mesh = support.mesh
     edge = np.linalg.norm(mesh.vertices[mesh.triangles[:, 0]] - mesh.vertices[mesh.triangles[:, 1]],
                           axis=1).max()
-    reach = max(2 * BAND, DEPTH) + edge
+    reach = max(BAND, DEPTH) + edge
     dist, _ = cKDTree(mesh.vertices).query(x, distance_upper_bound=reach)
     idx = np.flatnonzero(np.isfinite(dist))
     _, signed, over, face, point = mesh.closest(x[idx])
     depth = -signed
-    ok = over & (depth > -2 * BAND) & (depth < DEPTH)
+    ok = over & (depth > -BAND) & (depth < DEPTH)
     ok &= np.einsum("ij,ij->i", normals[idx], mesh.face_normals[face]) < 0
     behind = np.flatnonzero(ok & (depth > 0))
     if behind.size:
@@ -139,10 +139,13 @@ def _prepare(support: Support, vertices: np.ndarray, normals: np.ndarray,
                                 point[keep], face[keep])
 
 
-def _candidates(support: Support, k: int, vertices: np.ndarray, subset: np.ndarray
+def _candidates(support: Support, k: int, vertices: np.ndarray, subset: np.ndarray,
+                prev: _Candidates | None = None, prev_x: np.ndarray | None = None
                 ) -> _Candidates:
     """The contact geometry of the `subset` of vertices on `support` (linearised: each vertex
-    against the tangent plane at its closest point)."""
+    against the tangent plane at its closest point). Given the geometry `prev` of the same
+    vertices where they stood at `prev_x`, only those it puts within BAND / 2 of contact are
+    looked up afresh; the others keep their planes (they are not in contact either way)."""
     x = vertices[subset]
     if support.mesh is None:
         depth = support.height - x[:, 1]
@@ -150,6 +153,13 @@ def _candidates(support: Support, k: int, vertices: np.ndarray, subset: np.ndarr
         point = x.copy()
         point[:, 1] = support.height
         face = np.full(len(x), -1)
+    elif prev is not None:
+        n, point, face = prev.normal.copy(), prev.point.copy(), prev.face.copy()
+        depth = prev.depth - np.einsum("ij,ij->i", n, x - prev_x)
+        close = np.flatnonzero(depth > -0.5 * BAND)
+        _, signed, _, face[close], point[close] = support.mesh.closest(x[close])
+        depth[close] = -signed
+        n[close] = support.mesh.face_normals[face[close]]
     else:
         _, signed, _, face, point = support.mesh.closest(x)
         depth = -signed
@@ -263,14 +273,17 @@ def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangl
     first = [_prepare(s, x0, normals, cut, lambda p: igl.fast_winding_number(x0, tri, p) > 0.5,
                       k) for k, s in enumerate(supports)]
     near = [f[0] for f in first]
+    known = [(f[1], x0[f[1].index]) for f in first]  # the last geometry, and where it was found
     rot, shift = np.eye(3), np.zeros(3)
     scale = np.array([1.0] * 3 + [1.0 / LEVER] * 3) / np.linalg.norm(weight)
     for outer in range(1, MAX_OUTER + 1):
         x = (x0 - c0) @ rot.T + c0 + shift
         c = c0 + shift
         nrm = normals @ rot.T
-        groups = [g for g in (_group(s, k, x, x0, c, areas, nrm, near[k],
-                                     first[k][1] if outer == 1 else None)
+        cands = [known[k][0] if outer == 1 else _candidates(s, k, x, near[k], *known[k])
+                 for k, s in enumerate(supports)]
+        known = [(cand, x[cand.index]) for cand in cands]
+        groups = [g for g in (_group(s, k, x, x0, c, areas, nrm, near[k], cands[k])
                               for k, s in enumerate(supports)) if g is not None]
         if not groups:
             return _unsettled("no support touches the body", x, c0, shift, rot, weight)

@@ -111,3 +111,26 @@ def test_nothing_under_the_body_is_reported_not_a_number():
     v, n, a, t = _box((0.4, 0.2, 0.3), [0, 1.0, 0])
     s = settle(v, n, a, t, 20.0, [Support("seat", Foam(200e3), _plane())])
     assert not s.stable and "no support" in s.reason
+
+
+def test_a_body_lying_on_a_bed_rests_on_it_alone():
+    """The default body lying on its back on a flat bed of foam (no floor under it): at rest in
+    equilibrium, its whole weight on the bed, sunk by about what its weight over its footprint
+    asks of the foam."""
+    from solver.body.model import make_body
+    from solver.scene.validate import validation_poses
+
+    body = make_body()
+    v = validation_poses()["lying"]
+    v = v - [0.0, v[:, 1].min() - 0.45, 0.0]  # on a bed 0.45 m high
+    areas, normals = triangle_mesh(body.triangles, len(v)).measures(v)
+    bed = _plane(0.45)
+    s = settle(v, normals, areas, body.triangles, body.mass_kg,
+               [Support("bed", Foam(200e3), bed), Support("floor", Foam(30000e3, 0.02))])
+    assert s.stable, s.reason
+    weight = body.mass_kg * G
+    assert [c.name for c in s.contacts] == ["bed"]
+    force, c = _load(s, "bed")
+    assert np.linalg.norm(force - [0, weight, 0]) < 0.01 * weight
+    assert np.linalg.norm(s.net_moment) < 1.0
+    assert 0.005 < -s.translation[1] < 0.1
