@@ -24,48 +24,22 @@ Normalised results do not depend on k_n, only on k_t / k_n and mu.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import scipy.sparse as sp
 
 from solver.contact._conic import solve_conic, tangent_frames
 from solver.contact.pressure import GRAVITY, mould_vertices
+from solver.contact.rigid_mould import ContactForces
 from solver.mesh import triangle_mesh, volume_centroid
 
 FOAM_POISSON = 0.4
 SHEAR_RATIO = (1 - 2 * FOAM_POISSON) / (2 * (1 - FOAM_POISSON))  # G / E_oed
 
 
-@dataclass(frozen=True, eq=False)
-class ProgrammeSolution:
-    """The contact forces: `vertices` (K,) the mould vertices, `normal_force` and
-    `tangential_force` (K, 3) in newtons (the force the body puts on the support), the
-    balance's multipliers `translation` (3,) m and `rotation` (3,) rad (the rigid motion), and
-    the equilibrium `residual` (N and N m)."""
-
-    vertices: np.ndarray
-    normal_force: np.ndarray
-    tangential_force: np.ndarray
-    translation: np.ndarray
-    rotation: np.ndarray
-    residual: float
-
-    @property
-    def normal(self) -> np.ndarray:
-        """(K,) magnitude of the normal force, N."""
-        return np.linalg.norm(self.normal_force, axis=1)
-
-    @property
-    def reaction(self) -> np.ndarray:
-        """(K,) magnitude of the total reaction (normal + tangential), N."""
-        return np.linalg.norm(self.normal_force + self.tangential_force, axis=1)
-
-
 def contact_programme(vertices: np.ndarray, triangles: np.ndarray, *, load: float = 735.0,
                       gravity=GRAVITY, centre: np.ndarray | None = None, mu: float = 0.5,
                       stiffness: float = 2e7, shear_ratio: float = SHEAR_RATIO
-                      ) -> ProgrammeSolution:
+                      ) -> ContactForces:
     """Contact forces of least complementary energy in the friction cone (module docstring).
 
     Parameters
@@ -89,7 +63,7 @@ def contact_programme(vertices: np.ndarray, triangles: np.ndarray, *, load: floa
 
     Returns
     -------
-    ProgrammeSolution
+    ContactForces
 
     Raises
     ------
@@ -143,5 +117,5 @@ def contact_programme(vertices: np.ndarray, triangles: np.ndarray, *, load: floa
     residual = float(max(np.linalg.norm(f.sum(axis=0) - load * g),
                          np.linalg.norm(np.cross(x, f).sum(axis=0))))
     motion = -dual[:6] * length
-    return ProgrammeSolution(contact, normal_force, f - normal_force, motion[:3],
+    return ContactForces(contact, normal_force, f - normal_force, motion[:3],
                              motion[3:] / reach, residual)

@@ -32,10 +32,11 @@ from solver.mesh import triangle_mesh, volume_centroid
 
 
 @dataclass(frozen=True, eq=False)
-class RigidMouldSolution:
-    """The equilibrium: `vertices` (K,) indices of the contact vertices, their `normal_force`
-    and `tangential_force` vectors (K, 3) in newtons, the rigid `translation` (3,) m and
-    `rotation` (3,) rad, and the equilibrium `residual` (N and N m)."""
+class ContactForces:
+    """A reference's equilibrium: `vertices` (K,) indices of the contact (mould) vertices, their
+    `normal_force` and `tangential_force` vectors (K, 3) in newtons (the force the body puts on
+    the support), the body's rigid `translation` (3,) m and `rotation` (3,) rad, and the
+    equilibrium `residual` (N and N m)."""
 
     vertices: np.ndarray
     normal_force: np.ndarray
@@ -45,19 +46,20 @@ class RigidMouldSolution:
     residual: float
 
     @property
+    def normal(self) -> np.ndarray:
+        """(K,) magnitude of the normal force at each contact vertex, N."""
+        return np.linalg.norm(self.normal_force, axis=1)
+
+    @property
     def reaction(self) -> np.ndarray:
         """(K,) magnitude of the total reaction (normal + tangential) at each contact vertex."""
         return np.linalg.norm(self.normal_force + self.tangential_force, axis=1)
-
-    @property
-    def normal(self) -> np.ndarray:
-        return np.linalg.norm(self.normal_force, axis=1)
 
 
 def rigid_mould_contact(vertices: np.ndarray, triangles: np.ndarray, *, load: float = 735.0,
                          gravity=GRAVITY, centre: np.ndarray | None = None,
                          stiffness: float = 8e12, mu: float = 0.5, slip_limit: float = 1e-10
-                         ) -> RigidMouldSolution:
+                         ) -> ContactForces:
     """Static equilibrium of the rigid body in its mould (see the module docstring).
 
     vertices : (V, 3) metres; triangles : (F, 3); centre : where the load acts (default: the
@@ -113,5 +115,5 @@ def rigid_mould_contact(vertices: np.ndarray, triangles: np.ndarray, *, load: fl
             break
     z, err = best
     fn, ft = forces(z)
-    return RigidMouldSolution(contact, fn, ft, z[:3] * length, z[3:] * length / arm,
+    return ContactForces(contact, fn, ft, z[:3] * length, z[3:] * length / arm,
                            err * load)

@@ -48,37 +48,21 @@ import scipy.sparse as sp
 
 from solver.contact._conic import rigid_rows, solve_conic, tangent_frames
 from solver.contact.pressure import GRAVITY, mould_vertices
+from solver.contact.rigid_mould import ContactForces
 from solver.mesh import face_cross, triangle_mesh, volume_centroid
 
 
 @dataclass(frozen=True, eq=False)
-class SoftLayerSolution:
-    """The equilibrium in the layer, on the full body: `vertices` (K,) indices of the mould
-    vertices, their `normal_force` and `tangential_force` (K, 3) in newtons (the force the body
-    puts on the layer), the body's rigid `translation` (3,) m and `rotation` (3,) rad, the
-    equilibrium `residual` (N, on the decimated body, before interpolation), the fixed point's
-    `iterations` and whether it `converged`, and the FE mesh's `nodes` and `tetrahedra`."""
+class SoftLayerSolution(ContactForces):
+    """The equilibrium in the layer, on the full body (`ContactForces`: the mould vertices, the
+    forces the body puts on the layer, its rigid motion, the `residual` on the decimated body
+    before interpolation), with the fixed point's `iterations` and whether it `converged`, and
+    the FE mesh's `nodes` and `tetrahedra`."""
 
-    vertices: np.ndarray
-    normal_force: np.ndarray
-    tangential_force: np.ndarray
-    translation: np.ndarray
-    rotation: np.ndarray
-    residual: float
-    iterations: int
-    converged: bool
-    nodes: int
-    tetrahedra: int
-
-    @property
-    def normal(self) -> np.ndarray:
-        """(K,) magnitude of the normal force at each mould vertex, N."""
-        return np.linalg.norm(self.normal_force, axis=1)
-
-    @property
-    def reaction(self) -> np.ndarray:
-        """(K,) magnitude of the total reaction (normal + tangential), N."""
-        return np.linalg.norm(self.normal_force + self.tangential_force, axis=1)
+    iterations: int = 0
+    converged: bool = False
+    nodes: int = 0
+    tetrahedra: int = 0
 
 
 @dataclass(frozen=True, eq=False)

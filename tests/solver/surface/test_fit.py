@@ -217,6 +217,11 @@ def test_fit_command_writes_files_that_open_again(tmp_path):
     assert len(body.vertices) == 13380 and len(body.faces) == 2 * 13378
     assert (out / "scene.png").stat().st_size > 10_000
     assert (out / "pressure.png").stat().st_size > 10_000
+    assert (out / "pressure_map.png").stat().st_size > 10_000
+    from solver.contact.mat import read_pressure_csv
+
+    maps = read_pressure_csv(out / "pressure_map.csv")
+    assert maps and all(np.isfinite(m).all() and m.max() > 0 for m in maps.values())
 
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios"
@@ -249,6 +254,10 @@ def test_example_scenarios_meet_the_bar(name, tmp_path):
             assert person["peak_pressure_kpa"] <= 0.6 * flat["peak_pressure_kpa"], person
         else:
             assert flat["peak_pressure_kpa"] is None and flat["equilibrium"]["reason"], person
+    if name == "single_seated":  # feet on the floor: a fifth of the weight or so on it
+        supports = report["persons"][0]["equilibrium"]["supports"]
+        assert 0.1 <= supports["floor"]["load_share"] <= 0.3, supports
+        assert supports["seat"]["load_share"] >= 0.5, supports
 
 
 def test_support_inside_other_bodies_is_the_share_of_importance_they_contain():
