@@ -96,14 +96,7 @@ def contact_programme(vertices: np.ndarray, triangles: np.ndarray, *, load: floa
     diag = np.stack([soft, soft / shear_ratio, soft / shear_ratio], axis=1).reshape(-1)
     p = sp.diags(diag * load / length)
     cols = np.arange(3 * k)
-    force_rows = sp.csr_matrix((basis.transpose(2, 0, 1).reshape(3, -1).reshape(-1),
-                                (np.repeat(np.arange(3), 3 * k), np.tile(cols, 3))),
-                               shape=(3, 3 * k))
-    torque = np.cross(x[:, None, :], basis) / reach  # (K, 3 unknowns, 3 axes)
-    moment_rows = sp.csr_matrix((torque.transpose(2, 0, 1).reshape(-1),
-                                 (np.repeat(np.arange(3), 3 * k), np.tile(cols, 3))),
-                                shape=(3, 3 * k))
-    equal = sp.vstack([force_rows, moment_rows])
+    equal = _balance_rows(x, basis, reach)
     b = np.concatenate([g, np.zeros(3), np.zeros(3 * k)])
     if mu > 0:  # (mu lambda, tau1, tau2) in the second-order cone
         rows = sp.vstack([equal, sp.diags(-np.tile([mu, 1.0, 1.0], k))])
@@ -118,4 +111,16 @@ def contact_programme(vertices: np.ndarray, triangles: np.ndarray, *, load: floa
                          np.linalg.norm(np.cross(x, f).sum(axis=0))))
     motion = -dual[:6] * length
     return ContactForces(contact, normal_force, f - normal_force, motion[:3],
-                             motion[3:] / reach, residual)
+                         motion[3:] / reach, residual)
+
+
+def _balance_rows(x: np.ndarray, basis: np.ndarray, reach: float) -> sp.csr_matrix:
+    """(6, 3K) the force rows and the moment rows (per `reach`) of the unknowns, each vertex's
+    force `basis` (K, 3 unknowns, 3 axes) acting at `x` (K, 3) from the centre."""
+    k = len(x)
+    rows, cols = np.repeat(np.arange(3), 3 * k), np.tile(np.arange(3 * k), 3)
+    force = sp.csr_matrix((basis.transpose(2, 0, 1).reshape(-1), (rows, cols)), shape=(3, 3 * k))
+    torque = np.cross(x[:, None, :], basis) / reach  # (K, 3 unknowns, 3 axes)
+    moment = sp.csr_matrix((torque.transpose(2, 0, 1).reshape(-1), (rows, cols)),
+                           shape=(3, 3 * k))
+    return sp.vstack([force, moment])

@@ -181,21 +181,10 @@ def soft_layer_contact(vertices: np.ndarray, triangles: np.ndarray, *, load: flo
     mould_t = coarse_t[face_cross(coarse_v, coarse_t) @ g >= 0]
     mesh = layer_mesh(coarse_v, mould_t, coarse_n, thickness, layers)
     stiff, free = _stiffness(mesh, youngs, poisson)
-    k = len(mesh.base)
     normals = coarse_n[mesh.base]
     arms = coarse_v[mesh.base] - centre
     problem = _TrescaProblem(stiff, free, normals, arms, load * g)
-    normal = np.zeros(k)
-    converged, iterations = False, 0
-    while iterations < max_iterations:
-        iterations += 1
-        force, motion = problem.solve(mu * np.maximum(normal, 0.0))
-        new = np.einsum("ij,ij->i", force, normals)
-        change = np.abs(new - normal).max() / max(np.abs(new).max(), 1e-300)
-        normal = new
-        if mu == 0 or change < tol:
-            converged = True
-            break
+    force, motion, iterations, converged = _coulomb(problem, normals, mu, tol, max_iterations)
     net = force.sum(axis=0) - load * g
     moment = np.cross(arms, force).sum(axis=0)
     residual = float(max(np.linalg.norm(net), np.linalg.norm(moment)))
@@ -209,6 +198,22 @@ def soft_layer_contact(vertices: np.ndarray, triangles: np.ndarray, *, load: flo
     return SoftLayerSolution(contact, normal_force, tangential_force, motion[:3], motion[3:],
                              residual, iterations, converged, len(mesh.points),
                              len(mesh.tetrahedra))
+
+
+def _coulomb(problem: "_TrescaProblem", normals: np.ndarray, mu: float, tol: float,
+             max_iterations: int):
+    """Coulomb friction as the fixed point of Tresca problems whose friction bounds are mu
+    times the last normal forces: the forces (K, 3), the rigid motion (6,), the iterations and
+    whether the normal forces changed by less than `tol` (relative) at the end."""
+    normal = np.zeros(len(normals))
+    for iterations in range(1, max_iterations + 1):
+        force, motion = problem.solve(mu * np.maximum(normal, 0.0))
+        new = np.einsum("ij,ij->i", force, normals)
+        change = np.abs(new - normal).max() / max(np.abs(new).max(), 1e-300)
+        normal = new
+        if mu == 0 or change < tol:
+            return force, motion, iterations, True
+    return force, motion, max_iterations, False
 
 
 class _TrescaProblem:
