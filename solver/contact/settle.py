@@ -37,6 +37,7 @@ MAX_OUTER = 15
 FORCE_TOL = 3e-3  # the settle stops when the net force is below this share of the weight
 MOMENT_TOL = 0.3  # ... and the net moment below this, N m
 LEVER = 0.5  # metres: the moment scale for the Newton's residual
+STILL = 1e-6  # metres (at LEVER for a turn): a step this small makes no progress
 STEP = 0.03  # metres (at LEVER for a turn): the most the body moves between fresh contacts
 
 
@@ -305,7 +306,11 @@ def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangl
         if q is None:
             return _unsettled("the balance has no solution (slides off?)", x, c0, shift, rot,
                               weight)
-        q = q * min(1.0, STEP / max(np.linalg.norm(q[:3]), LEVER * np.linalg.norm(q[3:]), 1e-12))
+        size = max(np.linalg.norm(q[:3]), LEVER * np.linalg.norm(q[3:]))
+        if size < STILL:  # no motion brings the imbalance down: no balance within reach
+            return _unsettled("finds no balance (it tips over or slides off)", x, c0, shift, rot,
+                              weight)
+        q = q * min(1.0, STEP / size)
         rot = Rotation.from_rotvec(q[3:]).as_matrix() @ rot
         shift = shift + q[:3]
         reason = _too_far(np.concatenate([shift, Rotation.from_matrix(rot).as_rotvec()]))
@@ -360,14 +365,18 @@ def _least_squares(q, groups, weight, scale) -> np.ndarray | None:
     follow; None when it finds no root."""
     from scipy.optimize import least_squares
 
-    def fun(z):
-        return _balance(z, groups, weight)[0] * scale
+    last = {}
 
-    def jac(z):
-        return _balance(z, groups, weight)[1] * scale[:, None]
+    def both(z):  # the solver asks for the residual and then the Jacobian at the same point
+        key = z.tobytes()
+        if key not in last:
+            last.clear()
+            last[key] = _balance(z, groups, weight)
+        return last[key]
 
-    sol = least_squares(fun, q, jac=jac, method="trf", x_scale=np.array([0.01] * 3 + [0.02] * 3),
-                        xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=200)
+    sol = least_squares(lambda z: both(z)[0] * scale, q, jac=lambda z: both(z)[1] * scale[:, None],
+                        method="trf", x_scale=np.array([0.01] * 3 + [0.02] * 3), xtol=1e-12,
+                        ftol=1e-12, gtol=1e-12, max_nfev=60)
     return sol.x if np.all(np.isfinite(sol.x)) else None
 
 
