@@ -31,6 +31,8 @@ _EXPORTS = {
     "solver.contact.pressure": ("PressureField", "pressure_field"),
     "solver.contact.supported": ("SupportedBody",),
     "solver.contact.evaluate": ("evaluate_person",),
+    "solver.contact.settle": ("Foam", "Settled", "Support", "settle"),
+    "solver.contact.mat": ("SupportContact", "mat_figures", "pressure_grid"),
     "solver.mesh": ("SurfaceMesh",),
     "solver.surface.subdivision": ("MeshError", "Subdivision", "grid_mesh", "subdivision"),
     "solver.surface.fit": ("FitError", "FitParams", "FitResult", "fit_surface"),

@@ -49,6 +49,7 @@ def test_solver_public_api():
         "parse_scenario", "place", "place_person", "pose_body", "pressure_field", "relax",
         "relax_problem", "render_png", "rest_pose", "retarget", "retarget_pose", "rig_pose",
         "run_fit", "run_relax", "skin", "subdivision", "write_mesh",
+        "Foam", "Settled", "Support", "settle", "SupportContact", "mat_figures", "pressure_grid",
     ])
     for name in ("BodyShapeError", "ExportError", "FitError", "MeshError", "PoseSourceError",
                  "RelaxError", "RetargetError", "ScenarioError"):
