@@ -134,3 +134,31 @@ def test_a_body_lying_on_a_bed_rests_on_it_alone():
     assert np.linalg.norm(force - [0, weight, 0]) < 0.01 * weight
     assert np.linalg.norm(s.net_moment) < 1.0
     assert 0.005 < -s.translation[1] < 0.1
+
+
+@pytest.mark.parametrize("mu", [0.05, 0.5])  # most contacts slipping, and sticking
+def test_the_balance_jacobian_is_the_finite_difference(mu):
+    """The Newton step's Jacobian of the net force and moment against central differences, on
+    a tilted box pressed into foam on a slope, moved and turned off its placement."""
+    from solver.contact import settle as s
+
+    v, n, a, t = _box((0.4, 0.2, 0.3), [0, 0.1, 0])
+    rot = np.radians(15.0)
+    turn = np.array([[np.cos(rot), -np.sin(rot), 0], [np.sin(rot), np.cos(rot), 0], [0, 0, 1]])
+    v, n = v @ turn.T - [0.0, 0.01, 0.0], n @ turn.T
+    support = Support("seat", Foam(200e3, friction=mu), _plane(0.0, 10.0))
+    subset, cand = s._prepare(support, v, n, None, lambda p: np.zeros(len(p), bool), 0)
+    centre = s.volume_centroid(v, t)
+    moved = v + [0.002, -0.001, 0.001]
+    groups = [s._group(support, 0, moved, v, centre, a, n, subset,
+                       s._candidates(support, 0, moved, subset))]
+    weight = np.array([0.0, -20 * G, 0.0])
+    q = np.array([0.001, -0.002, 0.0005, 0.01, -0.02, 0.015])
+    _, jac = s._balance(q, groups, weight)
+    numeric = np.zeros((6, 6))
+    for i in range(6):
+        dq = np.zeros(6)
+        dq[i] = 1e-8
+        numeric[:, i] = (s._balance(q + dq, groups, weight)[0]
+                         - s._balance(q - dq, groups, weight)[0]) / 2e-8
+    assert np.abs(jac - numeric).max() <= 1e-5 * np.abs(numeric).max()
