@@ -179,3 +179,109 @@ def test_sitrelax_grasshopper_prints_the_script(capsys, tmp_path):
     namespace = {"ghenv": object()}  # as Grasshopper runs it, but without Rhino: no glue runs
     exec(compile(text, "grasshopper", "exec"), namespace)  # noqa: S102
     assert namespace["Rhino"] is None and "subd" not in namespace
+
+
+def _fake_rhino(expired: threading.Event):
+    """Just enough of RhinoCommon, Grasshopper's ghenv and scriptcontext to run the script's
+    glue as Grasshopper would: it checks the glue's flow, not Rhino's own behaviour."""
+    import types
+
+    class Point3d:
+        def __init__(self, x, y, z):
+            self.X, self.Y, self.Z = x, y, z
+
+    class Line:
+        def __init__(self, a, b):
+            self.From, self.To = Point3d(*a), Point3d(*b)
+
+    class Face:
+        def __init__(self, a, b, c, d):
+            self.A, self.B, self.C, self.D = a, b, c, d
+
+    class Mesh:
+        def __init__(self):
+            self.Vertices = types.SimpleNamespace(items=[])
+            self.Vertices.Add = lambda x, y, z: self.Vertices.items.append(Point3d(x, y, z))
+            self.Faces = types.SimpleNamespace(items=[])
+            self.Faces.AddFace = lambda *q: self.Faces.items.append(Face(*q))
+            self.Normals = types.SimpleNamespace(ComputeNormals=lambda: True)
+
+    class Vertex:
+        def __init__(self, p):
+            self.ControlNetPoint = p
+
+    class SubD:
+        @staticmethod
+        def CreateFromMesh(mesh, options):
+            assert options.MaximumConvexCornerEdgeCount == 2
+            subd, points = SubD(), mesh.Vertices.items
+            subd.options, subd.updated = options, False
+            edges = gh.mesh_edges([[f.A, f.B, f.C, f.D] for f in mesh.Faces.items])
+            subd.Edges = [types.SimpleNamespace(VertexFrom=Vertex(points[a]),
+                                                VertexTo=Vertex(points[b]), Tag="Smooth",
+                                                pair=(a, b)) for a, b in edges]
+            return subd
+
+        def UpdateAllTagsAndSectorCoefficients(self):
+            self.updated = True
+
+    geometry = types.ModuleType("Rhino.Geometry")
+    geometry.__dict__.update(
+        Mesh=Mesh, SubD=SubD, Point3d=Point3d, Line=Line,
+        SubDEdgeTag=types.SimpleNamespace(Crease="Crease", Smooth="Smooth"),
+        SubDCreationOptions=type("SubDCreationOptions", (), {
+            "ConvexCornerOption": types.SimpleNamespace(AtMeshCorner="AtMeshCorner")}))
+    rhino = types.ModuleType("Rhino")
+    rhino.__dict__.update(
+        Geometry=geometry, UnitSystem=types.SimpleNamespace(Meters="m"),
+        RhinoDoc=types.SimpleNamespace(ActiveDoc=types.SimpleNamespace(
+            ModelUnitSystem="mm", ModelAbsoluteTolerance=0.01)),
+        RhinoMath=types.SimpleNamespace(UnitScale=lambda a, b: 0.001 if a == "mm" else 1.0),
+        RhinoApp=types.SimpleNamespace(InvokeOnUiThread=lambda action: action()))
+    system = types.ModuleType("System")
+    system.Action = lambda fn: fn
+    sticky = types.ModuleType("scriptcontext")
+    sticky.sticky = {}
+    component = types.SimpleNamespace(InstanceGuid="guid-1",
+                                      ExpireSolution=lambda recompute: expired.set())
+    return {"Rhino": rhino, "Rhino.Geometry": geometry, "System": system,
+            "scriptcontext": sticky}, types.SimpleNamespace(Component=component), Mesh, Line
+
+
+def test_the_glue_fits_in_the_background_and_builds_a_creased_subd(api, monkeypatch):
+    import sys
+    from pathlib import Path
+
+    expired = threading.Event()
+    modules, ghenv, Mesh, Line = _fake_rhino(expired)
+    for name, module in modules.items():
+        monkeypatch.setitem(sys.modules, name, module)
+    vertices, faces = _grid_mm()
+    control = Mesh()
+    for v in vertices:
+        control.Vertices.Add(*v)
+    for f in faces:
+        control.Faces.AddFace(*f)
+    control.Vertices = control.Vertices.items  # iterable, as RhinoCommon's lists are
+    control.Faces = control.Faces.items
+    inputs = {"control": control, "poses": [POSE], "positions": [], "headings": [0.0],
+              "support": "legs", "facing": None, "settings": json.dumps(LIGHT),
+              "creases": [Line(vertices[29], vertices[30])], "url": api.url, "run": True}
+    code = compile(Path(gh.__file__).read_text(), "grasshopper", "exec")
+
+    def solve() -> dict:
+        namespace = {"ghenv": ghenv, **inputs}
+        exec(code, namespace)  # noqa: S102
+        return namespace
+
+    first = solve()
+    assert first["status"] == "fitting ..." and first["subd"] is None
+    assert expired.wait(60), "the background fit never asked for a new solution"
+    second = solve()
+    assert second["status"].startswith("done in"), second["status"]
+    creased = [e.pair for e in second["subd"].Edges if e.Tag == "Crease"]
+    assert creased == [(29, 30)] and second["subd"].updated
+    assert len(second["surface"].Faces.items) == 48 * 16
+    assert "coverage" in second["report"]
+    inputs["poses"] = []
+    assert solve()["status"].startswith("error: expected at least one pose")
