@@ -45,7 +45,17 @@ asks Rhino's UI thread (`Rhino.RhinoApp.InvokeOnUiThread`) to expire the compone
 (`ghenv.Component.ExpireSolution(True)`), which solves again and shows the new result. State
 between solutions lives in `scriptcontext.sticky` under the component's id.
 
-Everything above the Rhino section imports nothing from Rhino and is tested without it.
+Everything above the Rhino section imports nothing from Rhino and is tested without it. The
+Rhino section relies on these RhinoCommon members (Rhino 7.7 or later; not run here, where
+there is no Rhino): `Mesh.CreateFromSubDControlNet`, `SubD.CreateFromMesh(mesh,
+SubDCreationOptions)` with `InterpolateMeshVertices = False` (the net's points are control
+points), `ConvexCornerTest = AtMeshCorner`, `MaximumConvexCornerEdgeCount = 2` and
+`MaximumConvexCornerAngleRadians = pi` (every single-face boundary vertex a corner, as
+sitrelax's subdivision makes it), `SubDEdge.Tag = SubDEdgeTag.Crease` on the edges whose end
+points are a crease's (matched by position, so the SubD's own numbering does not matter) and
+`SubD.UpdateAllTagsAndSectorCoefficients()`; `RhinoMath.UnitScale` for the document's unit;
+`RhinoApp.InvokeOnUiThread(System.Action(...))` and `GH_Component.ExpireSolution(True)` from
+the fit's thread; `scriptcontext.sticky` for the state between solutions.
 """
 
 import json
@@ -477,8 +487,10 @@ def _people(inputs, scale):
     poses = [p for p in inputs.get("poses") or [] if p]
     positions = list(inputs.get("positions") or [])
     headings = list(inputs.get("headings") or [])
-    support = [s.strip() for s in (inputs.get("support") or ",".join(DEFAULT_SUPPORT)).split(",")
-               if s.strip()]
+    support = inputs.get("support") or DEFAULT_SUPPORT
+    if isinstance(support, str):
+        support = support.split(",")
+    support = [s.strip() for s in support if s and s.strip()]
     body = inputs.get("body")
     return [person_request(pose, _point(positions[k]) if k < len(positions) else (0, 0, 0),
                            headings[k] if k < len(headings) else 0.0, support,
@@ -496,6 +508,8 @@ def solve_component(env, inputs):
     scale, tolerance = _document_scale()
     try:
         settings = json.loads(inputs.get("settings") or "{}")
+        if not isinstance(settings, dict):
+            raise SitrelaxError(f"expected settings as a JSON object, got {settings!r:.60}")
         vertices, faces, creases = _read_control(inputs.get("control"), inputs.get("creases"),
                                                  tolerance)
         people = _people(dict(inputs, body=settings.pop("body", None)), scale)
