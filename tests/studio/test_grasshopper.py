@@ -285,3 +285,32 @@ def test_the_glue_fits_in_the_background_and_builds_a_creased_subd(api, monkeypa
     assert "coverage" in second["report"]
     inputs["poses"] = []
     assert solve()["status"].startswith("error: expected at least one pose")
+
+
+def test_a_subd_control_gives_its_net_and_its_interior_creases(monkeypatch):
+    import sys
+    import types
+    from pathlib import Path
+
+    modules, _, Mesh, _ = _fake_rhino(threading.Event())
+    for name, module in modules.items():
+        monkeypatch.setitem(sys.modules, name, module)
+    namespace: dict = {}  # no ghenv: the script defines its functions only
+    exec(compile(Path(gh.__file__).read_text(), "grasshopper", "exec"), namespace)  # noqa: S102
+    vertices, faces = _grid_mm(2, 2)
+    net = Mesh()
+    for v in vertices:
+        net.Vertices.Add(*v)
+    for f in faces:
+        net.Faces.AddFace(*f)
+    subd = modules["Rhino.Geometry"].SubD.CreateFromMesh(
+        net, types.SimpleNamespace(MaximumConvexCornerEdgeCount=2))
+    for e in subd.Edges:  # Rhino tags the boundary as creases too
+        e.Tag = "Crease" if e.pair in {(1, 4), (0, 1)} else "Smooth"
+    net.Vertices, net.Faces = net.Vertices.items, net.Faces.items
+    monkeypatch.setattr(modules["Rhino.Geometry"].Mesh, "CreateFromSubDControlNet",
+                        staticmethod(lambda s: net), raising=False)
+    got_vertices, got_faces, creases = namespace["_read_control"](subd, [], 0.01)
+    assert got_vertices == vertices and got_faces == faces and creases == [[1, 4]]
+    with pytest.raises(namespace["SitrelaxError"], match="expected a quad Mesh or a SubD"):
+        namespace["_read_control"]("a curve", [], 0.01)
