@@ -1,4 +1,5 @@
-"""`sitrelax serve` (the HTTP API) and `sitrelax studio` (the web studio); `main` is the
+"""`sitrelax serve` (the HTTP API), `sitrelax studio` (the web studio) and `sitrelax
+grasshopper` (the Rhino 8 script that calls the API); `main` is the
 `sitrelax` command: the solver's subcommands (which compose capture's and posedb's) and these."""
 
 from __future__ import annotations
@@ -66,6 +67,20 @@ def _cmd_studio(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_grasshopper(args: argparse.Namespace) -> int:
+    from importlib.resources import files
+
+    script = files("studio").joinpath("grasshopper.py").read_text(encoding="utf-8")
+    if args.output:
+        from pathlib import Path
+
+        Path(args.output).write_text(script, encoding="utf-8")
+        _say(f"sitrelax grasshopper: wrote {args.output}")
+    else:
+        sys.stdout.write(script)
+    return 0
+
+
 def _check_db(db: str | None) -> None:
     if db is None:
         return
@@ -109,6 +124,10 @@ def register(sub) -> None:
                         help="folder that Export and Save TOML write into (made if missing)")
     _allow_host(studio)
     studio.set_defaults(func=_cmd_studio)
+    gh = sub.add_parser("grasshopper", help="print the Rhino 8 Grasshopper script (Python 3) "
+                                            "that fits through `sitrelax serve` into a SubD")
+    gh.add_argument("-o", "--output", metavar="FILE", help="write it to FILE instead")
+    gh.set_defaults(func=_cmd_grasshopper)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -115,36 +115,21 @@ def test_the_readme_scenario_example_is_valid():
     assert person.pose == "db:relaxed_sit_01" and list(person.support) == ["torso", "legs"]
 
 
-def test_the_grasshopper_script_fits_through_a_running_api():
-    """The README's Grasshopper script, run outside Rhino: its request goes to a real server."""
-    import numpy as np
+def test_the_grasshopper_section_lists_the_scripts_inputs_and_outputs():
+    """The README's table of the Grasshopper component is the script's (which the tests in
+    tests/studio/test_grasshopper.py run against a real server)."""
+    import ast
 
-    from solver.surface.subdivision import grid_mesh
-    from studio.api import ApiThread
+    from studio import grasshopper
 
     text = (ROOT / "README.md").read_text()
-    script = re.search(r"<!-- grasshopper-script -->\n```python\n(.*?)```", text, re.S)[1]
-    namespace: dict = {}
-    exec(compile(script, "README grasshopper script", "exec"), namespace)  # noqa: S102
-    to_sitrelax, to_rhino = namespace["to_sitrelax"], namespace["to_rhino"]
-    # a proper rotation: Rhino's up (Z) becomes Y, and back
-    assert to_sitrelax(0, 0, 1) == [0, 1, 0] and to_rhino(*to_sitrelax(1, 2, 3)) == [1, 2, 3]
-    frame = np.array([to_sitrelax(*e) for e in np.eye(3)])
-    assert np.linalg.det(frame) == 1
-    api = ApiThread()
-    try:
-        v, f = grid_mesh((0.5, 0.6), (8, 6), 0.42)
-        people = [{"pose": "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39",
-                   "position": [0.0, 0.0, -0.1], "support": ["legs"]}]
-        sv, sf, persons = namespace["fit"](api.url, v.tolist(), f.tolist(), people)
-        assert len(sv) == 65 * 49 and len(sf) == 8 * 6 * 64
-        assert persons[0]["coverage"] >= 0.9
-        people[0]["position"] = [3.0, 0.0, 0.0]
-        try:
-            namespace["fit"](api.url, v.tolist(), f.tolist(), people)
-        except RuntimeError as exc:
-            assert "outside the surface's reach" in str(exc)
-        else:
-            raise AssertionError("a person out of reach was fitted")
-    finally:
-        api.stop()
+    section = text[text.index("### From Rhino 8 and Grasshopper"):text.index("## Python API")]
+    listed = re.findall(r"^\| `(\w+)` \|", section, flags=re.M)
+    call = ast.parse(Path(grasshopper.__file__).read_text()).body[-1]
+    inputs = [e.value for e in ast.walk(call.body[0].value) if isinstance(e, ast.Constant)
+              and isinstance(e.value, str)]
+    assert listed == inputs
+    outputs = [t.id for t in call.body[0].targets[0].elts]
+    assert outputs == ["subd", "surface", "net", "report", "status"]
+    for name in outputs:
+        assert f"`{name}`" in section
