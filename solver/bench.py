@@ -137,11 +137,8 @@ def _relax_numeric(problem):
 def _settle_setup():
     """The seated person on its fitted seat (and the floor), with what the evaluation has
     already computed for the settle (the vertices the seat cuts into, the supports)."""
-    import igl
-    import numpy as np
-
-    from solver.contact.evaluate import surface_parts
-    from solver.contact.settle import DEPTH, Support
+    from solver.contact.evaluate import cut_vertices, surface_parts
+    from solver.contact.settle import Support
     from solver.mesh import SurfaceMesh
     from solver.scene.run import foams
     from solver.surface.fit import fit_surface
@@ -150,12 +147,9 @@ def _settle_setup():
     fit = fit_surface(scenario.surface.vertices, scenario.surface.faces, people, params)
     mesh = SurfaceMesh.from_quads(fit.surface, fit.surface_faces)
     person = people[0]
-    _, signed, _, _, closest = mesh.closest(person.vertices)
-    cut = np.zeros(len(person.vertices), dtype=bool)
-    behind = np.flatnonzero((signed < 0) & (signed > -DEPTH))
-    cut[behind] = igl.fast_winding_number(person.vertices, person.triangles.astype(np.int64),
-                                          closest[behind]) > 0.5
     foam, floor = foams(scenario.evaluation)
+    _, signed, _, _, closest = mesh.closest(person.vertices)
+    cut = cut_vertices(person.vertices, person.triangles, signed, closest, foam)
     supports = [Support("surface", foam, mesh, parts=surface_parts(person.regions)),
                 Support("floor", floor)]
     return person, supports, cut

@@ -191,6 +191,19 @@ class SurfaceMesh:
             object.__setattr__(self, "_tree", tree)
         return tree
 
+    def vertex_tree(self):
+        """A k-d tree of the surface's vertices (scipy's cKDTree) and its longest edge (m),
+        built on first use and kept: every surface point lies within that edge of a vertex."""
+        kept = self.__dict__.get("_vertex_tree")
+        if kept is None:
+            from scipy.spatial import cKDTree
+
+            corners = self.vertices[self.triangles]
+            edge = float(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max())
+            kept = (cKDTree(self.vertices), edge)
+            object.__setattr__(self, "_vertex_tree", kept)
+        return kept
+
     def closest(self, points: np.ndarray):
         """Unsigned distance (P,), signed distance along the closest face's normal (P,), whether
         the closest point lies inside its face (not on the surface's border) (P,), the closest

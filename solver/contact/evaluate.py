@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from solver.contact.mat import mat_figures, peak_pressure_index
-from solver.contact.settle import DEPTH, Foam, Settled, Support, settle
+from solver.contact.settle import Foam, Settled, Support, reach_depth, settle
 from solver.contact.supported import SupportedBody
 from solver.mesh import SurfaceMesh
 
@@ -146,6 +146,23 @@ def penetration_depth(surface_points: np.ndarray, body_vertices: np.ndarray,
     return float(max(0.0, -signed.min()))
 
 
+def cut_vertices(vertices: np.ndarray, triangles: np.ndarray, signed: np.ndarray,
+                 closest: np.ndarray, foam: Foam) -> np.ndarray:
+    """(V,) bool: the body vertices behind a surface (their `signed` distances (V,), within its
+    foam's reach) whose `closest` surface points (V, 3) lie inside the closed body: where the
+    surface cuts into the body, so the skin presses its foam (elsewhere behind it, the skin is
+    on the surface's far side)."""
+    import igl
+
+    cut = np.zeros(len(vertices), dtype=bool)
+    behind = np.flatnonzero((signed < 0) & (signed > -reach_depth(foam)))
+    if behind.size:
+        cut[behind] = igl.fast_winding_number(np.asarray(vertices, dtype=np.float64),
+                                              np.asarray(triangles, dtype=np.int64),
+                                              closest[behind]) > 0.5
+    return cut
+
+
 def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float, foam: Foam,
                     floor: Foam | None = FLOOR) -> tuple[dict, PressureMap]:
     """Coverage, penetration and the settle of one body on one surface (and the floor).
@@ -184,8 +201,6 @@ def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float, 
     ValueError
         If the person lacks areas, a closed skin or a mass.
     """
-    import igl
-
     if person.areas is None or person.triangles is None or person.mass_kg is None:
         raise ValueError(f"{person.label}: an evaluation needs the body's areas, closed skin "
                          "and mass")
@@ -197,12 +212,7 @@ def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float, 
     near = np.all((surface.vertices >= lo) & (surface.vertices <= hi), axis=1)
     penetration = penetration_depth(surface.vertices[near], vertices, triangles) \
         if near.any() else 0.0
-    cut = np.zeros(len(vertices), dtype=bool)
-    behind = np.flatnonzero((signed < 0) & (signed > -DEPTH))
-    if behind.size:
-        wn = igl.fast_winding_number(np.asarray(vertices, dtype=np.float64),
-                                     np.asarray(triangles, dtype=np.int64), closest[behind])
-        cut[behind] = wn > 0.5
+    cut = cut_vertices(vertices, triangles, signed, closest, foam)
     supports = [Support("surface", foam, surface, parts=surface_parts(person.regions))]
     if floor is not None:
         supports.append(Support("floor", floor))

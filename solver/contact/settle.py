@@ -9,8 +9,10 @@ nothing.
 
 The body's small rigid motion (translation u and rotation theta about its centre of mass) is
 solved so that the contact forces balance the weight and its moment: a Newton iteration on the
-six balance equations with the exact Jacobian of the linearised contact laws (scipy's hybrid
-root finder), repeated on the moved body with fresh closest points until the motion stops. The
+six balance equations with the exact Jacobian of the linearised contact laws, within a trust
+region of STEP and shifted towards the imbalance's push where the stiffness gives way (so that
+it seeks a stable rest, not a balance on an edge), scipy's bounded least squares where it
+stalls; repeated on the moved body with fresh closest points until the balance holds. The
 friction displacement counts from where the body was placed. What does not settle is reported as
 such: no contact at all, a rotation past `MAX_TURN` (the pose tips over), a translation past
 `MAX_SHIFT` (the body slides off or sinks through), or balance equations without a root.
@@ -30,9 +32,9 @@ from solver.mesh import SurfaceMesh, volume_centroid
 
 UP = np.array([0.0, 1.0, 0.0])
 BAND = 0.06  # metres above a support within which a vertex may come into contact
-MAX_TURN = np.radians(30.0)  # a settle turning the body further tips it over
+MAX_TURN = np.radians(45.0)  # a settle turning the body further tips it over
 MAX_SHIFT = 0.12  # metres: a settle moving the body further slides it off or sinks it through
-DEPTH = 0.06  # metres: a vertex deeper behind a support than this is not in contact
+DEPTH = 0.05  # metres past a surface's foam: a vertex deeper behind it is not in contact
 MAX_OUTER = 15
 FORCE_TOL = 3e-3  # the settle stops when the net force is below this share of the weight
 MOMENT_TOL = 0.3  # ... and the net moment below this, N m
@@ -108,36 +110,59 @@ class _Candidates:
     face: np.ndarray  # (K,) the support triangle (-1: the floor)
 
 
+def reach_depth(foam: Foam) -> float:
+    """Metres behind a surface to which a vertex can press it: its foam, bottomed out, and
+    DEPTH more."""
+    return foam.thickness + DEPTH
+
+
 def _prepare(support: Support, vertices: np.ndarray, normals: np.ndarray,
-             cut: np.ndarray | None, inside, k: int) -> tuple[np.ndarray, _Candidates]:
+             cut: np.ndarray | None, inside, k: int, state: dict | None = None
+             ) -> tuple[np.ndarray, _Candidates, dict | None]:
     """(N,) the body vertices that may touch `support` during the settle: within BAND above
-    it or pressed in less than DEPTH, facing it, and behind a surface only where the surface
-    cuts into the body (`cut` (V,) bool says so, or `inside(points) -> bool` for the closest
-    points); and their contact geometry as placed."""
+    it, facing it, pressed into a surface less than `reach_depth`; and their contact geometry.
+    Behind a surface, where the body was placed (`state` None), only where the surface cuts
+    into the body (`cut` (V,) bool says so, or `inside(points) -> bool` for the closest
+    points); later, all but those that were behind its far side at the placement. `state`
+    keeps those, a lower bound of each vertex's distance to the surface and where it held, so
+    that a later look queries only the vertices that can have come within BAND."""
     x = vertices
     if support.mesh is None:
         depth = support.height - x[:, 1]
         facing = normals[:, 1] < 0
-        idx = np.flatnonzero(facing & (depth > -BAND) & (depth < DEPTH))
-        return idx, _candidates(support, k, x, idx)
-    from scipy.spatial import cKDTree
-
+        idx = np.flatnonzero(facing & (depth > -BAND))  # the floor has no far side
+        return idx, _candidates(support, k, x, idx), None
     mesh = support.mesh
-    edge = np.linalg.norm(mesh.vertices[mesh.triangles[:, 0]] - mesh.vertices[mesh.triangles[:, 1]],
-                          axis=1).max()
-    reach = max(BAND, DEPTH) + edge
-    dist, _ = cKDTree(mesh.vertices).query(x, distance_upper_bound=reach)
-    idx = np.flatnonzero(np.isfinite(dist))
-    _, signed, over, face, point = mesh.closest(x[idx])
+    tree, edge = mesh.vertex_tree()
+    if state is None:
+        lo = mesh.vertices.min(axis=0) - BAND - edge
+        hi = mesh.vertices.max(axis=0) + BAND + edge
+        look = np.flatnonzero(np.all((x >= lo) & (x <= hi), axis=1))
+        gap = np.full(len(x), BAND)  # beyond the box or the tree's reach: at least BAND away
+    else:
+        gap = state["gap"] - np.linalg.norm(x - state["x"], axis=1)
+        look = np.flatnonzero(gap < BAND)
+    dist, _ = tree.query(x[look], distance_upper_bound=BAND + edge)
+    gap[look] = np.maximum(gap[look], BAND)
+    idx = look[np.isfinite(dist)]
+    unsigned, signed, over, face, point = mesh.closest(x[idx])
+    gap[idx] = unsigned
     depth = -signed
-    ok = over & (depth > -BAND) & (depth < DEPTH)
+    ok = over & (depth > -BAND) & (depth < reach_depth(support.foam))
     ok &= np.einsum("ij,ij->i", normals[idx], mesh.face_normals[face]) < 0
     behind = np.flatnonzero(ok & (depth > 0))
-    if behind.size:
-        ok[behind] = cut[idx[behind]] if cut is not None else inside(point[behind])
+    if state is None:
+        blocked = np.zeros(len(x), dtype=bool)
+        if behind.size:
+            pressed = cut[idx[behind]] if cut is not None else inside(point[behind])
+            blocked[idx[behind[~pressed]]] = True
+    else:
+        blocked = state["blocked"]
+    ok[behind] = ~blocked[idx[behind]]
     keep = ok & (depth > -BAND)
     return idx[ok], _Candidates(k, idx[keep], depth[keep], mesh.face_normals[face[keep]],
-                                point[keep], face[keep])
+                                point[keep], face[keep]), {"blocked": blocked, "gap": gap,
+                                                           "x": x}
 
 
 def _candidates(support: Support, k: int, vertices: np.ndarray, subset: np.ndarray,
@@ -186,8 +211,9 @@ def _laws(q, c: _Candidates, foam: Foam, area, arm, slip0):
     on = depth > 0
     n, arm, area, depth = c.normal[on], arm[on], area[on], depth[on]
     k, h = foam.stiffness, foam.thickness
-    normal_force = area * (k * depth + foam.bottom_factor * k * np.maximum(depth - h, 0.0))
-    stiff = k + foam.bottom_factor * k * (depth > h)
+    extra = (foam.bottom_factor - 1.0) * k  # past the thickness: bottom_factor x k in all
+    normal_force = area * (k * depth + extra * np.maximum(depth - h, 0.0))
+    stiff = k + extra * (depth > h)
     nj = np.concatenate([n, _cross(arm, n)], axis=1)  # n . d = nj . q
     dn = -(area * stiff)[:, None] * nj  # (L, 6)
     total = slip0[on] + d[on]
@@ -277,11 +303,17 @@ def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangl
     known = [(f[1], x0[f[1].index]) for f in first]  # the last geometry, and where it was found
     rot, shift = np.eye(3), np.zeros(3)
     scale = np.array([1.0] * 3 + [1.0 / LEVER] * 3) / np.linalg.norm(weight)
+    x_found = x0  # where the candidates were last looked for on the whole body
     for outer in range(1, MAX_OUTER + 1):
         x = (x0 - c0) @ rot.T + c0 + shift
         c = c0 + shift
         nrm = normals @ rot.T
-        cands = [known[k][0] if outer == 1 else _candidates(s, k, x, near[k], *known[k])
+        fresh = outer == 1 or np.abs(x - x_found).max() > BAND
+        if fresh and outer > 1:  # moved far enough for other skin to come near: look again
+            first = [_prepare(s, x, nrm, None, None, k, first[k][2])
+                     for k, s in enumerate(supports)]
+            near, x_found = [f[0] for f in first], x
+        cands = [first[k][1] if fresh else _candidates(s, k, x, near[k], *known[k])
                  for k, s in enumerate(supports)]
         known = [(cand, x[cand.index]) for cand in cands]
         groups = [g for g in (_group(s, k, x, x0, c, areas, nrm, near[k], cands[k])
@@ -291,6 +323,9 @@ def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangl
         residual, jac = _balance(np.zeros(6), groups, weight)
         if (np.linalg.norm(residual[:3]) < FORCE_TOL * np.linalg.norm(weight)
                 and np.linalg.norm(residual[3:]) < MOMENT_TOL):
+            if np.abs(x - x_found).max() > 0.01:  # at rest: first make sure of every contact
+                x_found = x - 1.0  # looked for again at the next step, which moves nothing
+                continue
             if _tips(jac):
                 return _unsettled("tips over (its rest is a balance on an edge)", x, c0, shift,
                                   rot, weight)
@@ -306,7 +341,7 @@ def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangl
         if q is None:
             return _unsettled("the balance has no solution (slides off?)", x, c0, shift, rot,
                               weight)
-        size = max(np.linalg.norm(q[:3]), LEVER * np.linalg.norm(q[3:]))
+        size = _size(q)
         if size < STILL:  # no motion brings the imbalance down: no balance within reach
             return _unsettled("finds no balance (it tips over or slides off)", x, c0, shift, rot,
                               weight)
@@ -331,21 +366,50 @@ def _group(support: Support, k: int, x, x0, c, areas, normals, subset, cand=None
     return cand, support.foam, footprint, x[i] - c, x[i] - x0[i]
 
 
+def _size(q: np.ndarray) -> float:
+    """How far a motion (u, theta) moves the body: metres, a turn counted at LEVER."""
+    return max(float(np.linalg.norm(q[:3])), LEVER * float(np.linalg.norm(q[3:])))
+
+
+def _descent_step(jac: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Newton's step q = K^-1 r on the stiffness K = -jac where that is stable; where K has a
+    direction that gives way (an eigenvalue with a negative real part: a balance on an edge,
+    which Newton's root would seek), the step of K + lambda I instead, lambda shifting every
+    eigenvalue positive, so that the body moves the way the imbalance pushes it (towards a
+    stable rest) and not towards the unstable balance. Turns are measured at LEVER."""
+    d = np.array([1.0] * 3 + [1.0 / LEVER] * 3)  # q = d z, z in metres
+    k = -(jac * d[None, :]) * d[:, None]  # rows: forces and moments per LEVER
+    eig = np.linalg.eigvals(k)
+    low = float(eig.real.min())
+    top = float(np.abs(eig).max())
+    if low <= 1e-9 * top:
+        k = k + (0.1 * top - low) * np.eye(6)
+    try:
+        z = np.linalg.solve(k, r * d)
+    except np.linalg.LinAlgError:
+        z = np.linalg.lstsq(k, r * d, rcond=None)[0]
+    return z * d
+
+
 def _newton(groups, weight, scale, r, jac) -> np.ndarray | None:
-    """The motion (6,) that balances the linearised contact laws, from no motion (where the
-    balance is `r` with Jacobian `jac`): Newton's method with a backtracking line search on the
-    scaled residual, or the least-squares solver where it stalls (then the motion towards the
-    least imbalance); None when neither gives a finite motion."""
+    """The motion (6,) towards balance of the linearised contact laws within the trust region
+    (`_size` at most STEP, where the linearisation holds), from no motion (where the balance is
+    `r` with Jacobian `jac`): Newton's method with a backtracking line search on the scaled
+    residual, stopping at the region's edge, or scipy's bounded least squares where it stalls;
+    None when neither gives a finite motion."""
     q = np.zeros(6)
     size = np.linalg.norm(r * scale)
     for _ in range(60):
         if size < 1e-10:
             return q
-        try:
-            step = np.linalg.solve(jac, -r)
-        except np.linalg.LinAlgError:
-            step = np.linalg.lstsq(jac, -r, rcond=None)[0]
-        t = 1.0
+        step = _descent_step(jac, r)
+        t, edge = 1.0, False
+        if _size(q + step) > STEP:  # walk to the region's edge, no further
+            lo, hi = 0.0, 1.0
+            for _ in range(30):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (mid, hi) if _size(q + mid * step) <= STEP else (lo, mid)
+            t, edge = lo, True
         while t > 1e-3:
             trial = q + t * step
             r_t, jac_t = _balance(trial, groups, weight)
@@ -353,16 +417,19 @@ def _newton(groups, weight, scale, r, jac) -> np.ndarray | None:
             if np.isfinite(size_t) and size_t < (1 - 1e-4 * t) * size:
                 break
             t *= 0.5
+            edge = False
         else:
             return _least_squares(q, groups, weight, scale)
         q, r, jac, size = trial, r_t, jac_t, size_t
+        if edge:
+            return q
     return q if size < 1e-6 else _least_squares(q, groups, weight, scale)
 
 
 def _least_squares(q, groups, weight, scale) -> np.ndarray | None:
     """Where Newton's steps stall on a change of contact (a body tipping onto its feet): the
-    least-squares root by scipy's trust-region solver, limited to steps the linearisation can
-    follow; None when it finds no root."""
+    motion of least imbalance within the trust region (a box of STEP, STEP / LEVER for the
+    turn), by scipy's bounded trust-region least squares; None when it is not finite."""
     from scipy.optimize import least_squares
 
     last = {}
@@ -374,28 +441,34 @@ def _least_squares(q, groups, weight, scale) -> np.ndarray | None:
             last[key] = _balance(z, groups, weight)
         return last[key]
 
-    sol = least_squares(lambda z: both(z)[0] * scale, q, jac=lambda z: both(z)[1] * scale[:, None],
+    box = np.array([STEP] * 3 + [STEP / LEVER] * 3) / np.sqrt(3.0)
+    sol = least_squares(lambda z: both(z)[0] * scale, np.clip(q, -box, box),
+                        jac=lambda z: both(z)[1] * scale[:, None], bounds=(-box, box),
                         method="trf", x_scale=np.array([0.01] * 3 + [0.02] * 3), xtol=1e-12,
                         ftol=1e-12, gtol=1e-12, max_nfev=60)
     return sol.x if np.all(np.isfinite(sol.x)) else None
 
 
 def _tips(jac: np.ndarray) -> bool:
-    """Whether a rest is unstable: the stiffness -d(balance)/d(motion) (with the turning of
-    the contact forces' arms that gravity drives) has a direction in which it gives way. By
-    Sylvester's law the sign of its symmetric part's eigenvalues does not depend on scaling
-    the turn by a length, so the turn is measured at LEVER."""
-    d = np.array([1.0] * 3 + [LEVER] * 3)
-    k = -(jac * d[None, :]) * d[:, None]  # the moment rows per LEVER, the turn columns at LEVER
-    eig = np.linalg.eigvalsh(0.5 * (k + k.T))
-    return bool(eig.min() < -1e-6 * max(eig.max(), 1e-12))
+    """Whether a rest is unstable: the stiffness K = -d(balance)/d(motion), with the turning of
+    the contact forces' arms that gravity drives, has an eigenvalue with a negative real part
+    (a direction in which the body gives way and does not come back: it tips). Friction makes K
+    unsymmetric; its eigenvalues' real parts, not its symmetric part's, decide divergence. The
+    turn is measured at LEVER."""
+    d = np.array([1.0] * 3 + [1.0 / LEVER] * 3)
+    k = -(jac * d[None, :]) * d[:, None]
+    eig = np.linalg.eigvals(k)
+    return bool(eig.real.min() < -1e-6 * np.abs(eig).max())
 
 
 def _too_far(q: np.ndarray) -> str | None:
-    if np.linalg.norm(q[3:]) > MAX_TURN:
-        return f"tips over (turns {np.degrees(np.linalg.norm(q[3:])):.0f} degrees)"
-    if np.linalg.norm(q[:3]) > MAX_SHIFT:
-        return f"slides off or sinks through (moves {np.linalg.norm(q[:3]) * 100:.0f} cm)"
+    """Why a settle that moved the body by q = (u, theta) has gone further than a rest can be,
+    or None."""
+    turn, shift = np.degrees(np.linalg.norm(q[3:])), np.linalg.norm(q[:3])
+    if turn > np.degrees(MAX_TURN) or (shift > MAX_SHIFT and turn > 10.0):
+        return f"tips over (turns {turn:.0f} degrees, moves {shift * 100:.0f} cm)"
+    if shift > MAX_SHIFT:
+        return f"slides off or sinks through (moves {shift * 100:.0f} cm)"
     return None
 
 

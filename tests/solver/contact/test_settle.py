@@ -147,7 +147,7 @@ def test_the_balance_jacobian_is_the_finite_difference(mu):
     turn = np.array([[np.cos(rot), -np.sin(rot), 0], [np.sin(rot), np.cos(rot), 0], [0, 0, 1]])
     v, n = v @ turn.T - [0.0, 0.01, 0.0], n @ turn.T
     support = Support("seat", Foam(200e3, friction=mu), _plane(0.0, 10.0))
-    subset, cand = s._prepare(support, v, n, None, lambda p: np.zeros(len(p), bool), 0)
+    subset, _, _ = s._prepare(support, v, n, None, lambda p: np.zeros(len(p), bool), 0)
     centre = s.volume_centroid(v, t)
     moved = v + [0.002, -0.001, 0.001]
     groups = [s._group(support, 0, moved, v, centre, a, n, subset,
