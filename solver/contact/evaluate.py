@@ -105,29 +105,35 @@ def surface_figures(settled: Settled, names=("seat", "back", "leg rest")) -> dic
 
 
 def peak_text(figures: dict) -> str:
-    """A person's peak pressure for people ("7.9 kPa"), or why the body does not rest."""
+    """A person's peak pressure on the surface for people ("7.9 kPa"), why the body does not
+    rest, or that it rests on something else."""
+    balance = figures.get("equilibrium") or {}
+    if balance.get("stable") is False:
+        return f"no rest: {balance.get('reason') or 'does not rest'}"
     if figures.get("peak_pressure_kpa") is None:
-        reason = (figures.get("equilibrium") or {}).get("reason") or "does not rest"
-        return f"no rest: {reason}"
+        return "0 kPa (rests elsewhere)"
     return f"{figures['peak_pressure_kpa']:.1f} kPa"
 
 
 def equilibrium_figures(settled: Settled) -> dict:
-    """report.json's `equilibrium`: whether the body rests (and why not), the force and moment
-    left over (N, N m), the settle's motion, and per support its load (N, the magnitude of its
-    total force) and share of the weight."""
-    out = {"stable": settled.stable, "reason": settled.reason}
+    """report.json's `equilibrium`: whether the body rests (and why not), the weight, the force
+    and moment left over (N, N m), the settle's motion (None when it does not rest), and per
+    support part its load (N carried against gravity) and share of the weight (they add up to 1
+    at rest), the magnitude of its whole force and of its friction."""
+    out = {"stable": settled.stable, "reason": settled.reason, "weight_n": settled.weight_n}
     if not settled.stable:
-        return {**out, "net_force_n": None, "net_moment_nm": None, "supports": {}}
+        return {**out, "net_force_n": None, "net_moment_nm": None, "translation_m": None,
+                "rotation_deg": None, "supports": {}}
     supports = {}
+    up = -settled.gravity
     for c in settled.contacts:
         f = (c.normal_force[:, None] * c.normals + c.tangential_force).sum(axis=0)
-        supports[c.name] = {"load_n": float(np.linalg.norm(f)),
-                            "load_share": float(np.linalg.norm(f) / settled.weight_n),
+        supports[c.name] = {"load_n": float(f @ up),
+                            "load_share": float(f @ up / settled.weight_n),
+                            "force_n": float(np.linalg.norm(f)),
                             "friction_n": float(np.linalg.norm(c.tangential_force.sum(axis=0)))}
     return {**out, "net_force_n": float(np.linalg.norm(settled.net_force)),
             "net_moment_nm": float(np.linalg.norm(settled.net_moment)),
-            "weight_n": settled.weight_n,
             "translation_m": [float(v) for v in settled.translation],
             "rotation_deg": float(np.degrees(np.linalg.norm(settled.rotation))),
             "supports": supports}

@@ -161,7 +161,8 @@ def _figures(force: np.ndarray, points: np.ndarray, area: np.ndarray, vector: np
     return {
         "load_n": load,
         "normal_load_n": normal,
-        "load_share": load / weight_n,
+        "vertical_load_n": float(vector[1]),
+        "load_share": float(vector[1]) / weight_n,
         "peak_kpa": float(pressure.max()) if loaded.any() else 0.0,
         "peak_pressure_index_kpa": peak_pressure_index(points, area, pressure),
         "mean_kpa": normal / area_m2 / 1e3 if area_m2 > 0 else None,
@@ -286,7 +287,9 @@ def mat_figures(contacts: Sequence[SupportContact], areas: np.ndarray, mass_kg: 
         JSON-ready (floats, lists, None where a figure is undefined, never NaN):
         ``body_weight_n``; ``supports``: per support name, ``load_n`` (magnitude of the
         support's total force, normal and friction, N), ``normal_load_n`` (N),
-        ``load_share`` (load_n / m g), ``peak_kpa`` (largest vertex pressure),
+        ``vertical_load_n`` (its upward part, against gravity along -Y), ``load_share``
+        (vertical_load_n / m g: the shares of the supports add up to 1 at rest),
+        ``peak_kpa`` (largest vertex pressure),
         ``peak_pressure_index_kpa`` (the highest mean over about 10 cm^2 around a loaded
         vertex), ``mean_kpa`` (area-weighted over the loaded area: normal load / contact area;
         None without contact), ``contact_area_cm2`` (area of the vertices carrying load),

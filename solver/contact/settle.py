@@ -80,8 +80,11 @@ class Settled:
         of mass before the settle).
     contacts : one `SupportContact` per support part that carries load.
     net_force : (3,) N and net_moment : (3,) N m, the balance left over on the settled body
-        (contact forces plus weight; moments about the settled centre of mass).
+        (contact forces plus weight; moments about the settled centre of mass); NaN when the
+        body does not rest (there is no such balance to give).
     weight_n : m g.
+    iterations : the outer steps taken.
+    gravity : (3,) the unit direction of gravity.
     """
 
     stable: bool
@@ -95,7 +98,7 @@ class Settled:
     net_moment: np.ndarray
     weight_n: float
     iterations: int = 0
-    extra: dict = field(default_factory=dict)
+    gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, -1.0, 0.0]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -289,11 +292,20 @@ def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangl
     -------
     Settled, with `stable` False and a `reason` when the body does not come to rest; the net
     force and moment left over are below `FORCE_TOL` m g and `MOMENT_TOL` when it does.
+
+    Raises
+    ------
+    ValueError
+        If the mass is not positive or gravity has no direction.
     """
     import igl
 
     x0 = np.asarray(vertices, dtype=np.float64)
     g = np.asarray(gravity, dtype=np.float64)
+    if not (np.isfinite(mass_kg) and mass_kg > 0):
+        raise ValueError(f"Expected a body mass > 0 kg, got {mass_kg}")
+    if g.shape != (3,) or not np.all(np.isfinite(g)) or not np.linalg.norm(g) > 0:
+        raise ValueError(f"Expected a non-zero gravity direction (3,), got {gravity!r}")
     weight = mass_kg * G * g / np.linalg.norm(g)
     c0 = volume_centroid(x0, triangles) if centre is None else np.asarray(centre, float)
     tri = np.asarray(triangles, dtype=np.int64)
@@ -473,9 +485,10 @@ def _too_far(q: np.ndarray) -> str | None:
 
 
 def _unsettled(reason, x, c0, shift, rot, weight) -> Settled:
-    nan3 = np.zeros(3)
+    """A settle that found no rest: where it stopped, and why."""
+    size = float(np.linalg.norm(weight))
     return Settled(False, reason, x, shift, Rotation.from_matrix(rot).as_rotvec(), c0, [],
-                   nan3, nan3, float(np.linalg.norm(weight)))
+                   np.full(3, np.nan), np.full(3, np.nan), size, gravity=weight / size)
 
 
 def _settled(x, c0, shift, rot, groups, supports, residual, weight, outer) -> Settled:
@@ -484,9 +497,9 @@ def _settled(x, c0, shift, rot, groups, supports, residual, weight, outer) -> Se
     for cand, foam, area, arm, slip0 in groups:
         on, _, _, fn, ft = _laws(np.zeros(6), cand, foam, area, arm, slip0)
         contacts += _contacts(supports[cand.support], cand, area, on, fn, ft)
+    size = float(np.linalg.norm(weight))
     return Settled(True, None, x, shift, Rotation.from_matrix(rot).as_rotvec(), c0, contacts,
-                   residual[:3].copy(), residual[3:].copy(), float(np.linalg.norm(weight)),
-                   outer)
+                   residual[:3].copy(), residual[3:].copy(), size, outer, weight / size)
 
 
 def _contacts(s: Support, cand: _Candidates, area, on, fn, ft) -> list[SupportContact]:

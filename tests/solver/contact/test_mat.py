@@ -81,7 +81,8 @@ def test_a_peak_shows_in_peak_and_index_but_barely_in_the_mean():
 
 def test_two_supports_share_the_weight_80_20(seat):
     """The seat carries 80 % of m g through the box, the floor 20 % through a foot patch; a
-    friction pair (seat +x, floor -x) changes the supports' loads but not the total."""
+    friction pair (seat +x, floor -x) changes the supports' whole forces but not their shares
+    of the weight (the vertical part) nor the total."""
     points, areas, _ = _box()
     foot = np.array([[0.0, 0.0, 0.3], [0.05, 0.0, 0.3], [0.0, 0.0, 0.35], [0.05, 0.0, 0.35]])
     all_areas = np.concatenate([areas, np.full(4, 4e-4)])
@@ -95,11 +96,13 @@ def test_two_supports_share_the_weight_80_20(seat):
     figures = mat_figures([c_seat, c_floor], all_areas, MASS)
     s, f, t = figures["supports"]["seat"], figures["supports"]["floor"], figures["total"]
     assert s["normal_load_n"] / (MASS * G) == pytest.approx(0.8)
-    assert s["load_share"] == pytest.approx(0.8 * np.hypot(1, 0.1))
+    assert s["load_share"] == pytest.approx(0.8)  # the vertical part: friction is sideways
+    assert s["load_n"] == pytest.approx(0.8 * MASS * G * np.hypot(1, 0.1))
     assert f["normal_load_n"] / (MASS * G) == pytest.approx(0.2)
     assert f["contact_area_cm2"] == pytest.approx(16.0)
     assert f["mean_kpa"] == pytest.approx(0.2 * MASS * G / 16e-4 / 1e3)
-    assert f["load_share"] == pytest.approx(0.2 * np.hypot(1, 0.4))
+    assert f["load_share"] == pytest.approx(0.2)
+    assert f["load_n"] == pytest.approx(0.2 * MASS * G * np.hypot(1, 0.4))
     assert t["load_share"] == pytest.approx(1.0)  # the frictions cancel
     assert t["normal_load_n"] == pytest.approx(MASS * G)
     assert t["contact_area_cm2"] == pytest.approx(1216.0)
