@@ -215,7 +215,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         "persons": persons,
         "files": files,
     }
-    write_atomic(out / "report.json", json.dumps(report, indent=2).encode())
+    write_atomic(out / "report.json", json.dumps(report, indent=2, allow_nan=False).encode())
     return report
 
 
@@ -380,7 +380,7 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
     report = {"scenario": str(scenario_path), "surface": str(surface_dir or "fitted"),
               "persons": rows, "timing": {"total_s": time.perf_counter() - start},
               "files": ["relax.png"]}
-    write_atomic(out / "report.json", json.dumps(report, indent=2).encode())
+    write_atomic(out / "report.json", json.dumps(report, indent=2, allow_nan=False).encode())
     return report
 
 

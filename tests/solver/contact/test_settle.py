@@ -52,7 +52,8 @@ def test_box_on_foam_sinks_by_weight_over_area_and_stiffness():
 
 
 @pytest.mark.parametrize("slope, mu, rests", [(10.0, 0.5, True), (20.0, 0.5, True),
-                                              (35.0, 0.5, False), (20.0, 0.2, False)])
+                                              (26.0, 0.5, True), (35.0, 0.5, False),
+                                              (20.0, 0.2, False)])
 def test_box_on_a_slope_rests_while_friction_holds_it(slope, mu, rests):
     """On a slope the foam carries m g cos(a) and friction m g sin(a), which it can while
     tan(a) <= mu; past that the box slides off and the settle says so."""
@@ -94,6 +95,8 @@ def test_a_plank_on_two_supports_splits_its_weight_by_the_lever_rule():
     x_far = (lambda c: (c.normal_force @ c.points[:, 0]) / c.normal_force.sum())(_load(s, "far")[1])
     share_far = (x_near - 0.0) / (x_near - x_far)
     assert f_far[1] == pytest.approx(share_far * w, rel=0.02)
+    # by hand, with the near pad's centre (0.2 m) and the plank's end (-0.5 m): 2/7 of it
+    assert f_far[1] == pytest.approx(2 / 7 * w, rel=0.1)
     assert f_near[1] + f_far[1] == pytest.approx(w, rel=0.01)
 
 
@@ -162,3 +165,38 @@ def test_the_balance_jacobian_is_the_finite_difference(mu):
         numeric[:, i] = (s._balance(q + dq, groups, weight)[0]
                          - s._balance(q - dq, groups, weight)[0]) / 2e-8
     assert np.abs(jac - numeric).max() <= 1e-5 * np.abs(numeric).max()
+
+
+@pytest.mark.parametrize("tilt", [3.0, 5.0, 10.0])
+def test_a_box_landing_on_its_edge_comes_down_flat(tilt):
+    """Tilted a few degrees with its low edge on the foam (or just above), the box turns down
+    onto its face, as a box does, rather than balancing on the edge."""
+    v, n, a, t = _box((0.4, 0.2, 0.3), [0, 0.1, 0])
+    r = np.radians(tilt)
+    turn = np.array([[np.cos(r), -np.sin(r), 0], [np.sin(r), np.cos(r), 0], [0, 0, 1]])
+    v, n = v @ turn.T, n @ turn.T
+    v = v - [0.0, v[:, 1].min() - 0.002, 0.0]
+    s = settle(v, n, a, t, 20.0, [Support("seat", Foam(200e3), _plane())])
+    assert s.stable, s.reason
+    assert np.degrees(s.rotation[2]) == pytest.approx(-tilt, abs=0.5)
+
+
+def test_a_box_placed_deep_in_the_foam_is_pushed_back_up():
+    """Placed 7 cm into 10 cm of foam (ten times what its weight needs), the box rises to where
+    the foam carries it: 8.2 mm in (within 5 %: the bottom edge's vertices share their areas
+    with the sides)."""
+    v, n, a, t = _box((0.4, 0.2, 0.3), [0, 0.1 - 0.07, 0], pitch=0.0125)
+    s = settle(v, n, a, t, 20.0, [Support("seat", Foam(200e3, thickness=0.1), _plane())])
+    assert s.stable, s.reason
+    assert s.vertices[:, 1].min() == pytest.approx(-20 * G / 0.12 / 200e3, rel=0.05)
+
+
+def test_past_its_thickness_the_foam_bottoms_out():
+    """A 1 cm foam under a 200 kg box: 16 kPa would press it 8 cm at 200 kPa/m; past 1 cm it is
+    20 times stiffer, so the box sinks 1 cm + (p - k h) / (20 k)."""
+    v, n, a, t = _box((0.4, 0.2, 0.3), [0, 0.1, 0], pitch=0.0125)
+    s = settle(v, n, a, t, 200.0, [Support("seat", Foam(200e3, thickness=0.01), _plane())])
+    assert s.stable, s.reason
+    p = 200 * G / 0.12
+    assert -s.vertices[:, 1].min() == pytest.approx(0.01 + (p - 200e3 * 0.01) / (20 * 200e3),
+                                                    rel=0.05)
