@@ -75,11 +75,13 @@ class SolidCheck:
     thickness_max_m: float | None
     too_close: int
     clearance_m: float | None = None
+    surface_folds: int = 0
 
     @property
     def ok(self) -> bool:
-        """Closed, consistently wound, accepted by manifold3d, positive volume, no fold and
-        no place nearer the surface than the thickness allows."""
+        """Closed, consistently wound, accepted by manifold3d, positive volume, no fold in the
+        offset and no place nearer the surface than the thickness allows. (A sharp fold of
+        the surface itself, `surface_folds`, is named in `problem` as the likely cause.)"""
         return bool(self.watertight and self.winding_consistent and
                     self.manifold_status == "NoError" and self.volume_m3 > 0 and
                     self.folded_faces == 0 and self.too_close == 0 and
@@ -91,6 +93,9 @@ class SolidCheck:
         if self.ok:
             return None
         parts = []
+        if self.surface_folds:
+            parts.append(f"the surface itself folds sharply at {self.surface_folds} edges "
+                         f"(neighbouring faces turn by more than 90 degrees)")
         if self.folded_faces:
             parts.append(f"{self.folded_faces} offset faces fold over (the surface bends "
                          f"away from the bodies more tightly than the thickness)")
@@ -299,6 +304,8 @@ def check_solid(solid: Solid) -> SolidCheck:
     volume = float(manifold.volume()) if status == "NoError" else \
         enclosed_volume(solid.vertices, solid.triangles)
     folded, low, high, close, clearance = 0, None, None, 0, None
+    creases = surface_folds(solid.vertices[:solid.n_surface],
+                            solid.triangles[:solid.n_surface_triangles])
     if solid.kind == "offset":
         n = solid.n_surface
         top, bottom = solid.vertices[:n], solid.vertices[n:]
@@ -311,7 +318,21 @@ def check_solid(solid: Solid) -> SolidCheck:
         close = int(np.sum(at_vertices < solid.thickness - THICKNESS_TOLERANCE))
         clearance = float(min(d_out.min(), d_in.min()))
     return SolidCheck(bool(mesh.is_watertight), bool(mesh.is_winding_consistent), status,
-                      volume, folded, low, high, close, clearance)
+                      volume, folded, low, high, close, clearance, creases)
+
+
+def surface_folds(vertices: np.ndarray, triangles: np.ndarray) -> int:
+    """How many edges of a triangle surface join faces whose normals are more than 90 degrees
+    apart (a sharp fold, not a smooth bend)."""
+    t = np.asarray(triangles, dtype=np.int64)
+    normals = face_normals(vertices, t)
+    edges = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
+    face = np.tile(np.arange(len(t)), 3)
+    order = np.lexsort((edges[:, 1], edges[:, 0]))
+    edges, face = edges[order], face[order]
+    pair = np.all(edges[1:] == edges[:-1], axis=1)
+    dots = np.einsum("ij,ij->i", normals[face[:-1][pair]], normals[face[1:][pair]])
+    return int(np.sum(dots < 0))
 
 
 def offset_distances(top: np.ndarray, bottom: np.ndarray,
