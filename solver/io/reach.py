@@ -124,15 +124,17 @@ def render_reach(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarra
     cannot reach; `bodies` are optional `MeshView`s drawn in the second panel."""
     from solver.io.render import SURFACE, MeshView, Panel, render_panels
 
-    colors = np.tile(np.asarray(SURFACE), (len(vertices), 1))
-    colors[reach.unreachable] = (0.85, 0.15, 0.1)
-    surface = MeshView(np.asarray(vertices), np.asarray(faces), colors)
+    faces = np.asarray(faces)
+    colors = np.tile(np.asarray(SURFACE), (len(faces), 1))  # per face: a lone vertex shows
+    colors[reach.unreachable[faces].any(axis=1)] = (0.85, 0.15, 0.1)
+    surface = MeshView(np.asarray(vertices), faces, colors)
     radius = reach.min_concave_radius_m
     title = (f"ball-nose radius {reach.tool_radius_m * 1000:.0f} mm: "
              f"{int(reach.unreachable.sum())} vertices, "
-             f"{reach.unreachable_area_m2 * 1e4:.1f} cm^2 out of reach (red); smallest "
+             f"{reach.unreachable_area_m2 * 1e4:.1f} cm^2 out of reach (red)\nsmallest "
              f"hollow radius " + (f"{radius * 1000:.1f} mm" if np.isfinite(radius) else
                                   "none"))
     return render_panels(path, [Panel([surface], "top", "from above"),
                                 Panel([surface] + list(bodies or []), "three-quarter",
-                                      "three-quarter")], columns=2, title=title)
+                                      "three-quarter")], columns=2, title=title,
+                         panel_size=(520, 520))
