@@ -33,4 +33,9 @@ def trough():
 
 @pytest.fixture
 def ridge():
+    return bent_grid(bend=-1.0, columns=81, rows=5)
+
+
+@pytest.fixture
+def fine_ridge():
     return bent_grid(bend=-1.0)

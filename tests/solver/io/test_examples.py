@@ -42,10 +42,11 @@ def test_every_example_thickens_to_a_closed_manifold_or_says_why_not(fitted, nam
     assert check.manifold_status == "NoError" and check.volume_m3 > 0
     if check.surface_folds == 0 or check.ok:
         assert check.ok, check.problem()
+        assert check.intersecting_pairs == 0
         assert abs(check.thickness_min_m - 0.01) <= THICKNESS_TOLERANCE
         assert abs(check.thickness_max_m - 0.01) <= THICKNESS_TOLERANCE
     else:  # a surface that folds sharply on itself: no offset follows it, and we say so
-        assert "folds sharply" in check.problem()
+        assert "folds sharply" in check.problem() and check.intersecting_pairs > 0
     reach = cutter_reach(vertices, faces, 0.02)
     assert reach.min_concave_radius_m > 0
 

@@ -8,10 +8,10 @@ from solver.io.reach import ReachError, bending_towards_normal, cutter_reach, re
 RADIUS = 0.012
 
 
-def test_bend_towards_the_bodies_is_positive_in_a_trough(trough, ridge):
+def test_bend_towards_the_bodies_is_positive_in_a_trough(trough, fine_ridge):
     middle = np.abs(trough[0][:, 0]) < 0.5 * trough[2]
     assert np.allclose(bending_towards_normal(*trough[:2])[middle, 0], 1 / RADIUS, rtol=0.05)
-    assert np.allclose(bending_towards_normal(*ridge[:2])[middle, 1], -1 / RADIUS, rtol=0.05)
+    assert np.allclose(bending_towards_normal(*fine_ridge[:2])[middle, 1], -1 / RADIUS, rtol=0.05)
 
 
 def test_a_6_mm_ball_reaches_all_of_a_12_mm_trough(trough):
@@ -31,8 +31,8 @@ def test_a_20_mm_ball_misses_the_trough_and_only_the_trough(trough):
     assert reach.unreachable_area_m2 == pytest.approx(arc, rel=0.15)
 
 
-def test_a_ridge_is_no_hollow(ridge):
-    reach = cutter_reach(ridge[0], ridge[1], 0.020)
+def test_a_ridge_is_no_hollow(fine_ridge):
+    reach = cutter_reach(fine_ridge[0], fine_ridge[1], 0.020)
     assert reach.unreachable.sum() == 0 and reach.min_concave_radius_m > 1.0
     assert reach.min_convex_radius_m == pytest.approx(RADIUS, rel=0.05)
     assert reach.summary()["unreachable_vertices"] == 0

@@ -9,7 +9,8 @@ import pytest
 import trimesh
 
 from solver.io.solid import (SolidError, boundary_edges, check_solid, model_3mf, plinth,
-                             thicken, workshop_vertices, write_3mf, write_stl)
+                             self_intersections, thicken, workshop_vertices, write_3mf,
+                             write_stl)
 from solver.mesh import quad_triangles, voronoi_areas
 
 
@@ -43,6 +44,16 @@ def test_offset_deeper_than_a_ridge_radius_folds_and_is_refused(ridge):
         thicken(vertices, quads, 0.02)
     check = check_solid(thicken(vertices, quads, 0.02, check=False))
     assert check.watertight and check.folded_faces > 0 and not check.ok
+    assert check.intersecting_pairs > 0  # the exact test sees the fold cross itself too
+
+
+def test_crossing_triangles_are_found_and_neighbours_are_not():
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0],  # flat
+                         [0.2, 0.2, -0.5], [0.2, 0.2, 0.5], [0.3, 0.25, 0.0],  # through it
+                         [2, 0, 0], [3, 0, 0], [2, 1, 0.0]])  # apart, coplanar
+    pairs = self_intersections(vertices, np.array([[0, 1, 2], [3, 4, 5], [6, 7, 8],
+                                                   [1, 6, 2]]))
+    assert pairs.tolist() == [[0, 1]]
 
 
 def test_plinth_fills_down_to_the_floor(trough):
