@@ -60,6 +60,11 @@ def plane_section(vertices: np.ndarray, triangles: np.ndarray, origin, normal) -
         A point of the plane.
     normal : (3,) float
         The plane's normal (any length > 0).
+
+    Returns
+    -------
+    list of (K, 3) float
+        The cut's polylines, metres.
     """
     v = np.asarray(vertices, dtype=np.float64)
     t = np.asarray(triangles, dtype=np.int64)
@@ -115,8 +120,28 @@ def _chains(segments: list) -> list[list]:
 
 
 def section(name: str, origin, along, meshes: dict) -> Section:
-    """The vertical section through `origin` (3,) along the horizontal `along` (3,) of the
-    meshes {layer: (vertices, faces)}, in the plane's (distance along, height) coordinates."""
+    """A vertical section of several meshes.
+
+    Parameters
+    ----------
+    name : str
+    origin : (3,) float
+        A point of the plane (a person's pelvis), metres.
+    along : (3,) float
+        The section's direction; its vertical part is dropped.
+    meshes : dict
+        {layer: (vertices (V, 3), faces (F, 3|4))}.
+
+    Returns
+    -------
+    Section
+        Curves in the plane's (distance along from `origin`, height) coordinates, metres.
+
+    Raises
+    ------
+    DrawingError
+        If `along` is vertical.
+    """
     along = np.asarray(along, dtype=np.float64).copy()
     along[1] = 0.0
     if not np.linalg.norm(along) > 1e-9:
@@ -162,9 +187,25 @@ def _save(doc, path: Path) -> Path:
 
 
 def write_section_dxf(path: str | os.PathLike, sec: Section) -> Path:
-    """Writes one section as DXF (mm): its curves as polylines on their layers, the floor
-    line, and dimensions of the surface's length along the section and its top's height
-    above the floor."""
+    """Writes one section as DXF, millimetres.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    sec : Section
+
+    Returns
+    -------
+    pathlib.Path
+        The file written: the curves as LWPOLYLINEs on their layers, the floor as a LINE, a
+        DIMENSION of the surface's length along the section and one of its top's height above
+        the floor, and a TEXT saying both.
+
+    Raises
+    ------
+    DrawingError
+        If the section misses the surface.
+    """
     doc = _new_document()
     msp = doc.modelspace()
     for layer, lines in sec.curves.items():
@@ -186,7 +227,17 @@ def write_section_dxf(path: str | os.PathLike, sec: Section) -> Path:
 
 
 def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
-    """The border of a surface (F, 3|4) as loops of vertex indices, in its faces' direction."""
+    """The border of a surface as loops of vertex indices, in its faces' direction.
+
+    Parameters
+    ----------
+    faces : (F, 3) or (F, 4) int
+
+    Returns
+    -------
+    list of (K + 1,) int
+        Each loop with its first vertex repeated at the end.
+    """
     from solver.io.solid import boundary_edges
 
     nxt = {int(a): int(b) for a, b in boundary_edges(faces)}
@@ -203,8 +254,19 @@ def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
 
 
 def overall_dimensions(vertices: np.ndarray) -> dict:
-    """The surface's bounding box in millimetres, Z up: width (x), depth (z), and height of
-    its top above the floor (y = 0)."""
+    """The surface's overall size.
+
+    Parameters
+    ----------
+    vertices : (N, 3) float
+        Metres, Y up.
+
+    Returns
+    -------
+    dict
+        `width_mm` (along x), `depth_mm` (along z) and `height_mm` (its top above the floor
+        y = 0), millimetres.
+    """
     v = np.asarray(vertices, dtype=np.float64) * 1000.0
     lo, hi = v.min(axis=0), v.max(axis=0)
     return {"width_mm": float(hi[0] - lo[0]), "depth_mm": float(hi[2] - lo[2]),
@@ -254,7 +316,20 @@ def write_overall_dxf(path: str | os.PathLike, vertices: np.ndarray, faces: np.n
 
 def render_sections(path: str | os.PathLike, sections: list[Section], *, columns: int = 2,
                     title: str | None = None) -> Path:
-    """A PNG of sections (headless matplotlib), millimetres, floor at 0, one panel each."""
+    """A PNG of sections (headless matplotlib), millimetres, floor at 0, one panel each.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    sections : list of Section
+    columns : int
+    title : str, optional
+
+    Returns
+    -------
+    pathlib.Path
+        The picture written (atomically).
+    """
     import matplotlib
 
     matplotlib.use("Agg")

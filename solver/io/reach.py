@@ -121,7 +121,22 @@ def cutter_reach(vertices: np.ndarray, faces: np.ndarray, tool_radius: float) ->
 def render_reach(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray,
                  reach: CutterReach, bodies: list | None = None) -> Path:
     """A PNG of the surface seen from above and from three-quarter, red where the cutter
-    cannot reach; `bodies` are optional `MeshView`s drawn in the second panel."""
+    cannot reach.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    vertices : (N, 3) float; faces : (F, 4) or (F, 3) int
+        The surface the reach was computed on.
+    reach : CutterReach
+    bodies : list of `solver.io.render.MeshView`, optional
+        Drawn in the second panel.
+
+    Returns
+    -------
+    pathlib.Path
+        The picture written.
+    """
     from solver.io.render import SURFACE, MeshView, Panel, render_panels
 
     faces = np.asarray(faces)

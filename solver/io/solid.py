@@ -123,7 +123,16 @@ class SolidCheck:
 
 
 def boundary_edges(faces: np.ndarray) -> np.ndarray:
-    """(B, 2) the border's edges of a face list (F, 3) or (F, 4), each as its one face runs it.
+    """The border's edges of a surface, each as its one face runs it.
+
+    Parameters
+    ----------
+    faces : (F, 3) or (F, 4) int
+
+    Returns
+    -------
+    (B, 2) int
+        Vertex pairs (a, b) with the face running a -> b.
 
     Raises
     ------
@@ -330,7 +339,17 @@ def check_solid(solid: Solid) -> SolidCheck:
 
 def surface_folds(vertices: np.ndarray, triangles: np.ndarray) -> int:
     """How many edges of a triangle surface join faces whose normals are more than 90 degrees
-    apart (a sharp fold, not a smooth bend)."""
+    apart (a sharp fold, not a smooth bend).
+
+    Parameters
+    ----------
+    vertices : (V, 3) float
+    triangles : (F, 3) int
+
+    Returns
+    -------
+    int
+    """
     t = np.asarray(triangles, dtype=np.int64)
     normals = face_normals(vertices, t)
     edges = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
@@ -356,6 +375,11 @@ def self_intersections(vertices: np.ndarray, triangles: np.ndarray,
     triangles : (F, 3) int
     chunk : int
         Pairs tested at once (memory bound).
+
+    Returns
+    -------
+    (P, 2) int
+        Triangle indices of each crossing pair.
     """
     v = np.asarray(vertices, dtype=np.float64)
     t = np.asarray(triangles, dtype=np.int64)
@@ -417,9 +441,20 @@ def _no_separating_axis(p: np.ndarray, q: np.ndarray, gap: float = 1e-12) -> np.
 
 def offset_distances(top: np.ndarray, bottom: np.ndarray,
                      triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Distances between a surface and its offset sheet (same triangles): (N + F,) from the
-    offset's vertices then face centres to the surface, and (N + F,) from the surface's
-    vertices and face centres to the offset. Metres."""
+    """Distances between a surface and its offset sheet (the same triangles).
+
+    Parameters
+    ----------
+    top, bottom : (N, 3) float
+        The surface and its offset, metres.
+    triangles : (F, 3) int
+
+    Returns
+    -------
+    d_out, d_in : (N + F,) float
+        Metres from the offset's vertices then face centres to the surface, and from the
+        surface's vertices then face centres to the offset.
+    """
     def probes(v):
         return np.concatenate([v, v[triangles].mean(axis=1)])
 
@@ -429,12 +464,34 @@ def offset_distances(top: np.ndarray, bottom: np.ndarray,
 
 
 def workshop_vertices(vertices: np.ndarray) -> np.ndarray:
-    """(V, 3) millimetres, Z up: (x, y, z) metres Y up -> 1000 (x, -z, y)."""
+    """The workshop's coordinates of scene points.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float
+        Metres, Y up.
+
+    Returns
+    -------
+    (V, 3) float
+        Millimetres, Z up: (x, y, z) -> 1000 (x, -z, y), a rotation (no mirror).
+    """
     return np.asarray(vertices, dtype=np.float64) @ Y_UP_TO_Z_UP_MM.T
 
 
 def write_stl(path: str | os.PathLike, solid: Solid) -> Path:
-    """Writes a binary STL atomically, in millimetres with Z up (see the module notes)."""
+    """Writes a binary STL atomically, in millimetres with Z up (see the module notes).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    solid : Solid
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+    """
     import trimesh
 
     path = Path(path)
@@ -458,7 +515,19 @@ _RELS = (
 
 
 def model_3mf(solid: Solid, name: str = "sitrelax solid") -> bytes:
-    """The 3MF package (zip) of a solid: one mesh object, unit millimetre, Z up."""
+    """The 3MF package of a solid.
+
+    Parameters
+    ----------
+    solid : Solid
+    name : str
+        The mesh object's name.
+
+    Returns
+    -------
+    bytes
+        A zip with one mesh object in unit millimetre, Z up (see `workshop_vertices`).
+    """
     from xml.sax.saxutils import quoteattr
 
     v = workshop_vertices(solid.vertices)
@@ -481,7 +550,20 @@ def model_3mf(solid: Solid, name: str = "sitrelax solid") -> bytes:
 
 
 def write_3mf(path: str | os.PathLike, solid: Solid, name: str = "sitrelax solid") -> Path:
-    """Writes a 3MF file atomically (millimetres, Z up; see `model_3mf`)."""
+    """Writes a 3MF file atomically (millimetres, Z up; see `model_3mf`).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    solid : Solid
+    name : str
+        The mesh object's name.
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+    """
     path = Path(path)
     write_atomic(path, model_3mf(solid, name))
     return path

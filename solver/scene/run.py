@@ -7,7 +7,7 @@ import json
 import os
 import time
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -29,6 +29,9 @@ from solver.io.render import (SKIN, SURFACE, MeshView, Panel, field_colors, rend
 from solver.scene.scenario import Scenario, load_scenario
 from solver.scene.placement import PlacedPerson, place_person
 from solver.mesh import quad_triangles
+
+if TYPE_CHECKING:
+    from solver.scene.workshop import WorkshopOptions
 
 
 def foams(evaluation) -> tuple[Foam, Foam | None]:
@@ -167,7 +170,7 @@ def report_parameters(scenario: Scenario) -> dict:
 def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathLike, *,
             db: str | os.PathLike | None = None,
             progress: Callable[[str], None] | None = None,
-            workshop: "WorkshopOptions | None" = None) -> dict:
+            workshop: WorkshopOptions | None = None) -> dict:
     """Fits a scenario and writes everything into `out_dir` (`sitrelax fit`).
 
     Parameters

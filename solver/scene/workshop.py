@@ -49,9 +49,21 @@ class WorkshopOptions:
 
 
 def person_frame(person) -> tuple[np.ndarray, np.ndarray]:
-    """A placed person's pelvis (3,) and forward direction (3,), horizontal and unit, in the
-    scene frame: forward is the hip axis (right to left) turned a quarter about the vertical,
-    or the pelvis's own forward axis where the hip axis stands near vertical."""
+    """Where a placed person's sections go.
+
+    Parameters
+    ----------
+    person : PlacedPerson
+
+    Returns
+    -------
+    pelvis : (3,) float
+        The rig's root (pelvis) in the scene frame, metres.
+    forward : (3,) float
+        Horizontal unit direction the person faces: the hip axis (right to left) turned a
+        quarter about the vertical, or the pelvis's own forward axis where the hip axis
+        stands near vertical (lying on a side).
+    """
     body, world = person.body, person.motion.world
     rot, shift = person.transform[:3, :3], person.transform[:3, 3]
     pelvis = rot @ world.positions[0, 0] + shift
