@@ -101,6 +101,10 @@ def export_workshop(out: Path, surface: np.ndarray, faces: np.ndarray, people: l
     solid = None
     if options.solid_thickness is not None or options.plinth:
         solid, fab["solid"] = _solid(surface, faces, options)
+        radius = fab["min_convex_radius_m"]
+        if solid is None and radius is not None and not options.plinth:
+            fab["solid"]["problem"] += (f"; the surface's tightest bend away from the bodies "
+                                        f"has a radius of {radius * 1000:.1f} mm")
         if solid is not None:
             write_stl(out / "solid.stl", solid)
             write_3mf(out / "solid.3mf", solid)
