@@ -122,10 +122,12 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     def progress(message: str) -> None:
         print(f"fit: {message}", file=sys.stderr, flush=True)
 
-    report = run_fit(args.scenario, args.out, db=args.db, progress=progress)
+    workshop = _workshop_options(args)
+    report = run_fit(args.scenario, args.out, db=args.db, progress=progress, workshop=workshop)
+    problem = (report.get("fabrication", {}).get("solid") or {}).get("problem")
     if args.json:
         print(json.dumps(report, indent=2))
-        return 0
+        return 1 if problem else 0
     print(f"{report['iterations']} iterations in {report['timing']['total_s']:.2f} s: "
           f"{report['stop_reason']}")
     for p in report["persons"]:
@@ -137,7 +139,36 @@ def _cmd_fit(args: argparse.Namespace) -> int:
               f"(flat seat {peak_text(flat)}), contact {p['contact_area_m2']:.3f} m^2"
               + (f"; load on {loads}" if loads else ""))
     print(f"wrote {args.out}/report.json and the surface, control mesh, bodies and pictures")
-    return 0
+    if "fabrication" in report:
+        _print_fabrication(report["fabrication"])
+    return 1 if problem else 0
+
+
+def _workshop_options(args: argparse.Namespace):
+    from solver.scene.workshop import WorkshopOptions
+
+    return WorkshopOptions(solid_thickness=args.solid, plinth=args.plinth,
+                           drawings=args.drawings, tool_radius=args.tool_radius)
+
+
+def _print_fabrication(fab: dict) -> None:
+    solid = fab.get("solid")
+    if solid and solid["ok"]:
+        what = "plinth" if solid["kind"] == "plinth" else \
+            f"{solid['thickness_m'] * 1000:.1f} mm offset"
+        print(f"solid ({what}): watertight, manifold, {solid['volume_m3'] * 1000:.2f} l "
+              f"-> solid.stl, solid.3mf (mm, Z up)")
+    elif solid:
+        print(f"solid NOT written: {solid['problem']}")
+    reach = fab.get("reach")
+    if reach:
+        print(f"ball-nose radius {reach['tool_radius_m'] * 1000:.1f} mm: "
+              f"{reach['unreachable_vertices']} vertices, "
+              f"{reach['unreachable_area_m2'] * 1e4:.1f} cm^2 out of reach -> reach.png")
+    dims = fab.get("dimensions_mm")
+    if dims:
+        print(f"overall {dims['width_mm']:.0f} x {dims['depth_mm']:.0f} x "
+              f"{dims['height_mm']:.0f} mm -> overall.dxf, section_*.dxf, sections.png")
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:
@@ -307,6 +338,16 @@ def _register_fitting(sub) -> None:
     fit.add_argument("--db", default=None, help="pose library for db: poses")
     fit.add_argument("--out", required=True, help="output folder")
     fit.add_argument("--json", action="store_true", help="print the report")
+    fit.add_argument("--solid", type=float, default=None, metavar="THICKNESS_M",
+                     help="also a solid this many metres thick, offset away from the bodies "
+                          "(solid.stl, solid.3mf; mm, Z up)")
+    fit.add_argument("--plinth", action="store_true",
+                     help="the solid fills down to the floor instead of a constant thickness")
+    fit.add_argument("--drawings", action="store_true",
+                     help="sections through each person and overall dimensions (DXF in mm, "
+                          "sections.png)")
+    fit.add_argument("--tool-radius", type=float, default=None, metavar="METRES",
+                     help="ball-nose cutter radius: where it cannot reach (reach.png)")
     fit.set_defaults(func=_cmd_fit)
 
     batch = sub.add_parser("batch", help="fit many scenarios and parameter sets, in parallel")

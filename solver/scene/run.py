@@ -7,7 +7,7 @@ import json
 import os
 import time
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -29,6 +29,9 @@ from solver.io.render import (SKIN, SURFACE, MeshView, Panel, field_colors, rend
 from solver.scene.scenario import Scenario, load_scenario
 from solver.scene.placement import PlacedPerson, place_person
 from solver.mesh import quad_triangles
+
+if TYPE_CHECKING:
+    from solver.scene.workshop import WorkshopOptions
 
 
 def foams(evaluation) -> tuple[Foam, Foam | None]:
@@ -166,7 +169,8 @@ def report_parameters(scenario: Scenario) -> dict:
 
 def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathLike, *,
             db: str | os.PathLike | None = None,
-            progress: Callable[[str], None] | None = None) -> dict:
+            progress: Callable[[str], None] | None = None,
+            workshop: WorkshopOptions | None = None) -> dict:
     """Fits a scenario and writes everything into `out_dir` (`sitrelax fit`).
 
     Parameters
@@ -176,6 +180,9 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         missing).
     db : the pose library that `db:` poses come from.
     progress : optional callback taking one line of news per stage and iteration.
+    workshop : `solver.scene.workshop.WorkshopOptions`, optional: also a solid (STL, 3MF),
+        the cutter reach (reach.png) and drawings (DXF, sections.png), with their figures
+        under the report's "fabrication".
 
     Returns
     -------
@@ -201,6 +208,16 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     t = time.perf_counter()
     files = export_scene(out, result, people, maps)
     timing["export_s"] = time.perf_counter() - t
+    fabrication = None
+    if workshop is not None and workshop.any:
+        from solver.scene.workshop import export_workshop
+
+        t = time.perf_counter()
+        more, fabrication = export_workshop(out, result.surface, result.surface_faces, people,
+                                            workshop)
+        files.update(more)
+        timing["workshop_s"] = time.perf_counter() - t
+        say(f"workshop files: {', '.join(sorted(more))}")
     timing["total_s"] = time.perf_counter() - start
     report = {
         "scenario": str(scenario_path),
@@ -215,6 +232,8 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         "persons": persons,
         "files": files,
     }
+    if fabrication is not None:
+        report["fabrication"] = fabrication
     write_atomic(out / "report.json", json.dumps(report, indent=2, allow_nan=False).encode())
     return report
 

@@ -1,0 +1,372 @@
+"""Workshop drawings: sections through each person and the overall dimensions, as DXF
+(ezdxf) and PNG.
+
+Inside the library lengths are metres, Y up. A DXF drawing is in millimetres ($INSUNITS = 4).
+A section is drawn in its own plane: across the page the distance along the section's
+horizontal direction from the person's pelvis, up the page the height above the floor
+(y = 0). The overall drawing is the workshop's plan and side elevation, Z up: a point
+(x, y, z) of the scene is (x, -z, y) in the workshop's frame, so the plan shows (x, -z) and the
+elevation (-z, y), in millimetres.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from capture.files import write_atomic
+
+from solver.mesh import quad_triangles
+
+LAYERS = {"SURFACE": 5, "BODY": 1, "SOLID": 8, "FLOOR": 3, "DIMENSIONS": 7}  # ACI colours
+
+
+class DrawingError(ValueError):
+    """A section or drawing that cannot be made as asked."""
+
+
+@dataclass(frozen=True, eq=False)
+class Section:
+    """A vertical section: its `name`, the plane's `origin` (3,) and horizontal direction
+    `along` (3,) (unit), and its curves by layer ("SURFACE", "BODY", "SOLID"), each a list of
+    (K, 2) polylines (distance along, height) in metres."""
+
+    name: str
+    origin: np.ndarray
+    along: np.ndarray
+    curves: dict = field(default_factory=dict)
+
+    def extent(self, layer: str = "SURFACE") -> tuple[np.ndarray, np.ndarray] | None:
+        """(2,) lower and upper corner of a layer's curves, or None if it has none."""
+        lines = self.curves.get(layer) or []
+        if not lines:
+            return None
+        pts = np.concatenate(lines)
+        return pts.min(axis=0), pts.max(axis=0)
+
+
+def plane_section(vertices: np.ndarray, triangles: np.ndarray, origin, normal) -> list:
+    """Where a plane cuts a triangle mesh: a list of (K, 3) polylines (closed ones repeat
+    their first point), metres.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float
+    triangles : (F, 3) int, or (F, 4) quads (split along their 0-2 diagonal)
+    origin : (3,) float
+        A point of the plane.
+    normal : (3,) float
+        The plane's normal (any length > 0).
+
+    Returns
+    -------
+    list of (K, 3) float
+        The cut's polylines, metres.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.asarray(triangles, dtype=np.int64)
+    if t.ndim == 2 and t.shape[1] == 4:
+        t = quad_triangles(t)
+    n = np.asarray(normal, dtype=np.float64)
+    if v.ndim != 2 or v.shape[1] != 3 or t.ndim != 2 or t.shape[1] != 3 or \
+            not np.linalg.norm(n) > 0:
+        raise DrawingError(f"Expected vertices (V, 3), triangles (F, 3) and a non-zero "
+                           f"normal, got {v.shape}, {t.shape}, {n}")
+    d = (v - np.asarray(origin, dtype=np.float64)) @ (n / np.linalg.norm(n))
+    d[d == 0] = 1e-15  # a vertex on the plane counts as in front, so every cut is an edge's
+    side = d[t] > 0
+    cut = np.flatnonzero(side.any(axis=1) & ~side.all(axis=1))
+    segments = []
+    for tri in t[cut]:
+        crossed = [(int(a), int(b)) for a, b in ((tri[0], tri[1]), (tri[1], tri[2]),
+                                                 (tri[2], tri[0])) if (d[a] > 0) != (d[b] > 0)]
+        segments.append(tuple(tuple(sorted(e)) for e in crossed))
+    return [_edge_point(v, d, chain) for chain in _chains(segments)]
+
+
+def _edge_point(v: np.ndarray, d: np.ndarray, edges: list) -> np.ndarray:
+    a = np.array([e[0] for e in edges])
+    b = np.array([e[1] for e in edges])
+    w = (d[a] / (d[a] - d[b]))[:, None]
+    return v[a] * (1 - w) + v[b] * w
+
+
+def _chains(segments: list) -> list[list]:
+    """Joins segments (pairs of edge keys) sharing an edge into chains of edge keys."""
+    touching: dict = {}
+    for k, (e, f) in enumerate(segments):
+        touching.setdefault(e, []).append(k)
+        touching.setdefault(f, []).append(k)
+    used = np.zeros(len(segments), dtype=bool)
+    chains = []
+    ends = [e for e, ks in touching.items() if len(ks) == 1]  # open chains start at an end
+    for start in ends + list(touching):
+        if all(used[k] for k in touching[start]):
+            continue
+        chain, here = [start], start
+        while True:
+            nxt = [k for k in touching[here] if not used[k]]
+            if not nxt:
+                break
+            used[nxt[0]] = True
+            e, f = segments[nxt[0]]
+            here = f if e == here else e
+            chain.append(here)
+        chains.append(chain)
+    return chains
+
+
+def section(name: str, origin, along, meshes: dict) -> Section:
+    """A vertical section of several meshes.
+
+    Parameters
+    ----------
+    name : str
+    origin : (3,) float
+        A point of the plane (a person's pelvis), metres.
+    along : (3,) float
+        The section's direction; its vertical part is dropped.
+    meshes : dict
+        {layer: (vertices (V, 3), faces (F, 3|4))}.
+
+    Returns
+    -------
+    Section
+        Curves in the plane's (distance along from `origin`, height) coordinates, metres.
+
+    Raises
+    ------
+    DrawingError
+        If `along` is vertical.
+    """
+    along = np.asarray(along, dtype=np.float64).copy()
+    along[1] = 0.0
+    if not np.linalg.norm(along) > 1e-9:
+        raise DrawingError(f"Expected a horizontal direction for section {name!r}, got "
+                           f"a vertical one")
+    along /= np.linalg.norm(along)
+    origin = np.asarray(origin, dtype=np.float64)
+    normal = np.cross(along, [0.0, 1.0, 0.0])
+    curves = {}
+    for layer, (vertices, faces) in meshes.items():
+        lines = plane_section(vertices, faces, origin, normal)
+        curves[layer] = [np.stack([(p - origin) @ along, p[:, 1]], axis=1) for p in lines
+                         if len(p) > 1]
+    return Section(name, origin, along, curves)
+
+
+def _new_document():
+    import ezdxf
+
+    doc = ezdxf.new("R2010", setup=True)
+    doc.units = ezdxf.units.MM
+    doc.header["$INSUNITS"] = 4
+    doc.header["$MEASUREMENT"] = 1
+    for name, color in LAYERS.items():
+        doc.layers.add(name, color=color)
+    return doc
+
+
+def _dimension(msp, p1, p2, base, angle: float) -> None:
+    dim = msp.add_linear_dim(base=base, p1=p1, p2=p2, angle=angle, dimstyle="EZDXF",
+                             override={"dimtxt": 12.0, "dimasz": 8.0, "dimdec": 0},
+                             dxfattribs={"layer": "DIMENSIONS"})
+    dim.render()
+
+
+def _save(doc, path: Path) -> Path:
+    import io
+
+    buf = io.StringIO()
+    doc.write(buf)
+    write_atomic(path, buf.getvalue().encode("utf-8"))
+    return path
+
+
+def write_section_dxf(path: str | os.PathLike, sec: Section) -> Path:
+    """Writes one section as DXF, millimetres.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    sec : Section
+
+    Returns
+    -------
+    pathlib.Path
+        The file written: the curves as LWPOLYLINEs on their layers, the floor as a LINE, a
+        DIMENSION of the surface's length along the section and one of its top's height above
+        the floor, and a TEXT saying both.
+
+    Raises
+    ------
+    DrawingError
+        If the section misses the surface.
+    """
+    doc = _new_document()
+    msp = doc.modelspace()
+    for layer, lines in sec.curves.items():
+        for line in lines:
+            msp.add_lwpolyline(line * 1000.0, dxfattribs={"layer": layer})
+    box = sec.extent("SURFACE")
+    if box is None:
+        raise DrawingError(f"Section {sec.name!r} does not cut the surface")
+    lo, hi = box[0] * 1000.0, box[1] * 1000.0
+    msp.add_line((lo[0] - 50, 0), (hi[0] + 50, 0), dxfattribs={"layer": "FLOOR"})
+    _dimension(msp, (lo[0], 0), (hi[0], 0), (0, -60), 0)
+    top = np.concatenate(sec.curves["SURFACE"]) * 1000.0
+    peak = top[np.argmax(top[:, 1])]
+    _dimension(msp, (hi[0], 0), (hi[0], peak[1]), (hi[0] + 80, 0), 90)
+    msp.add_text(f"{sec.name}: length {hi[0] - lo[0]:.0f} mm, top {peak[1]:.0f} mm above "
+                 f"the floor (mm)", height=12,
+                 dxfattribs={"layer": "DIMENSIONS"}).set_placement((lo[0], -110))
+    return _save(doc, Path(path))
+
+
+def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
+    """The border of a surface as loops of vertex indices, in its faces' direction.
+
+    Parameters
+    ----------
+    faces : (F, 3) or (F, 4) int
+
+    Returns
+    -------
+    list of (K + 1,) int
+        Each loop with its first vertex repeated at the end.
+    """
+    from solver.io.solid import boundary_edges
+
+    nxt = {int(a): int(b) for a, b in boundary_edges(faces)}
+    loops = []
+    while nxt:
+        start, here = next(iter(nxt.items()))
+        del nxt[start]
+        loop = [start]
+        while here != start and here in nxt:
+            loop.append(here)
+            here = nxt.pop(here)
+        loops.append(np.array(loop + [start]))
+    return loops
+
+
+def overall_dimensions(vertices: np.ndarray) -> dict:
+    """The surface's overall size.
+
+    Parameters
+    ----------
+    vertices : (N, 3) float
+        Metres, Y up.
+
+    Returns
+    -------
+    dict
+        `width_mm` (along x), `depth_mm` (along z) and `height_mm` (its top above the floor
+        y = 0), millimetres.
+    """
+    v = np.asarray(vertices, dtype=np.float64) * 1000.0
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    return {"width_mm": float(hi[0] - lo[0]), "depth_mm": float(hi[2] - lo[2]),
+            "height_mm": float(hi[1])}
+
+
+def write_overall_dxf(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray,
+                      gap: float = 200.0) -> dict:
+    """Writes the plan (from above) and side elevation of a surface as DXF, millimetres,
+    Z up: the border as polylines, the floor line, dimensions of width, depth and height.
+
+    Parameters
+    ----------
+    path : the file to write.
+    vertices : (N, 3) float, metres, Y up.
+    faces : (F, 4) or (F, 3) int.
+    gap : millimetres between the plan and the elevation.
+
+    Returns
+    -------
+    dict, `overall_dimensions` of the surface.
+    """
+    v = np.asarray(vertices, dtype=np.float64) * 1000.0
+    plan = np.stack([v[:, 0], -v[:, 2]], axis=1)  # workshop (X, Y) seen from above
+    side = np.stack([-v[:, 2], v[:, 1]], axis=1)  # workshop (Y, Z) seen from +X
+    shift = plan[:, 0].max() + gap - side[:, 0].min()
+    side[:, 0] += shift
+    doc = _new_document()
+    msp = doc.modelspace()
+    for loop in boundary_loops(faces):
+        msp.add_lwpolyline(plan[loop], dxfattribs={"layer": "SURFACE"})
+        msp.add_lwpolyline(side[loop], dxfattribs={"layer": "SURFACE"})
+    (x0, y0), (x1, y1) = plan.min(axis=0), plan.max(axis=0)
+    (s0, _), (s1, top) = side.min(axis=0), side.max(axis=0)
+    _dimension(msp, (x0, y0), (x1, y0), (0, y0 - 60), 0)
+    _dimension(msp, (x1, y0), (x1, y1), (x1 + 60, 0), 90)
+    msp.add_line((s0 - 50, 0), (s1 + 50, 0), dxfattribs={"layer": "FLOOR"})
+    _dimension(msp, (s1, 0), (s1, top), (s1 + 60, 0), 90)
+    dims = overall_dimensions(vertices)
+    msp.add_text(f"overall {dims['width_mm']:.0f} x {dims['depth_mm']:.0f} x "
+                 f"{dims['height_mm']:.0f} mm (width x depth x height above the floor); plan "
+                 f"and elevation Z up", height=14,
+                 dxfattribs={"layer": "DIMENSIONS"}).set_placement((x0, y0 - 130))
+    _save(doc, Path(path))
+    return dims
+
+
+def render_sections(path: str | os.PathLike, sections: list[Section], *, columns: int = 2,
+                    title: str | None = None) -> Path:
+    """A PNG of sections (headless matplotlib), millimetres, floor at 0, one panel each.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    sections : list of Section
+    columns : int
+    title : str, optional
+
+    Returns
+    -------
+    pathlib.Path
+        The picture written (atomically).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from solver.io.render import SKIN, SURFACE
+
+    if not sections:
+        raise DrawingError("Expected at least one section to draw, got none")
+    columns = min(columns, len(sections))
+    rows = -(-len(sections) // columns)
+    fig = Figure(figsize=(5 * columns, 3.6 * rows + 0.4), dpi=100)
+    FigureCanvasAgg(fig)
+    styles = {"SURFACE": (SURFACE, 2.0), "BODY": (SKIN, 1.0), "SOLID": ((0.4, 0.4, 0.4), 0.8)}
+    for k, sec in enumerate(sections):
+        ax = fig.add_subplot(rows, columns, k + 1)
+        for layer, lines in sec.curves.items():
+            color, width = styles.get(layer, ((0, 0, 0), 1.0))
+            for line in lines:
+                ax.plot(line[:, 0] * 1000, line[:, 1] * 1000, color=color, lw=width)
+        box = sec.extent()
+        label = sec.name
+        if box is not None:
+            ax.axhline(0.0, color=(0.3, 0.6, 0.3), lw=0.8)
+            label += (f": {1000 * (box[1][0] - box[0][0]):.0f} mm long, top "
+                      f"{1000 * box[1][1]:.0f} mm")
+        ax.set_title(label, fontsize=9)
+        ax.set_aspect("equal")
+        ax.set_xlabel("mm along the section")
+        ax.set_ylabel("mm above the floor")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    import io
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    write_atomic(Path(path), buf.getvalue())
+    return Path(path)

@@ -1,0 +1,165 @@
+"""From the design to the workshop: a fitted scene's solid (STL, 3MF), cutter reach and
+drawings (DXF, PNG), written beside `sitrelax fit`'s other files.
+
+Files for the workshop are millimetres, Z up: a scene point (x, y, z) in metres, Y up, is
+written as 1000 (x, -z, y) (a rotation, not a mirror); see `solver.io.solid` and
+`solver.io.drawing`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from solver.io.drawing import (overall_dimensions, render_sections, section,
+                               write_overall_dxf, write_section_dxf)
+from solver.io.reach import bending_towards_normal, cutter_reach, render_reach
+from solver.io.solid import SolidError, check_solid, plinth, thicken, write_3mf, write_stl
+
+WORKSHOP_UNITS = ("STL, 3MF and DXF in millimetres, Z up: a scene point (x, y, z) in metres, "
+                  "Y up, is written as 1000 (x, -z, y); sections are drawn in their own plane "
+                  "(mm along the section from the pelvis, mm above the floor)")
+
+
+@dataclass(frozen=True)
+class WorkshopOptions:
+    """What to make for the workshop: an offset solid `solid_thickness` metres thick (None:
+    no solid) or, with `plinth`, a solid down to the floor; the cutter reach for a ball-nose
+    of `tool_radius` metres (None: no reach check); the sections and dimensions (`drawings`)."""
+
+    solid_thickness: float | None = None
+    plinth: bool = False
+    drawings: bool = False
+    tool_radius: float | None = None
+
+    def __post_init__(self):
+        t = self.solid_thickness
+        if t is not None and not (np.isfinite(t) and t > 0):
+            raise SolidError(f"Expected a solid thickness > 0 m, got {t}")
+        if self.tool_radius is not None and not (np.isfinite(self.tool_radius) and
+                                                 self.tool_radius > 0):
+            raise SolidError(f"Expected a tool radius > 0 m, got {self.tool_radius}")
+
+    @property
+    def any(self) -> bool:
+        return bool(self.solid_thickness is not None or self.plinth or self.drawings or
+                    self.tool_radius is not None)
+
+
+def person_frame(person) -> tuple[np.ndarray, np.ndarray]:
+    """Where a placed person's sections go.
+
+    Parameters
+    ----------
+    person : PlacedPerson
+
+    Returns
+    -------
+    pelvis : (3,) float
+        The rig's root (pelvis) in the scene frame, metres.
+    forward : (3,) float
+        Horizontal unit direction the person faces: the hip axis (right to left) turned a
+        quarter about the vertical, or the pelvis's own forward axis where the hip axis
+        stands near vertical (lying on a side).
+    """
+    body, world = person.body, person.motion.world
+    rot, shift = person.transform[:3, :3], person.transform[:3, 3]
+    pelvis = rot @ world.positions[0, 0] + shift
+    hips = world.positions[0, [body.joint_index("LeftUpLeg"), body.joint_index("RightUpLeg")]]
+    left = rot @ (hips[0] - hips[1])
+    forward = np.cross(left, [0.0, 1.0, 0.0])
+    if np.hypot(forward[0], forward[2]) < 0.3 * np.linalg.norm(left):
+        forward = rot @ world.rotmats[0, 0] @ [0.0, 0.0, 1.0]
+    forward[1] = 0.0
+    return pelvis, forward / np.linalg.norm(forward)
+
+
+def export_workshop(out: Path, surface: np.ndarray, faces: np.ndarray, people: list,
+                    options: WorkshopOptions) -> tuple[dict, dict]:
+    """Writes the solid, reach picture and drawings that `options` ask for into `out`.
+
+    Parameters
+    ----------
+    out : folder to write into.
+    surface : (N, 3) float, metres, Y up; faces : (F, 4) int, normals towards the bodies.
+    people : the scene's `PlacedPerson`s (for the sections).
+    options : WorkshopOptions
+
+    Returns
+    -------
+    (files, fabrication): file names by key, and the figures for report.json (lengths m,
+    areas m^2, volume m^3; drawings' dimensions mm). A solid that fails its checks is not
+    written; `fabrication["solid"]["problem"]` says why.
+    """
+    files, fab = {}, {"units": WORKSHOP_UNITS}
+    bend = bending_towards_normal(surface, faces)
+    towards, away = bend[:, 0].max(), -bend[:, 1].min()
+    fab["min_concave_radius_m"] = float(1 / towards) if towards > 0 else None
+    fab["min_convex_radius_m"] = float(1 / away) if away > 0 else None
+    solid = None
+    if options.solid_thickness is not None or options.plinth:
+        solid, fab["solid"] = _solid(surface, faces, options)
+        radius = fab["min_convex_radius_m"]
+        if solid is None and radius is not None and not options.plinth:
+            fab["solid"]["problem"] += (f"; the surface's tightest bend away from the bodies "
+                                        f"has a radius of {radius * 1000:.1f} mm")
+        if solid is not None:
+            write_stl(out / "solid.stl", solid)
+            write_3mf(out / "solid.3mf", solid)
+            files["solid_stl"], files["solid_3mf"] = "solid.stl", "solid.3mf"
+    if options.tool_radius is not None:
+        reach = cutter_reach(surface, faces, options.tool_radius)
+        fab["reach"] = reach.summary()
+        render_reach(out / "reach.png", surface, faces, reach)
+        files["reach_png"] = "reach.png"
+    if options.drawings:
+        files.update(_drawings(out, surface, faces, people, solid))
+        fab["dimensions_mm"] = overall_dimensions(surface)
+    return files, fab
+
+
+def _solid(surface, faces, options: WorkshopOptions):
+    """The solid (None when it fails its checks) and its figures."""
+    try:
+        if options.plinth:
+            solid = plinth(surface, faces, check=False)
+        else:
+            solid = thicken(surface, faces, options.solid_thickness, check=False)
+    except SolidError as exc:
+        kind = "plinth" if options.plinth else "offset"
+        return None, {"kind": kind, "thickness_m": options.solid_thickness, "ok": False,
+                      "problem": str(exc)}
+    check = check_solid(solid)
+    figures = {"kind": solid.kind, "thickness_m": solid.thickness, **asdict(check),
+               "ok": check.ok, "problem": check.problem(),
+               "vertices": int(len(solid.vertices)), "triangles": int(len(solid.triangles))}
+    return (solid if check.ok else None), figures
+
+
+def _drawings(out: Path, surface, faces, people: list, solid) -> dict:
+    files = {"overall_dxf": "overall.dxf"}
+    write_overall_dxf(out / "overall.dxf", surface, faces)
+    sections, names = [], []
+    for k, person in enumerate(people, start=1):
+        pelvis, forward = person_frame(person)
+        meshes = {"SURFACE": (surface, faces), "BODY": (person.vertices, person.triangles)}
+        if solid is not None:
+            meshes["SOLID"] = (solid.vertices, solid.triangles)
+        across = np.cross([0.0, 1.0, 0.0], forward)  # to the person's left
+        for kind, along in (("sagittal", forward), ("transverse", across)):
+            sec = section(f"person {k} {kind}", pelvis, along, meshes)
+            if sec.extent() is None:
+                continue  # the plane misses the surface: nothing to draw
+            name = f"section_{k}_{kind}.dxf"
+            write_section_dxf(out / name, sec)
+            sections.append(sec)
+            names.append(name)
+    files["section_dxf"] = names
+    if sections:
+        render_sections(out / "sections.png", sections, columns=2,
+                        title="Sections through each person's pelvis (mm)")
+        files["sections_png"] = "sections.png"
+    return files
+

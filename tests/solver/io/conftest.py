@@ -1,0 +1,41 @@
+"""Synthetic surfaces with known curvature for the workshop tests."""
+
+import numpy as np
+import pytest
+
+
+def bent_grid(radius: float = 0.012, bend: float = 1.0, columns: int = 161, rows: int = 9,
+              width: float = 0.08, length: float = 0.04, height: float = 0.1):
+    """A grid bent into a trough (bend = 1: hollow seen from above, towards +Y) or a ridge
+    (bend = -1) of `radius` (m) in its middle, with straight flanks tangent to the arc at 60
+    degrees; quads counter-clockwise seen from above (normals up, towards the bodies).
+    Returns vertices (N, 3), quads (F, 4) and the arc's half width (m)."""
+    theta0 = np.pi / 3
+    half = radius * np.sin(theta0)
+    x = np.linspace(-width / 2, width / 2, columns)
+    inside = np.abs(x) <= half
+    y = np.where(inside, radius - np.sqrt(np.maximum(radius ** 2 - x ** 2, 0.0)),
+                 radius * (1 - np.cos(theta0)) + (np.abs(x) - half) * np.tan(theta0))
+    z = np.linspace(0.0, length, rows)
+    xx, zz = np.meshgrid(x, z)
+    yy = np.broadcast_to(height + bend * y, xx.shape)
+    vertices = np.stack([xx.ravel(), yy.ravel(), zz.ravel()], axis=1)
+    idx = np.arange(rows * columns).reshape(rows, columns)
+    quads = np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]],
+                     axis=-1).reshape(-1, 4)
+    return vertices, quads, half
+
+
+@pytest.fixture
+def trough():
+    return bent_grid(bend=1.0)
+
+
+@pytest.fixture
+def ridge():
+    return bent_grid(bend=-1.0, columns=81, rows=5)
+
+
+@pytest.fixture
+def fine_ridge():
+    return bent_grid(bend=-1.0)

@@ -1,0 +1,94 @@
+"""Every example scenario's fitted surface thickened (slow: six fits), and `sitrelax fit` with
+the workshop options end to end."""
+
+import json
+from pathlib import Path
+
+import ezdxf
+import numpy as np
+import pytest
+import trimesh
+
+from solver.io.reach import cutter_reach
+from solver.io.solid import THICKNESS_TOLERANCE, check_solid, thicken
+
+SCENARIOS = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios"
+EXAMPLES = sorted(p.stem for p in SCENARIOS.glob("*.toml"))
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    from solver.scene.placement import place_person
+    from solver.scene.run import fit_people
+    from solver.scene.scenario import load_scenario
+
+    surfaces = {}
+    for name in EXAMPLES:
+        scenario = load_scenario(SCENARIOS / f"{name}.toml")
+        people = [place_person(p, None, k) for k, p in enumerate(scenario.persons)]
+        result = fit_people(scenario, people)
+        surfaces[name] = (result.surface, result.surface_faces)
+    return surfaces
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", EXAMPLES)
+def test_every_example_thickens_to_a_closed_manifold_or_says_why_not(fitted, name):
+    vertices, faces = fitted[name]
+    solid = thicken(vertices, faces, 0.01, check=False)
+    check = check_solid(solid)
+    mesh = trimesh.Trimesh(solid.vertices, solid.triangles, process=False)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    assert check.manifold_status == "NoError" and check.volume_m3 > 0
+    if check.surface_folds == 0 or check.ok:
+        assert check.ok, check.problem()
+        assert check.intersecting_pairs == 0
+        assert abs(check.thickness_min_m - 0.01) <= THICKNESS_TOLERANCE
+        assert abs(check.thickness_max_m - 0.01) <= THICKNESS_TOLERANCE
+    else:  # a surface that folds sharply on itself: no offset follows it, and we say so
+        assert "folds sharply" in check.problem() and check.intersecting_pairs > 0
+    reach = cutter_reach(vertices, faces, 0.02)
+    assert reach.min_concave_radius_m > 0
+
+
+@pytest.mark.slow
+def test_fit_writes_solid_reach_and_drawings(tmp_path):
+    from studio.cli import main
+
+    out = tmp_path / "fit"
+    code = main(["fit", str(SCENARIOS / "single_seated.toml"), "--out", str(out),
+                 "--solid", "0.02", "--drawings", "--tool-radius", "0.02"])
+    assert code == 0
+    report = json.loads((out / "report.json").read_text())
+    files, fab = report["files"], report["fabrication"]
+    for key in ("solid_stl", "solid_3mf", "reach_png", "overall_dxf", "sections_png"):
+        assert (out / files[key]).exists()
+    assert files["section_dxf"] == ["section_1_sagittal.dxf", "section_1_transverse.dxf"]
+    assert fab["solid"]["ok"] and fab["solid"]["watertight"]
+    assert abs(fab["solid"]["thickness_min_m"] - 0.02) <= THICKNESS_TOLERANCE
+    surface = trimesh.load(out / "surface.obj", process=False).vertices
+    doc = ezdxf.readfile(out / "overall.dxf")
+    measured = sorted(d.get_measurement() for d in doc.modelspace().query("DIMENSION"))
+    box = np.ptp(surface, axis=0) * 1000
+    assert measured == pytest.approx(sorted([box[0], box[2], surface[:, 1].max() * 1000]),
+                                     abs=0.01)
+    section = ezdxf.readfile(out / "section_1_sagittal.dxf").modelspace()
+    assert len(section.query("LWPOLYLINE[layer=='BODY']")) >= 1
+    assert len(section.query("DIMENSION")) == 2
+    solid = trimesh.load(out / "solid.stl")
+    assert solid.is_watertight
+    assert solid.bounds[1][2] == pytest.approx(surface[:, 1].max() * 1000, abs=0.01)
+
+
+@pytest.mark.slow
+def test_fit_refuses_a_solid_that_folds(tmp_path, capsys):
+    from studio.cli import main
+
+    out = tmp_path / "fit"
+    code = main(["fit", str(SCENARIOS / "single_seated.toml"), "--out", str(out),
+                 "--solid", "0.06"])
+    assert code == 1
+    assert "solid NOT written" in capsys.readouterr().out
+    report = json.loads((out / "report.json").read_text())
+    assert not report["fabrication"]["solid"]["ok"]
+    assert "solid_stl" not in report["files"] and not (out / "solid.stl").exists()

@@ -1,0 +1,125 @@
+"""Solids: closed, manifold (trimesh and manifold3d say so), the asked thickness, folds found,
+files in millimetres with Z up."""
+
+import io
+import zipfile
+
+import numpy as np
+import pytest
+import trimesh
+
+from solver.io.solid import (SolidError, boundary_edges, check_solid, model_3mf, plinth,
+                             self_intersections, thicken, workshop_vertices, write_3mf,
+                             write_stl)
+from solver.mesh import quad_triangles, voronoi_areas
+
+
+def test_boundary_edges_of_one_quad_run_its_way():
+    edges = boundary_edges(np.array([[0, 1, 2, 3]]))
+    assert sorted(map(tuple, edges)) == [(0, 1), (1, 2), (2, 3), (3, 0)]
+
+
+def test_boundary_edges_refuse_a_flipped_neighbour():
+    with pytest.raises(SolidError, match="consistently oriented"):
+        boundary_edges(np.array([[0, 1, 2], [0, 1, 3]]))
+
+
+def test_offset_of_a_trough_is_watertight_manifold_and_as_thick_as_asked(trough):
+    vertices, quads, _ = trough
+    solid = thicken(vertices, quads, 0.005)
+    check = check_solid(solid)
+    assert check.ok, check.problem()
+    assert check.watertight and check.winding_consistent and check.manifold_status == "NoError"
+    assert abs(check.thickness_min_m - 0.005) <= 1e-4
+    assert abs(check.thickness_max_m - 0.005) <= 1e-4
+    # a shell over the trough's hollow grows outwards: a little over thickness x area
+    area = voronoi_areas(vertices, quad_triangles(quads)).sum()
+    assert 0.005 * area < check.volume_m3 < 1.05 * 0.005 * area
+
+
+def test_offset_deeper_than_a_ridge_radius_folds_and_is_refused(ridge):
+    vertices, quads, _ = ridge
+    assert check_solid(thicken(vertices, quads, 0.006)).ok  # under the 12 mm radius
+    with pytest.raises(SolidError, match="fold over"):
+        thicken(vertices, quads, 0.02)
+    check = check_solid(thicken(vertices, quads, 0.02, check=False))
+    assert check.watertight and check.folded_faces > 0 and not check.ok
+    assert check.intersecting_pairs > 0  # the exact test sees the fold cross itself too
+
+
+def test_crossing_triangles_are_found_and_neighbours_are_not():
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0],  # flat
+                         [0.2, 0.2, -0.5], [0.2, 0.2, 0.5], [0.3, 0.25, 0.0],  # through it
+                         [2, 0, 0], [3, 0, 0], [2, 1, 0.0]])  # apart, coplanar
+    pairs = self_intersections(vertices, np.array([[0, 1, 2], [3, 4, 5], [6, 7, 8],
+                                                   [1, 6, 2]]))
+    assert pairs.tolist() == [[0, 1]]
+
+
+def test_plinth_fills_down_to_the_floor(trough):
+    vertices, quads, _ = trough
+    solid = plinth(vertices, quads)
+    check = check_solid(solid)
+    assert check.ok, check.problem()
+    tris = quad_triangles(quads)
+    # the volume under a height field: each triangle's shadow area times its mean height
+    corners = vertices[tris]
+    shadow = 0.5 * np.abs(np.cross(corners[:, 1] - corners[:, 0],
+                                   corners[:, 2] - corners[:, 0])[:, 1])
+    assert check.volume_m3 == pytest.approx((shadow * corners[:, :, 1].mean(axis=1)).sum(),
+                                            rel=1e-5)
+    assert solid.vertices[solid.n_surface:, 1].max() == 0.0
+
+
+@pytest.mark.parametrize("thickness", [0.0, -0.01, float("nan")])
+def test_bad_thickness_is_named(trough, thickness):
+    with pytest.raises(SolidError, match="thickness > 0"):
+        thicken(trough[0], trough[1], thickness)
+
+
+def test_plinth_needs_the_surface_above_the_floor_and_no_overhang(trough, ridge):
+    vertices, quads, _ = trough
+    with pytest.raises(SolidError, match="above the floor"):
+        plinth(vertices - [0.0, 0.2, 0.0], quads)
+    folded = vertices.copy()
+    folded[:, 0] = np.where(folded[:, 0] > 0.02, 0.04 - folded[:, 0], folded[:, 0])
+    with pytest.raises(SolidError, match="overhangs"):
+        plinth(folded, quads)
+
+
+def test_bad_faces_are_named(trough):
+    with pytest.raises(SolidError, match="face indices"):
+        thicken(trough[0], trough[1] + 10_000, 0.01)
+
+
+def test_workshop_frame_is_millimetres_z_up_and_not_mirrored():
+    assert np.allclose(workshop_vertices([[1.0, 2.0, 3.0]]), [[1000.0, -3000.0, 2000.0]])
+    assert np.linalg.det(workshop_vertices(np.eye(3))) > 0
+
+
+def test_stl_reads_back_closed_in_millimetres_with_z_up(tmp_path, trough):
+    solid = thicken(trough[0], trough[1], 0.005)
+    mesh = trimesh.load(write_stl(tmp_path / "solid.stl", solid))
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    hi = mesh.bounds[1]
+    assert hi[2] == pytest.approx(solid.vertices[:, 1].max() * 1000, abs=1e-3)  # height -> Z
+    assert hi[1] == pytest.approx(-solid.vertices[:, 2].min() * 1000, abs=1e-3)
+    assert mesh.volume == pytest.approx(check_solid(solid).volume_m3 * 1e9, rel=1e-4)
+
+
+def test_3mf_reads_back_with_lib3mf_in_millimetres(tmp_path, trough):
+    import lib3mf
+
+    solid = thicken(trough[0], trough[1], 0.005)
+    path = write_3mf(tmp_path / "solid.3mf", solid)
+    wrapper = lib3mf.get_wrapper()
+    model = wrapper.CreateModel()
+    model.QueryReader("3mf").ReadFromFile(str(path))
+    assert model.GetUnit() == lib3mf.ModelUnit.MilliMeter
+    objects = model.GetMeshObjects()
+    assert objects.MoveNext()
+    mesh = objects.GetCurrentMeshObject()
+    assert (mesh.GetVertexCount(), mesh.GetTriangleCount()) == (len(solid.vertices),
+                                                                len(solid.triangles))
+    names = zipfile.ZipFile(io.BytesIO(model_3mf(solid))).namelist()
+    assert "3D/3dmodel.model" in names
