@@ -122,7 +122,9 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     def progress(message: str) -> None:
         print(f"fit: {message}", file=sys.stderr, flush=True)
 
-    report = run_fit(args.scenario, args.out, db=args.db, progress=progress)
+    formats = [f.strip().lower().lstrip(".") for f in args.format.split(",") if f.strip()]
+    report = run_fit(args.scenario, args.out, db=args.db, progress=progress, formats=formats,
+                     unit=args.unit, up=args.up)
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
@@ -307,6 +309,13 @@ def _register_fitting(sub) -> None:
     fit.add_argument("--db", default=None, help="pose library for db: poses")
     fit.add_argument("--out", required=True, help="output folder")
     fit.add_argument("--json", action="store_true", help="print the report")
+    fit.add_argument("--format", default="obj,ply,glb", metavar="LIST",
+                     help="surface formats, comma-separated, of obj, ply, glb, 3dm (scene.3dm: "
+                          "control net, NURBS limit surface, bodies); default obj,ply,glb")
+    fit.add_argument("--unit", choices=("m", "cm", "mm", "in", "ft"), default=None,
+                     help="length unit of the files (default: m, and mm for .3dm)")
+    fit.add_argument("--up", choices=("y", "z"), default=None,
+                     help="up axis of the files (default: y, and z for .3dm; GLB stays m, y)")
     fit.set_defaults(func=_cmd_fit)
 
     batch = sub.add_parser("batch", help="fit many scenarios and parameter sets, in parallel")

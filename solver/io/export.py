@@ -53,8 +53,8 @@ def frame_matrix(unit: str = "m", up: str = "y") -> np.ndarray:
 def frame_note(unit: str = "m", up: str = "y") -> str:
     """One line stating a file's unit and up axis (and the conversion from sitrelax's)."""
     frame_matrix(unit, up)
-    turn = "" if up == "y" else ", (x, y, z) -> (x, -z, y) from sitrelax's Y up"
-    return f"units: {unit}; up: +{up.upper()}{turn}; right-handed"
+    turn = "" if up == "y" else "; (x, y, z) -> (x, -z, y) from sitrelax's Y up"
+    return f"units: {unit}; up: +{up.upper()}; right-handed{turn}"
 
 
 def obj_text(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None,

@@ -50,3 +50,27 @@ def read_quad_obj(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     if f.min() < 0 or f.max() >= len(v):
         raise MeshFileError(f"{path}: face indices out of range")
     return v, f
+
+
+def obj_frame(path: str | os.PathLike) -> tuple[str, str]:
+    """The unit and up axis an OBJ file's header comment states (`write_mesh` writes
+    ``# units: mm; up: +Z; ...``); ("m", "y") when it states none (sitrelax's own frame).
+
+    Raises MeshFileError with `file:line` for a stated unit or axis that is not known.
+    """
+    from solver.io.export import UNITS, UP_AXES
+
+    path = Path(path)
+    with open(path, errors="replace") as fh:
+        for no, line in enumerate(fh, start=1):
+            if not line.startswith("#"):
+                break
+            fields = dict(part.strip().split(":", 1) for part in line[1:].split(";")
+                          if ":" in part)
+            if "units" in fields and "up" in fields:
+                unit, up = fields["units"].strip(), fields["up"].strip().lstrip("+").lower()
+                if unit not in UNITS or up not in UP_AXES:
+                    raise MeshFileError(f"{path}:{no}: expected a unit in {sorted(UNITS)} and "
+                                        f"an up axis in {UP_AXES}, got {line.strip()!r}")
+                return unit, up
+    return "m", "y"

@@ -175,6 +175,7 @@ def _write(model, path: Path) -> Path:
     try:
         if not model.Write(tmp, 8):
             raise ExportError(f"rhino3dm could not write {path}")
+        os.chmod(tmp, 0o644)  # mkstemp's 0600 would keep the document from others
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):

@@ -24,8 +24,8 @@ from typing import Iterable, Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from solver.surface.subdivision import (MeshError, _as_faces, _edges, subdivide_once,
-                                        subdivision)
+from solver.surface.subdivision import (MeshError, Subdivision, _as_faces, _edges,
+                                        subdivide_once, subdivision)
 
 
 def limit_operator(n: int, quads, creases: Iterable[Sequence[int]] | None = None
@@ -164,3 +164,16 @@ def limit_positions(control: np.ndarray, faces, level: int,
     if control.ndim != 2 or control.shape[1] != 3:
         raise MeshError(f"Expected control vertices of shape (n, 3), got {control.shape}")
     return limit_matrix(len(control), faces, level, creases) @ control
+
+
+def limit_of_level(sub: Subdivision, vertices: np.ndarray,
+                   creases: Iterable[Sequence[int]] | None = None) -> np.ndarray:
+    """(n_s, 3) the limit points of a level's vertices (n_s, 3) metres, `sub` the level's
+    `Subdivision` (its last step carries the level's creases; at level 0 `creases`, the
+    control creases, are used)."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    if vertices.shape != (sub.matrix.shape[0], 3):
+        raise MeshError(f"Expected level-{sub.level} vertices of shape "
+                        f"({sub.matrix.shape[0]}, 3), got {vertices.shape}")
+    level_creases = creases if sub.level == 0 else sub.steps[-1].creases
+    return limit_operator(len(vertices), sub.faces, level_creases) @ vertices
