@@ -158,8 +158,29 @@ def limit_matrix(n: int, faces, level: int, creases: Iterable[Sequence[int]] | N
 
 def limit_positions(control: np.ndarray, faces, level: int,
                     creases: Iterable[Sequence[int]] | None = None) -> np.ndarray:
-    """(n_s, 3) the limit-surface points of level s's vertices, for control vertices (n, 3)
-    metres (see `limit_matrix`)."""
+    """The limit-surface points of level s's vertices (see `limit_matrix`).
+
+    Parameters
+    ----------
+    control : (n, 3) float
+        Control vertices, metres.
+    faces : (F, k) int array or list of index lists
+        The control faces (non-quads need a level of at least 1).
+    level : int
+        The subdivision level s >= 0.
+    creases : iterable of (2,) int pairs, optional
+        Control edges kept sharp.
+
+    Returns
+    -------
+    (n_s, 3) float
+        Points on the limit surface, metres, one per level-s vertex in its order.
+
+    Raises
+    ------
+    MeshError
+        For control vertices of another shape, or as `limit_matrix` does.
+    """
     control = np.asarray(control, dtype=np.float64)
     if control.ndim != 2 or control.shape[1] != 3:
         raise MeshError(f"Expected control vertices of shape (n, 3), got {control.shape}")
