@@ -3,8 +3,10 @@
 The fit and its evaluation work on the level-s mesh (`FitResult.surface`); what goes to CAD is
 the Catmull-Clark limit surface of the fitted control mesh: the level-s quads with each vertex
 moved to its limit point, and, where the whole control net is a regular quad grid without
-creases, the exact uniform bicubic B-spline (`solver.surface.nurbs`). Control nets that are not
-such a grid get the dense limit mesh only (one NURBS per maximal regular region is not done).
+creases, the exact uniform bicubic B-spline (`solver.surface.nurbs`); a grid cut by creases
+along whole grid lines, one B-spline per patch between them. Other control nets (extraordinary
+vertices, triangles, partial creases) get the dense limit mesh only: one NURBS per maximal
+regular region of a general mesh is not done.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from solver.io.rhino import write_3dm
 from solver.mesh import quad_triangles
 from solver.surface.fit import FitResult
 from solver.surface.limit import limit_of_level
-from solver.surface.nurbs import BSplineSurface, bspline_of_grid, grid_layout
+from solver.surface.nurbs import BSplineSurface, bspline_of_grid, grid_layout, grid_patches
 
 
 @dataclass(frozen=True, eq=False)
@@ -27,7 +29,7 @@ class CadSurface:
 
     vertices : (n_s, 3) float, the level-s vertices moved to their limit points, metres.
     faces : (F_s, 4) int, the level-s quads.
-    nurbs : the exact B-spline of a regular grid control net, or None.
+    nurbs : the exact B-splines of a grid control net's patches (empty when there is none).
     figures : dict of measured distances in millimetres: `level_to_limit_max_mm` and
         `level_to_limit_median_mm` (each level-s vertex to its limit point),
         `limit_to_level_mesh_max_mm` (the limit points' distance to the level-s mesh), and with
@@ -37,7 +39,7 @@ class CadSurface:
 
     vertices: np.ndarray
     faces: np.ndarray
-    nurbs: BSplineSurface | None
+    nurbs: tuple[BSplineSurface, ...]
     figures: dict
 
 
@@ -56,25 +58,34 @@ def cad_surface(result: FitResult, creases=()) -> CadSurface:
                "level_to_limit_max_mm": float(moved.max() * 1e3),
                "level_to_limit_median_mm": float(np.median(moved) * 1e3),
                "limit_to_level_mesh_max_mm": float(np.sqrt(dist2.max()) * 1e3)}
-    grid = grid_layout(len(result.control), result.faces, list(creases) or None)
-    nurbs = None
-    if grid is not None:
-        nurbs = bspline_of_grid(result.control, grid)
-        fine = grid_layout(len(limit), sub.faces)
-        if fine is None or fine.shape != tuple((np.array(grid.shape) - 1) * 2**sub.level + 1):
-            raise AssertionError("a grid's subdivision is no grid of the expected size")
-        u, v = np.meshgrid(*(np.arange(k) / 2**sub.level for k in fine.shape), indexing="ij")
-        gap = np.linalg.norm(nurbs.evaluate(u, v) - limit[fine], axis=-1)
-        figures.update(kind="nurbs", nurbs_to_limit_max_mm=float(gap.max() * 1e3))
-    return CadSurface(limit, np.asarray(result.surface_faces), nurbs, figures)
+    patches = grid_patches(len(result.control), result.faces, list(creases) or None)
+    if not patches:
+        return CadSurface(limit, np.asarray(result.surface_faces), (), figures)
+    grid, scale = grid_layout(len(result.control), result.faces), 2**sub.level
+    fine = grid_layout(len(limit), sub.faces)
+    if fine is None or fine.shape != tuple((np.array(grid.shape) - 1) * scale + 1) or \
+            not np.array_equal(fine[::scale, ::scale], grid):
+        raise AssertionError("a grid's subdivision is no grid of the expected size")
+    nurbs, gap = [], 0.0
+    for patch in patches:
+        nurbs.append(bspline_of_grid(result.control, patch))
+        # the patch's place in the grid, and its level-s vertices
+        i, j = (int(k[0]) for k in np.nonzero(grid == patch[0, 0]))
+        part = fine[i * scale:i * scale + (patch.shape[0] - 1) * scale + 1,
+                    j * scale:j * scale + (patch.shape[1] - 1) * scale + 1]
+        u, v = np.meshgrid(*(np.arange(k) / scale for k in part.shape), indexing="ij")
+        gap = max(gap, float(np.linalg.norm(nurbs[-1].evaluate(u, v) - limit[part],
+                                            axis=-1).max()))
+    figures.update(kind="nurbs", patches=len(nurbs), nurbs_to_limit_max_mm=gap * 1e3)
+    return CadSurface(limit, np.asarray(result.surface_faces), tuple(nurbs), figures)
 
 
 def write_scene_3dm(path: Path, result: FitResult, cad: CadSurface, bodies, names,
                     unit: str = "mm", up: str = "z") -> Path:
     """The fit as a Rhino document: the control net, the surface (the NURBS, or the limit mesh
     where there is none) and each body on its layer."""
-    surface = cad.nurbs if cad.nurbs is not None else (cad.vertices, cad.faces)
-    kind = "exact limit surface, NURBS" if cad.nurbs is not None else \
+    surface = list(cad.nurbs) if cad.nurbs else (cad.vertices, cad.faces)
+    kind = "exact limit surface, NURBS" if cad.nurbs else \
         f"limit points of the level-{cad.figures['level']} vertices"
     return write_3dm(path, result.control, result.faces, surface, bodies, body_names=names,
                      unit=unit, up=up, notes=f"sitrelax fit; surface: {kind}")

@@ -161,3 +161,58 @@ def bspline_of_grid(control: np.ndarray, grid: np.ndarray) -> BSplineSurface:
     knots_u = np.arange(-2.0, nu + 2.0)
     knots_v = np.arange(-2.0, nv + 2.0)
     return BSplineSurface(net, knots_u, knots_v)
+
+
+def grid_patches(n: int, faces, creases=None) -> list[np.ndarray] | None:
+    """The grid layouts of the regular patches of a grid control net cut by full crease lines.
+
+    A crease running the whole way along a grid line, from boundary to boundary, makes the two
+    sides independent: its vertices follow the crease's cubic B-spline, its ends and crossings
+    are corners, exactly the boundary rule of each side. So each patch between such lines is a
+    grid whose limit surface is `bspline_of_grid` of its own vertices.
+
+    Parameters
+    ----------
+    n : int
+        Number of vertices.
+    faces : (F, 4) int
+        The control quads.
+    creases : iterable of (2,) int pairs, optional
+        Sharp edges.
+
+    Returns
+    -------
+    list of (Nu_k, Nv_k) int arrays (the whole grid when there is no crease), or None when the
+    mesh is no grid or a crease does not run along a whole grid line.
+    """
+    grid = grid_layout(n, faces)
+    if grid is None:
+        return None
+    pairs = [] if creases is None else [tuple(sorted(map(int, c))) for c in creases]
+    along_u = {tuple(sorted(e)): j for j in range(grid.shape[1])
+               for e in zip(grid[:-1, j], grid[1:, j])}  # edges of the line v = j
+    along_v = {tuple(sorted(e)): i for i in range(grid.shape[0])
+               for e in zip(grid[i, :-1], grid[i, 1:])}  # edges of the line u = i
+    lines_u, lines_v = {}, {}
+    for pair in pairs:
+        if pair in along_u:
+            lines_u.setdefault(along_u[pair], set()).add(pair)
+        elif pair in along_v:
+            lines_v.setdefault(along_v[pair], set()).add(pair)
+        else:
+            raise MeshError(f"Expected creases along mesh edges, got {pair}")
+    cuts_v = _full_lines(lines_u, grid.shape[0] - 1, grid.shape[1] - 1)
+    cuts_u = _full_lines(lines_v, grid.shape[1] - 1, grid.shape[0] - 1)
+    if cuts_u is None or cuts_v is None:
+        return None
+    return [grid[a:b + 1, c:d + 1] for a, b in zip(cuts_u[:-1], cuts_u[1:])
+            for c, d in zip(cuts_v[:-1], cuts_v[1:])]
+
+
+def _full_lines(lines: dict, edges_per_line: int, last: int) -> list[int] | None:
+    """The cut positions 0, ..., last from crease lines (index -> their edges): None when an
+    inner line is creased only in part (boundary lines are sharp anyway)."""
+    inner = sorted(k for k in lines if 0 < k < last)
+    if any(len(lines[k]) != edges_per_line for k in inner):
+        return None
+    return [0, *inner, last]

@@ -32,15 +32,17 @@ def _surface_nurbs(path):
                    if names[o.Attributes.LayerIndex] == "surface"]
 
 
-def _independent_limit(control, faces):
+def _independent_limit(control, faces, creases=None):
     """The limit at the level-2 vertices from levels 4 and 5 of the control net (which keep
-    the level-2 vertices' indices), extrapolated at the regular rate 1/4: no limit mask used."""
+    the level-2 vertices' indices), extrapolated at the regular rate 1/4 (crease curves and
+    boundaries converge at it too): no limit mask used."""
     level2 = subdivision(len(control), faces, 2)
     picked = grid_layout(level2.matrix.shape[0], level2.faces)
     n, f, points, levels = len(control), faces, np.asarray(control, float), {}
     for level in range(1, 6):
-        step = subdivide_once(n, f)
-        points, f, n = step.matrix @ points, step.faces, step.matrix.shape[0]
+        step = subdivide_once(n, f, creases)
+        points, f, n, creases = step.matrix @ points, step.faces, step.matrix.shape[0], \
+            step.creases
         if level >= 4:
             levels[level] = points[picked]
     return (4 * levels[5] - levels[4]) / 3, picked.shape
@@ -66,13 +68,39 @@ def test_cad_surface_of_a_grid_is_nurbs_and_the_limit(tmp_path):
     assert _nurbs_gaps_mm(surfaces[0], result.control, result.faces).max() < 0.05
 
 
-def test_cad_surface_with_creases_is_a_limit_mesh(tmp_path):
+def _creased(creases, level=2):
     v, f = grid_mesh((0.5, 0.6), (4, 4), 0.42)
-    creases = [[10, 11], [11, 12], [12, 13], [13, 14]]
-    sub = subdivision(len(v), f, 2, creases)
-    result = FitResult(v, f, sub.apply(v), sub.faces, 0, "test", [], {}, 0.0, [], sub)
+    v[:, 1] += 0.05 * np.sin(4 * v[:, 0]) * np.cos(5 * v[:, 2])
+    sub = subdivision(len(v), f, level, creases)
+    return FitResult(v, f, sub.apply(v), sub.faces, 0, "test", [], {}, 0.0, [], sub)
+
+
+def test_a_crease_along_a_whole_grid_line_gives_two_nurbs(tmp_path):
+    creases = [[10, 11], [11, 12], [12, 13], [13, 14]]  # the line x = 0, boundary to boundary
+    result = _creased(creases, 3)
     cad = cad_surface(result, creases)
-    assert cad.nurbs is None and cad.figures["kind"] == "limit mesh"
+    assert cad.figures["patches"] == 2 and cad.figures["nurbs_to_limit_max_mm"] < 1e-9
+    write_scene_3dm(tmp_path / "scene.3dm", result, cad, [], [])
+    _, surfaces = _surface_nurbs(tmp_path / "scene.3dm")
+    assert len(surfaces) == 2 and all(isinstance(s, rhino3dm.NurbsSurface) for s in surfaces)
+    limit, shape = _independent_limit(result.control, result.faces, creases)
+    frame = frame_matrix("mm", "z")
+    for srf, rows in zip(surfaces, (slice(0, 9), slice(8, 17))):  # u along z, v along x
+        part = limit[:, rows] @ frame.T
+        rhino = np.array([[_xyz(srf.PointAt(i / 4, j / 4)) for j in range(part.shape[1])]
+                          for i in range(part.shape[0])])
+        assert np.linalg.norm(rhino - part, axis=-1).max() < 0.05
+
+
+def _xyz(point):
+    return [point.X, point.Y, point.Z]
+
+
+def test_cad_surface_with_a_partial_crease_is_a_limit_mesh(tmp_path):
+    creases = [[11, 12], [12, 13]]
+    result = _creased(creases)
+    cad = cad_surface(result, creases)
+    assert cad.nurbs == () and cad.figures["kind"] == "limit mesh"
     write_scene_3dm(tmp_path / "scene.3dm", result, cad, [], [])
     _, surfaces = _surface_nurbs(tmp_path / "scene.3dm")
     assert isinstance(surfaces[0], rhino3dm.Mesh) and surfaces[0].Faces.QuadCount == 256

@@ -81,3 +81,18 @@ def test_bad_grids_are_refused():
         bspline_of_grid(v, np.array([[0, 1, 2]]))
     with pytest.raises(MeshError, match="covering the grid's indices"):
         bspline_of_grid(v[:5], grid_layout(len(v), f))
+
+
+def test_grid_patches_cut_at_whole_crease_lines():
+    from solver.surface.nurbs import grid_patches
+
+    v, f = grid_mesh((1.0, 0.8), (4, 4), 0.4)  # vertex i * 5 + k
+    assert [p.shape for p in grid_patches(len(v), f)] == [(5, 5)]
+    line_x0 = [[10, 11], [11, 12], [12, 13], [13, 14]]
+    line_z0 = [[2, 7], [7, 12], [12, 17], [17, 22]]
+    assert [p.shape for p in grid_patches(len(v), f, line_x0)] == [(5, 3), (5, 3)]
+    assert [p.shape for p in grid_patches(len(v), f, line_x0 + line_z0)] == [(3, 3)] * 4
+    assert grid_patches(len(v), f, line_x0[:3]) is None  # stops inside: a dart
+    assert [p.shape for p in grid_patches(len(v), f, [[0, 1]])] == [(5, 5)]  # on the boundary
+    with pytest.raises(MeshError, match="creases along mesh edges"):
+        grid_patches(len(v), f, [[0, 6]])
