@@ -130,12 +130,7 @@ def write_3dm(path: str | os.PathLike, control_vertices: np.ndarray, control_fac
     frame = frame_matrix(unit, up)
     if unit not in _RHINO_UNITS:
         raise ExportError(f"Expected a unit in {sorted(_RHINO_UNITS)}, got {unit!r}")
-    names = list(body_names) if body_names is not None else \
-        [f"person {k}" for k in range(1, len(bodies) + 1)]
-    if len(names) != len(bodies) or len(set(names)) != len(names) or \
-            {"control net", "surface"} & set(names):
-        raise ExportError(f"Expected {len(bodies)} distinct body names other than the "
-                          f"'control net' and 'surface' layers, got {names}")
+    names = _layer_names(body_names, len(bodies))
     model = r.File3dm()
     model.Settings.ModelUnitSystem = getattr(r.UnitSystem, _RHINO_UNITS[unit])
     model.Settings.ModelAbsoluteTolerance = 0.001 * frame_matrix(unit)[0, 0]  # a millimetre
@@ -166,6 +161,16 @@ def write_3dm(path: str | os.PathLike, control_vertices: np.ndarray, control_fac
         bv, bf = _checked_mesh(bv, bf, f"body {name!r}")
         model.Objects.AddMesh(_mesh(r, bv @ frame.T, bf), layer(name, _COLOURS["body"]))
     return _write(model, Path(path))
+
+
+def _layer_names(body_names, count: int) -> list[str]:
+    names = list(body_names) if body_names is not None else \
+        [f"person {k}" for k in range(1, count + 1)]
+    if len(names) != count or len(set(names)) != len(names) or \
+            {"control net", "surface"} & set(names):
+        raise ExportError(f"Expected {count} distinct body names other than the "
+                          f"'control net' and 'surface' layers, got {names}")
+    return names
 
 
 def _write(model, path: Path) -> Path:

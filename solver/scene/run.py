@@ -364,8 +364,7 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
     from capture import Motion, write_bvh
 
     from solver.body.rig import pose_channels, rig_skeleton
-    from solver.io.export import frame_matrix
-    from solver.io.obj import obj_frame, read_quad_obj
+    from solver.io.obj import read_quad_obj
 
     say = progress or (lambda message: None)
     start = time.perf_counter()
@@ -379,10 +378,7 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
     out.mkdir(parents=True, exist_ok=True)
     people = [place_person(p, db, k) for k, p in enumerate(scenario.persons)]
     if surface_dir is not None:
-        surface, faces = read_quad_obj(Path(surface_dir) / "surface.obj")
-        # back to metres, Y up, from the unit and axis the file states
-        frame = frame_matrix(*obj_frame(Path(surface_dir) / "surface.obj"))
-        surface = surface @ np.linalg.inv(frame).T
+        surface, faces = read_quad_obj(Path(surface_dir) / "surface.obj", sitrelax_frame=True)
         say(f"surface from {surface_dir}")
     else:
         result = fit_people(scenario, people)

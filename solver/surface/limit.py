@@ -71,25 +71,20 @@ def limit_operator(n: int, quads, creases: Iterable[Sequence[int]] | None = None
     smooth = (sharp_count == 0) & ~corner
     nv = np.maximum(valence, 1).astype(float)
     denom = nv * (nv + 5)
-    rows, cols, vals = [], [], []
-    # smooth: the centre, the edge neighbours and the diagonal vertex of each quad
-    rows.append(np.flatnonzero(smooth))
-    cols.append(rows[-1])
-    vals.append(nv[smooth] ** 2 / denom[smooth])
-    keep = smooth[ends]
-    rows.append(ends[keep]), cols.append(others[keep]), vals.append(4.0 / denom[ends[keep]])
-    diag = arr[g.fi, (g.ci + 2) % 4]
-    keep = smooth[g.a]
-    rows.append(g.a[keep]), cols.append(diag[keep]), vals.append(1.0 / denom[g.a[keep]])
-    # curves: (a + 4 v + b) / 6 along the two sharp edges
-    rows.append(np.flatnonzero(curve)), cols.append(rows[-1]), vals.append(
-        np.full(curve.sum(), 4.0 / 6.0))
-    keep = curve[ends] & sharp2
-    rows.append(ends[keep]), cols.append(others[keep]), vals.append(np.full(keep.sum(), 1 / 6))
-    rows.append(np.flatnonzero(corner)), cols.append(rows[-1]), vals.append(
-        np.ones(corner.sum()))
-    matrix = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                           shape=(n, n))
+    diag = arr[g.fi, (g.ci + 2) % 4]  # the vertex across each corner's quad
+    centre_s, edge_s, diag_s = np.flatnonzero(smooth), smooth[ends], smooth[g.a]
+    centre_c, edge_c = np.flatnonzero(curve), curve[ends] & sharp2
+    centre_k = np.flatnonzero(corner)
+    # smooth: centre n^2, edge neighbours 4, diagonals 1, over n (n + 5); curves: (a + 4 v + b)
+    # / 6 along their two sharp edges; corners: themselves
+    rows = np.concatenate([centre_s, ends[edge_s], g.a[diag_s], centre_c, ends[edge_c],
+                           centre_k])
+    cols = np.concatenate([centre_s, others[edge_s], diag[diag_s], centre_c, others[edge_c],
+                           centre_k])
+    vals = np.concatenate([nv[smooth] ** 2 / denom[smooth], 4.0 / denom[ends[edge_s]],
+                           1.0 / denom[g.a[diag_s]], np.full(len(centre_c), 4.0 / 6.0),
+                           np.full(edge_c.sum(), 1.0 / 6.0), np.ones(len(centre_k))])
+    matrix = sp.csr_matrix((vals, (rows, cols)), shape=(n, n))
     if dart.any():
         matrix = matrix + _dart_rows(n, arr, creases_arr, g, np.flatnonzero(dart), diag)
     matrix.sum_duplicates()

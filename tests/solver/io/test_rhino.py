@@ -105,6 +105,7 @@ def test_mesh_files_state_and_honour_unit_and_up(tmp_path):
     assert obj_frame(path) == ("mm", "z")
     back, faces = read_quad_obj(path)
     assert np.allclose(back, np.stack([v[:, 0], -v[:, 2], v[:, 1]], axis=1) * 1000, atol=1e-5)
+    assert np.allclose(read_quad_obj(path, sitrelax_frame=True)[0], v, atol=1e-8)
     assert obj_frame(write_mesh(tmp_path / "m.obj", v, f)) == ("m", "y")
     ply = write_mesh(tmp_path / "s.ply", v, f, unit="cm", up="z").read_bytes()
     assert b"comment units: cm; up: +Z" in ply.split(b"end_header")[0]
