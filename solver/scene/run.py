@@ -186,7 +186,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     Returns
     -------
     dict, the report as written to report.json (lengths m, pressures kPa, times s; the
-    surface's limit figures in mm under files.surface_limit).
+    surface's limit figures in mm under surface_limit).
     """
     say = progress or (lambda message: None)
     timing = {}
@@ -224,6 +224,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         "control_vertices": int(len(result.control)),
         "surface_vertices": int(len(result.surface)),
         "persons": persons,
+        "surface_limit": files.pop("surface_limit"),
         "files": files,
     }
     write_atomic(out / "report.json", json.dumps(report, indent=2).encode())
@@ -237,7 +238,8 @@ def export_scene(out: Path, result: FitResult, people: list[PlacedPerson],
                  settles: list[PressureMap], *, formats=("obj", "ply", "glb"),
                  unit: str | None = None, up: str | None = None, creases=()) -> dict:
     """Surface, control mesh, posed bodies, pictures and the pressure mats' maps; returns the
-    file names. The surface files hold the limit surface (`solver.scene.cad`): OBJ/PLY/GLB the
+    file names (and under "surface_limit" the limit surface's figures, `CadSurface.figures`).
+    The surface files hold the limit surface (`solver.scene.cad`): OBJ/PLY/GLB the
     level-s quads at their limit points, `scene.3dm` (with "3dm" in `formats`) NURBS for a
     grid control net. `unit` and `up` (None: metres and Y up for OBJ and PLY, millimetres and
     Z up for .3dm) apply to every file but GLB (glTF: metres, Y up)."""

@@ -133,7 +133,7 @@ def test_every_example_nurbs_within_0_05_mm_of_the_limit(name, tmp_path):
     from solver.scene.run import run_fit
 
     report = run_fit(EXAMPLES / f"{name}.toml", tmp_path, formats=("obj", "3dm"))
-    assert report["files"]["surface_limit"]["kind"] == "nurbs"
+    assert report["surface_limit"]["kind"] == "nurbs"
     control, faces = read_quad_obj(tmp_path / "control.obj")
     _, surfaces = _surface_nurbs(tmp_path / "scene.3dm")
     gaps = _nurbs_gaps_mm(surfaces[0], control, faces)
