@@ -19,7 +19,7 @@ from solver.contact.evaluate import (FLOOR, evaluate_person, flat_seat_height, f
 from solver.contact.evaluate import PressureMap, contact_footprint
 from solver.contact.mat import PressureGrid, pressure_grid, write_pressure_csv
 from solver.contact.settle import Foam
-from solver.io.export import write_mesh
+from solver.io.export import ExportError, frame_matrix, write_mesh
 from solver.body.relax import (PENETRATION_SHIFT, PENETRATION_WIDTH, RelaxError, RelaxProblem,
                                relax)
 from solver.mesh import triangle_mesh
@@ -189,6 +189,10 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     surface's limit figures in mm under surface_limit).
     """
     say = progress or (lambda message: None)
+    if not formats or set(formats) - set(SURFACE_FORMATS):  # checked before the fit's work
+        raise ExportError(f"Expected surface formats among {SURFACE_FORMATS}, got "
+                          f"{list(formats)}")
+    frame_matrix(unit or "m", up or "y")
     timing = {}
     start = time.perf_counter()
     if isinstance(scenario_path, Scenario):
@@ -206,9 +210,6 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         timing)
     say(f"fitted in {result.iterations} iterations, {timing['fit_s']:.2f} s: {result.stop_reason}")
     t = time.perf_counter()
-    bad = sorted(set(formats) - set(SURFACE_FORMATS))
-    if bad or not formats:
-        raise ValueError(f"Expected surface formats among {SURFACE_FORMATS}, got {list(formats)}")
     files = export_scene(out, result, people, maps, formats=tuple(formats), unit=unit, up=up,
                          creases=scenario.surface.params.creases)
     timing["export_s"] = time.perf_counter() - t

@@ -138,3 +138,13 @@ def test_every_example_nurbs_within_0_05_mm_of_the_limit(name, tmp_path):
     _, surfaces = _surface_nurbs(tmp_path / "scene.3dm")
     gaps = _nurbs_gaps_mm(surfaces[0], control, faces)
     assert gaps.max() < 0.05
+
+
+@pytest.mark.parametrize("kwargs, match", [({"formats": ("stl",)}, "surface formats"),
+                                           ({"unit": "furlong"}, "Expected a unit")])
+def test_run_fit_refuses_bad_export_options_before_fitting(tmp_path, kwargs, match):
+    from solver.io.export import ExportError
+    from solver.scene.run import run_fit
+
+    with pytest.raises(ExportError, match=match):
+        run_fit(tmp_path / "no-such.toml", tmp_path / "out", **kwargs)
