@@ -276,7 +276,8 @@ def export_scene(out: Path, result: FitResult, people: list[PlacedPerson],
         bodies.append(f"person_{k}.ply")
     files["bodies"] = bodies
     if "3dm" in formats:
-        names = [f"person {k}: {p.label.split(' (')[0]}" for k, p in enumerate(people, 1)]
+        labels = [(f"person {k}", p.label.split(" (")[0]) for k, p in enumerate(people, 1)]
+        names = [a if a == b else f"{a}: {b}" for a, b in labels]
         write_scene_3dm(out / "scene.3dm", result, cad, [(p.vertices, p.body.faces)
                                                          for p in people], names,
                         unit=unit or "mm", up=up or "z")
