@@ -133,7 +133,7 @@ def write_3dm(path: str | os.PathLike, control_vertices: np.ndarray, control_fac
     names = _layer_names(body_names, len(bodies))
     model = r.File3dm()
     model.Settings.ModelUnitSystem = getattr(r.UnitSystem, _RHINO_UNITS[unit])
-    model.Settings.ModelAbsoluteTolerance = 0.001 * frame_matrix(unit)[0, 0]  # a millimetre
+    model.Settings.ModelAbsoluteTolerance = 1e-5 * frame_matrix(unit)[0, 0]  # 0.01 mm
     note = frame_note(unit, up)
 
     def layer(name: str, colour) -> "object":

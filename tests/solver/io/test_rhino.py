@@ -38,6 +38,7 @@ def test_3dm_reads_back_with_layers_millimetres_and_z_up(tmp_path):
     path = write_3dm(tmp_path / "scene.3dm", v, f, srf, bodies, body_names=["ann", "bob"])
     model = rhino3dm.File3dm.Read(str(path))
     assert model.Settings.ModelUnitSystem == rhino3dm.UnitSystem.Millimeters
+    assert model.Settings.ModelAbsoluteTolerance == pytest.approx(0.01)
     names, found = _by_layer(model)
     assert names == ["control net", "surface", "ann", "bob"]
     control = found["control net"][0]

@@ -148,3 +148,22 @@ def test_run_fit_refuses_bad_export_options_before_fitting(tmp_path, kwargs, mat
 
     with pytest.raises(ExportError, match=match):
         run_fit(tmp_path / "no-such.toml", tmp_path / "out", **kwargs)
+
+
+def test_a_control_net_with_an_extraordinary_vertex_gives_the_limit_mesh(tmp_path):
+    """Five quads around a valence-5 vertex: no grid, so the limit points of level 3 go to
+    the .3dm as a mesh; they are the limit (level 6 of the net comes within 0.3 mm of them)."""
+    k = np.arange(5)
+    ring = np.stack([np.cos(2 * np.pi * k / 5), 0.1 * np.sin(4 * np.pi * k / 5),
+                     np.sin(2 * np.pi * k / 5)], axis=1) * 0.4
+    v = np.concatenate([[[0.0, 0.05, 0.0]], ring, 0.45 * (ring + np.roll(ring, -1, axis=0))])
+    f = np.stack([np.zeros(5, int), 6 + np.roll(k, 1), 1 + k, 6 + k], axis=1)
+    sub = subdivision(len(v), f, 3)
+    result = FitResult(v, f, sub.apply(v), sub.faces, 0, "test", [], {}, 0.0, [], sub)
+    cad = cad_surface(result)
+    assert cad.nurbs == () and cad.figures["kind"] == "limit mesh"
+    dense = subdivision(len(v), f, 6).apply(v)[:len(cad.vertices)]  # level-3 vertices first
+    assert np.linalg.norm(dense - cad.vertices, axis=1).max() < 3e-4
+    write_scene_3dm(tmp_path / "scene.3dm", result, cad, [], [])
+    _, surfaces = _surface_nurbs(tmp_path / "scene.3dm")
+    assert isinstance(surfaces[0], rhino3dm.Mesh) and surfaces[0].Faces.QuadCount == 5 * 64
