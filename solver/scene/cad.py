@@ -20,7 +20,8 @@ from solver.io.rhino import write_3dm
 from solver.mesh import quad_triangles
 from solver.surface.fit import FitResult
 from solver.surface.limit import limit_of_level
-from solver.surface.nurbs import BSplineSurface, bspline_of_grid, grid_layout, grid_patches
+from solver.surface.nurbs import (BSplineSurface, bspline_of_grid, grid_layout, grid_patches,
+                                  subdivided_grid)
 
 
 @dataclass(frozen=True, eq=False)
@@ -62,8 +63,8 @@ def cad_surface(result: FitResult, creases=()) -> CadSurface:
     if not patches:
         return CadSurface(limit, np.asarray(result.surface_faces), (), figures)
     grid, scale = grid_layout(len(result.control), result.faces), 2**sub.level
-    fine = grid_layout(len(limit), sub.faces)
-    if fine is None or fine.shape != tuple((np.array(grid.shape) - 1) * scale + 1) or \
+    fine = subdivided_grid(grid, sub, result.faces)
+    if fine.shape != tuple((np.array(grid.shape) - 1) * scale + 1) or \
             not np.array_equal(fine[::scale, ::scale], grid):
         raise AssertionError("a grid's subdivision is no grid of the expected size")
     nurbs, gap = [], 0.0

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from solver.surface.subdivision import MeshError, _as_faces
+from solver.surface.subdivision import MeshError, Subdivision, _as_faces
 
 
 @dataclass(frozen=True, eq=False)
@@ -216,3 +216,43 @@ def _full_lines(lines: dict, edges_per_line: int, last: int) -> list[int] | None
     if any(len(lines[k]) != edges_per_line for k in inner):
         return None
     return [0, *inner, last]
+
+
+def subdivided_grid(grid: np.ndarray, sub: Subdivision, faces) -> np.ndarray:
+    """The layout of a grid control net's level-s vertices, from the subdivision's ordering
+    (vertex points, then edge points by sorted edge, then face points by face), without
+    walking the fine mesh.
+
+    Parameters
+    ----------
+    grid : (Nu, Nv) int
+        The control net's layout (`grid_layout`).
+    sub : Subdivision
+        The net's subdivision to level s.
+    faces : (F, 4) int
+        The control quads `sub` was made from.
+
+    Returns
+    -------
+    ((Nu - 1) 2^s + 1, (Nv - 1) 2^s + 1) int
+        Level-s vertex indices; entry (i 2^s, j 2^s) is the control vertex grid[i, j].
+    """
+    grid, n, faces = np.asarray(grid), int(sub.matrix.shape[1]), np.asarray(faces)
+    for step in sub.steps:
+        a, b = faces.ravel(), np.roll(faces, -1, axis=1).ravel()
+        keys = np.unique(np.minimum(a, b) * n + np.maximum(a, b))
+        rows, cols = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+        rows[grid], cols[grid] = np.indices(grid.shape)
+        face_at = np.empty((grid.shape[0] - 1, grid.shape[1] - 1), dtype=np.int64)
+        face_at[rows[faces].min(axis=1), cols[faces].min(axis=1)] = np.arange(len(faces))
+
+        def edge_point(p, q):
+            return n + np.searchsorted(keys, np.minimum(p, q) * n + np.maximum(p, q))
+
+        fine = np.empty((2 * grid.shape[0] - 1, 2 * grid.shape[1] - 1), dtype=np.int64)
+        fine[::2, ::2] = grid
+        fine[1::2, ::2] = edge_point(grid[:-1], grid[1:])
+        fine[::2, 1::2] = edge_point(grid[:, :-1], grid[:, 1:])
+        fine[1::2, 1::2] = n + len(keys) + face_at
+        grid, n, faces = fine, step.matrix.shape[0], np.asarray(step.faces)
+    return grid

@@ -96,3 +96,13 @@ def test_grid_patches_cut_at_whole_crease_lines():
     assert [p.shape for p in grid_patches(len(v), f, [[0, 1]])] == [(5, 5)]  # on the boundary
     with pytest.raises(MeshError, match="creases along mesh edges"):
         grid_patches(len(v), f, [[0, 6]])
+
+
+@pytest.mark.parametrize("level", [0, 1, 3])
+def test_subdivided_grid_is_the_fine_mesh_layout(level):
+    from solver.surface.nurbs import subdivided_grid
+
+    v, f = grid_mesh((1.0, 0.8), (5, 3), 0.4)
+    sub = subdivision(len(v), f, level)
+    walked = grid_layout(sub.matrix.shape[0], sub.faces)
+    assert np.array_equal(subdivided_grid(grid_layout(len(v), f), sub, f), walked)
