@@ -2,9 +2,9 @@
 
 Geometry comes in sitrelax's frame (metres, right-handed, Y up) and is written in the unit and
 up axis asked for, stated in the file: OBJ in a header comment, PLY in a header `comment`
-line. Z up is the rotation (x, y, z) -> (x, -z, y) (+90 degrees about X: Y up becomes Z up,
-handedness kept, a body facing +Z faces -Y, towards Rhino's Front view). GLB is always metres
-and Y up, as glTF 2.0 defines it.
+line, GLB in its asset's `extras`. Z up is the rotation (x, y, z) -> (x, -z, y) (+90 degrees
+about X: Y up becomes Z up, handedness kept, a body facing +Z faces -Y, towards Rhino's Front
+view). GLB is always metres and Y up, as glTF 2.0 defines it.
 """
 
 from __future__ import annotations
@@ -99,7 +99,8 @@ def write_mesh(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray,
     comment : str, optional
         Header comment lines (OBJ only).
     unit : str, default "m"
-        The file's length unit (see `UNITS`); OBJ and PLY state it in their header.
+        The file's length unit (see `UNITS`); OBJ and PLY state it in their header, GLB in
+        `asset.extras.sitrelax`.
     up : str, default "y"
         The file's up axis, "y" or "z" (see `frame_matrix`).
 
@@ -145,9 +146,11 @@ def write_mesh(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray,
     if vertex_colors is not None:
         colors = (np.clip(np.asarray(vertex_colors, dtype=float), 0, 1) * 255).astype(np.uint8)
     mesh = trimesh.Trimesh(vertices, tris, vertex_colors=colors, process=False)
-    data = mesh.export(file_type=suffix[1:])
     if suffix == ".ply":
-        data = _ply_comment(data, note)
+        data = _ply_comment(mesh.export(file_type="ply"), note)
+    else:  # glTF's asset carries the statement in its extras
+        data = mesh.export(file_type="glb", tree_postprocessor=lambda tree: tree["asset"].update(
+            extras={"sitrelax": note}))
     write_atomic(path, data)
     return path
 

@@ -1,5 +1,8 @@
 """The .3dm writer read back with rhino3dm, and the unit and up axis of mesh files."""
 
+import json
+import struct
+
 import numpy as np
 import pytest
 
@@ -114,5 +117,8 @@ def test_mesh_files_state_and_honour_unit_and_up(tmp_path):
 
     mesh = trimesh.load(tmp_path / "s.ply", process=False)
     assert np.allclose(mesh.vertices[:, 2], v[:, 1] * 100)
+    glb = write_mesh(tmp_path / "s.glb", v, f).read_bytes()
+    header = json.loads(glb[20:20 + struct.unpack("<I", glb[12:16])[0]])
+    assert header["asset"]["extras"]["sitrelax"].startswith("units: m; up: +Y")
     with pytest.raises(ExportError, match="metres and Y up for a GLB"):
         write_mesh(tmp_path / "s.glb", v, f, unit="mm")
