@@ -8,8 +8,9 @@ The solver is in layers, each a subpackage; a layer imports only those before it
 * `solver.body`: the body model, its rig, skinning, retargeting, pose sources, relaxation;
 * `solver.contact`: the pressure model (where a body needs support), the evaluation of a
   surface under a body, the physical references;
-* `solver.surface`: Catmull-Clark subdivision and the constrained surface fit;
-* `solver.io`: mesh files and pictures;
+* `solver.surface`: Catmull-Clark subdivision, its limit surface (masks; NURBS of a grid) and
+  the constrained surface fit;
+* `solver.io`: mesh files, Rhino documents (.3dm) and pictures;
 * `solver.scene`: scenarios, people placed in a scene, and the pipelines behind `sitrelax fit`,
   `relax`, `batch` and `demo` (the only layer that uses all the others).
 
@@ -36,10 +37,13 @@ _EXPORTS = {
     "solver.mesh": ("SurfaceMesh",),
     "solver.surface.subdivision": ("MeshError", "Subdivision", "grid_mesh", "subdivision"),
     "solver.surface.fit": ("FitError", "FitParams", "FitResult", "fit_surface"),
+    "solver.surface.limit": ("limit_matrix", "limit_positions"),
+    "solver.surface.nurbs": ("BSplineSurface", "bspline_of_grid", "grid_layout"),
     "solver.scene.scenario": ("Scenario", "ScenarioError", "load_scenario", "parse_scenario"),
     "solver.scene.placement": ("PlacedPerson", "place_person"),
     "solver.scene.run": ("fit_scene", "relax_problem", "run_fit", "run_relax"),
     "solver.io.export": ("ExportError", "write_mesh"),
+    "solver.io.rhino": ("write_3dm",),
     "solver.io.render": ("MeshView", "render_png"),
 }
 _HOME = {name: module for module, names in _EXPORTS.items() for name in names}

@@ -123,7 +123,9 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         print(f"fit: {message}", file=sys.stderr, flush=True)
 
     workshop = _workshop_options(args)
-    report = run_fit(args.scenario, args.out, db=args.db, progress=progress, workshop=workshop)
+    formats = [f.strip().lower().lstrip(".") for f in args.format.split(",") if f.strip()]
+    report = run_fit(args.scenario, args.out, db=args.db, progress=progress, formats=formats,
+                     unit=args.unit, up=args.up, workshop=workshop)
     problem = (report.get("fabrication", {}).get("solid") or {}).get("problem")
     if args.json:
         print(json.dumps(report, indent=2))
@@ -348,6 +350,13 @@ def _register_fitting(sub) -> None:
                           "sections.png)")
     fit.add_argument("--tool-radius", type=float, default=None, metavar="METRES",
                      help="ball-nose cutter radius: where it cannot reach (reach.png)")
+    fit.add_argument("--format", default="obj,ply,glb", metavar="LIST",
+                     help="surface formats, comma-separated, of obj, ply, glb, 3dm (scene.3dm: "
+                          "control net, NURBS limit surface, bodies); default obj,ply,glb")
+    fit.add_argument("--unit", choices=("m", "cm", "mm", "in", "ft"), default=None,
+                     help="length unit of the files (default: m, and mm for .3dm)")
+    fit.add_argument("--up", choices=("y", "z"), default=None,
+                     help="up axis of the files (default: y, and z for .3dm; GLB stays m, y)")
     fit.set_defaults(func=_cmd_fit)
 
     batch = sub.add_parser("batch", help="fit many scenarios and parameter sets, in parallel")

