@@ -335,8 +335,9 @@ def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangl
         residual, jac = _balance(np.zeros(6), groups, weight)
         if (np.linalg.norm(residual[:3]) < FORCE_TOL * np.linalg.norm(weight)
                 and np.linalg.norm(residual[3:]) < MOMENT_TOL):
-            if np.abs(x - x_found).max() > 0.01:  # at rest: first make sure of every contact
-                x_found = x - 1.0  # looked for again at the next step, which moves nothing
+            if np.abs(x - x_found).max() > 0.01 and _new_contact(supports, x, nrm, first,
+                                                                    groups):
+                x_found = x - 1.0  # at rest, but skin the last look missed touches: look again
                 continue
             if _tips(jac):
                 return _unsettled("tips over (its rest is a balance on an edge)", x, c0, shift,
@@ -364,6 +365,20 @@ def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangl
         if reason:
             return _unsettled(reason, x, c0, shift, rot, weight)
     return _unsettled(f"no rest within {MAX_OUTER} steps", x, c0, shift, rot, weight)
+
+
+def _new_contact(supports, x, nrm, first, groups) -> bool:
+    """Whether, looking over the whole body again, skin that is not among the candidates
+    presses a support."""
+    known = {k: set() for k in range(len(supports))}
+    for g in groups:
+        known[g[0].support].update(g[0].index.tolist())
+    for k, s in enumerate(supports):
+        _, cand, _ = _prepare(s, x, nrm, None, None, k, first[k][2])
+        pressed = cand.index[cand.depth > 0]
+        if any(i not in known[k] for i in pressed.tolist()):
+            return True
+    return False
 
 
 def _group(support: Support, k: int, x, x0, c, areas, normals, subset, cand=None):

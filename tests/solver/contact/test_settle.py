@@ -200,3 +200,18 @@ def test_past_its_thickness_the_foam_bottoms_out():
     p = 200 * G / 0.12
     assert -s.vertices[:, 1].min() == pytest.approx(0.01 + (p - 200e3 * 0.01) / (20 * 200e3),
                                                     rel=0.05)
+
+
+def test_a_plank_tipping_off_a_soft_pad_comes_to_rest_on_the_floor_not_through_it():
+    """A plank on a soft pad under its right part sinks and tips left until its left end,
+    6.5 cm above the floor at first (beyond the first look for contacts), reaches the floor;
+    it must rest on the floor, not pass through it."""
+    v, n, a, t = _box((1.2, 0.05, 0.2), [0, 0.025, 0], pitch=0.025)
+    pad = SurfaceMesh.from_quads(np.array([[-0.1, 0, -0.3], [-0.1, 0, 0.3], [0.6, 0, 0.3],
+                                           [0.6, 0, -0.3]]), np.array([[0, 1, 2, 3]]))
+    s = settle(v, n, a, t, 10.0, [Support("pad", Foam(50e3), pad),
+                                  Support("floor", Foam(30000e3, 0.02), height=-0.065)],
+               centre=np.array([0.0, 0.025, 0.0]))
+    assert s.stable, s.reason
+    assert {c.name for c in s.contacts} == {"pad", "floor"}
+    assert s.vertices[:, 1].min() > -0.065 - 0.002
