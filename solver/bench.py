@@ -136,7 +136,8 @@ def _relax_numeric(problem):
 
 def _settle_setup():
     """The seated person on its fitted seat (and the floor), with what the evaluation has
-    already computed for the settle (the vertices the seat cuts into, the supports)."""
+    already computed for the settle (every vertex's closest point on the seat, the vertices
+    the seat cuts into, the supports)."""
     from solver.contact.evaluate import cut_vertices, surface_parts
     from solver.contact.settle import Support
     from solver.mesh import SurfaceMesh
@@ -148,19 +149,20 @@ def _settle_setup():
     mesh = SurfaceMesh.from_quads(fit.surface, fit.surface_faces)
     person = people[0]
     foam, floor = foams(scenario.evaluation)
-    _, signed, _, _, closest = mesh.closest(person.vertices)
+    placed = mesh.closest(person.vertices)  # the evaluation has these for its coverage
+    _, signed, _, _, closest = placed
     cut = cut_vertices(person.vertices, person.triangles, signed, closest, foam)
     supports = [Support("surface", foam, mesh, parts=surface_parts(person.regions)),
                 Support("floor", floor)]
-    return person, supports, cut
+    return person, supports, cut, placed
 
 
 def _settle(arg):
     from solver.contact.settle import settle
 
-    person, supports, cut = arg
+    person, supports, cut, placed = arg
     rest = settle(person.vertices, person.normals, person.areas, person.triangles,
-                  person.mass_kg, supports, cut=cut)
+                  person.mass_kg, supports, cut=cut, closest={0: placed})
     if not rest.stable:
         raise RuntimeError(f"settle bench: {rest.reason}")
     return rest

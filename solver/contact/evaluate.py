@@ -223,7 +223,7 @@ def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float, 
     if floor is not None:
         supports.append(Support("floor", floor))
     settled = settle(vertices, person.normals, person.areas, triangles, person.mass_kg,
-                     supports, cut=cut)
+                     supports, cut=cut, closest={0: (dist, signed, over, face, closest)})
     figures = {
         "coverage": coverage,
         "max_penetration_m": penetration,

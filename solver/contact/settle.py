@@ -120,7 +120,8 @@ def reach_depth(foam: Foam) -> float:
 
 
 def _prepare(support: Support, vertices: np.ndarray, normals: np.ndarray,
-             cut: np.ndarray | None, inside, k: int, state: dict | None = None
+             cut: np.ndarray | None, inside, k: int, state: dict | None = None,
+             skip: np.ndarray | None = None, known: tuple | None = None
              ) -> tuple[np.ndarray, _Candidates, dict | None]:
     """(N,) the body vertices that may touch `support` during the settle: within BAND above
     it, facing it, pressed into a surface less than `reach_depth`; and their contact geometry.
@@ -128,7 +129,9 @@ def _prepare(support: Support, vertices: np.ndarray, normals: np.ndarray,
     into the body (`cut` (V,) bool says so, or `inside(points) -> bool` for the closest
     points); later, all but those that were behind its far side at the placement. `state`
     keeps those, a lower bound of each vertex's distance to the surface and where it held, so
-    that a later look queries only the vertices that can have come within BAND."""
+    that a later look queries only the vertices that can have come within BAND; it leaves out
+    the `skip` (V,) bool vertices (a surface's only). `known`: every vertex's closest point
+    on the surface as `SurfaceMesh.closest` gives it, when the caller has it already."""
     x = vertices
     if support.mesh is None:
         depth = support.height - x[:, 1]
@@ -138,18 +141,25 @@ def _prepare(support: Support, vertices: np.ndarray, normals: np.ndarray,
     mesh = support.mesh
     tree, edge = mesh.vertex_tree()
     if state is None:
-        lo = mesh.vertices.min(axis=0) - BAND - edge
-        hi = mesh.vertices.max(axis=0) + BAND + edge
-        look = np.flatnonzero(np.all((x >= lo) & (x <= hi), axis=1))
-        gap = np.full(len(x), BAND)  # beyond the box or the tree's reach: at least BAND away
+        lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+        # at least as far from the surface as from its bounding box, and BAND beyond the tree's
+        # reach
+        gap = np.linalg.norm(np.maximum(np.maximum(lo - x, x - hi), 0.0), axis=1)
+        look = np.flatnonzero(gap <= BAND + edge)
     else:
         gap = state["gap"] - np.linalg.norm(x - state["x"], axis=1)
-        look = np.flatnonzero(gap < BAND)
-    dist, _ = tree.query(x[look], distance_upper_bound=BAND + edge)
-    gap[look] = np.maximum(gap[look], BAND)
-    idx = look[np.isfinite(dist)]
-    unsigned, signed, over, face, point = mesh.closest(x[idx])
-    gap[idx] = unsigned
+        look = np.flatnonzero((gap < BAND) & (True if skip is None else ~skip))
+    if known is not None:  # the closest points of every vertex, as placed
+        unsigned, signed, over, face, point = known
+        gap = unsigned.copy()
+        idx = np.flatnonzero(unsigned <= BAND + edge)
+        unsigned, signed, over, face, point = (a[idx] for a in known)
+    else:
+        dist, _ = tree.query(x[look], distance_upper_bound=BAND + edge)
+        gap[look] = np.maximum(gap[look], BAND)  # found or not: refined below where found
+        idx = look[np.isfinite(dist)]
+        unsigned, signed, over, face, point = mesh.closest(x[idx])
+        gap[idx] = unsigned
     depth = -signed
     ok = over & (depth > -BAND) & (depth < reach_depth(support.foam))
     ok &= np.einsum("ij,ij->i", normals[idx], mesh.face_normals[face]) < 0
@@ -272,7 +282,8 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangles: np.ndarray,
            mass_kg: float, supports: list[Support], *, gravity=(0.0, -1.0, 0.0),
-           centre: np.ndarray | None = None, cut: np.ndarray | None = None) -> Settled:
+           centre: np.ndarray | None = None, cut: np.ndarray | None = None,
+           closest: dict | None = None) -> Settled:
     """The body at rest on `supports` (see the module docstring).
 
     Parameters
@@ -287,6 +298,9 @@ def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangl
     cut : (V,) bool, optional: the vertices behind a surface whose closest surface point lies
         inside the body (the surface cuts into the body there, so they press its foam); the
         others behind a surface are on its far side. Computed here when not given.
+    closest : dict, optional: for a support's index in `supports`, the closest points of every
+        vertex on its surface as placed (what `SurfaceMesh.closest` returns), when the caller
+        has them already.
 
     Returns
     -------
@@ -310,7 +324,7 @@ def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangl
     c0 = volume_centroid(x0, triangles) if centre is None else np.asarray(centre, float)
     tri = np.asarray(triangles, dtype=np.int64)
     first = [_prepare(s, x0, normals, cut, lambda p: igl.fast_winding_number(x0, tri, p) > 0.5,
-                      k) for k, s in enumerate(supports)]
+                      k, known=(closest or {}).get(k)) for k, s in enumerate(supports)]
     near = [f[0] for f in first]
     known = [(f[1], x0[f[1].index]) for f in first]  # the last geometry, and where it was found
     rot, shift = np.eye(3), np.zeros(3)
@@ -370,13 +384,13 @@ def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangl
 def _new_contact(supports, x, nrm, first, groups) -> bool:
     """Whether, looking over the whole body again, skin that is not among the candidates
     presses a support."""
-    known = {k: set() for k in range(len(supports))}
-    for g in groups:
-        known[g[0].support].update(g[0].index.tolist())
     for k, s in enumerate(supports):
-        _, cand, _ = _prepare(s, x, nrm, None, None, k, first[k][2])
-        pressed = cand.index[cand.depth > 0]
-        if any(i not in known[k] for i in pressed.tolist()):
+        known = np.zeros(len(x), dtype=bool)
+        for g in groups:
+            if g[0].support == k:
+                known[g[0].index] = True
+        _, cand, _ = _prepare(s, x, nrm, None, None, k, first[k][2], skip=known)
+        if (~known[cand.index[cand.depth > 0]]).any():
             return True
     return False
 
