@@ -298,9 +298,8 @@ def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangl
     cut : (V,) bool, optional: the vertices behind a surface whose closest surface point lies
         inside the body (the surface cuts into the body there, so they press its foam); the
         others behind a surface are on its far side. Computed here when not given.
-    closest : dict, optional: for a support's index in `supports`, the closest points of every
-        vertex on its surface as placed (what `SurfaceMesh.closest` returns), when the caller
-        has them already.
+    closest : dict, optional: per support index, `SurfaceMesh.closest` of every vertex as
+        placed, when the caller has it already.
 
     Returns
     -------
@@ -315,12 +314,7 @@ def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangl
     import igl
 
     x0 = np.asarray(vertices, dtype=np.float64)
-    g = np.asarray(gravity, dtype=np.float64)
-    if not (np.isfinite(mass_kg) and mass_kg > 0):
-        raise ValueError(f"Expected a body mass > 0 kg, got {mass_kg}")
-    if g.shape != (3,) or not np.all(np.isfinite(g)) or not np.linalg.norm(g) > 0:
-        raise ValueError(f"Expected a non-zero gravity direction (3,), got {gravity!r}")
-    weight = mass_kg * G * g / np.linalg.norm(g)
+    weight = _weight(mass_kg, gravity)
     c0 = volume_centroid(x0, triangles) if centre is None else np.asarray(centre, float)
     tri = np.asarray(triangles, dtype=np.int64)
     first = [_prepare(s, x0, normals, cut, lambda p: igl.fast_winding_number(x0, tri, p) > 0.5,
@@ -339,11 +333,8 @@ def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangl
             first = [_prepare(s, x, nrm, None, None, k, first[k][2])
                      for k, s in enumerate(supports)]
             near, x_found = [f[0] for f in first], x
-        cands = [first[k][1] if fresh else _candidates(s, k, x, near[k], *known[k])
-                 for k, s in enumerate(supports)]
-        known = [(cand, x[cand.index]) for cand in cands]
-        groups = [g for g in (_group(s, k, x, x0, c, areas, nrm, near[k], cands[k])
-                              for k, s in enumerate(supports)) if g is not None]
+        groups, known = _groups(supports, x, x0, c, areas, nrm, near,
+                                [f[1] for f in first] if fresh else None, known)
         if not groups:
             return _unsettled("no support touches the body", x, c0, shift, rot, weight)
         residual, jac = _balance(np.zeros(6), groups, weight)
@@ -360,25 +351,50 @@ def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangl
         # later steps move little: only what was near contact stays a candidate
         near = [np.concatenate([g[0].index for g in groups if g[0].support == k] + [near[k][:0]])
                 for k in range(len(supports))]
-        if not any((g[0].depth > 0).any() for g in groups):  # hovering: drop onto the nearest
-            gap = min(-g[0].depth.max() for g in groups)
-            q = np.concatenate([(gap + 1e-3) * weight / np.linalg.norm(weight), np.zeros(3)])
-        else:
-            q = _newton(groups, weight, scale, residual, jac)
-        if q is None:
-            return _unsettled("the balance has no solution (slides off?)", x, c0, shift, rot,
-                              weight)
-        size = _size(q)
-        if size < STILL:  # no motion brings the imbalance down: no balance within reach
-            return _unsettled("finds no balance (it tips over or slides off)", x, c0, shift, rot,
-                              weight)
-        q = q * min(1.0, STEP / size)
+        q, reason = _motion(groups, weight, scale, residual, jac)
+        if reason:
+            return _unsettled(reason, x, c0, shift, rot, weight)
         rot = Rotation.from_rotvec(q[3:]).as_matrix() @ rot
         shift = shift + q[:3]
         reason = _too_far(np.concatenate([shift, Rotation.from_matrix(rot).as_rotvec()]))
         if reason:
             return _unsettled(reason, x, c0, shift, rot, weight)
     return _unsettled(f"no rest within {MAX_OUTER} steps", x, c0, shift, rot, weight)
+
+
+def _groups(supports, x, x0, c, areas, nrm, near, fresh, known):
+    """The contact groups of the body standing at `x`: from the `fresh` candidates of a new
+    look, or by updating the `known` geometry of the `near` vertices; and that geometry."""
+    cands = [fresh[k] if fresh is not None else _candidates(s, k, x, near[k], *known[k])
+             for k, s in enumerate(supports)]
+    groups = [g for g in (_group(s, k, x, x0, c, areas, nrm, near[k], cands[k])
+                          for k, s in enumerate(supports)) if g is not None]
+    return groups, [(cand, x[cand.index]) for cand in cands]
+
+
+def _weight(mass_kg: float, gravity) -> np.ndarray:
+    """(3,) the body's weight, N; a ValueError for a mass or direction that is not one."""
+    g = np.asarray(gravity, dtype=np.float64)
+    if not (np.isfinite(mass_kg) and mass_kg > 0):
+        raise ValueError(f"Expected a body mass > 0 kg, got {mass_kg}")
+    if g.shape != (3,) or not np.all(np.isfinite(g)) or not np.linalg.norm(g) > 0:
+        raise ValueError(f"Expected a non-zero gravity direction (3,), got {gravity!r}")
+    return mass_kg * G * g / np.linalg.norm(g)
+
+
+def _motion(groups, weight, scale, residual, jac) -> tuple[np.ndarray | None, str | None]:
+    """The next step of the body (6,), at most STEP, or why there is none: a hovering body
+    drops onto its nearest support, a touching one takes Newton's way to balance."""
+    if not any((g[0].depth > 0).any() for g in groups):  # hovering: drop onto the nearest
+        gap = min(-g[0].depth.max() for g in groups)
+        return np.concatenate([(gap + 1e-3) * weight / np.linalg.norm(weight), np.zeros(3)]), None
+    q = _newton(groups, weight, scale, residual, jac)
+    if q is None:
+        return None, "the balance has no solution (slides off?)"
+    size = _size(q)
+    if size < STILL:  # no motion brings the imbalance down: no balance within reach
+        return None, "finds no balance (it tips over or slides off)"
+    return q * min(1.0, STEP / size), None
 
 
 def _new_contact(supports, x, nrm, first, groups) -> bool:

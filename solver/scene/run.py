@@ -220,16 +220,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     files = export_scene(out, result, people, maps, formats=tuple(formats), unit=unit, up=up,
                          creases=scenario.surface.params.creases)
     timing["export_s"] = time.perf_counter() - t
-    fabrication = None
-    if workshop is not None and workshop.any:
-        from solver.scene.workshop import export_workshop
-
-        t = time.perf_counter()
-        more, fabrication = export_workshop(out, result.surface, result.surface_faces, people,
-                                            workshop)
-        files.update(more)
-        timing["workshop_s"] = time.perf_counter() - t
-        say(f"workshop files: {', '.join(sorted(more))}")
+    fabrication = _workshop(out, result, people, workshop, files, timing, say)
     timing["total_s"] = time.perf_counter() - start
     report = {
         "scenario": str(scenario_path),
@@ -252,6 +243,23 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
 
 
 SURFACE_FORMATS = ("obj", "ply", "glb", "3dm")
+
+
+def _workshop(out: Path, result: FitResult, people: list[PlacedPerson], workshop, files: dict,
+              timing: dict, say) -> dict | None:
+    """The workshop's files (solid, reach, drawings) when asked for: adds them to `files` and
+    their time to `timing`; their figures (the report's "fabrication"), or None."""
+    if workshop is None or not workshop.any:
+        return None
+    from solver.scene.workshop import export_workshop
+
+    t = time.perf_counter()
+    more, fabrication = export_workshop(out, result.surface, result.surface_faces, people,
+                                        workshop)
+    files.update(more)
+    timing["workshop_s"] = time.perf_counter() - t
+    say(f"workshop files: {', '.join(sorted(more))}")
+    return fabrication
 
 
 def export_scene(out: Path, result: FitResult, people: list[PlacedPerson],
