@@ -220,7 +220,8 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     files = export_scene(out, result, people, maps, formats=tuple(formats), unit=unit, up=up,
                          creases=scenario.surface.params.creases)
     timing["export_s"] = time.perf_counter() - t
-    fabrication = _workshop(out, result, people, workshop, files, timing, say)
+    fabrication = _workshop(out, result, people, workshop, files, timing, say,
+                            scenario.surface.params.creases)
     timing["total_s"] = time.perf_counter() - start
     report = {
         "scenario": str(scenario_path),
@@ -246,16 +247,18 @@ SURFACE_FORMATS = ("obj", "ply", "glb", "3dm")
 
 
 def _workshop(out: Path, result: FitResult, people: list[PlacedPerson], workshop, files: dict,
-              timing: dict, say) -> dict | None:
-    """The workshop's files (solid, reach, drawings) when asked for: adds them to `files` and
-    their time to `timing`; their figures (the report's "fabrication"), or None."""
+              timing: dict, say, creases=()) -> dict | None:
+    """The workshop's files (solid, reach, drawings) of the limit surface, as `surface.*` hold
+    it, when asked for: adds them to `files` and their time to `timing`; their figures (the
+    report's "fabrication"), or None."""
     if workshop is None or not workshop.any:
         return None
     from solver.scene.workshop import export_workshop
+    from solver.surface.limit import limit_of_level
 
     t = time.perf_counter()
-    more, fabrication = export_workshop(out, result.surface, result.surface_faces, people,
-                                        workshop)
+    limit = limit_of_level(result.subdivision, result.surface, list(creases) or None)
+    more, fabrication = export_workshop(out, limit, result.surface_faces, people, workshop)
     files.update(more)
     timing["workshop_s"] = time.perf_counter() - t
     say(f"workshop files: {', '.join(sorted(more))}")
