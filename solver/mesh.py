@@ -216,3 +216,81 @@ class SurfaceMesh:
         # over the surface: the offset runs along the normal (not sideways off an edge)
         over = np.abs(signed) >= 0.95 * dist - 1e-9
         return dist, signed, over, face, closest
+
+
+def self_intersections(vertices: np.ndarray, triangles: np.ndarray,
+                       chunk: int = 200_000) -> np.ndarray:
+    """(P, 2) pairs of triangles that share no vertex and yet meet, i < j.
+
+    Broad phase: the triangles' bounding boxes binned on a uniform grid (cells twice the
+    median box); narrow phase: the separating-axis test (the two normals, the nine products
+    of their edges, and the six in-plane edge normals for coplanar triangles), vectorised.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float
+    triangles : (F, 3) int
+    chunk : int
+        Pairs tested at once (memory bound).
+
+    Returns
+    -------
+    (P, 2) int
+        Triangle indices of each crossing pair.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.asarray(triangles, dtype=np.int64)
+    corners = v[t]
+    lo, hi = corners.min(axis=1), corners.max(axis=1)
+    pairs = _box_pairs(lo, hi)
+    a, b = pairs[:, 0], pairs[:, 1]
+    shared = (t[a][:, :, None] == t[b][:, None, :]).any(axis=(1, 2))
+    a, b = a[~shared], b[~shared]
+    hits = [np.zeros((0, 2), dtype=np.int64)]
+    for s in range(0, len(a), chunk):
+        ka, kb = a[s:s + chunk], b[s:s + chunk]
+        meet = _no_separating_axis(corners[ka], corners[kb])
+        hits.append(np.stack([ka[meet], kb[meet]], axis=1))
+    return np.concatenate(hits)
+
+
+def _box_pairs(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(P, 2) pairs i < j of boxes (lo, hi: (F, 3)) that overlap."""
+    size = 2.0 * np.median((hi - lo).max(axis=1)) + 1e-12
+    first = np.floor((lo - lo.min(axis=0)) / size).astype(np.int64)
+    span = np.floor((hi - lo.min(axis=0)) / size).astype(np.int64) - first + 1
+    count = span.prod(axis=1)
+    owner = np.repeat(np.arange(len(lo)), count)
+    k = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+    sy, sz = span[owner, 1], span[owner, 2]
+    cell = first[owner] + np.stack([k // (sy * sz), (k // sz) % sy, k % sz], axis=1)
+    dims = cell.max(axis=0) + 1
+    key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
+    order = np.argsort(key, kind="stable")
+    key, owner = key[order], owner[order]
+    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    ends = np.r_[starts[1:], len(key)]
+    partners = np.repeat(ends, ends - starts) - np.arange(len(key)) - 1  # later in the cell
+    i = np.repeat(np.arange(len(key)), partners)
+    j = i + 1 + np.arange(partners.sum()) - np.repeat(np.cumsum(partners) - partners, partners)
+    a, b = owner[i], owner[j]
+    overlap = np.all((lo[a] <= hi[b]) & (lo[b] <= hi[a]), axis=1) & (a != b)
+    n = np.int64(len(lo))
+    unique = np.unique(np.minimum(a, b)[overlap] * n + np.maximum(a, b)[overlap])
+    return np.stack([unique // n, unique % n], axis=1)
+
+
+def _no_separating_axis(p: np.ndarray, q: np.ndarray, gap: float = 1e-12) -> np.ndarray:
+    """(P,) whether triangles p[k] and q[k] ((P, 3, 3) corners) meet: no axis parts them by
+    more than `gap` metres."""
+    ep, eq = np.roll(p, -1, axis=1) - p, np.roll(q, -1, axis=1) - q
+    n_p, n_q = np.cross(ep[:, 0], ep[:, 1]), np.cross(eq[:, 0], eq[:, 1])
+    axes = np.concatenate([n_p[:, None], n_q[:, None],
+                           np.cross(ep[:, :, None], eq[:, None, :]).reshape(-1, 9, 3),
+                           np.cross(n_p[:, None], ep), np.cross(n_q[:, None], eq)], axis=1)
+    length = np.linalg.norm(axes, axis=2, keepdims=True)
+    axes = axes / np.maximum(length, 1e-300)
+    pp, qq = np.einsum("pak,pvk->pav", axes, p), np.einsum("pak,pvk->pav", axes, q)
+    apart = np.maximum(pp.min(axis=2) - qq.max(axis=2), qq.min(axis=2) - pp.max(axis=2))
+    apart[length[..., 0] < 1e-300] = -np.inf  # parallel edges give no axis
+    return ~(apart > gap).any(axis=1)

@@ -1,0 +1,169 @@
+"""Hard geometric guarantees of a fitted surface, checked after the fit.
+
+A fit minimises an energy; nothing in that energy forbids a surface that crosses itself, folds
+back, dips under the floor or cuts into a body between its vertices. These checks say whether
+the surface (the limit surface on the level-s quads, as `surface.*` holds it) does any of that:
+
+* self-intersections: pairs of its triangles (each quad split along its 0-2 diagonal) that share
+  no vertex and yet cross, by the exact separating-axis test of `solver.mesh.self_intersections`;
+* folds: the angle between the normals of two quads that share an edge (edges given as sharp,
+  the creases, are left out: a crease is a fold by design);
+* the floor: the lowest surface point (the mesh is flat between its vertices, so the lowest
+  vertex), against the plane y = floor (Y up);
+* dense penetration: the deepest point of the surface inside any body, over a grid of 15
+  barycentric samples on every triangle (its corners, three points on each edge, three inside),
+  so a face cutting into a body between its vertices is seen. Inside is a fast winding number
+  above one half; the depth is the exact distance to the closed skin.
+
+Lengths in metres, angles in degrees (a report's figures).
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from solver.mesh import quad_triangles, self_intersections
+
+FOLD_LIMIT_DEG = 60.0  # neighbouring faces further apart than this are a fold
+FLOOR_TOLERANCE = 1e-3  # m the surface may sit below the floor before it counts as under it
+PENETRATION_TOLERANCE = 1e-3  # m a body may be cut beyond the margin
+SAMPLE_DIVISIONS = 4  # each triangle's edges in this many parts: 15 barycentric samples
+
+
+def quad_normals(vertices: np.ndarray, quads: np.ndarray) -> np.ndarray:
+    """(F, 3) unit normals of quads, the cross product of their diagonals (v2 - v0) x (v3 - v1)
+    (zero for a degenerate quad)."""
+    v, q = np.asarray(vertices, dtype=np.float64), np.asarray(quads, dtype=np.int64)
+    n = np.cross(v[q[:, 2]] - v[q[:, 0]], v[q[:, 3]] - v[q[:, 1]])
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+
+
+def fold_angles(vertices: np.ndarray, quads: np.ndarray,
+                sharp_edges: np.ndarray | None = None) -> np.ndarray:
+    """(E,) degrees between the normals of the two quads on each interior edge.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float
+    quads : (F, 4) int
+    sharp_edges : (K, 2) int, optional
+        Edges (vertex pairs, either order) left out: creases, folds by design.
+
+    Returns
+    -------
+    (E,) float
+        One angle in [0, 180] per edge shared by exactly two quads.
+    """
+    q = np.asarray(quads, dtype=np.int64)
+    normals = quad_normals(vertices, q)
+    edges = np.sort(np.stack([q, np.roll(q, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
+    face = np.repeat(np.arange(len(q)), 4)
+    order = np.lexsort((edges[:, 1], edges[:, 0]))
+    edges, face = edges[order], face[order]
+    pair = np.all(edges[1:] == edges[:-1], axis=1)
+    keep = np.flatnonzero(pair)
+    if sharp_edges is not None and len(sharp_edges):
+        n = np.int64(edges.max() + 1) if len(edges) else np.int64(1)
+        sharp = np.sort(np.asarray(sharp_edges, dtype=np.int64).reshape(-1, 2), axis=1)
+        sharp = sharp[sharp.max(axis=1) < n]
+        keep = keep[~np.isin(edges[keep, 0] * n + edges[keep, 1], sharp[:, 0] * n + sharp[:, 1])]
+    dots = np.einsum("ij,ij->i", normals[face[keep]], normals[face[keep + 1]])
+    return np.degrees(np.arccos(np.clip(dots, -1.0, 1.0)))
+
+
+def barycentric_samples(vertices: np.ndarray, triangles: np.ndarray,
+                        divisions: int = SAMPLE_DIVISIONS) -> np.ndarray:
+    """(F * (d + 1)(d + 2) / 2, 3) points on every triangle: the barycentric grid with each
+    edge in `divisions` (d) parts, corners included."""
+    i, j = np.meshgrid(np.arange(divisions + 1), np.arange(divisions + 1), indexing="ij")
+    inside = (i + j) <= divisions
+    a, b = i[inside] / divisions, j[inside] / divisions
+    weights = np.stack([1.0 - a - b, a, b], axis=1)  # (S, 3)
+    corners = np.asarray(vertices, dtype=np.float64)[np.asarray(triangles, dtype=np.int64)]
+    return np.einsum("sk,fkd->fsd", weights, corners).reshape(-1, 3)
+
+
+def penetration_dense(points: np.ndarray, bodies: Sequence[tuple[np.ndarray, np.ndarray]]
+                      ) -> float:
+    """Largest depth (m) of `points` (P, 3) inside any of the closed bodies ((V, 3) vertices,
+    (T, 3) triangles each), 0 if none is inside."""
+    import igl
+
+    deepest = 0.0
+    for body_vertices, body_triangles in bodies:
+        bv = np.asarray(body_vertices, dtype=np.float64)
+        bt = np.asarray(body_triangles, dtype=np.int64)
+        lo, hi = bv.min(axis=0), bv.max(axis=0)
+        near = points[np.all((points >= lo) & (points <= hi), axis=1)]
+        if not len(near):
+            continue
+        inside = near[igl.fast_winding_number(bv, bt, near) > 0.5]
+        if not len(inside):
+            continue
+        dist2 = igl.point_mesh_squared_distance(inside, bv, bt)[0]
+        deepest = max(deepest, float(np.sqrt(dist2.max())))
+    return deepest
+
+
+def surface_guarantees(vertices: np.ndarray, quads: np.ndarray,
+                       bodies: Sequence[tuple[np.ndarray, np.ndarray]], margin: float,
+                       floor: float | None = 0.0, *, sharp_edges: np.ndarray | None = None,
+                       divisions: int = SAMPLE_DIVISIONS) -> dict:
+    """The surface's geometric guarantees, as a JSON-ready dict.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float
+        The surface's vertices, metres, Y up (the limit points of the level-s quads).
+    quads : (F, 4) int
+        Its quads.
+    bodies : sequence of ((Vb, 3) float, (Tb, 3) int)
+        The posed bodies' closed skins, metres.
+    margin : float
+        Metres the surface may sink into a body.
+    floor : float or None, default 0.0
+        The floor's height y (m); None: no floor to stay above.
+    sharp_edges : (K, 2) int, optional
+        The surface's sharp edges (vertex pairs), left out of the fold angles.
+    divisions : int, default 4
+        Each triangle's edges in this many parts for the penetration samples.
+
+    Returns
+    -------
+    dict
+        ``self_intersections`` (int: crossing pairs of triangles that share no vertex),
+        ``max_fold_deg`` (float: largest angle between neighbouring quads' normals), ``folds``
+        (int: neighbouring pairs over `FOLD_LIMIT_DEG`), ``min_height_m`` (float),
+        ``below_floor`` (bool: lower than `floor` by more than `FLOOR_TOLERANCE`),
+        ``max_penetration_dense_m`` (float), ``margin_m``, ``floor_m`` and ``ok`` (bool: no
+        crossing, no fold, not below the floor, penetration within the margin plus
+        `PENETRATION_TOLERANCE`).
+
+    Raises
+    ------
+    ValueError
+        If the shapes are not (V, 3) and (F, 4), or the margin is negative.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    q = np.asarray(quads, dtype=np.int64)
+    if v.ndim != 2 or v.shape[1] != 3 or q.ndim != 2 or q.shape[1] != 4:
+        raise ValueError(f"Expected vertices (V, 3) and quads (F, 4), got {v.shape} and "
+                         f"{q.shape}")
+    if not margin >= 0:
+        raise ValueError(f"Expected a margin >= 0 metres, got {margin}")
+    triangles = quad_triangles(q)
+    crossings = len(self_intersections(v, triangles))
+    angles = fold_angles(v, q, sharp_edges)
+    max_fold = float(angles.max()) if len(angles) else 0.0
+    folds = int(np.sum(angles > FOLD_LIMIT_DEG))
+    min_height = float(v[:, 1].min())
+    below = floor is not None and min_height < floor - FLOOR_TOLERANCE
+    depth = penetration_dense(barycentric_samples(v, triangles, divisions), bodies)
+    ok = crossings == 0 and folds == 0 and not below and \
+        depth <= margin + PENETRATION_TOLERANCE
+    return {"self_intersections": int(crossings), "max_fold_deg": max_fold, "folds": folds,
+            "min_height_m": min_height, "below_floor": bool(below),
+            "max_penetration_dense_m": depth, "margin_m": float(margin),
+            "floor_m": None if floor is None else float(floor), "ok": bool(ok)}

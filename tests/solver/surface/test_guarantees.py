@@ -1,0 +1,91 @@
+"""The guarantees report on hand-made surfaces: each check finds what it is for."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from solver.contact.evaluate import penetration_depth
+from solver.surface.guarantees import barycentric_samples, fold_angles, surface_guarantees
+
+
+def grid(n: int = 4, size: float = 2.0, height: float = 0.5, offset=(0.0, 0.0)):
+    """A flat n x n quad sheet at y = height over [-size/2, size/2]^2 (x, z), facing +Y."""
+    t = np.linspace(-size / 2, size / 2, n + 1)
+    x, z = np.meshgrid(t + offset[0], t + offset[1], indexing="ij")
+    v = np.stack([x.ravel(), np.full(x.size, height), z.ravel()], axis=1)
+    k = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    quads = np.stack([k[:-1, :-1], k[:-1, 1:], k[1:, 1:], k[1:, :-1]], axis=-1).reshape(-1, 4)
+    return v, quads
+
+
+def box(half: float = 0.2, centre=(0.0, 0.0, 0.0)):
+    mesh = trimesh.creation.box(extents=[2 * half] * 3)
+    return np.asarray(mesh.vertices) + np.asarray(centre), np.asarray(mesh.faces)
+
+
+def test_a_flat_grid_is_ok():
+    v, q = grid()
+    g = surface_guarantees(v, q, [], margin=0.03)
+    assert g["self_intersections"] == 0 and g["folds"] == 0
+    assert g["max_fold_deg"] == pytest.approx(0.0, abs=1e-6)
+    assert g["min_height_m"] == pytest.approx(0.5) and not g["below_floor"]
+    assert g["max_penetration_dense_m"] == 0.0 and g["ok"]
+
+
+def test_a_vertex_pulled_through_folds_the_grid():
+    v, q = grid(n=4, size=2.0)
+    centre = int(np.argmin(np.linalg.norm(v[:, [0, 2]], axis=1)))
+    v[centre] += [1.2, 0.0, 0.0]  # through its neighbour at x = 0.5: the quads flip
+    g = surface_guarantees(v, q, [], margin=0.03)
+    assert g["folds"] > 0 and g["max_fold_deg"] > 150 and not g["ok"]
+
+
+def test_a_crease_is_no_fold():
+    v, q = grid(n=2, size=2.0)
+    v[v[:, 0] > 0.5, 1] += 2.0  # the last column of quads stands up along x = 0
+    edge = np.flatnonzero(np.isclose(v[:, 0], 0.0))
+    sharp = np.stack([edge[:-1], edge[1:]], axis=1)
+    assert fold_angles(v, q).max() > 60
+    assert fold_angles(v, q, sharp).max() == pytest.approx(0.0, abs=1e-6)
+
+
+def test_two_crossing_sheets_intersect():
+    a, qa = grid(n=2, height=0.5)
+    b, qb = grid(n=2, height=0.5)
+    b = b[:, [1, 0, 2]]  # the same sheet turned upright, in the plane x = 0.5
+    b[:, 0] -= 0.25
+    b[:, 1] += 0.5  # spans y 0.5 +- 1, crossing the first sheet along x = 0.25
+    v = np.concatenate([a, b])
+    q = np.concatenate([qa, qb + len(a)])
+    g = surface_guarantees(v, q, [], margin=0.03)
+    assert g["self_intersections"] > 0 and not g["ok"]
+    assert surface_guarantees(a, qa, [], margin=0.03)["self_intersections"] == 0
+
+
+def test_a_sheet_below_the_floor():
+    v, q = grid(height=-0.024)
+    g = surface_guarantees(v, q, [], margin=0.03, floor=0.0)
+    assert g["below_floor"] and g["min_height_m"] == pytest.approx(-0.024) and not g["ok"]
+    assert not surface_guarantees(v, q, [], margin=0.03, floor=None)["below_floor"]
+    assert not surface_guarantees(v, q, [], 0.03, floor=-0.0235)["below_floor"]  # within 1 mm
+
+
+def test_dense_penetration_finds_a_cut_between_vertices():
+    v, q = grid(n=3, size=2.0, height=0.05)  # vertices at x, z in {-1, -1/3, 1/3, 1}
+    body = box(half=0.2)  # between the vertices: none of them is inside
+    triangles = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
+    assert penetration_depth(v, *body) == 0.0  # the vertex-only check misses it
+    g = surface_guarantees(v, q, [body], margin=0.03)
+    assert g["max_penetration_dense_m"] == pytest.approx(0.15, abs=0.02)
+    assert not g["ok"]
+    assert len(barycentric_samples(v, triangles)) == 15 * len(triangles)
+    far = box(half=0.2, centre=(0.0, 1.0, 0.0))
+    assert surface_guarantees(v, q, [far], margin=0.03)["max_penetration_dense_m"] == 0.0
+
+
+def test_bad_shapes_are_refused():
+    v, q = grid()
+    with pytest.raises(ValueError, match=r"quads \(F, 4\), got"):
+        surface_guarantees(v, q[:, :3], [], margin=0.03)
+    with pytest.raises(ValueError, match="margin >= 0"):
+        surface_guarantees(v, q, [], margin=-1.0)
