@@ -222,6 +222,9 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     timing["export_s"] = time.perf_counter() - t
     fabrication = _workshop(out, result, people, workshop, files, timing, say,
                             scenario.surface.params.creases)
+    t = time.perf_counter()
+    guarantees = fit_guarantees(result, people, scenario.surface.params)
+    timing["guarantees_s"] = time.perf_counter() - t
     timing["total_s"] = time.perf_counter() - start
     report = {
         "scenario": str(scenario_path),
@@ -235,6 +238,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         "surface_vertices": int(len(result.surface)),
         "persons": persons,
         "surface_limit": files.pop("surface_limit"),
+        "guarantees": guarantees,
         "files": files,
     }
     if fabrication is not None:
@@ -244,6 +248,24 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
 
 
 SURFACE_FORMATS = ("obj", "ply", "glb", "3dm")
+
+
+def fit_guarantees(result: FitResult, people: list[PlacedPerson], params) -> dict:
+    """`solver.surface.guarantees.surface_guarantees` of the limit surface that `surface.*`
+    holds (the level-s quads at their limit points; the level's creases are no folds), against
+    the posed bodies, with the fit's margin and floor (`params`, the `FitParams`)."""
+    from solver.surface.guarantees import surface_guarantees
+    from solver.surface.limit import limit_of_level
+
+    sub = result.subdivision
+    if sub is None:
+        raise ValueError("Expected a FitResult that carries its subdivision, got none")
+    limit = limit_of_level(sub, result.surface, list(params.creases) or None)
+    sharp = sub.steps[-1].creases if sub.level > 0 else \
+        (np.asarray(params.creases, dtype=np.int64).reshape(-1, 2) if params.creases else None)
+    return surface_guarantees(limit, result.surface_faces,
+                              [(p.vertices, p.triangles) for p in people], params.margin,
+                              getattr(params, "floor", 0.0), sharp_edges=sharp)
 
 
 def _workshop(out: Path, result: FitResult, people: list[PlacedPerson], workshop, files: dict,

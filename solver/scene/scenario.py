@@ -14,6 +14,7 @@
     anchor = 0.001     # weak pull of every control vertex to its start
     pull_range = 0.25  # metres: farther body points do not pull yet
     step = 0.05        # metres a control vertex may move per iteration
+    floor = 0.0        # metres: the surface stays above y = floor (JSON null: no floor)
 
     [evaluation]
     foam_stiffness = 200.0  # kPa of pressure per metre the foam is pressed in

@@ -66,6 +66,8 @@ FIT_FIELDS: dict[str, Any] = {
                                                         "pull yet")],
     "step": Annotated[Positive, Field(description="metres a control vertex may move per "
                                                   "iteration (a trust region)")],
+    "floor": Annotated[Union[Number, None], Field(description="the floor's height y, metres: "
+                                                  "the surface stays above it (null: no floor)")],
 }
 _missing = sorted({f.name for f in dataclasses.fields(FitParams)} ^ set(FIT_FIELDS))
 if _missing:  # a new fit parameter needs its bounds here (or a removed one its entry gone)

@@ -70,6 +70,8 @@ PATIENCE = 5  # iterations without improvement before the loop stops
 SLACK_WEIGHT = 1e3  # cost per m^2 of a non-penetration row left unmet (soft constraints)
 DENSE_UP_TO = 150  # control vertices up to which the Hessian is built dense
 PROXIMAL = 0.01  # weight of the pull to the current control mesh (per coordinate)
+FLOOR_REACH = 2.0  # steps: a surface vertex this near the floor gets a floor row (it moves at
+                   # most one step per iteration, so none gets under unseen)
 
 
 class FitError(ValueError):
@@ -86,7 +88,8 @@ class FitParams:
     max_iterations, tolerance : the loop's stop (relative improvement over PATIENCE
     iterations); anchor : weak pull of every control vertex to its start; pull_range : metres
     beyond which body points do not pull yet; step : metres a control vertex may move per
-    iteration (a trust region).
+    iteration (a trust region); floor : the floor's height y (metres) that every level-s
+    surface vertex stays above (soft rows, like non-penetration), None for no floor.
     """
 
     level: int = 3
@@ -101,6 +104,7 @@ class FitParams:
     anchor: float = 1e-3
     pull_range: float = 0.25
     step: float = 0.05  # metres a control vertex may move per iteration (a trust region)
+    floor: float | None = 0.0  # metres: the level-s surface stays above y = floor (None: free)
 
 
 @dataclass
@@ -327,11 +331,13 @@ def _nearest_skin(fit: _Fit, sv: np.ndarray, sn: np.ndarray
     return near_s, dist, inside
 
 
-def constrain(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray, member: np.ndarray) -> Rows:
+def constrain(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray, member: np.ndarray,
+              floor_member: np.ndarray | None = None) -> Rows:
     """Non-penetration: each sampled surface vertex near a body (or inside one) stays outside
     the tangent plane at its body vertex, less the margin. Rows join `member` (updated in
     place) and stay, inactive when not wanted, so that OSQP is set up again only when a new
-    surface vertex comes near a body."""
+    surface vertex comes near a body. With `floor_member` ((ns,) bool, updated in place) and a
+    floor in the parameters, the floor's rows follow (`floor_rows`)."""
     ids = fit.sampled_ids
     near_s, dist, inside = _nearest_skin(fit, surf[ids], surf_n[ids])
     closest = np.zeros(len(surf), dtype=np.int64)
@@ -347,7 +353,28 @@ def constrain(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray, member: np.ndarra
     # a violated row need only improve by most of a step per iteration (it stays feasible
     # within the trust region)
     now = np.einsum("ij,ij->i", cn, surf[rows])
-    return Rows(rows, cn, np.minimum(lower, now + 0.8 * fit.params.step), demanded)
+    body = Rows(rows, cn, np.minimum(lower, now + 0.8 * fit.params.step), demanded)
+    if floor_member is None or fit.params.floor is None:
+        return body
+    floor = floor_rows(fit, surf, floor_member)
+    return Rows(*(np.concatenate([a, b]) for a, b in
+                  zip((body.rows, body.normals, body.lower, body.demanded),
+                      (floor.rows, floor.normals, floor.lower, floor.demanded))))
+
+
+def floor_rows(fit: _Fit, surf: np.ndarray, member: np.ndarray) -> Rows:
+    """The floor: each level-s surface vertex within `FLOOR_REACH` steps of the floor (or
+    under it) stays at y >= floor, the y row of S being linear in the control vertices. Rows
+    join `member` (updated in place) and stay, so that OSQP is seldom set up again. Limit
+    points are convex combinations of level-s vertices, so the limit surface stays above the
+    floor too."""
+    floor = float(fit.params.floor)
+    member |= surf[:, 1] < floor + FLOOR_REACH * fit.params.step
+    rows = np.flatnonzero(member)
+    normals = np.tile([0.0, 1.0, 0.0], (len(rows), 1))
+    demanded = np.full(len(rows), floor)
+    lower = np.minimum(demanded, surf[rows, 1] + 0.8 * fit.params.step)
+    return Rows(rows, normals, lower, demanded)
 
 
 def judge(fit: _Fit, v: np.ndarray, pairing: Pairing, surf_n: np.ndarray, tau: float,
@@ -373,7 +400,8 @@ def converged(energies: Sequence[float], tolerance: float) -> bool:
     return len(post) > PATIENCE and min(post) > min(post[:-PATIENCE]) * (1 - tolerance)
 
 
-def iterate(fit: _Fit, v: np.ndarray, member: np.ndarray, tau: float
+def iterate(fit: _Fit, v: np.ndarray, member: np.ndarray, tau: float,
+            floor_member: np.ndarray | None = None
             ) -> tuple[np.ndarray, str, float, float, dict]:
     """One iteration from control vertices v (n0, 3): pair, assemble, constrain, solve, judge.
     Returns the new control vertices, OSQP's status, the largest row residual (m), and the
@@ -382,7 +410,7 @@ def iterate(fit: _Fit, v: np.ndarray, member: np.ndarray, tau: float
     surf_n = fit.sub.normals(surf)
     pairing = pair(fit, surf)
     h, g = assemble(fit, pairing, surf_n, tau)
-    rows = constrain(fit, surf, surf_n, member)
+    rows = constrain(fit, surf, surf_n, member, floor_member)
     x0 = v.T.reshape(-1)
     g += fit.proximal * x0  # the proximal pull to the current iterate
     try:
@@ -440,12 +468,13 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
     statuses: list[str] = []
     residuals: list[float] = []
     member = initial_rows(fit)
+    floor_member = np.zeros_like(member)
     best = None
     stop = f"reached the iteration limit ({params.max_iterations})"
     iteration = 0
     for iteration in range(1, params.max_iterations + 1):
         tau = params.tau_max * min(1.0, (iteration - 1) / TAU_RAMP)
-        v, status, residual, energy, terms = iterate(fit, v, member, tau)
+        v, status, residual, energy, terms = iterate(fit, v, member, tau, floor_member)
         statuses.append(status)
         residuals.append(residual)
         energies.append(energy)
