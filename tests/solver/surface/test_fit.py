@@ -213,6 +213,11 @@ def test_fit_command_writes_files_that_open_again(tmp_path):
         mesh = trimesh.load(out / name, process=False, force="mesh")
         assert len(mesh.vertices) == report["surface_vertices"]
         assert len(mesh.faces) in (3072, 2 * 3072)  # quads, or quads as triangle pairs
+    guarantees = report["guarantees"]  # of the surface that surface.obj holds
+    assert {"self_intersections", "max_fold_deg", "folds", "below_floor", "ok",
+            "max_penetration_dense_m"} <= set(guarantees)
+    limit = trimesh.load(out / "surface.obj", process=False, force="mesh").vertices
+    assert guarantees["min_height_m"] == pytest.approx(limit[:, 1].min(), abs=1e-6)
     body = trimesh.load(out / "person_1.ply", process=False)
     assert len(body.vertices) == 13380 and len(body.faces) == 2 * 13378
     assert (out / "scene.png").stat().st_size > 10_000
@@ -277,3 +282,15 @@ def test_support_inside_other_bodies_is_the_share_of_importance_they_contain():
     assert support_inside(v, heavy, [(hv, ht)]) == pytest.approx(8.0 / 12.0)
     assert support_inside(v, uniform, [(hv + [10.0, 0.0, 0.0], ht)]) == 0.0
     assert support_inside(v, np.zeros(len(v)), [(hv, ht)]) == 0.0
+
+
+def test_the_floor_holds_the_surface_up(ball):
+    # the ball's bottom is at 0.42 m: without a floor the bowl under it goes below 0.44 m
+    v, t, normals, areas, importance = ball
+    grid_v, grid_f = grid_mesh((1.2, 0.8), (8, 6), 0.45)
+    target = SupportedBody(v, normals, importance, "ball", t, areas, mass_kg=30.0)
+    low = [fit_surface(grid_v, grid_f, [target], FitParams(
+        level=2, margin=0.02, sigma=0.01, max_iterations=8, floor=floor)).surface[:, 1].min()
+        for floor in (None, 0.44)]
+    assert low[0] < 0.435
+    assert low[1] >= 0.44 - 1e-3
