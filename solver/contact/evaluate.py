@@ -1,6 +1,8 @@
 """Evaluating a surface against a posed body, as a designer and a pressure mat would.
 
-* coverage: the share of the body's importance within the margin of the surface;
+* coverage: the share of the body's importance within the margin of the surface, on either
+  side; contact coverage: the share in contact, within `CONTACT_GAP` in front of the surface
+  or sunk into it (where it cuts into the body) by up to the margin;
 * largest penetration: how deep the surface cuts into the body: the largest depth of a surface
   vertex inside the (closed) body mesh, by the winding number and the distance to the skin;
 * the settle: the body, with its estimated weight, comes to rest in static equilibrium on the
@@ -29,6 +31,7 @@ from solver.contact.supported import SupportedBody
 from solver.mesh import SurfaceMesh
 
 FLOOR = Foam(stiffness=30000e3, thickness=0.02)  # a hard floor under shoes and heels
+CONTACT_GAP = 0.005  # metres in front of the surface a body point counts as touching it
 
 
 @dataclass(frozen=True, eq=False)
@@ -193,7 +196,9 @@ def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float, 
     -------
     figures : dict
         The figures, lengths in metres, pressures in kPa, areas in m^2: ``coverage`` (share of
-        the importance within `margin` of the surface, in [0, 1]), ``max_penetration_m``,
+        the importance within `margin` of the surface, either side, in [0, 1]),
+        ``contact_coverage`` (the share within `CONTACT_GAP` in front of it or sunk in where it
+        cuts into the body, by up to `margin`), ``max_penetration_m``,
         ``mean_support_distance_m`` (importance-weighted mean distance to the surface, None
         without importance), ``supported`` (bool: the body comes to rest), over the surface's
         contacts ``peak_pressure_kpa``, ``peak_pressure_index_kpa``, ``mean_pressure_kpa``,
@@ -219,6 +224,8 @@ def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float, 
     penetration = penetration_depth(surface.vertices[near], vertices, triangles) \
         if near.any() else 0.0
     cut = cut_vertices(vertices, triangles, signed, closest, foam)
+    touching = ((signed >= 0) & (signed <= CONTACT_GAP)) | (cut & (signed >= -margin - 1e-9))
+    contact = float(importance[touching].sum() / total) if total > 0 else 0.0
     supports = [Support("surface", foam, surface, parts=surface_parts(person.regions))]
     if floor is not None:
         supports.append(Support("floor", floor))
@@ -226,6 +233,7 @@ def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float, 
                      supports, cut=cut, closest={0: (dist, signed, over, face, closest)})
     figures = {
         "coverage": coverage,
+        "contact_coverage": contact,
         "max_penetration_m": penetration,
         "mean_support_distance_m": float(np.sum(importance * dist) / total) if total else None,
         "supported": settled.stable,

@@ -29,6 +29,7 @@ def _fit(ball, **kw):
 def test_ball_is_cradled_without_being_cut(ball):
     start, result, figures = _fit(ball, sigma=0.01)
     assert figures["coverage"] > 0.9
+    assert 0.0 < figures["contact_coverage"] <= figures["coverage"]
     assert figures["max_penetration_m"] <= 0.02 + 0.005
     assert result.surface[:, 1].min() < 0.45  # a bowl formed under the ball
     assert all(s in ("solved", "solved inaccurate") for s in result.qp_statuses)
@@ -199,7 +200,7 @@ def test_fit_command_writes_files_that_open_again(tmp_path):
     assert {"iterations", "stop_reason", "timing", "persons", "parameters"} <= set(report)
     assert report["timing"]["total_s"] > 0
     person = report["persons"][0]
-    for key in ("coverage", "max_penetration_m", "contact_area_m2", "peak_pressure_kpa",
+    for key in ("coverage", "contact_coverage", "max_penetration_m", "contact_area_m2", "peak_pressure_kpa",
                 "mean_pressure_kpa", "flat"):
         assert key in person
     assert {"coverage", "peak_pressure_kpa"} <= set(person["flat"])
