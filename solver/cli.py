@@ -10,11 +10,14 @@ from typing import Any, Callable
 from capture import cli as capture_cli
 from posedb import cli as posedb_cli
 
-from solver.bench import format_table, run_benchmarks
-from solver.body.model import SHAPE_KEYS as SHAPE_PARAMS
+# each command imports its work when it runs (numpy, scipy, h5py, the solver): `sitrelax --help`
+# stays fast
+from solver.body.sliders import SHAPE_KEYS as SHAPE_PARAMS
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
+    from solver.bench import format_table, run_benchmarks
+
     def progress(msg: str) -> None:
         print(f"bench {msg}", file=sys.stderr, flush=True)
 
@@ -299,7 +302,7 @@ def build_parser(extra: Callable[[Any], None] | None = None) -> argparse.Argumen
 
 def _register_bodies(sub) -> None:
     """`body make` and `pose show`."""
-    from solver.io.render import VIEWS
+    from solver.io.views import VIEWS
 
     body = sub.add_parser("body", help="bodies of any shape")
     bsub = body.add_subparsers(dest="body_command", required=True)
