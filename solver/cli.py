@@ -128,7 +128,8 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     workshop = _workshop_options(args)
     formats = [f.strip().lower().lstrip(".") for f in args.format.split(",") if f.strip()]
     report = run_fit(args.scenario, args.out, db=args.db, progress=progress, formats=formats,
-                     unit=args.unit, up=args.up, workshop=workshop)
+                     unit=args.unit, up=args.up, workshop=workshop,
+                     pictures=not args.no_pictures)
     problem = (report.get("fabrication", {}).get("solid") or {}).get("problem")
     if args.json:
         print(json.dumps(report, indent=2))
@@ -143,7 +144,8 @@ def _cmd_fit(args: argparse.Namespace) -> int:
               f"{p['max_penetration_m'] * 1000:.0f} mm, peak {peak_text(p)} "
               f"(flat seat {peak_text(flat)}), contact {p['contact_area_m2']:.3f} m^2"
               + (f"; load on {loads}" if loads else ""))
-    print(f"wrote {args.out}/report.json and the surface, control mesh, bodies and pictures")
+    print(f"wrote {args.out}/report.json and the surface, control mesh, bodies"
+          + (" and pictures" if report["pictures"] else " (pictures skipped: --no-pictures)"))
     if "fabrication" in report:
         _print_fabrication(report["fabrication"])
     return 1 if problem else 0
@@ -360,6 +362,9 @@ def _register_fitting(sub) -> None:
                      help="length unit of the files (default: m, and mm for .3dm)")
     fit.add_argument("--up", choices=("y", "z"), default=None,
                      help="up axis of the files (default: y, and z for .3dm; GLB stays m, y)")
+    fit.add_argument("--no-pictures", action="store_true",
+                     help="skip scene.png, pressure.png and pressure_map.png (faster; the "
+                          "report says \"pictures\": false)")
     fit.set_defaults(func=_cmd_fit)
 
     batch = sub.add_parser("batch", help="fit many scenarios and parameter sets, in parallel")
