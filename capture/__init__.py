@@ -3,66 +3,42 @@ and live Perception Neuron streams (codec, sources, raw captures, replay server)
 
 Conventions (shared by the whole project): metres and seconds, Y up, gravity along -Y, a body in
 rest pose faces +Z; rotations via `scipy.spatial.transform.Rotation`, quaternions (x, y, z, w).
+
+This module is the facade: the names a user calls, each loaded when first used (so that the
+`sitrelax` command starts without numpy and scipy).
 """
 
-from .bvh import Bvh, BvhParseError, Motion, format_bvh, parse_bvh, read_bvh, write_bvh
-from .neuron import NeuronFrame, NeuronStreamError, StreamDecoder, decode_all, encode_frame
-from .profiles import PROFILES, Profile, identify_profile
-from .rawcapture import RawCaptureError, RawCaptureWriter, read_raw_capture
-from .recordings import bundled_recordings, resolve_path
-from .replay import Replay, ReplayError, ReplayThread
-from .skeleton import (
-    CHANNEL_NAMES,
-    Skeleton,
-    SkeletonError,
-    UnitUnknownError,
-    WorldPose,
-    forward_kinematics,
-    joint_levels,
-    skeleton_fk,
-)
-from .sources import Source, StreamSourceError, open_source
-from .stream_layout import LayoutMismatchError, StreamLayout
-from .units import UNITS, UnitError, resolve_unit
+from __future__ import annotations
 
-__all__ = [
-    "Bvh",
-    "BvhParseError",
-    "CHANNEL_NAMES",
-    "LayoutMismatchError",
-    "Motion",
-    "NeuronFrame",
-    "NeuronStreamError",
-    "PROFILES",
-    "Profile",
-    "RawCaptureError",
-    "RawCaptureWriter",
-    "Replay",
-    "ReplayError",
-    "ReplayThread",
-    "Skeleton",
-    "SkeletonError",
-    "Source",
-    "StreamDecoder",
-    "StreamLayout",
-    "StreamSourceError",
-    "UNITS",
-    "UnitError",
-    "UnitUnknownError",
-    "WorldPose",
-    "bundled_recordings",
-    "decode_all",
-    "encode_frame",
-    "format_bvh",
-    "forward_kinematics",
-    "identify_profile",
-    "joint_levels",
-    "open_source",
-    "parse_bvh",
-    "read_bvh",
-    "read_raw_capture",
-    "resolve_path",
-    "resolve_unit",
-    "skeleton_fk",
-    "write_bvh",
-]
+import importlib
+
+_EXPORTS = {
+    "capture.bvh": ("Bvh", "BvhParseError", "Motion", "format_bvh", "parse_bvh", "read_bvh",
+                    "write_bvh"),
+    "capture.neuron": ("NeuronFrame", "NeuronStreamError", "StreamDecoder", "decode_all",
+                       "encode_frame"),
+    "capture.profiles": ("PROFILES", "Profile", "identify_profile"),
+    "capture.rawcapture": ("RawCaptureError", "RawCaptureWriter", "read_raw_capture"),
+    "capture.recordings": ("bundled_recordings", "resolve_path"),
+    "capture.replay": ("Replay", "ReplayError", "ReplayThread"),
+    "capture.skeleton": ("CHANNEL_NAMES", "Skeleton", "SkeletonError", "UnitUnknownError",
+                         "WorldPose", "forward_kinematics", "joint_levels", "skeleton_fk"),
+    "capture.sources": ("Source", "StreamSourceError", "open_source"),
+    "capture.stream_layout": ("LayoutMismatchError", "StreamLayout"),
+    "capture.units": ("UNITS", "UnitError", "resolve_unit"),
+}
+_HOME = {name: module for module, names in _EXPORTS.items() for name in names}
+__all__ = sorted(_HOME)
+
+
+def __getattr__(name: str):
+    module = _HOME.get(name)
+    if module is None:
+        raise AttributeError(f"module 'capture' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -8,15 +8,17 @@ import math
 import signal
 import time
 
-import numpy as np
-
-from .bvh import read_bvh
+# numpy and the readers load when a command runs: `sitrelax --help` stays fast
 from .cli_output import print_event, print_status
 from .recordings import bundled_recordings, resolve_path
 
 
 def bvh_info(spec: str, unit: str = "auto") -> dict:
     """A summary of a BVH file (`spec` is a path or `bundled:NAME`) as plain data."""
+    import numpy as np
+
+    from .bvh import read_bvh
+
     path = resolve_path(spec)
     bvh = read_bvh(path, unit=unit)
     sk, mo = bvh.skeleton, bvh.motion
@@ -90,6 +92,7 @@ def listen(source_url: str, skeleton: str, *, duration: float | None = None,
            on_event=None, on_progress=None, stop=None) -> dict:
     """Receives a stream until `duration` seconds, `frames` frames, end of input or `stop()`
     is true; returns the summary (counters, fps, latency, connection events)."""
+    from .bvh import read_bvh
     from .monitor import StreamMonitor
     from .rawcapture import RawCaptureWriter, skeleton_header_text
     from .sources import open_transport, Source
@@ -244,7 +247,7 @@ def register(subparsers) -> dict:
 
 
 def _register_capture(subparsers) -> None:
-    from .neuron import FORMATS
+    from .constants import FORMATS
 
     cap = subparsers.add_parser("capture", help="Perception Neuron streams: replay and listen")
     sub = cap.add_subparsers(dest="capture_command", required=True)

@@ -34,7 +34,7 @@ VERSION_NEW = (0, 0, 1, 1)  # build, revision, minor, major: data version 1.1.0.
 VERSION_OLD = (0, 0, 0, 1)  # 1.0.0.0
 NAME_SIZE = 32
 
-FORMATS = ("binary", "binary-old", "string")
+from .constants import FORMATS  # noqa: E402 (capture.neuron.FORMATS, as before)
 
 # Current header: token, version[4], count u16, displacement u8, reference u8, avatar u32,
 # name[32], frame index u32, reserved u32 x3, footer.

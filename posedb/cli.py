@@ -7,15 +7,10 @@ import os
 import signal
 import sys
 
-from capture import read_bvh, resolve_path, write_bvh
 from capture.cli_output import print_event, print_status
-from capture.jointmap import read_joint_map
 
-from .library import PoseLibrary, default_lock_timeout
-from .record import record, recordings, recover
-from .schema import SUPPORT_PARTS
-from .suggest import DEFAULT_MAX_SPEED, DEFAULT_MIN_DURATION, suggest_poses
-from .verify import verify
+# the library (numpy, h5py) loads when a command runs: `sitrelax --help` stays fast
+from .constants import DEFAULT_MAX_SPEED, DEFAULT_MIN_DURATION, SUPPORT_PARTS
 
 DEFAULT_DB = os.environ.get("SITRELAX_DB", "poses.h5")
 
@@ -27,6 +22,8 @@ def _print(obj, as_json: bool, text: str) -> None:
 def _lock_timeout(args) -> float | None:
     value = getattr(args, "lock_timeout", None)
     if value is None:
+        from .library import default_lock_timeout
+
         return default_lock_timeout()
     return None if value < 0 else value
 
@@ -37,9 +34,11 @@ def _waiting(db: str):
     return report
 
 
-def _open(args, create: bool = False) -> PoseLibrary:
-    """The library of `--db`, waiting for other writers as `--lock-timeout` says; the notes
-    of its opening (killed writers' copies removed) go to stderr."""
+def _open(args, create: bool = False):
+    """The library of `--db` (a `PoseLibrary`), waiting for other writers as `--lock-timeout`
+    says; the notes of its opening (killed writers' copies removed) go to stderr."""
+    from .library import PoseLibrary
+
     lib = PoseLibrary(args.db, create=create, lock_timeout=_lock_timeout(args),
                       on_wait=_waiting(args.db))
     for note in lib.notes:
@@ -49,6 +48,9 @@ def _open(args, create: bool = False) -> PoseLibrary:
 
 
 def _cmd_import(args) -> int:
+    from capture import read_bvh, resolve_path
+    from capture.jointmap import read_joint_map
+
     # parsed before the write lock, so other writers wait only for the commit
     parsed = [read_bvh(resolve_path(spec), unit=args.unit) for spec in args.files]
     joint_map = read_joint_map(args.joint_map) if args.joint_map else None
@@ -66,6 +68,8 @@ def _cmd_import(args) -> int:
 
 
 def _cmd_list(args) -> int:
+    from .record import recordings
+
     lib = _open(args)
     rows: list[dict] = []
     if args.kind in (None, "take"):
@@ -138,6 +142,8 @@ def _cmd_pose_delete(args) -> int:
 
 
 def _cmd_suggest(args) -> int:
+    from .suggest import suggest_poses
+
     lib = _open(args)
     take = lib.take(args.take)
     rows = suggest_poses(lib, take.id, accept=args.accept, tags=args.tag,
@@ -153,6 +159,8 @@ def _cmd_suggest(args) -> int:
 
 
 def _cmd_export(args) -> int:
+    from capture import write_bvh
+
     lib = _open(args)
     take = lib.take(args.name)
     stop = None if args.end is None else args.end + 1
@@ -163,6 +171,8 @@ def _cmd_export(args) -> int:
 
 
 def _cmd_check(args) -> int:
+    from .verify import verify
+
     problems = verify(args.db, full=not args.quick)  # without opening: it may not open
     _print({"path": args.db, "ok": not problems, "problems": problems}, args.json,
            "\n".join(problems) or f"{args.db}: no problem found")
@@ -177,6 +187,8 @@ def _cmd_compact(args) -> int:
 
 
 def _cmd_recover(args) -> int:
+    from .record import recover
+
     rows = recover(args.db, lock_timeout=_lock_timeout(args), on_wait=_waiting(args.db))
     _print(rows, args.json, "\n".join(f"{r['take']}: {r['status']}" for r in rows)
            or "nothing to recover")
@@ -184,6 +196,8 @@ def _cmd_recover(args) -> int:
 
 
 def _cmd_stats(args) -> int:
+    from .record import recordings
+
     stats = _open(args).stats()
     stats["recordings"] = [r.as_dict() for r in recordings(args.db)]
     _print(stats, args.json, "\n".join(f"{k:<15} {v}" for k, v in stats.items()
@@ -192,6 +206,8 @@ def _cmd_stats(args) -> int:
 
 
 def _cmd_record(args) -> int:
+    from .record import record
+
     stopping = {"flag": False}
     previous = signal.signal(signal.SIGINT, lambda s, f: stopping.__setitem__("flag", True))
 

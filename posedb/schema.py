@@ -47,14 +47,12 @@ import numpy as np
 
 from capture import Skeleton
 
+from .constants import SUPPORT_PARTS  # noqa: F401 (posedb.schema.SUPPORT_PARTS, as before)
+
 KIND_ATTR = "sitrelax_kind"
 KIND = "pose-library"
 VERSION_ATTR = "sitrelax_schema"
 SCHEMA_VERSION = 1
-# bit k of a pose's `supports` names SUPPORT_PARTS[k]; "legs" is thighs and calves together
-# (thighs and calves took the two spare bits of the uint8 within schema 1: older files never set
-# them, so they read the same)
-SUPPORT_PARTS = ("head", "torso", "arms", "hands", "legs", "feet", "thighs", "calves")
 MIGRATIONS: dict[int, Callable[[h5py.File], None]] = {}
 
 _STR = h5py.string_dtype()

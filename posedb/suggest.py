@@ -19,8 +19,8 @@ import numpy as np
 from capture import PROFILES, Skeleton, skeleton_fk
 from capture.profiles import strip_namespace
 
-DEFAULT_MAX_SPEED = 0.2  # m/s: settling and fidgeting while seated stay under it; walking ~1 m/s
-DEFAULT_MIN_DURATION = 0.5  # s
+from .constants import DEFAULT_MAX_SPEED, DEFAULT_MIN_DURATION
+
 DEFAULT_SMOOTH = 0.2  # s
 DEFAULT_MIN_BOTTOM_DURATION = 0.2  # s: a squat's bottom holds ~0.3 s, of which the still part less
 DEFAULT_BOTTOM_DROP = 0.1  # m: the hips go down and come up again by this much (squat ~0.4 m)

@@ -12,9 +12,7 @@ import time
 from pathlib import Path
 from typing import Callable, Iterable
 
-from capture import bench as capture_bench
 from capture.bench import BenchCase
-from posedb import bench as posedb_bench
 
 EXAMPLES = Path(__file__).resolve().parent / "data" / "scenarios"  # the example scenarios
 
@@ -251,6 +249,9 @@ def register_cases(cases: Callable[[], list]) -> None:
 
 def all_cases() -> list[BenchCase]:
     """Every benchmark entry of every package, in layer order."""
+    from capture import bench as capture_bench
+    from posedb import bench as posedb_bench  # numpy: loaded when the benchmarks run
+
     above = [case for cases in _ABOVE for case in cases()]
     return list(capture_bench.cases()) + list(posedb_bench.cases()) + solver_cases() + above
 

@@ -10,11 +10,14 @@ from typing import Any, Callable
 from capture import cli as capture_cli
 from posedb import cli as posedb_cli
 
-from solver.bench import format_table, run_benchmarks
-from solver.body.model import SHAPE_KEYS as SHAPE_PARAMS
+# each command imports its work when it runs (numpy, scipy, h5py, the solver): `sitrelax --help`
+# stays fast
+from solver.body.sliders import SHAPE_KEYS as SHAPE_PARAMS
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
+    from solver.bench import format_table, run_benchmarks
+
     def progress(msg: str) -> None:
         print(f"bench {msg}", file=sys.stderr, flush=True)
 
@@ -125,7 +128,8 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     workshop = _workshop_options(args)
     formats = [f.strip().lower().lstrip(".") for f in args.format.split(",") if f.strip()]
     report = run_fit(args.scenario, args.out, db=args.db, progress=progress, formats=formats,
-                     unit=args.unit, up=args.up, workshop=workshop)
+                     unit=args.unit, up=args.up, workshop=workshop,
+                     pictures=not args.no_pictures)
     problem = (report.get("fabrication", {}).get("solid") or {}).get("problem")
     if args.json:
         print(json.dumps(report, indent=2))
@@ -140,7 +144,8 @@ def _cmd_fit(args: argparse.Namespace) -> int:
               f"{p['max_penetration_m'] * 1000:.0f} mm, peak {peak_text(p)} "
               f"(flat seat {peak_text(flat)}), contact {p['contact_area_m2']:.3f} m^2"
               + (f"; load on {loads}" if loads else ""))
-    print(f"wrote {args.out}/report.json and the surface, control mesh, bodies and pictures")
+    print(f"wrote {args.out}/report.json and the surface, control mesh, bodies"
+          + (" and pictures" if report["pictures"] else " (pictures skipped: --no-pictures)"))
     if "fabrication" in report:
         _print_fabrication(report["fabrication"])
     return 1 if problem else 0
@@ -299,7 +304,7 @@ def build_parser(extra: Callable[[Any], None] | None = None) -> argparse.Argumen
 
 def _register_bodies(sub) -> None:
     """`body make` and `pose show`."""
-    from solver.io.render import VIEWS
+    from solver.io.views import VIEWS
 
     body = sub.add_parser("body", help="bodies of any shape")
     bsub = body.add_subparsers(dest="body_command", required=True)
@@ -357,6 +362,9 @@ def _register_fitting(sub) -> None:
                      help="length unit of the files (default: m, and mm for .3dm)")
     fit.add_argument("--up", choices=("y", "z"), default=None,
                      help="up axis of the files (default: y, and z for .3dm; GLB stays m, y)")
+    fit.add_argument("--no-pictures", action="store_true",
+                     help="skip scene.png, pressure.png and pressure_map.png (faster; the "
+                          "report says \"pictures\": false)")
     fit.set_defaults(func=_cmd_fit)
 
     batch = sub.add_parser("batch", help="fit many scenarios and parameter sets, in parallel")

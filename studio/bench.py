@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 import tomllib
 import urllib.request
+from pathlib import Path
 
 from solver.bench import BenchCase, _example_path
 
@@ -37,8 +41,24 @@ def _in_process_fit(arg):
                                 for k, p in enumerate(scenario.persons)])
 
 
+def _cli_start_setup() -> tuple[list[str], dict]:
+    """The `sitrelax --help` command line, run with this checkout's packages first on the path."""
+    root = str(Path(__file__).resolve().parents[1])
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
+    return [sys.executable, "-m", "studio.cli", "--help"], env
+
+
+def _cli_start(arg) -> None:
+    command, env = arg
+    subprocess.run(command, env=env, stdout=subprocess.DEVNULL, check=True)
+
+
 def cases() -> list[BenchCase]:
     return [
+        BenchCase("cli_start", "`sitrelax --help` in a fresh interpreter (start-up, every "
+                  "subcommand's parser, no work loaded)", _cli_start_setup, _cli_start,
+                  repeats=10),
         BenchCase("api_fit", "POST /api/fit of single_seated to a running `sitrelax serve` "
                   "(pose, fit, evaluate, JSON both ways)", _api_setup, _api_fit,
                   _in_process_fit, "the same fit and evaluation in-process", repeats=7,

@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .net import LOOPBACK, allowed_names, exposure_warning
+from .loopback import LOOPBACK  # the servers (studio.net: asyncio) load when they run
 
 
 def _say(message: str) -> None:
@@ -20,6 +20,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
     from .api import create_app, server_config
+    from .net import allowed_names, exposure_warning
 
     _check_db(args.db)
     warning = exposure_warning(args.host, "API")
@@ -47,6 +48,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 def _cmd_studio(args: argparse.Namespace) -> int:
     import logging
 
+    from .net import exposure_warning
     from .web import Studio
 
     # a request the studio does not take (anything but GET and its websocket) is closed; no
@@ -130,13 +132,17 @@ def register(sub) -> None:
     gh.set_defaults(func=_cmd_grasshopper)
 
 
+def _bench_cases() -> list:
+    from . import bench  # the solver's pipelines: loaded when the benchmarks run
+
+    return bench.cases()
+
+
 def main(argv: list[str] | None = None) -> int:
     from solver import bench as solver_bench
     from solver import cli as solver_cli
 
-    from . import bench
-
-    solver_bench.register_cases(bench.cases)
+    solver_bench.register_cases(_bench_cases)
     return solver_cli.run(solver_cli.build_parser(extra=register), argv)
 
 

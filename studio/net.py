@@ -10,8 +10,7 @@ import json
 import socket
 from urllib.parse import urlsplit
 
-LOOPBACK = "127.0.0.1"
-LOOPBACK_NAMES = frozenset({"127.0.0.1", "localhost", "::1"})
+from .loopback import LOOPBACK, LOOPBACK_NAMES  # noqa: F401 (studio.net.LOOPBACK, as before)
 HEAD_TIMEOUT = 10.0  # seconds a client has to send a request head
 BODY_TIMEOUT = 30.0  # seconds a request body may pause between chunks
 DRAIN_FACTOR, DRAIN_MAX = 4, 64 * 1024 * 1024  # bytes of a refused body still read and dropped

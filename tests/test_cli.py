@@ -225,3 +225,23 @@ def test_a_locked_library_and_a_missing_pose_are_one_line(tmp_path, capsys, monk
     err = capsys.readouterr().err
     assert err == f"sitrelax: error: No pose 'nope' in {db}\n"
     assert not (tmp_path / "x.png").exists()
+
+
+def test_the_parser_loads_no_numerical_work():
+    # `sitrelax --help` stays fast: each command imports numpy, scipy, h5py and the solver when
+    # it runs, not when the parser is built
+    code = ("import sys\nfrom solver.cli import build_parser\nimport studio.cli\n"
+            "build_parser(extra=studio.cli.register)\n"
+            "heavy = ('numpy', 'scipy', 'h5py', 'asyncio', 'solver.body.model', 'posedb.library')\n"
+            "print(sorted(m for m in heavy if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_cli_start_bench_entry(capsys):
+    from studio.cli import main as sitrelax
+
+    assert sitrelax(["bench", "cli_start", "--repeats", "1", "--json"]) == 0
+    (row,) = json.loads(capsys.readouterr().out)
+    assert row["name"] == "cli_start" and 0 < row["median_s"] < 5

@@ -12,14 +12,16 @@ ROOT = Path(__file__).resolve().parents[1]
 # what each layer may import of this project (besides itself)
 ALLOWED = {
     "capture": set(),
+    "solver.threads": set(),  # BLAS thread control, which every solver layer uses
     "posedb": {"capture"},
-    "solver.mesh": {"capture", "posedb"},
-    "solver.body": {"capture", "posedb", "solver.mesh"},
-    "solver.contact": {"capture", "posedb", "solver.mesh", "solver.body"},
-    "solver.surface": {"capture", "posedb", "solver.mesh", "solver.body", "solver.contact"},
-    "solver.io": {"capture", "solver.mesh"},
-    "solver.scene": {"capture", "posedb", "solver.mesh", "solver.body", "solver.contact",
-                     "solver.surface", "solver.io"},
+    "solver.mesh": {"capture", "posedb", "solver.threads"},
+    "solver.body": {"capture", "posedb", "solver.threads", "solver.mesh"},
+    "solver.contact": {"capture", "posedb", "solver.threads", "solver.mesh", "solver.body"},
+    "solver.surface": {"capture", "posedb", "solver.threads", "solver.mesh", "solver.body",
+                       "solver.contact"},
+    "solver.io": {"capture", "solver.threads", "solver.mesh"},
+    "solver.scene": {"capture", "posedb", "solver.threads", "solver.mesh", "solver.body",
+                     "solver.contact", "solver.surface", "solver.io"},
     "solver": {"capture", "posedb", "solver"},  # the facade, the CLI and the bench runner
     "studio": {"capture", "posedb", "solver"},
 }

@@ -26,6 +26,7 @@ from capture.skeleton import joint_levels
 from posedb.schema import SUPPORT_PARTS
 
 from solver.mesh import area_weighted_normals, enclosed_volume, quad_triangles
+from .sliders import SHAPE_KEYS  # noqa: F401 (the sliders)
 
 BODY_DENSITY = 1010.0  # kg/m^3: whole-body density with air in the lungs
 DM = 0.1  # metres per asset unit (decimetres)
@@ -65,7 +66,6 @@ class BodyShapeError(ValueError):
     """Shape parameters outside what the body model accepts."""
 
 
-SHAPE_KEYS = ("gender", "age", "muscle", "weight", "height", "proportions")  # the sliders
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,7 @@ from solver.contact.mat import mat_figures, peak_pressure_index
 from solver.contact.settle import Foam, Settled, Support, reach_depth, settle
 from solver.contact.supported import SupportedBody
 from solver.mesh import SurfaceMesh
+from solver.threads import with_limited_threads
 
 FLOOR = Foam(stiffness=30000e3, thickness=0.02)  # a hard floor under shoes and heels
 CONTACT_GAP = 0.005  # metres in front of the surface a body point counts as touching it
@@ -172,6 +173,7 @@ def cut_vertices(vertices: np.ndarray, triangles: np.ndarray, signed: np.ndarray
     return cut
 
 
+@with_limited_threads  # small products: one BLAS thread (SITRELAX_THREADS), see solver.threads
 def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float, foam: Foam,
                     floor: Foam | None = FLOOR) -> tuple[dict, PressureMap]:
     """Coverage, penetration and the settle of one body on one surface (and the floor).

@@ -15,15 +15,8 @@ from typing import Sequence
 
 import numpy as np
 
-VIEWS = {
-    # direction from the scene towards the camera (Y up, bodies face +Z)
-    "front": (0.0, 0.15, 1.0),
-    "side": (1.0, 0.15, 0.0),
-    "three-quarter": (0.8, 0.45, 1.0),
-    "top": (0.0, 1.0, 0.05),
-    "back": (0.3, 0.2, -1.0),
-    "below": (0.0, -1.0, -0.45),
-}
+from .views import VIEWS  # noqa: F401 (solver.io.render.VIEWS, as before)
+
 SKIN = (0.86, 0.72, 0.62)
 SURFACE = (0.55, 0.68, 0.82)
 

@@ -34,6 +34,8 @@ from typing import Callable, Sequence
 
 from capture.files import write_atomic
 
+from solver.threads import worker_environment
+
 SURFACE_SHORTCUTS = {"level", "sigma", "tau_max", "margin", "gamma", "max_iterations",
                      "tolerance"}
 DEFAULT_JOB_TIME_LIMIT = 1800.0  # seconds
@@ -227,6 +229,7 @@ class _Runner:
         root = str(Path(__file__).resolve().parents[2])  # where `solver` is importable from
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
+        env.update(worker_environment(1))  # jobs run side by side: one BLAS thread each
         self.proc = subprocess.Popen(
             [sys.executable, "-c", "from solver.scene.batch import _serve_jobs; _serve_jobs()"],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)

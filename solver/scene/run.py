@@ -171,7 +171,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
             db: str | os.PathLike | None = None,
             progress: Callable[[str], None] | None = None, formats=("obj", "ply", "glb"),
             unit: str | None = None, up: str | None = None,
-            workshop: WorkshopOptions | None = None) -> dict:
+            workshop: WorkshopOptions | None = None, pictures: bool = True) -> dict:
     """Fits a scenario and writes everything into `out_dir` (`sitrelax fit`).
 
     Parameters
@@ -189,6 +189,8 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     unit, up : the files' length unit ("m", "cm", "mm", "in", "ft") and up axis ("y", "z");
         None: metres and Y up for OBJ and PLY, millimetres and Z up for .3dm (GLB: always
         metres and Y up).
+    pictures : False skips scene.png, pressure.png and pressure_map.png (the report's
+        "pictures" says so); the workshop's pictures are made when asked for.
 
     Returns
     -------
@@ -218,7 +220,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     say(f"fitted in {result.iterations} iterations, {timing['fit_s']:.2f} s: {result.stop_reason}")
     t = time.perf_counter()
     files = export_scene(out, result, people, maps, formats=tuple(formats), unit=unit, up=up,
-                         creases=scenario.surface.params.creases)
+                         creases=scenario.surface.params.creases, pictures=pictures)
     timing["export_s"] = time.perf_counter() - t
     fabrication = _workshop(out, result, people, workshop, files, timing, say,
                             scenario.surface.params.creases)
@@ -239,6 +241,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         "persons": persons,
         "surface_limit": files.pop("surface_limit"),
         "guarantees": guarantees,
+        "pictures": pictures,
         "files": files,
     }
     if fabrication is not None:
@@ -289,13 +292,15 @@ def _workshop(out: Path, result: FitResult, people: list[PlacedPerson], workshop
 
 def export_scene(out: Path, result: FitResult, people: list[PlacedPerson],
                  settles: list[PressureMap], *, formats=("obj", "ply", "glb"),
-                 unit: str | None = None, up: str | None = None, creases=()) -> dict:
+                 unit: str | None = None, up: str | None = None, creases=(),
+                 pictures: bool = True) -> dict:
     """Surface, control mesh, posed bodies, pictures and the pressure mats' maps; returns the
     file names (and under "surface_limit" the limit surface's figures, `CadSurface.figures`).
     The surface files hold the limit surface (`solver.scene.cad`): OBJ/PLY/GLB the
     level-s quads at their limit points, `scene.3dm` (with "3dm" in `formats`) NURBS for a
     grid control net. `unit` and `up` (None: metres and Y up for OBJ and PLY, millimetres and
-    Z up for .3dm) apply to every file but GLB (glTF: metres, Y up)."""
+    Z up for .3dm) apply to every file but GLB (glTF: metres, Y up). `pictures` False: no
+    PNG."""
     from solver.scene.cad import cad_surface, write_scene_3dm
 
     files = {}
@@ -334,6 +339,22 @@ def export_scene(out: Path, result: FitResult, people: list[PlacedPerson],
                                                          for p in people], names,
                         unit=unit or "mm", up=up or "z")
         files["scene_3dm"] = "scene.3dm"
+    if pictures:
+        _scene_pictures(out, result, people, maps, peak, files)
+    grids = mat_maps(result, people, settles)
+    if grids:
+        write_pressure_csv(out / "pressure_map.csv", grids)
+        files["pressure_map_csv"] = "pressure_map.csv"
+        if pictures:
+            render_pressure_maps(out / "pressure_map.png", grids,
+                                 title="Pressure as a mat on each support shows it (kPa)")
+            files["pressure_map_png"] = "pressure_map.png"
+    return files
+
+
+def _scene_pictures(out: Path, result: FitResult, people: list[PlacedPerson],
+                    maps: list[np.ndarray], peak: float, files: dict) -> None:
+    """scene.png and pressure.png, added to `files`."""
     # the bodies in the scene carry their pressure, on the same scale as pressure.png
     scene = [MeshView(result.surface, result.surface_faces, SURFACE)] + [
         MeshView(p.vertices, p.body.faces, pressure_on_skin(m, peak))
@@ -347,14 +368,6 @@ def export_scene(out: Path, result: FitResult, people: list[PlacedPerson],
     render_panels(out / "pressure.png", panels, columns=min(3, len(panels)),
                   colorbar=("pressure, kPa", 0.0, peak))
     files["pressure_png"] = "pressure.png"
-    grids = mat_maps(result, people, settles)
-    if grids:
-        write_pressure_csv(out / "pressure_map.csv", grids)
-        render_pressure_maps(out / "pressure_map.png", grids,
-                             title="Pressure as a mat on each support shows it (kPa)")
-        files["pressure_map_csv"], files["pressure_map_png"] = "pressure_map.csv", \
-            "pressure_map.png"
-    return files
 
 
 def mat_maps(result: FitResult, people: list[PlacedPerson],

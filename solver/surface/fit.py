@@ -56,6 +56,7 @@ from scipy.spatial import cKDTree
 from solver.contact.supported import SupportedBody
 from solver.surface.programme import Programme, ProgrammeError
 from solver.surface.subdivision import Subdivision, subdivision
+from solver.threads import with_limited_threads
 
 REACH = 0.5  # metres: a person whose supported points are all farther from the surface is an error
 CONSTRAINT_RADIUS = 0.12  # metres: surface vertices this close to a body get a non-penetration row
@@ -423,6 +424,7 @@ def iterate(fit: _Fit, v: np.ndarray, member: np.ndarray, tau: float,
     return v, status, residual, energy, terms
 
 
+@with_limited_threads  # small products: one BLAS thread (SITRELAX_THREADS), see solver.threads
 def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedBody],
                 params: FitParams = FitParams(),
                 progress: Callable[[int, float, float], None] | None = None) -> FitResult:

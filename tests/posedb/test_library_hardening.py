@@ -143,7 +143,7 @@ def test_a_20_s_writer_makes_a_tag_and_a_recording_commit_wait(db):
 
 
 def test_import_parses_outside_the_lock(db, monkeypatch, capsys):
-    import posedb.cli
+    import capture
     from capture import read_bvh
     from studio.cli import main
 
@@ -156,7 +156,7 @@ def test_import_parses_outside_the_lock(db, monkeypatch, capsys):
             lock.release()
         return read_bvh(path, **kw)
 
-    monkeypatch.setattr(posedb.cli, "read_bvh", parse)
+    monkeypatch.setattr(capture, "read_bvh", parse)  # the command imports it when it runs
     assert main(["db", "import", str(recording(CMU)), "--name", "again", "--db", str(db)]) == 0
     assert seen == [True]
 

@@ -221,6 +221,7 @@ def test_fit_command_writes_files_that_open_again(tmp_path):
     assert guarantees["min_height_m"] == pytest.approx(limit[:, 1].min(), abs=1e-6)
     body = trimesh.load(out / "person_1.ply", process=False)
     assert len(body.vertices) == 13380 and len(body.faces) == 2 * 13378
+    assert report["pictures"] is True
     assert (out / "scene.png").stat().st_size > 10_000
     assert (out / "pressure.png").stat().st_size > 10_000
     assert (out / "pressure_map.png").stat().st_size > 10_000
@@ -228,6 +229,25 @@ def test_fit_command_writes_files_that_open_again(tmp_path):
 
     maps = read_pressure_csv(out / "pressure_map.csv")
     assert maps and all(np.isfinite(m).all() and m.max() > 0 for m in maps.values())
+
+
+def test_fit_without_pictures_writes_no_png_and_says_so(tmp_path, capsys):
+    import json
+
+    from solver.cli import main
+
+    scenario = tmp_path / "ball.toml"
+    # a short fit: the pictures are what is tested
+    scenario.write_text(SCENARIO.replace("sigma = 0.1", "sigma = 0.1\nlevel = 2\n"
+                                                        "max_iterations = 3"))
+    out = tmp_path / "out"
+    assert main(["fit", str(scenario), "--out", str(out), "--no-pictures",
+                 "--format", "obj"]) == 0
+    assert "pictures skipped: --no-pictures" in capsys.readouterr().out
+    report = json.loads((out / "report.json").read_text())
+    assert report["pictures"] is False
+    assert list(out.glob("*.png")) == []
+    assert not any(key.endswith("_png") for key in report["files"])
 
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios"

@@ -1,0 +1,125 @@
+"""BLAS thread control in one place (threadpoolctl).
+
+The solver's dense and sparse products are small (an 8x6 control mesh, a few thousand surface
+points): spreading each over several BLAS threads costs more in hand-offs than it gains, and on
+a shared machine the threads compete with the other processes. So the fit and the evaluation
+run with `blas_threads()` BLAS threads: 1 unless the environment variable `SITRELAX_THREADS`
+says otherwise (a count, or ``all`` for the library's own choice). Batch workers get one BLAS
+thread each through their environment (`worker_environment`), since they run side by side.
+
+A fit gives the same surface with one thread or several (tested to 1e-12).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from contextlib import contextmanager
+from typing import Callable, Iterator, TypeVar
+
+ENV = "SITRELAX_THREADS"
+DEFAULT_THREADS = 1
+# what a worker process's BLAS and OpenMP read at start-up
+_WORKER_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+                     "BLIS_NUM_THREADS", "VECLIB_MAXIMUM_THREADS")
+
+F = TypeVar("F", bound=Callable)
+
+
+class ThreadsError(ValueError):
+    """A thread count that is not a positive integer (nor ``all``)."""
+
+
+def blas_threads() -> int | None:
+    """The BLAS thread count the solver runs with.
+
+    Returns
+    -------
+    int or None
+        `SITRELAX_THREADS` as a positive integer, `DEFAULT_THREADS` when it is unset or empty,
+        None (no limit: the library's own count) when it is ``all``.
+
+    Raises
+    ------
+    ThreadsError
+        If `SITRELAX_THREADS` is neither a positive integer nor ``all``.
+    """
+    value = os.environ.get(ENV, "").strip()
+    if not value:
+        return DEFAULT_THREADS
+    if value.lower() == "all":
+        return None
+    try:
+        count = int(value)
+    except ValueError:
+        count = 0
+    if count < 1:
+        raise ThreadsError(f"Expected {ENV} to be a positive integer or 'all', got {value!r}")
+    return count
+
+
+@functools.lru_cache(maxsize=1)
+def _controller():
+    # finding the loaded BLAS libraries takes milliseconds; the limit itself microseconds
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()
+
+
+@contextmanager
+def limited_threads(threads: int | None = -1) -> Iterator[None]:
+    """A context in which BLAS uses at most `threads` threads (restored on exit).
+
+    Parameters
+    ----------
+    threads : int or None, optional
+        The count; None for no limit; by default `blas_threads()`.
+
+    Returns
+    -------
+    context manager
+        Limits the threads of every BLAS library loaded when it was first used.
+    """
+    count = blas_threads() if threads == -1 else threads
+    if count is None:
+        yield
+        return
+    with _controller().limit(limits=count, user_api="blas"):
+        yield
+
+
+def with_limited_threads(func: F) -> F:
+    """`func` run inside `limited_threads()` (a decorator).
+
+    Parameters
+    ----------
+    func : callable
+        The function to wrap.
+
+    Returns
+    -------
+    callable
+        The same function, its BLAS threads limited while it runs.
+    """
+    @functools.wraps(func)
+    def limited(*args, **kwargs):
+        with limited_threads():
+            return func(*args, **kwargs)
+    return limited  # type: ignore[return-value]
+
+
+def worker_environment(threads: int = 1) -> dict[str, str]:
+    """Environment variables that give a new process `threads` BLAS and OpenMP threads.
+
+    Parameters
+    ----------
+    threads : int, default 1
+        Threads per process (batch workers run side by side: one each).
+
+    Returns
+    -------
+    dict
+        Variable name to value, `SITRELAX_THREADS` included.
+    """
+    value = str(int(threads))
+    return {**{name: value for name in _WORKER_VARIABLES}, ENV: value}

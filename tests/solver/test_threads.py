@@ -1,0 +1,68 @@
+"""BLAS thread control (solver.threads): the count from SITRELAX_THREADS, the limit applied and
+restored, and a fit that gives the same surface with one BLAS thread or all of them."""
+
+import numpy as np
+import pytest
+from threadpoolctl import threadpool_info
+
+from solver.contact.supported import SupportedBody
+from solver.surface.fit import FitParams, fit_surface
+from solver.surface.subdivision import grid_mesh
+from solver.threads import (ENV, ThreadsError, blas_threads, limited_threads,
+                            worker_environment)
+
+
+def _blas_counts() -> list[int]:
+    return [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
+
+
+@pytest.mark.parametrize("value, count", [(None, 1), ("", 1), ("3", 3), ("all", None),
+                                          ("ALL", None)])
+def test_the_count_comes_from_the_environment(monkeypatch, value, count):
+    if value is None:
+        monkeypatch.delenv(ENV, raising=False)
+    else:
+        monkeypatch.setenv(ENV, value)
+    assert blas_threads() == count
+
+
+@pytest.mark.parametrize("value", ["0", "-2", "two", "1.5"])
+def test_a_bad_count_names_the_variable(monkeypatch, value):
+    monkeypatch.setenv(ENV, value)
+    with pytest.raises(ThreadsError, match=f"Expected {ENV} to be a positive integer or 'all', "
+                                           f"got '{value}'"):
+        blas_threads()
+
+
+def test_the_limit_holds_inside_and_is_restored_after(monkeypatch):
+    monkeypatch.delenv(ENV, raising=False)
+    before = _blas_counts()
+    with limited_threads():
+        assert set(_blas_counts()) <= {1}
+    assert _blas_counts() == before
+
+
+def test_workers_get_one_thread_each():
+    env = worker_environment()
+    assert env["OMP_NUM_THREADS"] == env["OPENBLAS_NUM_THREADS"] == env[ENV] == "1"
+
+
+def _small_fit():
+    # a cap of points under a 5x4 grid: a few iterations, a few dozen milliseconds
+    grid_v, grid_f = grid_mesh((1.0, 0.8), (5, 4), 0.45)
+    rng = np.random.default_rng(7)
+    xz = rng.uniform([-0.3, -0.25], [0.3, 0.25], size=(300, 2))
+    points = np.column_stack([xz[:, 0], 0.47 + 0.3 * (xz ** 2).sum(axis=1), xz[:, 1]])
+    normals = np.tile([0.0, -1.0, 0.0], (len(points), 1))
+    target = SupportedBody(points, normals, np.full(len(points), 1.0), "cap")
+    return fit_surface(grid_v, grid_f, [target], FitParams(level=2, max_iterations=6))
+
+
+def test_a_fit_gives_the_same_surface_with_one_thread_or_all(monkeypatch):
+    monkeypatch.setenv(ENV, "1")
+    one = _small_fit()
+    monkeypatch.setenv(ENV, "all")
+    every = _small_fit()
+    assert one.iterations == every.iterations
+    np.testing.assert_allclose(one.surface, every.surface, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(one.control, every.control, rtol=0, atol=1e-12)
