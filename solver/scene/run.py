@@ -177,8 +177,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     Parameters
     ----------
     scenario_path : a scenario file (TOML), or a `Scenario` parsed already.
-    out_dir : folder for the surface, control mesh, bodies, pictures and report.json (made if
-        missing).
+    out_dir : folder for the surface, control mesh, bodies, pictures and report.json.
     db : the pose library that `db:` poses come from.
     progress : optional callback taking one line of news per stage and iteration.
     workshop : `solver.scene.workshop.WorkshopOptions`, optional: also a solid (STL, 3MF),
@@ -187,8 +186,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     formats : the surface's file formats, of `SURFACE_FORMATS` ("3dm": scene.3dm, a Rhino
         document with the control net, the NURBS or limit-mesh surface and the bodies).
     unit, up : the files' length unit ("m", "cm", "mm", "in", "ft") and up axis ("y", "z");
-        None: metres and Y up for OBJ and PLY, millimetres and Z up for .3dm (GLB: always
-        metres and Y up).
+        None: m and Y up for OBJ and PLY, mm and Z up for .3dm (GLB: always m and Y up).
     pictures : False skips scene.png, pressure.png and pressure_map.png (the report's
         "pictures" says so); the workshop's pictures are made when asked for.
 
