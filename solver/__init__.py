@@ -19,7 +19,7 @@ This module is the facade: the names a user calls, loaded when first used.
 
 from __future__ import annotations
 
-import importlib
+from capture.lazy import lazy_exports
 
 _EXPORTS = {
     "solver.body.model": ("BODY_PARTS", "Body", "BodyShape", "BodyShapeError", "make_body"),
@@ -46,18 +46,4 @@ _EXPORTS = {
     "solver.io.rhino": ("write_3dm",),
     "solver.io.render": ("MeshView", "render_png"),
 }
-_HOME = {name: module for module, names in _EXPORTS.items() for name in names}
-__all__ = sorted(_HOME)
-
-
-def __getattr__(name: str):
-    module = _HOME.get(name)
-    if module is None:
-        raise AttributeError(f"module 'solver' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__all__, _HOME, __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())
