@@ -212,6 +212,23 @@ def _check_reach(surface0: np.ndarray, targets: Sequence[SupportedBody], points:
                            f"(reach {REACH} m); move the person or the surface")
 
 
+def _check_facing(surface0: np.ndarray, quads: np.ndarray, points: np.ndarray,
+                  normals: np.ndarray, rho: np.ndarray, important: np.ndarray) -> None:
+    """A FitError when the control mesh's faces point away from the bodies: the skin to be
+    supported faces the surface, so its normals run against the surface's normals where they
+    meet; if on the importance-weighted balance they run along them, the faces are reversed."""
+    from solver.mesh import SurfaceMesh
+
+    mesh = SurfaceMesh.from_quads(surface0, quads)
+    _, _, _, face, _ = mesh.closest(points[important])
+    along = np.einsum("ij,ij->i", normals[important], mesh.face_normals[face])
+    share = float(rho[important] @ (along > 0) / rho[important].sum())
+    if share > 0.5:
+        raise FitError(f"The control mesh's faces point away from the bodies: "
+                       f"{share:.0%} of the supported skin faces the same way as the surface "
+                       "where they meet; flip the mesh (reverse each face's vertex order)")
+
+
 def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedBody],
             params: FitParams) -> _Fit:
     """Checks the inputs and builds what stays fixed over the fit (see `_Fit`)."""
@@ -228,6 +245,7 @@ def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedB
     points, normals, rho, owner = _stack(targets)
     important = np.flatnonzero(rho > 1e-3)
     _check_reach(sub.matrix @ v0, targets, points, owner, important)
+    _check_facing(sub.matrix @ v0, sub.faces, points, normals, rho, important)
     fixed = np.full(n0, params.anchor / n0)
     fixed[list(params.fixed)] += params.gamma
     smooth = (params.sigma / n0) * (lap.T @ lap)

@@ -315,3 +315,15 @@ def test_the_floor_holds_the_surface_up(ball):
         for floor in (None, 0.44)]
     assert low[0] < 0.435
     assert low[1] >= 0.44 - 1e-3
+
+
+def test_a_control_mesh_facing_away_from_the_body_stops_and_says_to_flip_it(ball):
+    """The same grid with every face's vertex order reversed faces down, away from the ball
+    resting on it: the fit stops with a message that says so, instead of fitting badly."""
+    v, t, normals, areas, importance = ball
+    grid_v, grid_f = grid_mesh((1.2, 0.8), (8, 6), 0.45)
+    target = SupportedBody(v, normals, importance, "ball", t, areas, mass_kg=30.0)
+    params = FitParams(margin=0.02, max_iterations=2, level=2)
+    fit_surface(grid_v, grid_f, [target], params)  # faces up: fits
+    with pytest.raises(FitError, match="flip"):
+        fit_surface(grid_v, grid_f[:, ::-1], [target], params)
