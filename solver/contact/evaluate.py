@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from solver.contact.mat import mat_figures, peak_pressure_index
+from solver.contact.mat import contact_figures, mat_figures
 from solver.contact.settle import Foam, Settled, Support, reach_depth, settle
 from solver.contact.supported import SupportedBody
 from solver.mesh import SurfaceMesh
@@ -64,11 +64,13 @@ def surface_parts(regions: np.ndarray | None):
     return parts
 
 
-def contact_footprint(settled: Settled, n: int) -> np.ndarray:
-    """(n,) m^2: each body vertex's footprint on the supports it presses (0 elsewhere)."""
+def contact_footprint(settled: Settled, n: int, names=None) -> np.ndarray:
+    """(n,) m^2: each body vertex's footprint on the supports it presses (those `names` when
+    given; 0 elsewhere)."""
     footprint = np.zeros(n)
     for c in settled.contacts:
-        np.add.at(footprint, c.vertices, c.areas)
+        if names is None or c.name in names:
+            np.add.at(footprint, c.vertices, c.areas)
     return footprint
 
 
@@ -93,19 +95,12 @@ def surface_figures(settled: Settled, names=("seat", "back", "leg rest")) -> dic
     chosen = [c for c in settled.contacts if c.name in names]
     if not settled.stable or not chosen:
         return {**none, "contact_area_m2": 0.0}
-    idx = np.concatenate([c.vertices for c in chosen])
-    force = np.concatenate([c.normal_force for c in chosen])
-    footprint = np.concatenate([c.areas for c in chosen])
-    kpa = force / footprint / 1e3
-    area = float(footprint.sum())
-    points = settled.vertices[idx]
-    return {
-        "peak_pressure_kpa": float(kpa.max()),
-        "peak_pressure_index_kpa": peak_pressure_index(points, footprint, kpa),
-        "mean_pressure_kpa": float(force.sum() / area / 1e3),
-        "contact_area_m2": area,
-        "centre_of_pressure_m": [float(v) for v in force @ points / force.sum()],
-    }
+    f = contact_figures(chosen, contact_footprint(settled, len(settled.vertices), names),
+                        settled.weight_n)
+    return {"peak_pressure_kpa": f["peak_kpa"],
+            "peak_pressure_index_kpa": f["peak_pressure_index_kpa"],
+            "mean_pressure_kpa": f["mean_kpa"], "contact_area_m2": f["contact_area_cm2"] / 1e4,
+            "centre_of_pressure_m": f["centre_of_pressure_m"]}
 
 
 def peak_text(figures: dict) -> str:
@@ -131,7 +126,7 @@ def equilibrium_figures(settled: Settled) -> dict:
     supports = {}
     up = -settled.gravity
     for c in settled.contacts:
-        f = (c.normal_force[:, None] * c.normals + c.tangential_force).sum(axis=0)
+        f = c.force
         supports[c.name] = {"load_n": float(f @ up),
                             "load_share": float(f @ up / settled.weight_n),
                             "force_n": float(np.linalg.norm(f)),

@@ -149,6 +149,16 @@ def _vertex_loads(contacts: Sequence[SupportContact], areas: np.ndarray
     return unique, total, point, areas[unique]
 
 
+def contact_figures(contacts: Sequence[SupportContact], areas: np.ndarray,
+                    weight_n: float) -> dict:
+    """The mat figures (as `mat_figures` gives them per support, without regions and
+    distribution) of the given contacts together, a vertex on two of them counted once, over
+    the body vertices' areas (V,) m^2."""
+    _, force, points, area = _vertex_loads(contacts, areas)
+    vector = np.sum([c.force for c in contacts], axis=0) if contacts else np.zeros(3)
+    return _figures(force, points, area, vector, weight_n)
+
+
 def _figures(force: np.ndarray, points: np.ndarray, area: np.ndarray, vector: np.ndarray,
              weight_n: float) -> dict:
     """The mat figures of vertices carrying normal forces (L,) N at points (L, 3) over areas

@@ -367,7 +367,7 @@ def _groups(supports, x, x0, c, areas, nrm, near, fresh, known):
     look, or by updating the `known` geometry of the `near` vertices; and that geometry."""
     cands = [fresh[k] if fresh is not None else _candidates(s, k, x, near[k], *known[k])
              for k, s in enumerate(supports)]
-    groups = [g for g in (_group(s, k, x, x0, c, areas, nrm, near[k], cands[k])
+    groups = [g for g in (_group(s, x, x0, c, areas, nrm, cands[k])
                           for k, s in enumerate(supports)) if g is not None]
     return groups, [(cand, x[cand.index]) for cand in cands]
 
@@ -411,10 +411,9 @@ def _new_contact(supports, x, nrm, first, groups) -> bool:
     return False
 
 
-def _group(support: Support, k: int, x, x0, c, areas, normals, subset, cand=None):
-    """One support's contact candidates (`cand` when known) with what the contact laws need,
-    or None. `normals` are the body's as it now stands."""
-    cand = _candidates(support, k, x, subset) if cand is None else cand
+def _group(support: Support, x, x0, c, areas, normals, cand: _Candidates):
+    """One support's contact candidates with what the contact laws need, or None. `normals`
+    are the body's as it now stands."""
     if not cand.index.size:
         return None
     i = cand.index

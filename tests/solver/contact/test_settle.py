@@ -153,8 +153,8 @@ def test_the_balance_jacobian_is_the_finite_difference(mu):
     subset, _, _ = s._prepare(support, v, n, None, lambda p: np.zeros(len(p), bool), 0)
     centre = s.volume_centroid(v, t)
     moved = v + [0.002, -0.001, 0.001]
-    groups = [s._group(support, 0, moved, v, centre, a, n, subset,
-                       s._candidates(support, 0, moved, subset))]
+    cand = s._candidates(support, 0, moved, subset)
+    groups = [s._group(support, moved, v, centre, a, n, cand)]
     weight = np.array([0.0, -20 * G, 0.0])
     q = np.array([0.001, -0.002, 0.0005, 0.01, -0.02, 0.015])
     _, jac = s._balance(q, groups, weight)
