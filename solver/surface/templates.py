@@ -1,0 +1,505 @@
+"""Furniture templates: parametric quad control meshes a designer starts a fit from.
+
+Each template is one regular quad grid (so its limit surface exports as exact NURBS patches,
+`solver.surface.nurbs`), bent into the furniture's shape: a side profile in the (z, y) plane
+swept across the width (x), with optional bands offset along the profile's normal (the arms of
+a chair, which become wings along its back). Faces point towards the bodies: a seat's up, a
+back's forward. Creases run along whole grid lines, where an upholsterer's seams would: where a
+seat meets its back and where a seat meets its arms (a grid cut by full crease lines still
+exports patch by patch).
+
+Frame: metres, Y up, the floor at y = 0. In its own frame a template stands with its origin on
+the floor under the middle of its reference line (a seat's rear line, a lounger's seat hollow,
+the middle of a bed or a stool), its width along x and its front (where the sitter's knees or
+a sleeper's feet are) towards +z. `position` (x, z) moves that origin on the floor and
+`heading_deg` turns the template about +y (0: its front towards +z, 90: towards +x).
+
+    chair          seat and back, optional arms (one person)
+    bench          a seat for `seats` people side by side, optional back and arms
+    stool          a small seat without back (perching)
+    floor_cushion  a low seat on the floor, optional back (a floor chair)
+    lounger        a chaise: foot rest, knee crest, seat hollow, reclined back
+    bed            a flat top under lying bodies, edges rounded down
+
+`make_template(kind, **parameters)` builds one; each kind's parameters are a frozen dataclass
+(`TEMPLATE_PARAMS[kind]`) whose defaults are a sensible piece of furniture.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+
+class TemplateError(ValueError):
+    """Template parameters that make no furniture (the message names the parameter)."""
+
+
+def _check(kind: str, name: str, value, low: float | None = None, high: float | None = None,
+           *, whole: bool = False, low_open: bool = False) -> None:
+    """A TemplateError unless `value` is a finite number (whole with `whole`) within bounds."""
+    noun = "a whole number" if whole else "a number"
+    ok_type = isinstance(value, int) if whole else isinstance(value, (int, float))
+    if isinstance(value, bool) or not ok_type or not math.isfinite(value):
+        raise TemplateError(f"{kind}.{name}: expected {noun}, got {value!r}")
+    if low is not None and (value <= low if low_open else value < low):
+        raise TemplateError(f"{kind}.{name}: expected {noun} {'>' if low_open else '>='} "
+                            f"{low:g}, got {value:g}")
+    if high is not None and value > high:
+        raise TemplateError(f"{kind}.{name}: expected {noun} <= {high:g}, got {value:g}")
+
+
+def _check_flag(kind: str, name: str, value) -> None:
+    if not isinstance(value, bool):
+        raise TemplateError(f"{kind}.{name}: expected true or false, got {value!r}")
+
+
+def _check_placement(kind: str, position, heading_deg) -> None:
+    if len(tuple(position)) != 2:
+        raise TemplateError(f"{kind}.position: expected [x, z] (metres), got {position!r}")
+    for k, v in enumerate(position):
+        _check(kind, f"position[{k}]", v)
+    _check(kind, "heading_deg", heading_deg, -360.0, 360.0)
+
+
+@dataclass(frozen=True)
+class ChairParams:
+    """A chair: a seat (its front edge `seat_height` above the floor, `seat_depth` from the
+    back to the front edge, `seat_width` across, its rear `seat_tilt_deg` lower than its
+    front, its front edge rounded down by `front_drop`), a back `back_height` long, leaning
+    `back_angle_deg` from vertical, and optional arms `arm_height` above the seat and
+    `arm_width` wide (which run on up the back as wings). Lengths in metres."""
+
+    seat_height: float = 0.45
+    seat_depth: float = 0.46
+    seat_width: float = 0.50
+    seat_tilt_deg: float = 4.0
+    front_drop: float = 0.04
+    back: bool = True
+    back_angle_deg: float = 12.0
+    back_height: float = 0.50
+    arms: bool = False
+    arm_height: float = 0.22
+    arm_width: float = 0.08
+    seat_quads: tuple[int, int] = (8, 6)
+    back_quads: int = 5
+    position: tuple[float, float] = (0.0, 0.0)
+    heading_deg: float = 0.0
+
+    def __post_init__(self):
+        _check_seat(self, "chair")
+
+
+@dataclass(frozen=True)
+class BenchParams:
+    """A bench for `seats` people side by side, each `seat_width` wide: a chair's seat
+    across all of them, with an optional back and arms at the ends (see `ChairParams`)."""
+
+    seats: int = 2
+    seat_height: float = 0.45
+    seat_depth: float = 0.46
+    seat_width: float = 0.55
+    seat_tilt_deg: float = 3.0
+    front_drop: float = 0.04
+    back: bool = False
+    back_angle_deg: float = 12.0
+    back_height: float = 0.45
+    arms: bool = False
+    arm_height: float = 0.22
+    arm_width: float = 0.08
+    seat_quads: tuple[int, int] = (8, 6)
+    back_quads: int = 5
+    position: tuple[float, float] = (0.0, 0.0)
+    heading_deg: float = 0.0
+
+    def __post_init__(self):
+        _check("bench", "seats", self.seats, 1, 20, whole=True)
+        _check_seat(self, "bench")
+
+
+@dataclass(frozen=True)
+class StoolParams:
+    """A stool: a seat `seat_height` high (its front edge), `seat_width` x `seat_depth`, its
+    rear `seat_tilt_deg` lower than its front (negative: tilted forward, for perching), every
+    edge rounded down by `edge_drop`."""
+
+    seat_height: float = 0.65
+    seat_depth: float = 0.36
+    seat_width: float = 0.40
+    seat_tilt_deg: float = 0.0
+    edge_drop: float = 0.03
+    seat_quads: tuple[int, int] = (6, 6)
+    position: tuple[float, float] = (0.0, 0.0)
+    heading_deg: float = 0.0
+
+    def __post_init__(self):
+        _check_seat(self, "stool")
+
+
+@dataclass(frozen=True)
+class FloorCushionParams:
+    """A cushion on the floor, its top `height` above it, `width` x `depth`, its edges rounded
+    down by `edge_drop`; with `back`, a back as a chair's (a floor chair)."""
+
+    height: float = 0.12
+    depth: float = 0.55
+    width: float = 0.60
+    edge_drop: float = 0.03
+    back: bool = False
+    back_angle_deg: float = 20.0
+    back_height: float = 0.45
+    quads: tuple[int, int] = (8, 6)
+    back_quads: int = 5
+    position: tuple[float, float] = (0.0, 0.0)
+    heading_deg: float = 0.0
+
+    def __post_init__(self):
+        kind = "floor_cushion"
+        _check(kind, "height", self.height, 0.02, 0.6)
+        _check(kind, "depth", self.depth, 0.1, 2.0)
+        _check(kind, "width", self.width, 0.1, 6.0)
+        _check(kind, "edge_drop", self.edge_drop, 0.0, min(self.height, 0.1))
+        _check_flag(kind, "back", self.back)
+        _check(kind, "back_angle_deg", self.back_angle_deg, -10.0, 80.0)
+        _check(kind, "back_height", self.back_height, 0.05, 1.5)
+        _check_quads(kind, "quads", self.quads, 2)
+        _check(kind, "back_quads", self.back_quads, 1, 40, whole=True)
+        _check_placement(kind, self.position, self.heading_deg)
+
+
+@dataclass(frozen=True)
+class LoungerParams:
+    """A chaise longue, in profile from the foot end to the head end: a foot rest from
+    `foot_height` at the foot end up to the knee crest `knee_height` high, `leg_length` along
+    it; a thigh rest `thigh_length` down to the seat hollow `seat_height` high; a back
+    `back_length` long reclined `back_angle_deg` from vertical. `width` across."""
+
+    seat_height: float = 0.32
+    width: float = 0.62
+    back_angle_deg: float = 55.0
+    back_length: float = 0.85
+    thigh_length: float = 0.45
+    knee_height: float = 0.45
+    leg_length: float = 0.50
+    foot_height: float = 0.32
+    quads_across: int = 8
+    back_quads: int = 7
+    thigh_quads: int = 4
+    leg_quads: int = 3
+    position: tuple[float, float] = (0.0, 0.0)
+    heading_deg: float = 0.0
+
+    def __post_init__(self):
+        kind = "lounger"
+        _check(kind, "seat_height", self.seat_height, 0.05, 1.2)
+        _check(kind, "width", self.width, 0.2, 6.0)
+        _check(kind, "back_angle_deg", self.back_angle_deg, 10.0, 85.0)
+        _check(kind, "back_length", self.back_length, 0.2, 2.0)
+        _check(kind, "thigh_length", self.thigh_length, 0.1, 1.0)
+        _check(kind, "knee_height", self.knee_height, 0.05, 1.5)
+        _check(kind, "leg_length", self.leg_length, 0.1, 1.2)
+        _check(kind, "foot_height", self.foot_height, 0.02, 1.5)
+        rise = self.knee_height - self.seat_height
+        if abs(rise) >= self.thigh_length:
+            raise TemplateError(f"lounger.knee_height: expected within thigh_length "
+                                f"({self.thigh_length:g} m) of seat_height "
+                                f"({self.seat_height:g} m), got {self.knee_height:g}")
+        if abs(self.foot_height - self.knee_height) >= self.leg_length:
+            raise TemplateError(f"lounger.foot_height: expected within leg_length "
+                                f"({self.leg_length:g} m) of knee_height "
+                                f"({self.knee_height:g} m), got {self.foot_height:g}")
+        for name in ("quads_across", "back_quads", "thigh_quads", "leg_quads"):
+            _check(kind, name, getattr(self, name), 1, 60, whole=True)
+        _check_placement(kind, self.position, self.heading_deg)
+
+
+@dataclass(frozen=True)
+class BedParams:
+    """A bed: a flat top `height` above the floor, `width` x `length` (its foot end towards
+    +z), every edge rounded down by `edge_drop`."""
+
+    height: float = 0.45
+    width: float = 0.90
+    length: float = 2.00
+    edge_drop: float = 0.04
+    quads: tuple[int, int] = (8, 16)
+    position: tuple[float, float] = (0.0, 0.0)
+    heading_deg: float = 0.0
+
+    def __post_init__(self):
+        kind = "bed"
+        _check(kind, "height", self.height, 0.05, 1.2)
+        _check(kind, "width", self.width, 0.3, 6.0)
+        _check(kind, "length", self.length, 0.5, 3.5)
+        _check(kind, "edge_drop", self.edge_drop, 0.0, min(self.height, 0.15))
+        _check_quads(kind, "quads", self.quads, 2)
+        _check_placement(kind, self.position, self.heading_deg)
+
+
+def _check_quads(kind: str, name: str, value, low: int) -> None:
+    if len(tuple(value)) != 2:
+        raise TemplateError(f"{kind}.{name}: expected [across, along] (two whole numbers), "
+                            f"got {value!r}")
+    for k, v in enumerate(value):
+        _check(kind, f"{name}[{k}]", v, low, 200, whole=True)
+
+
+def _check_seat(p, kind: str) -> None:
+    """The checks chairs, benches and stools share."""
+    _check(kind, "seat_height", p.seat_height, 0.05, 1.2)
+    _check(kind, "seat_depth", p.seat_depth, 0.1, 1.5)
+    _check(kind, "seat_width", p.seat_width, 0.1, 3.0)
+    _check(kind, "seat_tilt_deg", p.seat_tilt_deg, -30.0, 30.0)
+    drop_name = "front_drop" if hasattr(p, "front_drop") else "edge_drop"
+    drop = getattr(p, drop_name)
+    _check(kind, drop_name, drop, 0.0, min(0.1, p.seat_depth / 4))
+    low = p.seat_height - p.seat_depth * math.tan(math.radians(max(p.seat_tilt_deg, 0.0)))
+    if low - drop < 0.02:
+        raise TemplateError(f"{kind}.seat_tilt_deg: expected a tilt that keeps the seat above "
+                            f"the floor, got {p.seat_tilt_deg:g} (its rear would be at "
+                            f"{low - drop:.3f} m)")
+    _check_quads(kind, "seat_quads", p.seat_quads, 2)
+    if hasattr(p, "back"):
+        _check_flag(kind, "back", p.back)
+        _check(kind, "back_angle_deg", p.back_angle_deg, -10.0, 60.0)
+        _check(kind, "back_height", p.back_height, 0.05, 1.5)
+        _check(kind, "back_quads", p.back_quads, 1, 40, whole=True)
+        _check_flag(kind, "arms", p.arms)
+        _check(kind, "arm_height", p.arm_height, 0.03, 0.6)
+        _check(kind, "arm_width", p.arm_width, 0.02, 0.4)
+    _check_placement(kind, p.position, p.heading_deg)
+
+
+TEMPLATE_PARAMS: dict[str, type] = {
+    "chair": ChairParams, "bench": BenchParams, "stool": StoolParams,
+    "floor_cushion": FloorCushionParams, "lounger": LoungerParams, "bed": BedParams,
+}
+KINDS = tuple(TEMPLATE_PARAMS)
+
+
+@dataclass(frozen=True, eq=False)
+class TemplateMesh:
+    """A template's control mesh, in the scene (metres, Y up).
+
+    vertices : (n, 3) float; quads : (F, 4) int, faces towards the bodies; creases : (C, 2)
+    int control edges kept sharp; grid : (Nu, Nv) int, the vertex layout (u across the width,
+    v along the profile); kind and params : what made it.
+    """
+
+    vertices: np.ndarray
+    quads: np.ndarray
+    creases: np.ndarray
+    grid: np.ndarray
+    kind: str
+    params: Any
+
+    @property
+    def source(self) -> str:
+        """A line saying what the mesh is (reports, error messages)."""
+        nu, nv = self.grid.shape
+        return f"{self.kind} template, {nu - 1} x {nv - 1} quads"
+
+
+def template_params(kind: str, **values) -> Any:
+    """The parameter dataclass of a template kind from keyword values (lists become tuples);
+    unset ones take their defaults. Raises TemplateError for an unknown kind or parameter."""
+    if kind not in TEMPLATE_PARAMS:
+        raise TemplateError(f"Expected a template kind of {list(KINDS)}, got {kind!r}")
+    cls = TEMPLATE_PARAMS[kind]
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise TemplateError(f"{kind}: unknown parameter {unknown[0]!r} (expected one of "
+                            f"{sorted(known)})")
+    return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
+
+
+def make_template(kind: str, params: Any = None, **values) -> TemplateMesh:
+    """The control mesh of a template.
+
+    Parameters
+    ----------
+    kind : one of `KINDS`.
+    params : the kind's parameter dataclass (`TEMPLATE_PARAMS[kind]`), or None to make it from
+        `values` (its defaults for the rest).
+
+    Returns
+    -------
+    TemplateMesh : vertices (n, 3) metres, quads (F, 4) facing the bodies, creases (C, 2).
+    Raises TemplateError for bad parameters.
+    """
+    if params is None:
+        params = template_params(kind, **values)
+    elif values:
+        raise TemplateError("Expected parameters as a dataclass or as keywords, not both")
+    elif not isinstance(params, TEMPLATE_PARAMS.get(kind, ())):
+        raise TemplateError(f"Expected {TEMPLATE_PARAMS[kind].__name__} for a {kind}, got "
+                            f"{type(params).__name__}")
+    build = {"chair": _chair, "bench": _bench, "stool": _stool,
+             "floor_cushion": _floor_cushion, "lounger": _lounger, "bed": _bed}[kind]
+    columns, keys, counts, crease_cols, crease_rows = build(params)
+    verts, quads, creases, grid = _sweep(columns, keys, counts, crease_cols, crease_rows)
+    turn = math.radians(params.heading_deg)
+    c, s = math.cos(turn), math.sin(turn)
+    rot = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])  # about +y: +z -> (s, 0, c)
+    verts = verts @ rot.T + [params.position[0], 0.0, params.position[1]]
+    return TemplateMesh(verts, quads, creases, grid, kind, params)
+
+
+# profiles -------------------------------------------------------------------------------------
+
+def _polyline(keys: np.ndarray, counts) -> tuple[np.ndarray, np.ndarray]:
+    """Points along a polyline through `keys` (k, d), `counts[i]` equal steps on segment i;
+    and the index of each key point among them (the grid lines creases may run along)."""
+    keys = np.asarray(keys, dtype=float)
+    pieces, at = [keys[:1]], [0]
+    for a, b, n in zip(keys[:-1], keys[1:], counts):
+        t = np.arange(1, n + 1)[:, None] / n
+        pieces.append(a + t * (b - a))
+        at.append(at[-1] + n)
+    return np.concatenate(pieces), np.array(at)
+
+
+def _seat_profile(height: float, depth: float, tilt_deg: float, front_drop: float,
+                  rear_drop: float | None, back: tuple[float, float] | None, nz: int,
+                  back_quads: int) -> tuple[np.ndarray, list[int], int | None]:
+    """(m, 2) (z, y) points of a seat's profile from its front edge to its rear (and up its
+    back): the rounded front, the seat, then the back or a rounded rear. The seat's rear line
+    is at z = 0. Returns the points, the counts per segment and the seat-back key's index."""
+    slope = math.tan(math.radians(tilt_deg))
+    front = np.array([depth, height])
+    rear = np.array([0.0, height - depth * slope])
+    keys = [front + [0.0, -front_drop], front + [-front_drop, 0.0]] if front_drop > 0 \
+        else [front]
+    counts = [1] if front_drop > 0 else []
+    if back is None:
+        drop = rear_drop or 0.0
+        keys += [rear + [drop, -drop * slope]] + ([rear + [0.0, -drop]] if drop > 0 else [])
+        counts += [nz] + ([1] if drop > 0 else [])
+        return np.array(keys), counts, None
+    angle, length = back
+    a = math.radians(angle)
+    keys += [rear, rear + length * np.array([-math.sin(a), math.cos(a)])]
+    counts += [nz, back_quads]
+    return np.array(keys), counts, len(keys) - 2
+
+
+def _across(width: float, n: int, drop: float = 0.0,
+            arms: tuple[float, float] | None = None) -> tuple[np.ndarray, list[int], list[int]]:
+    """(k, 2) (x, offset along the profile's normal) of the columns across a sheet `width`
+    wide in `n` quads: edges rounded down by `drop`, or arms (height, width) at both sides
+    (a wall up, then the arm's top); and the key columns that get creases."""
+    half = width / 2
+    keys, counts = [[-half, 0.0], [half, 0.0]], [n]
+    creases: list[int] = []
+    if drop > 0:
+        keys = [[-half, -drop], [-half + drop, 0.0], [half - drop, 0.0], [half, -drop]]
+        counts = [1, max(n - 2, 1), 1]
+    if arms is not None:
+        rise, wide = arms
+        keys = [[-half - wide, rise], [-half, rise]] + keys + [[half, rise], [half + wide, rise]]
+        counts = [1, 1] + counts + [1, 1]
+    points, at = _polyline(np.array(keys), counts)
+    if arms is not None:
+        creases = [int(at[1]), int(at[2]), int(at[-3]), int(at[-2])]
+    return points, counts, creases
+
+
+def _miter_normals(points: np.ndarray) -> np.ndarray:
+    """(m, 2) normals of a (z, y) polyline, towards the body's side (up along a seat that runs
+    towards -z, forward along a back that rises), scaled so that offsetting by h moves every
+    segment by h (a miter at the corners)."""
+    tangent = np.diff(points, axis=0)
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    seg = np.stack([tangent[:, 1], -tangent[:, 0]], axis=1)  # (z, y) of the normal
+    before = np.concatenate([seg[:1], seg])
+    after = np.concatenate([seg, seg[-1:]])
+    return (before + after) / (1.0 + np.einsum("ij,ij->i", before, after))[:, None]
+
+
+def _sweep(columns: np.ndarray, keys: np.ndarray, counts, crease_cols, crease_key_rows
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The grid of a side profile swept across columns (k, 2) of (x, offset): column i's
+    profile is the key polyline (m, 2) of (z, y) offset by its offset along the keys' normals
+    (so an arm's profile keeps its corners where the seat's are, never folding over an inner
+    corner), with `counts[s]` equal steps on key segment s. Quads run so that their normal is
+    +x cross the profile's direction (towards the body); creases along whole lines: the
+    columns `crease_cols`, and the rows through the keys `crease_key_rows`."""
+    normals = _miter_normals(keys)
+    rows = [_polyline(keys + h * normals, counts)[0] for h in columns[:, 1]]
+    _, at = _polyline(keys, counts)
+    zy = np.stack(rows)  # (nu, nv, 2)
+    nu, nv = zy.shape[:2]
+    verts = np.stack([np.broadcast_to(columns[:, None, 0], (nu, nv)), zy[..., 1], zy[..., 0]],
+                     axis=-1).reshape(-1, 3)
+    grid = np.arange(nu * nv).reshape(nu, nv)
+    quads = np.stack([grid[:-1, :-1], grid[1:, :-1], grid[1:, 1:], grid[:-1, 1:]],
+                     axis=-1).reshape(-1, 4)
+    creases = [np.stack([grid[i, :-1], grid[i, 1:]], axis=1) for i in crease_cols]
+    creases += [np.stack([grid[:-1, at[k]], grid[1:, at[k]]], axis=1) for k in crease_key_rows]
+    creases = np.concatenate(creases) if creases else np.zeros((0, 2), dtype=np.int64)
+    return verts, quads, creases.astype(np.int64), grid
+
+
+# the kinds: each gives the columns across, the profile's keys and steps, and the creases ---------
+
+def _seat_with_back(p, width: float, nx: int):
+    back = (p.back_angle_deg, p.back_height) if p.back else None
+    keys, counts, junction = _seat_profile(p.seat_height, p.seat_depth, p.seat_tilt_deg,
+                                           p.front_drop, 0.0, back, p.seat_quads[1],
+                                           p.back_quads)
+    columns, _, crease_cols = _across(width, nx,
+                                      arms=(p.arm_height, p.arm_width) if p.arms else None)
+    return columns, keys, counts, crease_cols, [junction] if junction is not None else []
+
+
+def _chair(p: ChairParams):
+    return _seat_with_back(p, p.seat_width, p.seat_quads[0])
+
+
+def _bench(p: BenchParams):
+    return _seat_with_back(p, p.seat_width * p.seats, p.seat_quads[0] * p.seats)
+
+
+def _stool(p: StoolParams):
+    keys, counts, _ = _seat_profile(p.seat_height, p.seat_depth, p.seat_tilt_deg, p.edge_drop,
+                                    p.edge_drop, None, max(p.seat_quads[1] - 2, 1), 0)
+    keys[:, 0] -= p.seat_depth / 2  # the origin under the middle
+    columns, _, _ = _across(p.seat_width, p.seat_quads[0], p.edge_drop)
+    return columns, keys, counts, [], []
+
+
+def _floor_cushion(p: FloorCushionParams):
+    back = (p.back_angle_deg, p.back_height) if p.back else None
+    nz = p.quads[1] if p.back else max(p.quads[1] - 2, 1)
+    keys, counts, junction = _seat_profile(p.height, p.depth, 0.0, p.edge_drop, p.edge_drop,
+                                           back, nz, p.back_quads)
+    columns, _, _ = _across(p.width, p.quads[0], p.edge_drop)
+    return columns, keys, counts, [], [junction] if junction is not None else []
+
+
+def _lounger(p: LoungerParams):
+    a = math.radians(p.back_angle_deg)
+    rise = p.knee_height - p.seat_height
+    knee_z = math.sqrt(p.thigh_length ** 2 - rise ** 2)
+    foot_z = knee_z + math.sqrt(p.leg_length ** 2 - (p.knee_height - p.foot_height) ** 2)
+    keys = np.array([[foot_z, p.foot_height], [knee_z, p.knee_height], [0.0, p.seat_height],
+                     [-p.back_length * math.sin(a), p.seat_height + p.back_length * math.cos(a)]])
+    columns, _, _ = _across(p.width, p.quads_across)
+    return columns, keys, [p.leg_quads, p.thigh_quads, p.back_quads], [], []
+
+
+def _bed(p: BedParams):
+    half, d = p.length / 2, p.edge_drop
+    if d > 0:
+        keys = np.array([[half, p.height - d], [half - d, p.height], [-half + d, p.height],
+                         [-half, p.height - d]])
+        counts = [1, max(p.quads[1] - 2, 1), 1]
+    else:
+        keys, counts = np.array([[half, p.height], [-half, p.height]]), [p.quads[1]]
+    columns, _, _ = _across(p.width, p.quads[0], d)
+    return columns, keys, counts, [], []

@@ -1,0 +1,192 @@
+"""Furniture templates: consistent manifold quad grids facing the bodies, creases on mesh edges,
+smooth at level 3 but for the creases, dimensions as their parameters say (checked with trimesh),
+clear errors for bad parameters."""
+
+import math
+
+import numpy as np
+import pytest
+import trimesh
+
+from solver.mesh import quad_triangles
+from solver.surface.nurbs import grid_patches
+from solver.surface.subdivision import subdivision
+from solver.surface.templates import (KINDS, TEMPLATE_PARAMS, TemplateError, make_template,
+                                      template_params)
+
+VARIANTS = [("chair", {}), ("chair", {"arms": True}), ("chair", {"back": False}),
+            ("bench", {}), ("bench", {"seats": 3, "back": True, "arms": True}),
+            ("stool", {}), ("stool", {"seat_tilt_deg": -10.0}),
+            ("floor_cushion", {}), ("floor_cushion", {"back": True}),
+            ("lounger", {}), ("bed", {}), ("bed", {"edge_drop": 0.0})]
+IDS = [f"{k}-{'-'.join(f'{a}={b}' for a, b in v.items()) or 'defaults'}" for k, v in VARIANTS]
+
+
+def _trimesh(vertices, quads) -> trimesh.Trimesh:
+    return trimesh.Trimesh(vertices, quad_triangles(quads), process=False)
+
+
+def _quad_edges(quads) -> set[tuple[int, int]]:
+    q = np.asarray(quads)
+    pairs = np.sort(np.stack([q, np.roll(q, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
+    return set(map(tuple, pairs.tolist()))
+
+
+def test_every_kind_is_covered():
+    assert {k for k, _ in VARIANTS} == set(KINDS) == set(TEMPLATE_PARAMS)
+
+
+@pytest.mark.parametrize("kind, values", VARIANTS, ids=IDS)
+def test_template_is_a_manifold_consistently_wound_quad_grid(kind, values):
+    t = make_template(kind, **values)
+    assert t.vertices.shape[1] == 3 and t.quads.shape[1] == 4
+    assert np.isfinite(t.vertices).all()
+    mesh = _trimesh(t.vertices, t.quads)
+    assert mesh.is_winding_consistent
+    # edge manifold: no edge of more than two faces, and every vertex used
+    _, counts = np.unique(mesh.edges_sorted, axis=0, return_counts=True)
+    assert counts.max() <= 2
+    assert np.array_equal(np.unique(t.quads), np.arange(len(t.vertices)))
+    # no degenerate quad: every one has area
+    assert (mesh.area_faces > 1e-6).all()
+    # the grid exports as NURBS patches (a regular grid, creases along whole lines)
+    patches = grid_patches(len(t.vertices), t.quads, t.creases.tolist() or None)
+    assert patches is not None
+    assert sum(patch.size for patch in patches) >= len(t.vertices)
+
+
+@pytest.mark.parametrize("kind, values", VARIANTS, ids=IDS)
+def test_creases_are_mesh_edges_and_the_level_3_surface_folds_only_there(kind, values):
+    t = make_template(kind, **values)
+    edges = _quad_edges(t.quads)
+    assert all(tuple(sorted(c)) in edges for c in t.creases.tolist())
+    sub = subdivision(len(t.vertices), t.quads, 3, t.creases.tolist() or None)
+    fine = _trimesh(sub.apply(t.vertices), sub.faces)
+    sharp = {tuple(sorted(e)) for e in sub.steps[-1].creases.tolist()}
+    angles = np.degrees(fine.face_adjacency_angles)
+    off = np.array([tuple(e) not in sharp for e in np.sort(fine.face_adjacency_edges, axis=1)
+                    .tolist()])
+    assert angles[off].max() < 60.0
+
+
+def _normals_and_centres(t):
+    mesh = _trimesh(t.vertices, t.quads)
+    return mesh.face_normals, mesh.triangles_center
+
+
+@pytest.mark.parametrize("kind, values", VARIANTS, ids=IDS)
+def test_faces_point_towards_the_bodies(kind, values):
+    """Seats and tops face up, backs forward (+z), arm walls inwards: the body side."""
+    t = make_template(kind, **values)
+    normals, centres = _normals_and_centres(t)
+    area = _trimesh(t.vertices, t.quads).area_faces
+    # most of the area faces up or forward, none of it down and back at once
+    towards = normals[:, 1] + np.clip(normals[:, 2], 0, None)
+    assert area[towards > 0.5].sum() > 0.6 * area.sum()
+    walls = np.abs(normals[:, 0]) > 0.9  # arm walls: their normal points to the middle
+    assert (np.sign(normals[walls, 0]) == -np.sign(centres[walls, 0])).all()
+    if values.get("back", kind == "chair") and kind in ("chair", "bench", "floor_cushion"):
+        high = centres[:, 1] > centres[:, 1].max() - 0.1  # the top of the back
+        assert (normals[high & ~walls, 2] > 0.5).all()
+
+
+def _seat_height(t) -> float:
+    """The highest point of the up-facing seat (arms left out), measured on the mesh."""
+    normals, centres = _normals_and_centres(t)
+    half = t.params.seat_width * getattr(t.params, "seats", 1) / 2
+    seat = (normals[:, 1] > 0.95) & (np.abs(centres[:, 0]) < half - 0.01)
+    mesh = _trimesh(t.vertices, t.quads)
+    return float(mesh.vertices[mesh.faces[seat]][..., 1].max())
+
+
+@pytest.mark.parametrize("kind", ["chair", "bench", "stool"])
+def test_seat_height_depth_and_width_are_what_they_say(kind):
+    low, high = make_template(kind, seat_height=0.40), make_template(kind, seat_height=0.52)
+    assert _seat_height(low) == pytest.approx(0.40, abs=1e-9)
+    assert _seat_height(high) == pytest.approx(0.52, abs=1e-9)
+    wide = make_template(kind, seat_width=0.61)
+    span = np.ptp(wide.vertices[:, 0]) / getattr(wide.params, "seats", 1)
+    assert span == pytest.approx(0.61)
+    deep = make_template(kind, seat_depth=0.5, **({"back": False} if kind == "chair" else {}))
+    assert np.ptp(deep.vertices[:, 2]) == pytest.approx(0.5)
+
+
+def test_bench_spans_its_seats():
+    two, five = make_template("bench", seats=2), make_template("bench", seats=5)
+    assert np.ptp(five.vertices[:, 0]) == pytest.approx(2.5 * np.ptp(two.vertices[:, 0]))
+    assert len(five.quads) == pytest.approx(2.5 * len(two.quads))
+
+
+def test_back_angle_and_height_of_a_chair():
+    for angle in (0.0, 20.0):
+        t = make_template("chair", back_angle_deg=angle, back_height=0.6, seat_tilt_deg=0.0)
+        normals, centres = _normals_and_centres(t)
+        back = centres[:, 1] > 0.45 + 0.1
+        tilt = np.degrees(np.arctan2(normals[back, 1], normals[back, 2]))
+        assert tilt == pytest.approx(np.full(back.sum(), angle), abs=1e-6)
+        top = t.vertices[:, 1].max() - 0.45
+        assert top == pytest.approx(0.6 * math.cos(math.radians(angle)))
+
+
+def test_arms_stand_their_height_above_the_seat():
+    t = make_template("chair", arms=True, arm_height=0.25, seat_tilt_deg=0.0, front_drop=0.0)
+    normals, centres = _normals_and_centres(t)
+    arm_tops = (normals[:, 1] > 0.99) & (np.abs(centres[:, 0]) > t.params.seat_width / 2)
+    assert centres[arm_tops, 1] == pytest.approx(np.full(arm_tops.sum(), 0.45 + 0.25))
+    assert np.ptp(t.vertices[:, 0]) == pytest.approx(0.5 + 2 * t.params.arm_width)
+    assert len(t.creases) > 0
+
+
+def test_bed_lounger_and_cushion_dimensions():
+    bed = make_template("bed", height=0.5, width=1.4, length=2.1)
+    assert bed.vertices[:, 1].max() == pytest.approx(0.5)
+    assert np.ptp(bed.vertices[:, [0, 2]], axis=0) == pytest.approx([1.4, 2.1])
+    cushion = make_template("floor_cushion", height=0.15, width=0.7)
+    assert cushion.vertices[:, 1].max() == pytest.approx(0.15)
+    assert np.ptp(cushion.vertices[:, 0]) == pytest.approx(0.7)
+    lounger = make_template("lounger", seat_height=0.3, back_angle_deg=60.0, back_length=0.9)
+    normals, centres = _normals_and_centres(lounger)
+    back = centres[:, 2] < -0.1
+    assert np.degrees(np.arctan2(normals[back, 1], normals[back, 2])) == \
+        pytest.approx(np.full(back.sum(), 60.0))
+    assert lounger.vertices[:, 1].min() == pytest.approx(0.3)
+
+
+def test_position_and_heading_move_and_turn_the_template():
+    base = make_template("chair")
+    moved = make_template("chair", position=(1.0, -2.0), heading_deg=90.0)
+    # turned a quarter about +y: the front (+z) now faces +x, then moved on the floor
+    expected = np.stack([base.vertices[:, 2] + 1.0, base.vertices[:, 1],
+                         -base.vertices[:, 0] - 2.0], axis=1)
+    assert moved.vertices == pytest.approx(expected)
+    assert np.array_equal(moved.quads, base.quads)
+
+
+@pytest.mark.parametrize("kind, values, message", [
+    ("chair", {"seat_height": -0.1}, r"chair\.seat_height: expected a number >= 0\.05, got -0\.1"),
+    ("chair", {"arms": "yes"}, r"chair\.arms: expected true or false, got 'yes'"),
+    ("chair", {"seat_quads": (8,)}, r"chair\.seat_quads: expected \[across, along\]"),
+    ("chair", {"seat_quads": (8, 1)}, r"chair\.seat_quads\[1\]: expected a whole number >= 2"),
+    ("chair", {"seat_tilt_deg": 29.0, "seat_depth": 1.4},
+     r"chair\.seat_tilt_deg: expected a tilt that keeps the seat above the floor"),
+    ("bench", {"seats": 0}, r"bench\.seats: expected a whole number >= 1, got 0"),
+    ("bench", {"seats": 2.5}, r"bench\.seats: expected a whole number, got 2\.5"),
+    ("bed", {"width": float("nan")}, r"bed\.width: expected a number, got nan"),
+    ("lounger", {"knee_height": 1.0}, r"lounger\.knee_height: expected within thigh_length"),
+    ("stool", {"position": (0.0,)}, r"stool\.position: expected \[x, z\]"),
+    ("floor_cushion", {"height": 0.7}, r"floor_cushion\.height: expected a number <= 0\.6"),
+    ("sofa", {}, r"Expected a template kind of \['chair', .*\], got 'sofa'"),
+    ("chair", {"colour": "red"}, r"chair: unknown parameter 'colour'"),
+])
+def test_bad_parameters_raise_with_a_message(kind, values, message):
+    with pytest.raises(TemplateError, match=message):
+        make_template(kind, **values)
+
+
+def test_parameters_are_frozen_and_lists_become_tuples():
+    p = template_params("chair", seat_quads=[6, 5], position=[0.2, 0.1])
+    assert p.seat_quads == (6, 5) and p.position == (0.2, 0.1)
+    with pytest.raises(AttributeError):
+        p.seat_height = 0.3
+    t = make_template("chair", p)
+    assert len(t.quads) == 6 * (5 + 1 + p.back_quads)
