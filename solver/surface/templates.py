@@ -95,26 +95,15 @@ class ChairParams:
 
 
 @dataclass(frozen=True)
-class BenchParams:
+class BenchParams(ChairParams):
     """A bench for `seats` people side by side, each `seat_width` wide: a chair's seat
-    across all of them, with an optional back and arms at the ends (see `ChairParams`)."""
+    across all of them (see `ChairParams`), backless by default, arms at the ends."""
 
-    seats: int = 2
-    seat_height: float = 0.45
-    seat_depth: float = 0.46
     seat_width: float = 0.55
     seat_tilt_deg: float = 3.0
-    front_drop: float = 0.04
     back: bool = False
-    back_angle_deg: float = 12.0
     back_height: float = 0.45
-    arms: bool = False
-    arm_height: float = 0.22
-    arm_width: float = 0.08
-    seat_quads: tuple[int, int] = (8, 6)
-    back_quads: int = 5
-    position: tuple[float, float] = (0.0, 0.0)
-    heading_deg: float = 0.0
+    seats: int = 2
 
     def __post_init__(self):
         _check("bench", "seats", self.seats, 1, 20, whole=True)
