@@ -401,12 +401,13 @@ def _person_routes(app: FastAPI, place, time_limit: float) -> None:
 def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
     @app.post("/api/fit", summary="Fit a surface to a scenario, with each person's evaluation")
     def fit(s: schema.Scenario) -> FitResponse:
+        from solver.scene.placement import place_scene
         from solver.scene.run import fit_scene, report_parameters
 
         start = time.perf_counter()
         check = _deadline(time_limit)
         scenario = request_scenario(s)
-        people = [place(p, k) for k, p in enumerate(scenario.persons)]
+        scenario, people = place_scene(scenario, place=place)
         check()
         result, persons, _ = fit_scene(scenario, people, check)
         return FitResponse(control=_mesh(result.control, result.faces),
@@ -418,6 +419,7 @@ def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
 
     @app.post("/api/relax", summary="Fit, then relax one person onto the surface")
     def relax(req: RelaxRequest) -> dict:
+        from solver.scene.placement import place_scene
         from solver.scene.run import fit_people, relax_person
 
         scenario = request_scenario(req.scenario, ("scenario",))
@@ -425,7 +427,7 @@ def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
             raise HTTPException(400, f"Expected index in 0..{len(scenario.persons) - 1}, got "
                                      f"{req.index}")
         check = _deadline(time_limit)
-        people = [place(p, k) for k, p in enumerate(scenario.persons)]
+        scenario, people = place_scene(scenario, place=place)
         check()
         result = fit_people(scenario, people, check)
         person = people[req.index]

@@ -34,11 +34,9 @@ def _api_fit(arg):
 def _in_process_fit(arg):
     from solver.scene.run import fit_scene
     from solver.scene.scenario import parse_scenario
-    from solver.scene.placement import place_person
+    from solver.scene.placement import place_scene
 
-    scenario = parse_scenario(arg[2], "bench", files=False)
-    return fit_scene(scenario, [place_person(p, None, k)
-                                for k, p in enumerate(scenario.persons)])
+    return fit_scene(*place_scene(parse_scenario(arg[2], "bench", files=False)))
 
 
 def _cli_start_setup() -> tuple[list[str], dict]:

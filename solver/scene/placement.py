@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -15,7 +17,7 @@ from solver.body.retarget import place
 from solver.contact.pressure import pressure_field, reachable
 from solver.mesh import triangle_mesh
 from solver.body.rig import RigMotion
-from solver.scene.scenario import PersonSpec
+from solver.scene.scenario import PersonSpec, Scenario, ScenarioError, template_error
 from solver.body.skinning import skin
 
 
@@ -113,3 +115,48 @@ def place_person(spec: PersonSpec, db: str | os.PathLike | None = None,
                         body.triangles, areas, parts, body.mass_kg, body.regions,
                         m[:3, :3].copy(), spec=spec, body=body,
                         motion=motion, transform=to_scene)
+
+
+def place_scene(scenario: Scenario, db: str | os.PathLike | None = None, *,
+                place: Callable[[PersonSpec, int], PlacedPerson] | None = None
+                ) -> tuple[Scenario, list[PlacedPerson]]:
+    """Places every person of a scenario and, for a template surface, builds its control mesh
+    around them (`solver.scene.furnish.furnish`): the one place a scenario's people are placed
+    for a fit.
+
+    Parameters
+    ----------
+    scenario : the scenario as read.
+    db : the pose library for ``db:`` poses.
+    place : optional place(spec, index) -> PlacedPerson instead of `place_person` (a cache).
+
+    Returns
+    -------
+    scenario : the scenario with its control mesh (for a template: built, its full parameters
+        under `surface.template.built`; otherwise the same object).
+    people : the placed people, in the scenario's order.
+    """
+    place = place or (lambda spec, k: place_person(spec, db, k))
+    people = [place(p, k) for k, p in enumerate(scenario.persons)]
+    return furnished(scenario, people), people
+
+
+def furnished(scenario: Scenario, people: list[PlacedPerson]) -> Scenario:
+    """The scenario with its template surface built around the placed people (the scenario
+    itself when its surface is no template, or is built already)."""
+    from solver.scene.furnish import furnish
+    from solver.surface.templates import TemplateError
+
+    surface = scenario.surface
+    if surface.template is None or surface.vertices is not None:
+        return scenario
+    try:
+        mesh = furnish(surface.template.kind, surface.template.given, people)
+    except TemplateError as exc:
+        raise template_error(exc, scenario.path or "<scenario>") from None
+    if not np.array_equal(mesh.quads, surface.faces):  # the topology never depends on people
+        raise ScenarioError(f"{scenario.path}: surface.template: the template built around "
+                            f"the people has other faces than the one read")
+    built = dataclasses.replace(surface.template, built=mesh.params)
+    return dataclasses.replace(scenario, surface=dataclasses.replace(
+        surface, vertices=mesh.vertices, source=mesh.source, template=built))

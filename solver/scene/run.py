@@ -23,11 +23,11 @@ from solver.io.export import ExportError, frame_matrix, write_mesh
 from solver.body.relax import (PENETRATION_SHIFT, PENETRATION_WIDTH, RelaxError, RelaxProblem,
                                relax)
 from solver.mesh import triangle_mesh
-from solver.surface.fit import FitResult, fit_surface
+from solver.surface.fit import FitError, FitResult, fit_surface
 from solver.io.render import (SKIN, SURFACE, MeshView, Panel, field_colors, render_panels,
                               render_pressure_maps)
 from solver.scene.scenario import Scenario, load_scenario
-from solver.scene.placement import PlacedPerson, place_person
+from solver.scene.placement import PlacedPerson, place_scene
 from solver.mesh import quad_triangles
 
 if TYPE_CHECKING:
@@ -100,7 +100,11 @@ def fit_scene(scenario: Scenario, people: list[PlacedPerson],
 
 def fit_people(scenario: Scenario, people: list[PlacedPerson],
                progress: Callable[[int, float, float], None] | None = None) -> FitResult:
-    """The scenario's surface fitted to the posed people."""
+    """The scenario's surface fitted to the posed people (a template's control mesh built
+    around them by `place_scene`)."""
+    if scenario.surface.vertices is None:
+        raise FitError("The scenario's template has no control mesh yet: it is built around "
+                       "the placed people (solver.scene.placement.place_scene)")
     return fit_surface(scenario.surface.vertices, scenario.surface.faces, people,
                        scenario.surface.params, progress)
 
@@ -159,12 +163,22 @@ def report_parameters(scenario: Scenario) -> dict:
     """The fit's parameters as report.json (and the HTTP API's fit reply) gives them: every
     `FitParams` field, the foam stiffness (kPa per metre) and where the control mesh came
     from."""
-    params = scenario.surface.params
-    return {**dataclasses.asdict(params), "fixed": list(params.fixed),
+    params, template = scenario.surface.params, scenario.surface.template
+    more = {} if template is None else {"template": template_table(template)}
+    return {**dataclasses.asdict(params), **more, "fixed": list(params.fixed),
             "creases": [list(c) for c in params.creases],
             "foam_stiffness_kpa_per_m": scenario.foam_stiffness,
             "evaluation": scenario.evaluation.model_dump(),
             "control_mesh": scenario.surface.source}
+
+
+def template_table(template) -> dict:
+    """A scenario's template as a table: its kind and parameters (all of them once built around
+    the people, the given ones before), tuples as lists: what `[surface] template` reads."""
+    values = dataclasses.asdict(template.built) if template.built is not None else \
+        dict(template.given)
+    return {"kind": template.kind, **{k: list(v) if isinstance(v, tuple) else v
+                                      for k, v in values.items()}}
 
 
 def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathLike, *,
@@ -209,7 +223,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t = time.perf_counter()
-    people = [place_person(p, db, k) for k, p in enumerate(scenario.persons)]
+    scenario, people = place_scene(scenario, db)
     timing["pose_s"] = time.perf_counter() - t
     say(f"posed {len(people)} person(s) in {timing['pose_s']:.2f} s")
     result, persons, maps = fit_scene(
@@ -443,7 +457,7 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
     chosen = range(len(scenario.persons)) if person is None else [person - 1]
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    people = [place_person(p, db, k) for k, p in enumerate(scenario.persons)]
+    scenario, people = place_scene(scenario, db)
     if surface_dir is not None:
         surface, faces = read_quad_obj(Path(surface_dir) / "surface.obj", sitrelax_frame=True)
         say(f"surface from {surface_dir}")

@@ -2,6 +2,7 @@
 
     [surface]
     grid = { size = [1.2, 0.8], resolution = [8, 6], height = 0.45 }  # or control_mesh = "a.obj"
+    # or template = { kind = "chair", seat_height = 0.44, arms = true }
     level = 3          # subdivision level s
     sigma = 0.003      # Laplacian smoothing weight
     tau_max = 0.5      # tangent-distance blend ceiling
@@ -31,6 +32,16 @@
     rotation_deg = [0.0, 90.0, 0.0]   # about the world x, then y, then z axes
     support = ["torso", "legs"]       # head, torso, arms, hands, legs (= thighs + calves), feet
 
+The surface starts from exactly one of: `grid`, a flat quad grid; `control_mesh`, a quad OBJ
+file or an inline {vertices, faces}; `template`, a piece of furniture
+(`solver.surface.templates`: kind = "chair", "bench", "stool", "floor_cushion", "lounger" or
+"bed", and its parameters). A template's unset parameters (dimensions, position on the floor,
+heading) are measured on the placed people (`solver.scene.furnish`: a chair's seat just under
+the buttocks and thighs, a bench across all its sitters, a bed under the whole lying body, ...);
+its creases join `creases`, and `fixed` and `creases` may name its vertices (the grid's, u
+across the width, v along the profile: vertex u * rows + v). Its control mesh is built where
+the people are placed (`solver.scene.placement.place_scene`).
+
 A person is posed on its body with its lowest point on the floor (y = 0) and its pelvis over
 the origin, then turned by `rotation_deg` and moved by `position`. Relative paths are relative
 to the scenario file. The fields, their bounds and their defaults (the values above are the
@@ -56,18 +67,34 @@ from solver.scene import schema
 from solver.scene.schema import MAX_INLINE_VERTICES, ScenarioError  # noqa: F401 (re-exported)
 from solver.surface.fit import FitParams
 from solver.surface.subdivision import grid_mesh
+from solver.surface.templates import TEMPLATE_PARAMS, TemplateError, make_template
 
 _PERSON = schema.person_defaults()
 
 
 @dataclass(frozen=True, eq=False)
-class SurfaceSpec:
-    """The control mesh (vertices (n, 3), quads (F, 4)) and the fit's parameters."""
+class TemplateRequest:
+    """A template surface as the scenario asks for it: its kind, the parameters it sets (name
+    -> value; the rest are measured on the people) and, once built around them, the template's
+    full parameters (`solver.surface.templates.TEMPLATE_PARAMS[kind]`)."""
 
-    vertices: np.ndarray
+    kind: str
+    given: dict
+    built: Any = None
+
+
+@dataclass(frozen=True, eq=False)
+class SurfaceSpec:
+    """The control mesh (vertices (n, 3), quads (F, 4)) and the fit's parameters. A template
+    surface has its quads (and its creases among the parameters' creases) as soon as it is
+    read, but its vertices (None until then) only once it is built around the placed people
+    (`solver.scene.placement.place_scene`)."""
+
+    vertices: np.ndarray | None
     faces: np.ndarray
     params: FitParams = field(default_factory=FitParams)
     source: str = "grid"
+    template: TemplateRequest | None = None
 
 
 @dataclass(frozen=True)
@@ -166,8 +193,14 @@ def scenario_from_model(model: schema.Scenario, where: str = "<scenario>",
     (fixed and crease indices) or know where the scenario came from (`files`, `base`)."""
     base = base or Path(".")
     surf = model.surface
-    verts, faces, source = _control_mesh(surf, where, base, files)
-    n = len(verts)
+    template = None
+    if surf.template is not None:
+        template, faces, template_creases = _template(surf.template, len(model.person), where)
+        verts, source = None, f"{template.kind} template"
+        n = int(faces.max()) + 1
+    else:
+        verts, faces, source = _control_mesh(surf, where, base, files)
+        n = len(verts)
     for name in ("fixed", "creases"):
         for k, item in enumerate(getattr(surf, name)):
             for i in item if name == "creases" else [item]:
@@ -177,6 +210,8 @@ def scenario_from_model(model: schema.Scenario, where: str = "<scenario>",
     values = {name: getattr(surf, name) for name in schema.FIT_FIELDS}
     values["fixed"] = tuple(values["fixed"])
     values["creases"] = tuple(tuple(c) for c in values["creases"])
+    if template is not None:
+        values["creases"] = tuple(map(tuple, template_creases.tolist())) + values["creases"]
     params = FitParams(**values)
     if params.creases:
         from solver.surface.subdivision import MeshError, subdivide_once
@@ -186,9 +221,34 @@ def scenario_from_model(model: schema.Scenario, where: str = "<scenario>",
         except MeshError as exc:
             raise _fail(where, "surface.creases", str(exc)) from None
     persons = tuple(_person(p, k, where, base, files) for k, p in enumerate(model.person))
-    return Scenario(SurfaceSpec(verts, faces, params, source), persons,
+    return Scenario(SurfaceSpec(verts, faces, params, source, template), persons,
                     model.evaluation, where,
                     raw if raw is not None else model.model_dump(exclude_none=True))
+
+
+def template_error(exc: TemplateError, where: str) -> ScenarioError:
+    """A template's error as the scenario's: `where: surface.template.<parameter>: ...`."""
+    message = str(exc)
+    head, _, rest = message.partition(": ")
+    kind, dot, name = head.partition(".")
+    if dot and kind in TEMPLATE_PARAMS and " " not in head:
+        return _fail(where, f"surface.template.{name}", rest)
+    return _fail(where, "surface.template", message)
+
+
+def _template(model, persons: int, where: str) -> tuple[TemplateRequest, np.ndarray, np.ndarray]:
+    """The request, quads and creases of a scenario's template: its topology does not depend
+    on the people (a bench has a seat per person unless `seats` says otherwise), so it is
+    built here at its given parameters to check them."""
+    given = model.model_dump(exclude_none=True)
+    kind = given.pop("kind")
+    if kind == "bench":
+        given.setdefault("seats", persons)
+    try:
+        mesh = make_template(kind, **given)
+    except TemplateError as exc:
+        raise template_error(exc, where) from None
+    return TemplateRequest(kind, given), mesh.quads, mesh.creases
 
 
 def _control_mesh(surf, where: str, base: Path,

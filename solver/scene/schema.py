@@ -2,9 +2,11 @@
 HTTP API's requests and the studio, and the one place every scenario default comes from.
 
     Scenario
-      surface: Surface      exactly one of grid {size, resolution, height} or control_mesh (a
-                            file name, or inline {vertices, faces}), and one field per
-                            `FitParams` field, its default taken from `FitParams`
+      surface: Surface      exactly one of grid {size, resolution, height}, control_mesh (a
+                            file name, or inline {vertices, faces}) or template {kind, ...}
+                            (a `solver.surface.templates` kind and its parameters, each
+                            unset one measured on the people, `solver.scene.furnish`), and one
+                            field per `FitParams` field, its default taken from `FitParams`
       evaluation: Evaluation  foam_stiffness (kPa per metre), foam_thickness (m), friction,
                             floor (bool), floor_stiffness (kPa per metre)
       person: [Person]      pose, name, body (the `BodyShape` fields, each in [0, 1]),
@@ -31,6 +33,7 @@ from pydantic_core import PydanticCustomError
 from solver.body import model as body_model
 from solver.body.model import SUPPORT_PARTS
 from solver.surface.fit import FitParams
+from solver.surface.templates import TEMPLATE_PARAMS
 
 MAX_INLINE_VERTICES = 20_000
 
@@ -110,14 +113,53 @@ ControlMesh = Annotated[
 _TAGS = {"file", "inline"}
 
 
+_TEMPLATE_TYPES = {  # a template parameter's type; its bounds are the template's own checks
+    "float": Number, "int": Annotated[int, Field(strict=True)],
+    "bool": Annotated[bool, Field(strict=True)],
+    "tuple[int, int]": Annotated[list[Annotated[int, Field(strict=True)]],
+                                 Field(min_length=2, max_length=2)],
+    "tuple[float, float]": Annotated[list[Number], Field(min_length=2, max_length=2)],
+}
+
+
+def _template_model(kind: str, params: type) -> type[BaseModel]:
+    """The schema of one template kind: `kind`, and each parameter of its dataclass, unset
+    (None) by default: measured on the people, or the dataclass's default."""
+    fields: dict[str, Any] = {"kind": (Literal[kind], ...)}  # type: ignore[valid-type]
+    for f in dataclasses.fields(params):
+        default = list(f.default) if isinstance(f.default, tuple) else f.default
+        fields[f.name] = (Union[_TEMPLATE_TYPES[str(f.type)], None], Field(
+            None, description=f"unset: from the people (else {default!r})"))
+    return create_model(f"{kind.title().replace('_', '')}Template", __base__=_Model,
+                        __doc__=params.__doc__, **fields)
+
+
+TEMPLATE_MODELS = {kind: _template_model(kind, cls) for kind, cls in TEMPLATE_PARAMS.items()}
+
+
+def _template_kind(value: Any) -> str | None:
+    kind = value.get("kind") if isinstance(value, dict) else getattr(value, "kind", None)
+    return kind if kind in TEMPLATE_MODELS else None
+
+
+Template = Annotated[
+    Union[tuple(Annotated[m, Tag(k)] for k, m in TEMPLATE_MODELS.items())],  # type: ignore
+    Discriminator(_template_kind, custom_error_type="template",
+                  custom_error_message=f"expected a table with kind one of "
+                                       f"{list(TEMPLATE_MODELS)}")]
+_TAGS = _TAGS | set(TEMPLATE_MODELS)
+
+
 class _SurfaceBase(_Model):
     grid: Grid | None = None
     control_mesh: ControlMesh | None = None
+    template: Template | None = None  # type: ignore[valid-type]
 
     @model_validator(mode="after")
     def _one_start(self):
-        if (self.grid is None) == (self.control_mesh is None):
-            raise PydanticCustomError("surface", "expected exactly one of grid or control_mesh")
+        if sum(x is not None for x in (self.grid, self.control_mesh, self.template)) != 1:
+            raise PydanticCustomError("surface", "expected exactly one of grid, control_mesh "
+                                                 "or template")
         return self
 
 
@@ -217,7 +259,8 @@ def error_message(exc: ValidationError, where: str) -> str:
     errors = exc.errors(include_url=False)
     error = next((e for e in errors if e["type"] == "extra_forbidden"), errors[0])
     loc = [p for p in error["loc"] if p not in _TAGS]
-    node = _schema_at(loc[:-1] if error["type"] == "extra_forbidden" else loc)
+    tagged = [p for p in error["loc"] if p not in _TAGS or p in TEMPLATE_MODELS]
+    node = _schema_at(tagged[:-1] if error["type"] == "extra_forbidden" else tagged)
     message = _describe(error, node, loc)
     if "body" in loc[:-1] and loc.index("body") < len(loc) - 1:
         # errors inside a person's body name the table, then the key (BodyShape's shape)
@@ -254,6 +297,9 @@ def _schema_at(loc: list) -> dict:
         return [b for m in members for b in branches(m)] if members else [n]
 
     for part in loc:
+        if isinstance(part, str) and part in TEMPLATE_MODELS:  # a template kind's own table
+            node = root["$defs"][TEMPLATE_MODELS[part].__name__]
+            continue
         for branch in branches(node):
             if (isinstance(part, int) and branch.get("type") == "array") or (
                     isinstance(part, str) and part in branch.get("properties", {})):
@@ -264,7 +310,10 @@ def _schema_at(loc: list) -> dict:
         else:
             node = resolve(node).get("properties", {}).get(part, {})
     tables = [b for b in branches(node) if "properties" in b]
-    return tables[0] if tables else resolve(node)
+    if tables:
+        return tables[0]
+    values = [b for b in branches(node) if b.get("type") != "null"]  # an optional field's
+    return values[0] if len(values) == 1 else resolve(node)
 
 
 def _got(value: Any) -> str:
@@ -306,7 +355,8 @@ def _describe(error: dict, node: dict, loc: list) -> str:
               "finite_number": "expected a finite number", "list_type": "expected a list",
               "model_type": "expected a table", "model_attributes_type": "expected a table",
               "dict_type": "expected a table", "string_type": "expected a string",
-              "string_too_short": "expected a non-empty string"}
+              "string_too_short": "expected a non-empty string",
+              "bool_type": "expected true or false"}
     if kind in simple:
         return f"{simple[kind]}, got {_got(value)}"
     if kind == "missing":

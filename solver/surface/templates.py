@@ -72,19 +72,22 @@ class ChairParams:
     back to the front edge, `seat_width` across, its rear `seat_tilt_deg` lower than its
     front, its front edge rounded down by `front_drop`), a back `back_height` long, leaning
     `back_angle_deg` from vertical, and optional arms `arm_height` above the seat and
-    `arm_width` wide (which run on up the back as wings). Lengths in metres."""
+    `arm_width` wide (which run on up the back as wings). With `seams`, creases where the
+    seat meets the back and the arms (an upholsterer's seams; without, the fit rounds them).
+    Lengths in metres."""
 
     seat_height: float = 0.45
     seat_depth: float = 0.46
     seat_width: float = 0.50
     seat_tilt_deg: float = 4.0
-    front_drop: float = 0.04
+    front_drop: float = 0.0
     back: bool = True
     back_angle_deg: float = 12.0
     back_height: float = 0.50
     arms: bool = False
     arm_height: float = 0.22
     arm_width: float = 0.08
+    seams: bool = True
     seat_quads: tuple[int, int] = (8, 6)
     back_quads: int = 5
     position: tuple[float, float] = (0.0, 0.0)
@@ -258,6 +261,7 @@ def _check_seat(p, kind: str) -> None:
         _check(kind, "back_height", p.back_height, 0.05, 1.5)
         _check(kind, "back_quads", p.back_quads, 1, 40, whole=True)
         _check_flag(kind, "arms", p.arms)
+        _check_flag(kind, "seams", p.seams)
         _check(kind, "arm_height", p.arm_height, 0.03, 0.6)
         _check(kind, "arm_width", p.arm_width, 0.02, 0.4)
     _check_placement(kind, p.position, p.heading_deg)
@@ -419,6 +423,10 @@ def _sweep(columns: np.ndarray, keys: np.ndarray, counts, crease_cols, crease_ke
     +x cross the profile's direction (towards the body); creases along whole lines: the
     columns `crease_cols`, and the rows through the keys `crease_key_rows`."""
     normals = _miter_normals(keys)
+    if counts[0] == 1 and len(keys) > 2:
+        # a rounded front edge: bands offset from it (arms) are the rounded edge moved along
+        # the seat's normal, not rolled forward around it
+        normals[:2] = _miter_normals(keys[1:3])[0]
     rows = [_polyline(keys + h * normals, counts)[0] for h in columns[:, 1]]
     _, at = _polyline(keys, counts)
     zy = np.stack(rows)  # (nu, nv, 2)
@@ -443,6 +451,8 @@ def _seat_with_back(p, width: float, nx: int):
                                            p.back_quads)
     columns, _, crease_cols = _across(width, nx,
                                       arms=(p.arm_height, p.arm_width) if p.arms else None)
+    if not p.seams:
+        return columns, keys, counts, [], []
     return columns, keys, counts, crease_cols, [junction] if junction is not None else []
 
 

@@ -189,4 +189,4 @@ def test_parameters_are_frozen_and_lists_become_tuples():
     with pytest.raises(AttributeError):
         p.seat_height = 0.3
     t = make_template("chair", p)
-    assert len(t.quads) == 6 * (5 + 1 + p.back_quads)
+    assert len(t.quads) == 6 * (5 + p.back_quads)

@@ -1,0 +1,88 @@
+"""A template scenario: read with its topology, built around the placed people (dimensions
+measured on them, explicit ones kept), and fitted through `sitrelax fit`'s path."""
+
+import numpy as np
+import pytest
+
+from solver.body.model import BODY_REGIONS
+from solver.scene.placement import place_scene
+from solver.scene.scenario import ScenarioError, parse_scenario
+
+SITTER = "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"
+
+
+def _scenario(template: dict, persons=(SITTER,), **surface):
+    return parse_scenario({"surface": {"template": template, **surface},
+                           "person": [{"pose": p, "support": ["torso", "thighs"],
+                                       "position": [0.7 * k, 0.0, 0.0]}
+                                      for k, p in enumerate(persons)]}, "test.toml")
+
+
+def test_a_template_is_read_with_its_faces_and_creases_but_no_vertices_yet():
+    s = _scenario({"kind": "chair", "seat_height": 0.44}, creases=[[0, 1]])
+    assert s.surface.vertices is None and s.surface.faces.shape == (8 * 11, 4)
+    assert s.surface.template.kind == "chair" and s.surface.template.given == {
+        "seat_height": 0.44}
+    assert len(s.surface.params.creases) == 9  # the seat-back seam (8 edges) and the one given
+
+
+@pytest.mark.parametrize("template, message", [
+    ({"kind": "chair", "seat_height": 2.0}, r"test\.toml: surface\.template\.seat_height: "
+                                            r"expected a number <= 1\.2, got 2"),
+    ({"kind": "sofa"}, r"surface\.template: expected a table with kind one of"),
+    ({"kind": "bed", "lenght": 2.0}, r"surface\.template\.lenght: unknown field \(did you "
+                                     r"mean length\?"),
+])
+def test_bad_template_parameters_name_the_field(template, message):
+    with pytest.raises(ScenarioError, match=message):
+        _scenario(template)
+
+
+def test_fixed_indices_are_checked_against_the_template():
+    with pytest.raises(ScenarioError, match=r"surface\.fixed\[0\]: expected a whole number "
+                                            r"in 0\.\.107, got 500"):
+        _scenario({"kind": "chair"}, fixed=[500])
+
+
+def test_the_chair_is_built_under_the_sitter_and_explicit_values_win():
+    measured, people = place_scene(_scenario({"kind": "chair"}))
+    skin = people[0].vertices
+    t = measured.surface.template.built
+    v = measured.surface.vertices
+    assert v.shape == (108, 3) and np.isfinite(v).all()
+    # the seat starts under the buttocks (not inside them), within a few centimetres
+    buttocks = skin[people[0].body.regions == BODY_REGIONS.index("pelvis")]
+    assert 0.005 <= buttocks[:, 1].min() - t.seat_height <= 0.05
+    assert t.seat_width > np.ptp(skin[people[0].body.thigh, 0])
+    given, _ = place_scene(_scenario({"kind": "chair", "seat_height": 0.3, "arms": False}))
+    assert given.surface.template.built.seat_height == 0.3
+    assert given.surface.template.built.seat_depth == pytest.approx(t.seat_depth, abs=0.02)
+
+
+def test_a_bench_spans_its_sitters():
+    s, people = place_scene(_scenario({"kind": "bench"}, persons=(SITTER, SITTER)))
+    assert s.surface.template.built.seats == 2
+    xs = s.surface.vertices[:, 0]
+    hips = [p.vertices[p.body.thigh, 0] for p in people]
+    assert xs.min() < min(h.min() for h in hips) and xs.max() > max(h.max() for h in hips)
+
+
+def test_a_bed_needs_lifted_sleepers():
+    with pytest.raises(ScenarioError, match=r"surface\.template: The people's lowest point is "
+                                            r"0\.000 m above the floor"):
+        place_scene(_scenario({"kind": "bed"}))
+
+
+@pytest.mark.slow
+def test_a_chair_scenario_fits_through_run_fit(tmp_path):
+    from solver.scene.run import run_fit
+
+    path = tmp_path / "chair.toml"
+    path.write_text(f'[surface]\ntemplate = {{ kind = "chair", seat_quads = [6, 4], '
+                    f'back_quads = 3 }}\nlevel = 2\nmax_iterations = 12\n\n[[person]]\n'
+                    f'pose = "{SITTER}"\nsupport = ["torso", "thighs"]\n')
+    report = run_fit(path, tmp_path / "out", pictures=False, formats=("obj",))
+    assert report["parameters"]["template"]["kind"] == "chair"
+    assert report["parameters"]["control_mesh"] == "chair template, 6 x 7 quads"
+    assert report["persons"][0]["coverage"] > 0.5
+    assert report["guarantees"]["self_intersections"] == 0
