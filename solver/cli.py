@@ -151,6 +151,33 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     return 1 if problem else 0
 
 
+def _cmd_design(args: argparse.Namespace) -> int:
+    from solver.contact.evaluate import peak_text
+    from solver.scene.design import run_design
+
+    def progress(message: str) -> None:
+        print(f"design: {message}", file=sys.stderr, flush=True)
+
+    report = run_design(args.poses, args.out, db=args.db, pictures=not args.no_pictures,
+                        progress=progress)
+    if args.json:
+        print(json.dumps(report, indent=2))
+        return 0
+    design, g = report["design"], report["guarantees"]
+    print(f"{', '.join(design['postures'])}: {design['template']}, fitted in "
+          f"{report['timing']['fit_s']:.2f} s ({report['iterations']} iterations)")
+    for p in report["persons"]:
+        print(f"{p['name']}: coverage {p['coverage']:.2f}, penetration "
+              f"{p['max_penetration_m'] * 1000:.0f} mm, peak {peak_text(p)}")
+    print(f"surface: {g['folds']} folds (max {g['max_fold_deg']:.0f} degrees), "
+          f"{g['self_intersections']} self-intersections, "
+          f"{'below the floor' if g['below_floor'] else 'above the floor'}, dense penetration "
+          f"{g['max_penetration_dense_m'] * 1000:.0f} mm")
+    print(f"wrote {args.out}/scenario.toml (go on with `sitrelax fit`), report.json and the "
+          f"surface, control mesh, bodies" + (" and pictures" if report["pictures"] else ""))
+    return 0
+
+
 def _workshop_options(args: argparse.Namespace):
     from solver.scene.workshop import WorkshopOptions
 
@@ -366,6 +393,18 @@ def _register_fitting(sub) -> None:
                      help="skip scene.png, pressure.png and pressure_map.png (faster; the "
                           "report says \"pictures\": false)")
     fit.set_defaults(func=_cmd_fit)
+
+    design = sub.add_parser("design", help="furniture for poses: classify, choose a template, "
+                                           "place it, fit and evaluate")
+    design.add_argument("poses", nargs="+", metavar="POSE",
+                        help="a pose as a scenario names it: bvh:FILE#frame=N, "
+                             "bvh:bundled:NAME.bvh#frame=N or db:NAME; several sit side by side")
+    design.add_argument("--out", default="design", help="output folder (default ./design)")
+    design.add_argument("--db", default=None, help="pose library for db: poses")
+    design.add_argument("--json", action="store_true", help="print the report")
+    design.add_argument("--no-pictures", action="store_true",
+                        help="skip scene.png, pressure.png and pressure_map.png")
+    design.set_defaults(func=_cmd_design)
 
     batch = sub.add_parser("batch", help="fit many scenarios and parameter sets, in parallel")
     batch.add_argument("scenarios", nargs="*", help="scenario files (TOML)")

@@ -1,0 +1,163 @@
+"""`sitrelax design`: furniture from poses alone. Each pose is classified (`solver.body.posture`),
+a template chosen for them all (`DESIGNS`), the people set side by side, the template built
+around them, and the scenario written (scenario.toml, loadable by `sitrelax fit`) and fitted by
+`run_fit`, the same path as `sitrelax fit`.
+
+    posture    one person       several (side by side)
+    seated     chair (back)     bench with a back, a seat each
+    perched    stool            bench (backless)
+    reclined   lounger          lounger, as wide as all
+    floor      floor cushion    floor cushion, as wide as all
+    lying      bed              a shared bed
+
+People sitting on the floor or lying are lifted by the cushion's or the bed's height (`LIFT`),
+so there is furniture under them. Standing poses and poses of different postures stop with a
+`DesignError`: there is nothing to sit on, or no one piece for them all.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from capture.files import write_atomic
+
+from solver.body.posture import PostureFigures, classify_posture, posture_figures
+
+
+class DesignError(ValueError):
+    """Poses the designer has no furniture for (and why)."""
+
+
+@dataclass(frozen=True)
+class Design:
+    """What a posture gets: the template for one person and for several, their extra
+    parameters, and the body parts it supports (the scenario's `support`)."""
+
+    single: str
+    several: str
+    support: tuple[str, ...]
+    single_given: tuple[tuple[str, object], ...] = ()
+    several_given: tuple[tuple[str, object], ...] = ()
+
+
+DESIGNS = {
+    "seated": Design("chair", "bench", ("torso", "thighs"), (), (("back", True),)),
+    "perched": Design("stool", "bench", ("torso", "thighs")),
+    "reclined": Design("lounger", "lounger", ("head", "torso", "legs")),
+    "floor": Design("floor_cushion", "floor_cushion", ("torso", "legs", "feet")),
+    "lying": Design("bed", "bed", ("head", "torso", "arms", "legs", "feet")),
+}
+LIFT = {"floor": 0.13, "lying": 0.46}  # metres people are raised: cushion / bed top + 1 cm
+GAP = 0.04  # metres between neighbours' skin, side by side
+
+
+def pose_posture(pose: str, db: str | os.PathLike | None = None
+                 ) -> tuple[str, PostureFigures]:
+    """The posture of a pose reference (`db:NAME`, `bvh:PATH#frame=N`) and its figures, read
+    on the average body's rig with its lowest skin point on the floor."""
+    from solver.body.model import make_body
+    from solver.body.poses import load_pose, retarget_captured
+    from solver.body.retarget import place
+
+    body = make_body()
+    motion = place(retarget_captured(load_pose(pose, db), body), lowest=0.0)
+    figures = posture_figures(motion.world.positions[0], body.joint_names)
+    return classify_posture(figures), figures
+
+
+def design_scenario(poses: Sequence[str], db: str | os.PathLike | None = None,
+                    base: Path | None = None) -> tuple[dict, dict]:
+    """The scenario data a designer would start from for the poses, and what was decided.
+
+    Parameters
+    ----------
+    poses : pose references, as a scenario's `pose` (relative BVH paths relative to `base`).
+    db : the pose library for `db:` poses.
+
+    Returns
+    -------
+    data : the scenario (as `parse_scenario` reads it): the template with every dimension
+        measured on the people, the people side by side, each with the template's support.
+    decisions : postures (per pose), their figures, the template kind.
+
+    Raises DesignError for no pose, a standing pose, or poses of different postures.
+    """
+    from solver.scene.placement import place_scene
+    from solver.scene.run import template_table
+    from solver.scene.scenario import parse_scenario
+
+    if not poses:
+        raise DesignError("Expected at least one pose, got none")
+    read = [pose_posture(p, db) for p in poses]
+    postures = [r[0] for r in read]
+    standing = [p for p, kind in zip(poses, postures) if kind == "standing"]
+    if standing:
+        raise DesignError(f"{standing[0]} is a standing pose: there is nothing to design under "
+                          f"it (choose a seated, perched, reclined, floor or lying frame)")
+    if len(set(postures)) > 1:
+        raise DesignError("Expected poses of one posture (one piece of furniture), got "
+                          + ", ".join(f"{p}: {k}" for p, k in zip(poses, postures)))
+    posture = postures[0]
+    design = DESIGNS[posture]
+    one = len(poses) == 1
+    kind = design.single if one else design.several
+    given = dict(design.single_given if one else design.several_given)
+    lift = LIFT.get(posture, 0.0)
+    people = [{"name": f"person {k + 1}", "pose": p, "support": list(design.support),
+               "position": [0.0, lift, 0.0]} for k, p in enumerate(poses)]
+    data = {"surface": {"template": {"kind": kind, **given}}, "person": people}
+    if not one:  # side by side along x, their skin GAP apart
+        _, placed = place_scene(parse_scenario(data, "design", base), db)
+        widths = np.array([np.ptp(p.vertices[:, 0]) for p in placed])
+        centres = [float(np.mean(p.vertices[:, 0].min() + p.vertices[:, 0].max()) / 2)
+                   for p in placed]
+        pitch = np.concatenate([[0.0], np.cumsum((widths[:-1] + widths[1:]) / 2 + GAP)])
+        pitch -= pitch[-1] / 2
+        for person, x, c in zip(people, pitch, centres):
+            person["position"][0] = float(x - c)
+    built, _ = place_scene(parse_scenario(data, "design", base), db)
+    data["surface"]["template"] = template_table(built.surface.template)
+    return data, {"postures": postures, "posture": posture, "template": kind,
+                  "figures": [r[1].__dict__ for r in read]}
+
+
+def run_design(poses: Sequence[str], out_dir: str | os.PathLike, *,
+               db: str | os.PathLike | None = None, pictures: bool = True,
+               progress: Callable[[str], None] | None = None) -> dict:
+    """Designs furniture for the poses and fits it (`sitrelax design`): writes scenario.toml
+    (the scenario used, loadable by `sitrelax fit`) and everything `sitrelax fit` writes into
+    `out_dir`; report.json gains "design" (the postures, their figures, the template).
+
+    Returns the report as written. Raises DesignError (see `design_scenario`)."""
+    from solver.scene.run import run_fit
+    from solver.scene.scenario import scenario_toml
+
+    say = progress or (lambda message: None)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    absolute = [_absolute(p) for p in poses]
+    data, decisions = design_scenario(absolute, db)
+    say(f"{', '.join(decisions['postures'])}: a {decisions['template']}")
+    path = out / "scenario.toml"
+    header = (f"# sitrelax design {' '.join(poses)}\n# postures: "
+              f"{', '.join(decisions['postures'])}; template: {decisions['template']}\n")
+    write_atomic(path, (header + scenario_toml(data)).encode())
+    report = run_fit(path, out, db=db, progress=say, pictures=pictures)
+    report["design"] = {**decisions, "poses": list(poses), "scenario_file": "scenario.toml"}
+    write_atomic(out / "report.json", json.dumps(report, indent=2, allow_nan=False).encode())
+    return report
+
+
+def _absolute(pose: str) -> str:
+    """A BVH pose reference with its path made absolute (the scenario file lives elsewhere)."""
+    if pose.startswith("db:") or "bundled:" in pose or "#" not in pose:
+        return pose
+    text = pose[4:] if pose.startswith("bvh:") else pose
+    path, frame = text.split("#", 1)
+    return f"bvh:{Path(path).resolve()}#{frame}"
