@@ -16,8 +16,9 @@ The classes and their rules, tried in this order (`classify_posture`):
 
     lying      |trunk| >= 60 degrees with the pelvis under 0.35 m
     standing   thighs >= 60 degrees below horizontal with the pelvis >= 0.6 m over the feet
+    reclined   trunk leaning back >= 25 degrees (a reclined body placed on the floor has its
+               pelvis low too: the lean decides)
     floor      pelvis under 0.28 m (sitting on the floor)
-    reclined   trunk leaning back >= 25 degrees
     perched    thighs 20-60 degrees below horizontal (half standing, on a high seat)
     seated     the rest (upright on a seat, thighs about level)
 
@@ -108,10 +109,10 @@ def classify_posture(figures: PostureFigures) -> str:
     if f.thigh_angle_deg >= STANDING_THIGH_DEG and \
             f.pelvis_over_feet >= STANDING_PELVIS_OVER_FEET_M:
         return "standing"
-    if f.pelvis_height < FLOOR_PELVIS_M:
-        return "floor"
     if f.trunk_angle_deg >= RECLINED_TRUNK_DEG:
         return "reclined"
+    if f.pelvis_height < FLOOR_PELVIS_M:
+        return "floor"
     if PERCHED_THIGH_DEG <= f.thigh_angle_deg < STANDING_THIGH_DEG:
         return "perched"
     return "seated"

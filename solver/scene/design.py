@@ -11,7 +11,7 @@ around them, and the scenario written (scenario.toml, loadable by `sitrelax fit`
     lying      bed              a shared bed
 
 People sitting on the floor or lying are lifted by the cushion's or the bed's height (`LIFT`),
-so there is furniture under them. Standing poses and poses of different postures stop with a
+a reclined person until the pelvis is `RECLINED_PELVIS` high, so there is furniture under them. Standing poses and poses of different postures stop with a
 `DesignError`: there is nothing to sit on, or no one piece for them all.
 """
 
@@ -54,6 +54,7 @@ DESIGNS = {
     "lying": Design("bed", "bed", ("head", "torso", "arms", "legs", "feet")),
 }
 LIFT = {"floor": 0.13, "lying": 0.46}  # metres people are raised: cushion / bed top + 1 cm
+RECLINED_PELVIS = 0.4  # metres: a reclined person is raised until the pelvis is this high
 GAP = 0.04  # metres between neighbours' skin, side by side
 
 
@@ -108,9 +109,11 @@ def design_scenario(poses: Sequence[str], db: str | os.PathLike | None = None,
     one = len(poses) == 1
     kind = design.single if one else design.several
     given = dict(design.single_given if one else design.several_given)
-    lift = LIFT.get(posture, 0.0)
+    lifts = [LIFT.get(posture, 0.0) if posture != "reclined" else
+             max(RECLINED_PELVIS - figures.pelvis_height, 0.0) for _, figures in read]
     people = [{"name": f"person {k + 1}", "pose": p, "support": list(design.support),
-               "position": [0.0, lift, 0.0]} for k, p in enumerate(poses)]
+               "position": [0.0, float(lift), 0.0]}
+              for k, (p, lift) in enumerate(zip(poses, lifts))]
     data = {"surface": {"template": {"kind": kind, **given}}, "person": people}
     if not one:  # side by side along x, their skin GAP apart
         _, placed = place_scene(parse_scenario(data, "design", base), db)

@@ -1,0 +1,125 @@
+"""`sitrelax design`: the posture of every bundled pose named right, the template chosen for
+one and for several people, clear refusals, and a whole design fitted through run_fit."""
+
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from capture import Motion, write_bvh
+
+from solver.body.model import make_body
+from solver.body.posture import PostureError, posture_figures
+from solver.body.poses import load_pose, retarget_captured
+from solver.body.rig import pose_channels, rig_skeleton
+from solver.scene.design import DesignError, design_scenario, pose_posture
+from solver.scene.scenario import load_scenario, parse_scenario
+
+HIGH = "bvh:bundled:cmu_75_18_high_sit.bvh#frame={}"
+MEDIUM = "bvh:bundled:cmu_75_17_medium_sit.bvh#frame={}"
+FLOOR = "bvh:bundled:cmu_82_05_floor_sit_excerpt.bvh#frame={}"
+STANDING = "bvh:bundled:axis_neuron_standing_yxz.bvh#frame={}"
+
+
+def _turned(tmp_path, pose: str, degrees: float, name: str) -> str:
+    """A one-frame rig BVH of a bundled pose turned about x (negative: leaning back), made
+    here: the bundled recordings hold no reclined or lying frame."""
+    body = make_body()
+    motion = retarget_captured(load_pose(pose), body)
+    turn = Rotation.from_euler("x", degrees, degrees=True).as_matrix()
+    local = motion.local_rotmats[0].copy()
+    local[0] = turn @ local[0]
+    skeleton, _ = rig_skeleton(body)
+    path = tmp_path / f"{name}.bvh"
+    write_bvh(path, skeleton, Motion(pose_channels(body, local, turn @ motion.root_positions[0])
+                                     [None], 1 / 30))
+    return f"bvh:{path}#frame=0"
+
+
+@pytest.mark.parametrize("pose, posture", [
+    (HIGH.format(25), "seated"), (HIGH.format(39), "seated"), (HIGH.format(45), "seated"),
+    (MEDIUM.format(140), "seated"), (MEDIUM.format(200), "seated"),
+    (MEDIUM.format(225), "seated"),
+    (FLOOR.format(1), "floor"), (FLOOR.format(8), "floor"), (FLOOR.format(15), "floor"),
+    (STANDING.format(0), "standing"), (STANDING.format(1500), "standing"),
+    (HIGH.format(0), "standing"), (HIGH.format(70), "standing"), (MEDIUM.format(320), "standing"),
+])
+def test_every_bundled_pose_is_named_right(pose, posture):
+    assert pose_posture(pose)[0] == posture
+
+
+def test_reclined_and_lying_poses_are_named_right(tmp_path):
+    reclined = _turned(tmp_path, MEDIUM.format(200), -35.0, "reclined")
+    lying = _turned(tmp_path, STANDING.format(0), -90.0, "lying")
+    prone = _turned(tmp_path, STANDING.format(0), 90.0, "prone")
+    assert pose_posture(reclined)[0] == "reclined"
+    assert pose_posture(lying)[0] == "lying"
+    assert pose_posture(prone)[0] == "lying"
+    figures = pose_posture(reclined)[1]
+    assert figures.trunk_angle_deg == pytest.approx(35.0, abs=8.0)  # it leans back
+
+
+def test_posture_figures_need_the_joints():
+    with pytest.raises(PostureError, match=r"Expected positions of shape \(2, 3\), got \(3,\)"):
+        posture_figures(np.zeros(3), ["Hips", "Neck"])
+    with pytest.raises(PostureError, match=r"missing \['LeftUpLeg'"):
+        posture_figures(np.zeros((2, 3)), ["Hips", "Neck"])
+
+
+def test_one_sitter_gets_a_chair_two_a_bench_side_by_side():
+    data, decided = design_scenario([HIGH.format(39)])
+    assert decided["template"] == "chair" and decided["postures"] == ["seated"]
+    assert data["surface"]["template"]["back"] is True
+    data, decided = design_scenario([HIGH.format(39), MEDIUM.format(200)])
+    assert decided["template"] == "bench"
+    template = data["surface"]["template"]
+    assert template["seats"] == 2 and template["back"] is True
+    xs = [p["position"][0] for p in data["person"]]
+    assert xs[1] - xs[0] > 0.35  # side by side, not on top of each other
+    # the scenario reads back, every dimension given: the same start
+    scenario = parse_scenario(data, "design")
+    assert scenario.surface.template.given["seat_height"] == template["seat_height"]
+
+
+def test_lying_people_get_a_bed_they_are_lifted_onto(tmp_path):
+    lying = _turned(tmp_path, STANDING.format(0), -90.0, "lying")
+    data, decided = design_scenario([lying])
+    assert decided["template"] == "bed"
+    assert data["person"][0]["position"][1] > 0.4
+    assert 0.4 < data["surface"]["template"]["height"] < data["person"][0]["position"][1]
+    assert data["surface"]["template"]["length"] > 1.6
+
+
+@pytest.mark.parametrize("poses, message", [
+    ([], r"Expected at least one pose, got none"),
+    ([STANDING.format(0)], r"is a standing pose: there is nothing to design under it"),
+    ([HIGH.format(39), FLOOR.format(8)], r"Expected poses of one posture .*: seated, .*: floor"),
+])
+def test_the_designer_refuses_what_it_has_no_furniture_for(poses, message):
+    with pytest.raises(DesignError, match=message):
+        design_scenario(poses)
+
+
+@pytest.mark.slow
+def test_a_design_is_fitted_and_its_scenario_fits_again(tmp_path):
+    from solver.cli import main
+
+    assert main(["design", FLOOR.format(8), "--out", str(tmp_path / "d"), "--no-pictures"]) == 0
+    report = json.loads((tmp_path / "d" / "report.json").read_text())
+    assert report["design"]["template"] == "floor_cushion"
+    assert report["parameters"]["template"]["kind"] == "floor_cushion"
+    assert report["guarantees"]["self_intersections"] == 0
+    assert report["persons"][0]["coverage"] > 0.5
+    scenario = load_scenario(tmp_path / "d" / "scenario.toml")
+    assert scenario.surface.template.given["height"] == \
+        pytest.approx(report["parameters"]["template"]["height"])
+
+
+def test_a_reclined_person_gets_a_lounger_under_them(tmp_path):
+    reclined = _turned(tmp_path, MEDIUM.format(200), -35.0, "reclined")
+    data, decided = design_scenario([reclined])
+    assert decided["template"] == "lounger"
+    template = data["surface"]["template"]
+    assert 0.1 < template["seat_height"] < 0.45
+    assert 20.0 < template["back_angle_deg"] < 50.0
