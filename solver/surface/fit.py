@@ -379,7 +379,7 @@ def _nearest_skin(fit: _Fit, sv: np.ndarray, sn: np.ndarray, skin: np.ndarray | 
     # inside it lies farther than INSIDE_REACH from its skin); it leaves through the skin it
     # was held to before it went in or, new to the rows, through the skin facing against the
     # surface's normal
-    gap, nearest = fit.body_tree3.query(sv, distance_upper_bound=INSIDE_REACH)
+    _, nearest = fit.body_tree3.query(sv, distance_upper_bound=INSIDE_REACH)
     outside = nearest == len(points)
     nearest[outside] = 0
     inside = ~outside & (np.einsum("ij,ij->i", sv - points[nearest], normals[nearest]) < 0)
@@ -390,7 +390,10 @@ def _nearest_skin(fit: _Fit, sv: np.ndarray, sn: np.ndarray, skin: np.ndarray | 
     if new.any():
         _, near_s[new] = fit.exit_tree.query(np.concatenate([sv[new], -EXIT_SCALE * sn[new]],
                                                             axis=1))
-    return near_s, dist, inside, np.where(inside, gap, 0.0)
+    # how deep: behind the tangent plane of the nearest skin vertex (smooth as the surface
+    # slides along the skin, where the distance to the nearest vertex would jump by a facet)
+    behind = -np.einsum("ij,ij->i", sv - points[nearest], normals[nearest])
+    return near_s, dist, inside, np.where(inside, behind, 0.0)
 
 
 def _rows(rows: np.ndarray, normals: np.ndarray, demanded: np.ndarray, surf: np.ndarray,
