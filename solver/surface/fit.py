@@ -201,8 +201,8 @@ class Rows:
     vertex each sampled surface vertex is held to (-1 for none): a vertex inside a body keeps
     the one it had, so that the demand on it (and the judged energy) does not jump as the
     surface moves. `beyond_m2`: how far the surface itself is out of bounds, the sum of squares
-    of the depths beyond the margin of its sampled vertices inside a body (each one's distance
-    to its nearest skin vertex) and of its heights under the floor: a continuous measure of the
+    of the depths beyond the margin of its sampled vertices inside a body (each one's depth
+    behind the tangent plane of its nearest skin vertex) and of its heights under the floor: a continuous measure of the
     surface (the rows are the programme's linear picture of it, which changes as the surface
     moves), by which an iterate is judged."""
 
@@ -362,8 +362,8 @@ def assemble(fit: _Fit, pairing: Pairing, surf_n: np.ndarray, tau: float
 def _nearest_skin(fit: _Fit, sv: np.ndarray, sn: np.ndarray, skin: np.ndarray | None = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """For sampled surface vertices sv (m, 3) with normals sn: the body vertex each stays in
-    front of, its distance, whether the surface vertex lies inside a body and how deep (its
-    distance to the nearest skin vertex, 0 outside). `skin` (m,):
+    front of, its distance, whether the surface vertex lies inside a body and how deep (behind
+    the tangent plane of its nearest skin vertex, 0 outside). `skin` (m,):
     the body vertices the rows held the vertices to before (-1 for none), kept for the
     vertices now inside a body (so the demand on them does not jump as the surface moves)."""
     points, normals = fit.points, fit.normals
