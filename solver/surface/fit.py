@@ -37,10 +37,18 @@ so the programme's size depends on the control mesh, not on the bodies. Non-pene
 kept for the surface vertices a body can reach (joined by any that come within CONSTRAINT_RADIUS
 later) and are active only within that radius; OSQP is set up again only when that set changes
 and is otherwise updated in place, warm-started from the last solution, and its status is checked
-every time. The loop judges each iterate by the programme's own objective, the energy plus the
-cost of the non-penetration demands it leaves unmet, and stops once tau has reached tau_max and
-that has not improved by `tolerance` (relative) in PATIENCE iterations, or after
-`max_iterations`; the best iterate is kept.
+every time.
+
+A step is accepted only if it does not raise the judged energy (the programme's own objective:
+the energy with every body point at its nearest vertex of the new surface, plus the cost of the
+demands the new surface leaves unmet) and folds no neighbouring level-s quads further apart than
+FOLD_GUARD_DEG (or than the iterate before it); otherwise it is tried again with half the trust
+region, up to MAX_HALVINGS times, after which the fit has converged. So the judged energies of
+the accepted iterates never rise (a rising tau can only lower them), and a surface that starts
+without folds ends without them. The loop stops once tau has reached tau_max and the energy has
+not improved by `tolerance` (relative) in PATIENCE iterations, or after `max_iterations`. The
+result is the last accepted iterate whose limit surface does not cross itself (checked once at
+the end, and by bisection over the accepted iterates if it does).
 """
 
 from __future__ import annotations
@@ -54,6 +62,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from solver.contact.supported import SupportedBody
+from solver.surface.guarantees import neighbour_faces, quad_normals
 from solver.surface.programme import Programme, ProgrammeError
 from solver.surface.subdivision import Subdivision, subdivision
 from solver.threads import with_limited_threads
@@ -64,13 +73,18 @@ FACING_SCALE = 0.1  # metres a body normal's turn away from the surface counts a
 # the farthest a pairing in that search can be while its skin point lies within CONSTRAINT_RADIUS
 FACING_REACH = float(np.hypot(CONSTRAINT_RADIUS, 2 * FACING_SCALE)) + 1e-9
 INSIDE_REACH = 0.3  # metres: no body part is thicker than twice this
-EXIT_SCALE = 1.0  # the same, for a surface vertex inside a body: it leaves through the skin
-                  # facing against the surface's normal, behind the body (below a seated one)
+EXIT_SCALE = 0.1  # the same, for a surface vertex inside a body: it leaves through nearby skin
+                  # facing against the surface's normal, behind the body (below a seated one);
+                  # a normal turned fully round counts as 20 cm, so skin on the far side of a
+                  # limb wins up to about that depth, and the sole of a foot never does
 TAU_RAMP = 5  # iterations over which tau rises from 0 to tau_max
 PATIENCE = 5  # iterations without improvement before the loop stops
 SLACK_WEIGHT = 1e3  # cost per m^2 of a non-penetration row left unmet (soft constraints)
 DENSE_UP_TO = 150  # control vertices up to which the Hessian is built dense
 PROXIMAL = 0.01  # weight of the pull to the current control mesh (per coordinate)
+FOLD_GUARD_DEG = 50.0  # degrees between neighbouring level-s quads a step may not exceed
+                       # (the guarantee's limit is 60 on the limit surface; a margin for it)
+MAX_HALVINGS = 4  # a rejected step is retried with half the trust region this often
 FLOOR_REACH = 2.0  # steps: a surface vertex this near the floor gets a floor row (it moves at
                    # most one step per iteration, so none gets under unseen)
 
@@ -160,6 +174,7 @@ class _Fit:
     dense: bool
     programme: Programme
     sampled_ids: np.ndarray  # the surface vertices that may carry non-penetration rows
+    neighbours: np.ndarray  # (E, 2) level-s quads sharing an edge that is no crease
 
     @property
     def n0(self) -> int:
@@ -180,14 +195,32 @@ class Pairing:
 
 @dataclass(frozen=True, eq=False)
 class Rows:
-    """The non-penetration rows: surface vertices `rows` (R,), the body normal (R, 3) each
-    stays in front of, `lower` (R,) the step's bound on n . v, `demanded` (R,) the whole
-    demand n . b - margin (-inf where a row is not wanted now)."""
+    """The non-penetration (and floor) rows: surface vertices `rows` (R,), the normal (R, 3)
+    each stays in front of, `demanded` (R,) the whole demand n . b - margin (-inf where a row
+    is not wanted now) and `now` (R,) n . v at the current surface; `skin` (m,) the body
+    vertex each sampled surface vertex is held to (-1 for none): a vertex inside a body keeps
+    the one it had, so that the demand on it (and the judged energy) does not jump as the
+    surface moves. `beyond_m2`: how far the surface itself is out of bounds, the sum of squares
+    of the depths beyond the margin of its sampled vertices inside a body (each one's depth
+    behind the tangent plane of its nearest skin vertex) and of its heights under the floor: a continuous measure of the
+    surface (the rows are the programme's linear picture of it, which changes as the surface
+    moves), by which an iterate is judged."""
 
     rows: np.ndarray
     normals: np.ndarray
-    lower: np.ndarray
     demanded: np.ndarray
+    now: np.ndarray
+    skin: np.ndarray | None = None
+    beyond_m2: float = 0.0
+
+    def unmet_m2(self) -> float:
+        """Sum of squares (m^2) of the demands the surface leaves unmet."""
+        return float(np.sum(np.maximum(0.0, self.demanded - self.now) ** 2))
+
+    def bound(self, step: float) -> np.ndarray:
+        """(R,) the step's bound on n . v: a violated row need only improve by most of a
+        trust-region step (it stays feasible within the trust region)."""
+        return np.minimum(self.demanded, self.now + 0.8 * step)
 
 
 def _stack(targets: Sequence[SupportedBody]):
@@ -263,7 +296,10 @@ def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedB
                 rho[important], cKDTree(np.concatenate([points, FACING_SCALE * normals], axis=1)),
                 cKDTree(points), cKDTree(np.concatenate([points, EXIT_SCALE * normals], axis=1)),
                 fixed, smooth, diagonal.toarray() if dense else diagonal, proximal, dense,
-                Programme(sub, lap, n0, SLACK_WEIGHT / people), sampled)
+                Programme(sub, lap, n0, SLACK_WEIGHT / people), sampled,
+                neighbour_faces(sub.faces, sub.steps[-1].creases if sub.steps else
+                                (np.asarray(params.creases).reshape(-1, 2)
+                                 if params.creases else None)))
 
 
 def initial_rows(fit: _Fit) -> np.ndarray:
@@ -323,10 +359,13 @@ def assemble(fit: _Fit, pairing: Pairing, surf_n: np.ndarray, tau: float
     return sp.bmat(blocks, format="csr"), g
 
 
-def _nearest_skin(fit: _Fit, sv: np.ndarray, sn: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _nearest_skin(fit: _Fit, sv: np.ndarray, sn: np.ndarray, skin: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """For sampled surface vertices sv (m, 3) with normals sn: the body vertex each stays in
-    front of, its distance, and whether the surface vertex lies inside a body."""
+    front of, its distance, whether the surface vertex lies inside a body and how deep (behind
+    the tangent plane of its nearest skin vertex, 0 outside). `skin` (m,):
+    the body vertices the rows held the vertices to before (-1 for none), kept for the
+    vertices now inside a body (so the demand on them does not jump as the surface moves)."""
     points, normals = fit.points, fit.normals
     # closest body vertex facing the surface (a vertex whose search finds nothing within reach
     # is far from every body: no row)
@@ -337,28 +376,43 @@ def _nearest_skin(fit: _Fit, sv: np.ndarray, sn: np.ndarray
     dist = np.where(far, np.inf, np.linalg.norm(points[near_s] - sv, axis=1))
     # a surface vertex inside a body (behind its nearest skin vertex) is always constrained,
     # however far the skin it faces: it must get out (no body part is so thick that a point
-    # inside it lies farther than INSIDE_REACH from its skin); it leaves through the skin
-    # facing against the surface's normal
+    # inside it lies farther than INSIDE_REACH from its skin); it leaves through the skin it
+    # was held to before it went in or, new to the rows, through the skin facing against the
+    # surface's normal
     _, nearest = fit.body_tree3.query(sv, distance_upper_bound=INSIDE_REACH)
     outside = nearest == len(points)
     nearest[outside] = 0
     inside = ~outside & (np.einsum("ij,ij->i", sv - points[nearest], normals[nearest]) < 0)
-    if inside.any():
-        _, exits = fit.exit_tree.query(np.concatenate([sv[inside], -EXIT_SCALE * sn[inside]],
-                                                      axis=1))
-        near_s[inside] = exits
-    return near_s, dist, inside
+    kept = np.zeros(len(sv), dtype=bool) if skin is None else inside & (skin >= 0)
+    if kept.any():
+        near_s[kept] = skin[kept]
+    new = inside & ~kept
+    if new.any():
+        _, near_s[new] = fit.exit_tree.query(np.concatenate([sv[new], -EXIT_SCALE * sn[new]],
+                                                            axis=1))
+    # how deep: behind the tangent plane of the nearest skin vertex (smooth as the surface
+    # slides along the skin, where the distance to the nearest vertex would jump by a facet)
+    behind = -np.einsum("ij,ij->i", sv - points[nearest], normals[nearest])
+    return near_s, dist, inside, np.where(inside, behind, 0.0)
+
+
+def _rows(rows: np.ndarray, normals: np.ndarray, demanded: np.ndarray, surf: np.ndarray,
+          skin: np.ndarray | None = None, beyond_m2: float = 0.0) -> Rows:
+    return Rows(rows, normals, demanded, np.einsum("ij,ij->i", normals, surf[rows]), skin,
+                beyond_m2)
 
 
 def constrain(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray, member: np.ndarray,
-              floor_member: np.ndarray | None = None) -> Rows:
+              floor_member: np.ndarray | None = None, skin: np.ndarray | None = None
+              ) -> Rows:
     """Non-penetration: each sampled surface vertex near a body (or inside one) stays outside
     the tangent plane at its body vertex, less the margin. Rows join `member` (updated in
     place) and stay, inactive when not wanted, so that OSQP is set up again only when a new
-    surface vertex comes near a body. With `floor_member` ((ns,) bool, updated in place) and a
-    floor in the parameters, the floor's rows follow (`floor_rows`)."""
+    surface vertex comes near a body. `skin`: the body vertices the sampled vertices were held
+    to before (`Rows.skin`), kept for those now inside a body. With `floor_member` ((ns,) bool, updated in place) and
+    a floor in the parameters, the floor's rows follow (`floor_rows`)."""
     ids = fit.sampled_ids
-    near_s, dist, inside = _nearest_skin(fit, surf[ids], surf_n[ids])
+    near_s, dist, inside, depth = _nearest_skin(fit, surf[ids], surf_n[ids], skin)
     closest = np.zeros(len(surf), dtype=np.int64)
     closest[ids] = near_s
     wanted = np.zeros(len(surf), dtype=bool)
@@ -366,19 +420,25 @@ def constrain(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray, member: np.ndarra
     member |= wanted
     rows = np.flatnonzero(member)
     cn = fit.normals[closest[rows]]
-    lower = np.einsum("ij,ij->i", cn, fit.points[closest[rows]]) - fit.params.margin
-    lower[~wanted[rows]] = -np.inf
-    demanded = lower.copy()
-    # a violated row need only improve by most of a step per iteration (it stays feasible
-    # within the trust region)
-    now = np.einsum("ij,ij->i", cn, surf[rows])
-    body = Rows(rows, cn, np.minimum(lower, now + 0.8 * fit.params.step), demanded)
+    demanded = np.einsum("ij,ij->i", cn, fit.points[closest[rows]]) - fit.params.margin
+    demanded[~wanted[rows]] = -np.inf
+    # a vertex outside every body is in no body, whatever the tangent plane of the skin it
+    # faces says (a body is not convex: the plane of a calf's back cuts through the space under
+    # the thigh): it may not go further in, but nothing is demanded of it
+    inside_row = np.zeros(len(surf), dtype=bool)
+    inside_row[ids] = inside
+    held = np.where(wanted[ids], near_s, -1)
+    body = _rows(rows, cn, demanded, surf, held,
+                 float(np.sum(np.maximum(0.0, depth - fit.params.margin) ** 2)))
+    outside = ~inside_row[rows]
+    body.demanded[outside] = np.minimum(body.demanded[outside], body.now[outside])
     if floor_member is None or fit.params.floor is None:
         return body
     floor = floor_rows(fit, surf, floor_member)
     return Rows(*(np.concatenate([a, b]) for a, b in
-                  zip((body.rows, body.normals, body.lower, body.demanded),
-                      (floor.rows, floor.normals, floor.lower, floor.demanded))))
+                  zip((body.rows, body.normals, body.demanded, body.now),
+                      (floor.rows, floor.normals, floor.demanded, floor.now))), held,
+                body.beyond_m2 + floor.beyond_m2)
 
 
 def floor_rows(fit: _Fit, surf: np.ndarray, member: np.ndarray) -> Rows:
@@ -391,63 +451,146 @@ def floor_rows(fit: _Fit, surf: np.ndarray, member: np.ndarray) -> Rows:
     member |= surf[:, 1] < floor + FLOOR_REACH * fit.params.step
     rows = np.flatnonzero(member)
     normals = np.tile([0.0, 1.0, 0.0], (len(rows), 1))
-    demanded = np.full(len(rows), floor)
-    lower = np.minimum(demanded, surf[rows, 1] + 0.8 * fit.params.step)
-    return Rows(rows, normals, lower, demanded)
+    return _rows(rows, normals, np.full(len(rows), floor), surf,
+                 beyond_m2=float(np.sum(np.maximum(0.0, floor - surf[rows, 1]) ** 2)))
 
 
-def judge(fit: _Fit, v: np.ndarray, pairing: Pairing, surf_n: np.ndarray, tau: float,
-          rows: Rows) -> tuple[float, dict]:
-    """What the loop judges an iterate by: the programme's own objective, the energy plus the
-    cost of the rows the step left unmet (against the whole demand, not the step's share of
-    it), so an iterate that cuts into a body does not count as the best."""
-    new_surf = fit.sub.matrix @ v
-    energy, terms = _energy(new_surf, v, fit.v0, pairing.pair, fit.b_imp, fit.w_imp, surf_n,
-                            tau, fit.smooth, fit.fixed)
-    short = np.maximum(0.0, rows.demanded - np.einsum("ij,ij->i", rows.normals,
-                                                      new_surf[rows.rows]))
-    energy += fit.programme.slack_weight * float(np.sum(short ** 2))
-    terms["unmet_rows_m2"] = float(np.sum(short ** 2))
-    terms["laplacian_m2"] = float(np.mean(np.sum((fit.lap @ v) ** 2, axis=1)))
-    return energy, terms
+@dataclass(frozen=True, eq=False)
+class Iterate:
+    """A control mesh v (n0, 3) as the loop judges it: its level-s surface and normals, its
+    own pairing and rows, the energy's parts and its largest fold.
+
+    The judged energy at blend tau is ``(1 - tau) point + tau plane + rest`` plus the cost of
+    the surface's depth beyond the margin and under the floor (`energy`): the programme's own
+    objective (without the proximal pull) with each body point at its nearest surface vertex
+    and the cost of unmet rows measured on the surface itself (`Rows.beyond_m2`).
+    Since n . d never exceeds |d|, it cannot rise when tau does: an iterate accepted only if it
+    lowers the energy at the step's tau keeps the sequence of judged energies non-increasing.
+    """
+
+    v: np.ndarray
+    surf: np.ndarray
+    surf_n: np.ndarray
+    pairing: Pairing
+    rows: Rows
+    point: float  # m^2, importance-weighted mean squared distance to the nearest vertex
+    plane: float  # m^2, the same along the surface normal
+    rest: float  # smoothness and the pulls to the start
+    unmet: float  # m^2, `Rows.beyond_m2`
+    max_fold: float  # degrees between neighbouring level-s quads (creases left out)
+    slack_weight: float
+
+    def energy(self, tau: float) -> float:
+        return (1 - tau) * self.point + tau * self.plane + self.rest + \
+            self.slack_weight * self.unmet
+
+
+def assess(fit: _Fit, v: np.ndarray, member: np.ndarray,
+           floor_member: np.ndarray | None = None, skin: np.ndarray | None = None
+           ) -> Iterate:
+    """The `Iterate` of control vertices v (n0, 3): subdivides, pairs, constrains (rows join
+    `member` and `floor_member` in place; `skin` as `constrain` takes it) and measures the
+    energy's parts and the folds."""
+    surf = fit.sub.matrix @ v
+    surf_n = fit.sub.normals(surf)
+    pairing = pair(fit, surf)
+    rows = constrain(fit, surf, surf_n, member, floor_member, skin)
+    diff = fit.b_imp - surf[pairing.pair]
+    total = max(fit.w_imp.sum(), 1e-300)
+    point = float(fit.w_imp @ np.einsum("ij,ij->i", diff, diff) / total)
+    plane = float(fit.w_imp @ np.einsum("ij,ij->i", diff, surf_n[pairing.pair]) ** 2 / total)
+    smooth = float(sum(v[:, a] @ (fit.smooth @ v[:, a]) for a in range(3)))
+    pulls = float(np.sum(fit.fixed[:, None] * (v - fit.v0) ** 2))
+    fold = 0.0
+    if len(fit.neighbours):
+        n = quad_normals(surf, fit.sub.faces)
+        dots = np.einsum("ij,ij->i", n[fit.neighbours[:, 0]], n[fit.neighbours[:, 1]])
+        fold = float(np.degrees(np.arccos(np.clip(dots.min(), -1.0, 1.0))))
+    return Iterate(v, surf, surf_n, pairing, rows, point, plane, smooth + pulls,
+                   rows.beyond_m2, fold, fit.programme.slack_weight)
+
+
+def terms_of(fit: _Fit, it: Iterate, tau: float) -> dict:
+    """The energy's parts of an iterate at blend tau (a report's figures)."""
+    smooth = float(sum(it.v[:, a] @ (fit.smooth @ it.v[:, a]) for a in range(3)))
+    return {"point_to_point_m2": it.point, "point_to_plane_m2": it.plane,
+            "smoothness": smooth, "fixed": it.rest - smooth, "tau": tau,
+            "out_of_bounds_m2": it.unmet,
+            "laplacian_m2": float(np.mean(np.sum((fit.lap @ it.v) ** 2, axis=1))),
+            "max_fold_deg": it.max_fold}
 
 
 def converged(energies: Sequence[float], tolerance: float) -> bool:
     """Whether the best energy after the tau ramp has not improved by `tolerance` (relative)
-    in the last PATIENCE iterations (energies are comparable only at the same tau)."""
+    in the last PATIENCE iterations."""
     post = energies[TAU_RAMP:]
     return len(post) > PATIENCE and min(post) > min(post[:-PATIENCE]) * (1 - tolerance)
 
 
-def iterate(fit: _Fit, v: np.ndarray, member: np.ndarray, tau: float,
-            floor_member: np.ndarray | None = None
-            ) -> tuple[np.ndarray, str, float, float, dict]:
-    """One iteration from control vertices v (n0, 3): pair, assemble, constrain, solve, judge.
-    Returns the new control vertices, OSQP's status, the largest row residual (m), and the
-    judged energy with its terms."""
-    surf = fit.sub.matrix @ v
-    surf_n = fit.sub.normals(surf)
-    pairing = pair(fit, surf)
-    h, g = assemble(fit, pairing, surf_n, tau)
-    rows = constrain(fit, surf, surf_n, member, floor_member)
-    x0 = v.T.reshape(-1)
-    g += fit.proximal * x0  # the proximal pull to the current iterate
+def propose(fit: _Fit, it: Iterate, tau: float, radius: float, quadratic=None
+            ) -> tuple[np.ndarray, str, float]:
+    """One step from iterate `it`: the programme at its pairing and rows, within a trust
+    region of `radius` metres per coordinate. Returns the new control vertices (n0, 3),
+    OSQP's status and the largest row residual (m). `quadratic`: the (H, g) of `assemble`
+    for this iterate and tau, when the caller has it already."""
+    h, g = quadratic if quadratic is not None else assemble(fit, it.pairing, it.surf_n, tau)
+    x0 = it.v.T.reshape(-1)
+    g = g + fit.proximal * x0  # the proximal pull to the current iterate
     try:
-        x, status, residual = fit.programme.solve(2 * h, -2 * g, rows.rows, rows.normals,
-                                                  rows.lower, x0, fit.params.step)
+        x, status, residual = fit.programme.solve(2 * h, -2 * g, it.rows.rows, it.rows.normals,
+                                                  it.rows.bound(radius), x0, radius)
     except ProgrammeError as exc:
         raise FitError(str(exc)) from None
-    v = x.reshape(3, fit.n0).T
-    energy, terms = judge(fit, v, pairing, surf_n, tau, rows)
-    return v, status, residual, energy, terms
+    return x.reshape(3, fit.n0).T, status, residual
+
+
+def acceptable(fit: _Fit, it: Iterate, candidate: Iterate, tau: float) -> str | None:
+    """Why `candidate` may not follow `it` (None if it may): its judged energy at tau must not
+    rise, and it must not fold more than FOLD_GUARD_DEG or than `it` does."""
+    if candidate.energy(tau) > it.energy(tau):
+        return "energy"
+    if candidate.max_fold > max(FOLD_GUARD_DEG, it.max_fold):
+        return "fold"
+    return None
+
+
+def _crossings(fit: _Fit, v: np.ndarray) -> int:
+    """Crossing triangle pairs of the limit surface of control vertices v (what `surface.*`
+    holds)."""
+    from solver.mesh import quad_triangles, self_intersections
+    from solver.surface.limit import limit_of_level
+
+    limit = limit_of_level(fit.sub, fit.sub.matrix @ v, list(fit.params.creases) or None)
+    return len(self_intersections(limit, quad_triangles(fit.sub.faces)))
+
+
+def uncrossed(fit: _Fit, accepted: Sequence[np.ndarray]) -> tuple[int, int]:
+    """The last of the accepted control meshes whose limit surface does not cross itself, by
+    bisection (a surface that starts crossing itself seldom stops), and the crossings of the
+    last one. Returns (index, crossings of the last); the last index when it is clean, and 0
+    when even the start crosses."""
+    last = len(accepted) - 1
+    crossings = _crossings(fit, accepted[last])
+    if crossings == 0 or last == 0 or _crossings(fit, accepted[0]):
+        return (last if crossings == 0 else 0), crossings
+    good, bad = 0, last
+    while bad - good > 1:
+        mid = (good + bad) // 2
+        if _crossings(fit, accepted[mid]):
+            bad = mid
+        else:
+            good = mid
+    return good, crossings
 
 
 @with_limited_threads  # small products: one BLAS thread (SITRELAX_THREADS), see solver.threads
 def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedBody],
                 params: FitParams = FitParams(),
                 progress: Callable[[int, float, float], None] | None = None) -> FitResult:
-    """Fits the control mesh to the bodies (see the module docstring): each iteration pairs,
-    assembles, constrains, solves and judges; the best iterate is kept.
+    """Fits the control mesh to the bodies (see the module docstring): each iteration proposes
+    a step (pair, assemble, constrain, solve) and accepts it only if it lowers the judged
+    energy and folds no further, or tries again with half the trust region; the result is the
+    last accepted iterate whose surface does not cross itself.
 
     Parameters
     ----------
@@ -462,67 +605,73 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
         Subdivision level, weights, softness margin (metres), fixed vertices, creases, stopping
         rule and per-iteration step (metres).
     progress : callable, optional
-        Called after every iteration as ``progress(iteration, energy, tau)``.
+        Called after every accepted iteration as ``progress(iteration, energy, tau)``.
 
     Returns
     -------
     FitResult
-        The best iterate's control vertices (n0, 3) in metres with the control quads (F0, 4),
-        its level-s surface vertices (ns, 3) in metres and quads (Fs, 4), the iterations run,
-        why the loop stopped, the energy of every iteration, the best iterate's energy terms,
-        the wall-clock seconds, the QP status of every iteration and the subdivision operator.
+        The result's control vertices (n0, 3) in metres with the control quads (F0, 4), its
+        level-s surface vertices (ns, 3) in metres and quads (Fs, 4), the iterations run, why
+        the loop stopped, the judged energy of every accepted iterate (non-increasing), the
+        result's energy terms, the wall-clock seconds, the QP status of every accepted step and
+        the subdivision operator.
 
     Raises
     ------
     FitError
         If there is no body, a fixed vertex index is out of range, a body has nothing to
-        support or lies beyond `REACH` of the surface, or the quadratic programme fails.
+        support or lies beyond `REACH` of the surface, the control mesh faces away from the
+        bodies, or the quadratic programme fails.
     MeshError
         If the control mesh cannot be subdivided (bad faces, non-manifold edges, creases off
         its edges).
     """
     start = time.perf_counter()
     fit = prepare(control, faces, targets, params)
-    v = fit.v0.copy()
-    energies: list[float] = []
-    statuses: list[str] = []
-    residuals: list[float] = []
     member = initial_rows(fit)
     floor_member = np.zeros_like(member)
-    best = None
+    it = assess(fit, fit.v0.copy(), member, floor_member)
+    accepted, energies, statuses, residuals = [it], [], [], []
+    rejected = {"energy": 0, "fold": 0}
+    radius = params.step
     stop = f"reached the iteration limit ({params.max_iterations})"
     iteration = 0
     for iteration in range(1, params.max_iterations + 1):
         tau = params.tau_max * min(1.0, (iteration - 1) / TAU_RAMP)
-        v, status, residual, energy, terms = iterate(fit, v, member, tau, floor_member)
+        quadratic = assemble(fit, it.pairing, it.surf_n, tau)
+        for _ in range(MAX_HALVINGS + 1):
+            v, status, residual = propose(fit, it, tau, radius, quadratic)
+            candidate = assess(fit, v, member, floor_member, it.rows.skin)
+            why = acceptable(fit, it, candidate, tau)
+            if why is None:
+                break
+            rejected[why] += 1
+            radius /= 2
+        else:
+            stop = (f"converged: no step of {1e3 * 2 * radius:.1f} mm or more lowers the "
+                    f"energy without folding (energy {it.energy(tau):.6g})")
+            break
+        radius = min(params.step, 2 * radius)
+        it = candidate
+        accepted.append(it)
+        energies.append(it.energy(tau))
         statuses.append(status)
         residuals.append(residual)
-        energies.append(energy)
-        # energies are comparable only at the same tau: keep and judge those after the ramp
-        if best is None or energy < best[0] or iteration <= TAU_RAMP + 1:
-            best = (energy, v.copy(), dict(terms), iteration)
         if progress is not None:
-            progress(iteration, energy, tau)
+            progress(iteration, energies[-1], tau)
         if converged(energies, params.tolerance):
-            stop = (f"converged: the best energy has not improved by {100 * params.tolerance:g} %"
-                    f" in {PATIENCE} iterations (best {best[0]:.6g} at iteration {best[3]})")
+            stop = (f"converged: the energy has not improved by {100 * params.tolerance:g} %"
+                    f" in {PATIENCE} iterations ({energies[-1]:.6g})")
             break
-    _, v, terms, best_iteration = best
-    terms["best_iteration"] = best_iteration
-    terms["qp_setups"] = fit.programme.setups
-    terms["largest_row_residual_m"] = residuals[best_iteration - 1] if residuals else 0.0
-    return FitResult(v, fit.faces, fit.sub.matrix @ v, fit.sub.faces, iteration, stop, energies,
-                     terms, time.perf_counter() - start, statuses, fit.sub)
-
-
-def _energy(surf, v, v0, pair, b, w, surf_n, tau, smooth, fixed) -> tuple[float, dict]:
-    """The fit energy at control vertices v for the iteration's pairing."""
-    diff = b - surf[pair]
-    total = max(w.sum(), 1e-300)
-    point = float(np.sum(w * np.einsum("ij,ij->i", diff, diff)) / total)
-    plane = float(np.sum(w * np.einsum("ij,ij->i", diff, surf_n[pair]) ** 2) / total)
-    smooth_e = float(sum(v[:, a] @ (smooth @ v[:, a]) for a in range(3)))
-    fixed_e = float(np.sum(fixed[:, None] * (v - v0) ** 2))  # gamma on fixed, anchor on all
-    data = (1 - tau) * point + tau * plane
-    return data + smooth_e + fixed_e, {"point_to_point_m2": point, "point_to_plane_m2": plane,
-                                       "smoothness": smooth_e, "fixed": fixed_e, "tau": tau}
+    keep, crossings = uncrossed(fit, [a.v for a in accepted])
+    if keep < len(accepted) - 1:
+        stop += (f"; the surface crossed itself ({crossings} triangle pairs) after iteration "
+                 f"{keep}, which is kept")
+    result = accepted[keep]
+    tau = params.tau_max * min(1.0, max(keep - 1, 0) / TAU_RAMP)
+    terms = terms_of(fit, result, tau)
+    terms.update(best_iteration=keep, qp_setups=fit.programme.setups,
+                 rejected_steps=dict(rejected),
+                 largest_row_residual_m=residuals[keep - 1] if keep else 0.0)
+    return FitResult(result.v, fit.faces, result.surf, fit.sub.faces, iteration, stop,
+                     energies, terms, time.perf_counter() - start, statuses, fit.sub)

@@ -40,36 +40,36 @@ def quad_normals(vertices: np.ndarray, quads: np.ndarray) -> np.ndarray:
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
 
 
-def fold_angles(vertices: np.ndarray, quads: np.ndarray,
-                sharp_edges: np.ndarray | None = None) -> np.ndarray:
-    """(E,) degrees between the normals of the two quads on each interior edge.
+def neighbour_faces(quads: np.ndarray, sharp_edges: np.ndarray | None = None) -> np.ndarray:
+    """(E, 2) the two quads on each edge shared by exactly two quads, sharp edges left out.
 
     Parameters
     ----------
-    vertices : (V, 3) float
     quads : (F, 4) int
     sharp_edges : (K, 2) int, optional
         Edges (vertex pairs, either order) left out: creases, folds by design.
-
-    Returns
-    -------
-    (E,) float
-        One angle in [0, 180] per edge shared by exactly two quads.
     """
     q = np.asarray(quads, dtype=np.int64)
-    normals = quad_normals(vertices, q)
     edges = np.sort(np.stack([q, np.roll(q, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
     face = np.repeat(np.arange(len(q)), 4)
     order = np.lexsort((edges[:, 1], edges[:, 0]))
     edges, face = edges[order], face[order]
-    pair = np.all(edges[1:] == edges[:-1], axis=1)
-    keep = np.flatnonzero(pair)
+    keep = np.flatnonzero(np.all(edges[1:] == edges[:-1], axis=1))
     if sharp_edges is not None and len(sharp_edges):
         n = np.int64(edges.max() + 1) if len(edges) else np.int64(1)
         sharp = np.sort(np.asarray(sharp_edges, dtype=np.int64).reshape(-1, 2), axis=1)
         sharp = sharp[sharp.max(axis=1) < n]
         keep = keep[~np.isin(edges[keep, 0] * n + edges[keep, 1], sharp[:, 0] * n + sharp[:, 1])]
-    dots = np.einsum("ij,ij->i", normals[face[keep]], normals[face[keep + 1]])
+    return np.stack([face[keep], face[keep + 1]], axis=1)
+
+
+def fold_angles(vertices: np.ndarray, quads: np.ndarray,
+                sharp_edges: np.ndarray | None = None) -> np.ndarray:
+    """(E,) degrees in [0, 180] between the normals of the two quads on each interior edge
+    (`neighbour_faces`: vertices (V, 3), quads (F, 4), sharp edges (K, 2) left out)."""
+    pairs = neighbour_faces(quads, sharp_edges)
+    normals = quad_normals(vertices, quads)
+    dots = np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]])
     return np.degrees(np.arccos(np.clip(dots, -1.0, 1.0)))
 
 

@@ -3,6 +3,8 @@ brute-force nearest vertex, the assembled quadratic against the energy written o
 non-penetration rows on a ball, the stop rule on hand-made energies; and the floor search
 against the full skin."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -90,28 +92,111 @@ def test_rows_hold_surface_vertices_out_of_the_ball(ball_fit):
     far = np.linalg.norm(surf[rows.rows] - centre, axis=1) > 0.2 + F.CONSTRAINT_RADIUS + 0.01
     assert not np.any(wanted & far)  # far vertices keep no active row
     # each wanted row's demand: in front of the ball's tangent plane at its skin point, less
-    # the margin; a vertex inside is below its demand
-    k = np.isin(rows.rows, inside)
+    # the margin; a vertex deeper than the margin is below its demand
+    deep = fit.sampled_ids[depth > fit.params.margin + 0.005]
+    k = np.isin(rows.rows, deep)
     now = np.einsum("ij,ij->i", rows.normals[k], surf[rows.rows[k]])
     assert np.all(now < rows.demanded[k])
     np.testing.assert_allclose(np.linalg.norm(rows.normals, axis=1), 1.0, atol=1e-6)
     # and the step's bound asks for at most 0.8 of a trust-region step now
-    assert np.all(rows.lower[k] <= now + 0.8 * fit.params.step + 1e-12)
+    assert np.all(rows.bound(fit.params.step)[k] <= now + 0.8 * fit.params.step + 1e-12)
     assert member[rows.rows].all()
 
 
-def test_judge_counts_unmet_demand(ball_fit):
+def test_judged_energy_counts_unmet_demand(ball_fit):
     fit = ball_fit
-    surf = fit.sub.matrix @ fit.v0
-    surf_n = fit.sub.normals(surf)
-    pairing = F.pair(fit, surf)
-    rows = F.Rows(np.array([0, 5]), np.array([[0.0, 1.0, 0.0]] * 2), np.array([0.0, 0.0]),
-                  np.array([surf[0, 1] + 0.01, -np.inf]))
-    met = F.Rows(rows.rows, rows.normals, rows.lower, np.array([-np.inf, -np.inf]))
-    e_short, terms = F.judge(fit, fit.v0, pairing, surf_n, 0.5, rows)
-    e_met, _ = F.judge(fit, fit.v0, pairing, surf_n, 0.5, met)
-    assert terms["unmet_rows_m2"] == pytest.approx(1e-4)
-    assert e_short - e_met == pytest.approx(fit.programme.slack_weight * 1e-4)
+    member = np.zeros(fit.sub.matrix.shape[0], dtype=bool)
+    it = F.assess(fit, fit.v0, member)
+    surf = it.surf
+    rows = F.Rows(np.array([0, 5]), np.array([[0.0, 1.0, 0.0]] * 2),
+                  np.array([surf[0, 1] + 0.01, -np.inf]), surf[[0, 5], 1])
+    assert rows.unmet_m2() == pytest.approx(1e-4)
+    short = dataclasses.replace(it, rows=rows, unmet=rows.unmet_m2())
+    assert short.energy(0.5) - it.energy(0.5) == pytest.approx(
+        fit.programme.slack_weight * (1e-4 - it.unmet))
+    # the energy's data part blends point-to-point and point-to-plane, the latter never larger
+    assert it.plane <= it.point
+    assert it.energy(0.0) - it.energy(1.0) == pytest.approx(it.point - it.plane)
+
+
+def test_vertices_outside_every_body_are_asked_for_nothing(ball_fit):
+    """A surface vertex outside the ball whose skin plane it already crosses (the plane of a
+    non-convex body's other side) gets no unmet demand: only vertices inside a body do."""
+    fit = ball_fit
+    surf = fit.sub.matrix @ fit.v0 + [0.0, 0.2, 0.0]  # the grid lifted into the ball
+    member = np.zeros(len(surf), dtype=bool)
+    rows = F.constrain(fit, surf, fit.sub.normals(surf), member)
+    centre = np.array([0.0, 0.62, 0.0])
+    out = np.linalg.norm(surf[rows.rows] - centre, axis=1) > 0.2 + 0.005
+    assert out.any()
+    assert np.all(rows.demanded[out] <= rows.now[out] + 1e-12)
+    inside = np.linalg.norm(surf[rows.rows] - centre, axis=1) < 0.2 - fit.params.margin - 0.01
+    assert np.all(rows.demanded[inside] > rows.now[inside])
+
+
+def test_skin_is_kept_while_a_vertex_stays_inside(ball_fit):
+    """A vertex inside the ball keeps the skin vertex it was held to (here: every one handed
+    body vertex 7), one outside takes the skin it faces now; the surface is judged by its depth
+    beyond the margin (each inside vertex's depth behind its nearest skin vertex's plane)."""
+    fit = ball_fit
+    ids = fit.sampled_ids
+    surf = fit.sub.matrix @ fit.v0 + [0.0, 0.2, 0.0]
+    normals = fit.sub.normals(surf)
+    _, _, inside, depth = F._nearest_skin(fit, surf[ids], normals[ids])
+    assert inside.any() and not inside.all()
+    rows = F.constrain(fit, surf, normals, np.zeros(len(surf), dtype=bool))
+    kept = F.constrain(fit, surf, normals, np.zeros(len(surf), dtype=bool),
+                       skin=np.full(len(ids), 7))
+    assert np.all(kept.skin[inside] == 7)
+    np.testing.assert_array_equal(kept.skin[~inside], rows.skin[~inside])
+    # the judged depth: independent of the rows, sum over the inside vertices
+    centre = np.array([0.0, 0.62, 0.0])
+    true_depth = 0.2 - np.linalg.norm(surf[ids] - centre, axis=1)
+    beyond = np.maximum(0.0, true_depth - fit.params.margin)
+    assert rows.beyond_m2 == kept.beyond_m2 > 0
+    # behind the tangent plane of the nearest skin vertex: the sphere's depth within a facet's
+    assert 0.8 * np.sum(beyond ** 2) <= rows.beyond_m2 <= 1.25 * np.sum(beyond ** 2)
+
+
+def test_accepted_energies_never_rise(ball):
+    v, t, normals, areas, importance = ball
+    grid_v, grid_f = grid_mesh((1.2, 0.8), (8, 6), 0.45)
+    result = F.fit_surface(grid_v, grid_f, [SupportedBody(v, normals, importance, "ball", t)],
+                           F.FitParams(margin=0.02, sigma=0.01, max_iterations=30))
+    e = np.asarray(result.energies)
+    assert len(e) > 5 and np.all(np.diff(e) <= 1e-12 * e[:-1])
+    assert result.energy_terms["max_fold_deg"] <= F.FOLD_GUARD_DEG
+
+
+def test_fold_guard_holds_a_surface_below_its_angle(ball, monkeypatch):
+    """With the guard at 8 degrees the cradle under the ball bends no further than that (the
+    fit without it bends more), and the loop reports the steps it refused for folding."""
+    v, t, normals, areas, importance = ball
+    grid_v, grid_f = grid_mesh((1.2, 0.8), (8, 6), 0.45)
+    body = [SupportedBody(v, normals, importance, "ball", t)]
+    params = F.FitParams(margin=0.02, sigma=0.001, max_iterations=25)
+    free = F.fit_surface(grid_v, grid_f, body, params)
+    assert free.energy_terms["max_fold_deg"] > 8.0
+    monkeypatch.setattr(F, "FOLD_GUARD_DEG", 8.0)
+    held = F.fit_surface(grid_v, grid_f, body, params)
+    assert held.energy_terms["max_fold_deg"] <= 8.0
+    assert held.energy_terms["rejected_steps"]["fold"] > 0
+
+
+def test_crossing_iterates_are_backed_out_of_by_bisection(ball_fit, monkeypatch):
+    checked = []
+
+    def crossings(fit, v):
+        checked.append(int(v[0, 0]))
+        return 12 if v[0, 0] >= 13 else 0  # iterates from 13 on cross themselves
+
+    monkeypatch.setattr(F, "_crossings", crossings)
+    accepted = [np.full((2, 3), float(k)) for k in range(40)]
+    assert F.uncrossed(ball_fit, accepted) == (12, 12)
+    assert len(checked) <= 2 + int(np.ceil(np.log2(40)))
+    assert F.uncrossed(ball_fit, accepted[:10]) == (9, 0)
+    monkeypatch.setattr(F, "_crossings", lambda fit, v: 3)  # the start crosses already
+    assert F.uncrossed(ball_fit, accepted) == (0, 3)
 
 
 def test_stop_rule():
