@@ -37,14 +37,14 @@ name = "slight"
 pose = "db:{pose}"
 body = {{ gender = 0.2, weight = 0.3, height = 0.4 }}
 position = [-0.33, 0.0, -0.1]
-support = ["legs"]
+support = ["thighs", "calves"]  # the pose leans back: on a seat alone (pelvis, thighs) it tips over
 
 [[person]]
 name = "broad"
 pose = "db:{pose}"
 body = {{ gender = 0.9, weight = 0.8, height = 0.6 }}
 position = [0.33, 0.0, -0.1]
-support = ["legs"]
+support = ["thighs", "calves"]
 """
 
 
