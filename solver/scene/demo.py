@@ -26,7 +26,7 @@ STANDING_SECONDS = 3.0  # how much of the long standing recording is streamed
 SCENARIO = """\
 # Written by `sitrelax demo`: two people of different build on one seated pose from the library.
 [surface]
-template = {{ kind = "bench" }}  # a seat with a back for both, built around them
+template = {{ kind = "bench", back = true }}  # a seat with a back for both, built around them
 level = 3
 sigma = 0.003
 tau_max = 0.5

@@ -112,7 +112,9 @@ class FitParams:
     iterations); anchor : weak pull of every control vertex to its start; pull_range : metres
     beyond which body points do not pull yet; step : metres a control vertex may move per
     iteration (a trust region); floor : the floor's height y (metres) that every level-s
-    surface vertex stays above (soft rows, like non-penetration), None for no floor.
+    surface vertex stays above (soft rows, like non-penetration), None for no floor;
+    min_ridge_radius : metres, the tightest a step may bend the surface away from the bodies
+    (a ridge; a solid thicker than its radius cannot follow it).
     """
 
     level: int = 3
@@ -128,6 +130,8 @@ class FitParams:
     pull_range: float = 0.25
     step: float = 0.05  # metres a control vertex may move per iteration (a trust region)
     floor: float | None = 0.0  # metres: the level-s surface stays above y = floor (None: free)
+    min_ridge_radius: float = 0.015  # metres: where the surface bends away from the bodies, no
+                                    # tighter (a solid of up to this thickness can follow it)
 
 
 @dataclass
@@ -596,6 +600,7 @@ class Iterate:
     rest: float  # smoothness and the pulls to the start
     unmet: float  # m^2, `Rows.beyond_m2`
     max_fold: float  # degrees between neighbouring level-s quads (creases left out)
+    min_ridge: float  # metres, the tightest radius where the surface bends away from bodies
     slack_weight: float
 
     def energy(self, tau: float) -> float:
@@ -619,13 +624,28 @@ def assess(fit: _Fit, v: np.ndarray, member: np.ndarray,
     plane = float(fit.w_imp @ np.einsum("ij,ij->i", diff, surf_n[pairing.pair]) ** 2 / total)
     smooth = float(sum(v[:, a] @ (fit.smooth @ v[:, a]) for a in range(3)))
     pulls = float(np.sum(fit.fixed[:, None] * (v - fit.v0) ** 2))
-    fold = 0.0
-    if len(fit.neighbours):
-        n = quad_normals(surf, fit.sub.faces)
-        dots = np.einsum("ij,ij->i", n[fit.neighbours[:, 0]], n[fit.neighbours[:, 1]])
-        fold = float(np.degrees(np.arccos(np.clip(dots.min(), -1.0, 1.0))))
+    fold, ridge = _bends(fit, surf)
     return Iterate(v, surf, surf_n, pairing, rows, point, plane, smooth + pulls,
-                   rows.beyond_m2, fold, fit.programme.slack_weight)
+                   rows.beyond_m2, fold, ridge, fit.programme.slack_weight)
+
+
+def _bends(fit: _Fit, surf: np.ndarray) -> tuple[float, float]:
+    """The largest angle (degrees) between neighbouring level-s quads of surface `surf`
+    (ns, 3), creases left out, and the tightest radius (m) of its ridges: where it bends away
+    from the bodies (each quad's centre lies behind its neighbour's plane), the distance
+    between the two quads' centres over the angle between them (inf without a ridge)."""
+    if not len(fit.neighbours):
+        return 0.0, np.inf
+    quads = fit.sub.faces
+    n = quad_normals(surf, quads)
+    a, b = fit.neighbours[:, 0], fit.neighbours[:, 1]
+    angle = np.arccos(np.clip(np.einsum("ij,ij->i", n[a], n[b]), -1.0, 1.0))
+    centres = surf[quads].mean(axis=1)
+    gap = centres[b] - centres[a]
+    ridge = (np.einsum("ij,ij->i", gap, n[a]) < 0) & (np.einsum("ij,ij->i", gap, n[b]) > 0) & \
+        (angle > 1e-6)
+    radius = np.linalg.norm(gap[ridge], axis=1) / angle[ridge]
+    return float(np.degrees(angle.max())), float(radius.min()) if len(radius) else np.inf
 
 
 def terms_of(fit: _Fit, it: Iterate, tau: float) -> dict:
@@ -635,7 +655,8 @@ def terms_of(fit: _Fit, it: Iterate, tau: float) -> dict:
             "smoothness": smooth, "fixed": it.rest - smooth, "tau": tau,
             "out_of_bounds_m2": it.unmet,
             "laplacian_m2": float(np.mean(np.sum((fit.lap @ it.v) ** 2, axis=1))),
-            "max_fold_deg": it.max_fold}
+            "max_fold_deg": it.max_fold,
+            "min_ridge_radius_m": it.min_ridge if np.isfinite(it.min_ridge) else None}
 
 
 def converged(energies: Sequence[float], tolerance: float) -> bool:
@@ -664,11 +685,14 @@ def propose(fit: _Fit, it: Iterate, tau: float, radius: float, quadratic=None
 
 def acceptable(fit: _Fit, it: Iterate, candidate: Iterate, tau: float) -> str | None:
     """Why `candidate` may not follow `it` (None if it may): its judged energy at tau must not
-    rise, and it must not fold more than FOLD_GUARD_DEG or than `it` does."""
+    rise, it must not fold more than FOLD_GUARD_DEG or than `it` does, and its ridges must
+    not bend tighter than the `min_ridge_radius` parameter or than `it`'s do."""
     if candidate.energy(tau) > it.energy(tau):
         return "energy"
     if candidate.max_fold > max(FOLD_GUARD_DEG, it.max_fold):
         return "fold"
+    if candidate.min_ridge < min(fit.params.min_ridge_radius, it.min_ridge):
+        return "ridge"
     return None
 
 
@@ -792,7 +816,7 @@ class _Descent:
     energies: list = field(default_factory=list)
     statuses: list = field(default_factory=list)
     residuals: list = field(default_factory=list)
-    rejected: dict = field(default_factory=lambda: {"energy": 0, "fold": 0})
+    rejected: dict = field(default_factory=lambda: {"energy": 0, "fold": 0, "ridge": 0})
 
     def extend(self, other: "_Descent") -> None:
         self.accepted += other.accepted[1:]
