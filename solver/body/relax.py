@@ -34,6 +34,7 @@ in degrees from the captured pose), re-pairing with the surface between solves.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import scipy.sparse as sp
@@ -43,7 +44,7 @@ from scipy.spatial.transform import Rotation
 from capture import WorldPose
 
 from solver.body.model import Body
-from solver.mesh import face_normals
+from solver.mesh import SurfaceMesh
 from solver.body.rig import descendants, rig_pose
 
 LAMBDAS = (0.2, 0.2, 0.5, 0.1)  # point-to-point, point-to-plane, penetration, similarity
@@ -86,7 +87,15 @@ class RelaxProblem:
     surface_vertices: np.ndarray
     surface_triangles: np.ndarray
     lambdas: tuple[float, float, float, float] = LAMBDAS
-    penetration_shift: float = PENETRATION_SHIFT  # metres behind the surface: the step's middle
+    margin: float = PENETRATION_SHIFT  # metres a body point may sink in before it is pushed out
+
+    def surface_mesh(self) -> SurfaceMesh:
+        """The surface as a `SurfaceMesh` (its closest-point tree), made on first use and kept."""
+        mesh = self.__dict__.get("_surface_mesh")
+        if mesh is None:
+            mesh = SurfaceMesh.from_triangles(self.surface_vertices, self.surface_triangles)
+            object.__setattr__(self, "_surface_mesh", mesh)
+        return mesh
 
 
 class _Model:
@@ -164,22 +173,34 @@ def joint_bounds(body: Body) -> tuple[np.ndarray, np.ndarray]:
     return -hi, hi
 
 
-def _surface_frames(points: np.ndarray, sv: np.ndarray, st: np.ndarray):
+def _surface_frames(points: np.ndarray, surface: SurfaceMesh):
     """Closest surface points (m, 3), unit normals (m, 3) of their faces, and whether each
     point faces its surface point (m,): its closest point is the foot of the perpendicular,
     not a point on the surface's border that the point lies beside.
 
     Only a facing point can be behind the surface; one beside the border and below its
     plane has not cut into anything, and the penetration term leaves it alone."""
-    import igl
-
-    _, face, closest = igl.point_mesh_squared_distance(points, sv, st)
-    fn = face_normals(sv, st[face])
-    offset = points - closest
-    along = np.einsum("ij,ij->i", offset, fn)
-    sideways = np.linalg.norm(offset - along[:, None] * fn, axis=1)
+    _, along, _, face, closest = surface.closest(points)
+    fn = surface.face_normals[face]
+    sideways = np.linalg.norm(points - closest - along[:, None] * fn, axis=1)
     facing = sideways <= FACING_TOLERANCE + 1e-3 * np.abs(along)
     return closest, fn, facing.astype(np.float64)
+
+
+def penetration_step(signed: np.ndarray, margin: float) -> tuple[np.ndarray, np.ndarray]:
+    """The penetration term's step (m,) in [0, 1) of the signed distances (m,) (metres, positive
+    in front of the surface) and its derivative (m,) per metre: 0 in front of the surface and
+    down to `margin` behind it, then the paper's arctan step, of width `PENETRATION_WIDTH`, from
+    its middle on, rescaled to rise from 0 at the margin to 1 deep behind it.
+
+    The paper's step, 1/2 - arctan(a s + b) / pi, has a tail in front of its middle that pushes
+    every point near the surface away from it, harder than the distance terms pull it back:
+    relaxing onto a surface fitted to the same pose moved the body off it. Here only the part
+    of the body sunk deeper than the softness margin is pushed out."""
+    depth = np.maximum(-(signed + margin), 0.0) / PENETRATION_WIDTH
+    step = (2.0 / np.pi) * np.arctan(depth)
+    slope = np.where(depth > 0.0, -(2.0 / np.pi) / PENETRATION_WIDTH / (1.0 + depth ** 2), 0.0)
+    return step, slope
 
 
 def residuals(theta: np.ndarray, model: _Model, closest: np.ndarray, normals: np.ndarray,
@@ -189,11 +210,10 @@ def residuals(theta: np.ndarray, model: _Model, closest: np.ndarray, normals: np
     v = model.vertices(theta)[0]
     d = np.einsum("ij,ij->i", normals, closest)
     s = np.einsum("ij,ij->i", normals, v) - d
-    a, b = 1.0 / PENETRATION_WIDTH, model.p.penetration_shift / PENETRATION_WIDTH
     return np.concatenate([
         lp * (r[:, None] * (v - closest)).ravel(),
         lt * r * s,
-        lpen * r * facing * (0.5 - np.arctan(a * s + b) / np.pi),
+        lpen * r * facing * penetration_step(s, model.p.margin)[0],
         ls * theta,
     ])
 
@@ -204,15 +224,41 @@ def residual_jacobian(theta: np.ndarray, model: _Model, closest: np.ndarray,
     r = model.p.importance
     v, jv = model.jacobian_vertices(theta)  # (m, 3), (m, 3, P)
     s = np.einsum("ij,ij->i", normals, v) - np.einsum("ij,ij->i", normals, closest)
-    a, b = 1.0 / PENETRATION_WIDTH, model.p.penetration_shift / PENETRATION_WIDTH
     jn = np.einsum("ic,icp->ip", normals, jv)  # (m, P): d s / d theta
-    dpen = -(a / np.pi) / (1.0 + (a * s + b) ** 2)
+    dpen = penetration_step(s, model.p.margin)[1]
     return np.concatenate([
         lp * (r[:, None, None] * jv).reshape(-1, jv.shape[2]),
         lt * r[:, None] * jn,
         lpen * (r * facing * dpen)[:, None] * jn,
         ls * np.eye(jv.shape[2]),
     ])
+
+
+class Gate(Protocol):
+    """What judges a relaxed pose: `figures` of the whole skin (V, 3) in metres (a dict), and
+    `worse`, the names of the figures worse in `after` than in `before` (empty: not worse)."""
+
+    def figures(self, vertices: np.ndarray) -> dict: ...
+
+    def worse(self, before: dict, after: dict) -> list[str]: ...
+
+
+STEP_SCALES = (1.0, 0.5, 0.25)  # shares of a round's step tried, until one is not worse
+
+
+@dataclass(frozen=True)
+class RelaxStep:
+    """One pose a gated relaxation tried: its round (from 1), the share of the round's step
+    (1: the round's solution, 1/2: half way to it from the last accepted pose), whether it was
+    accepted, its figures, and the names of the figures worse than the last accepted pose's
+    (why it was rejected) and better (what it gained)."""
+
+    round: int
+    scale: float
+    accepted: bool
+    figures: dict
+    worse: tuple[str, ...]
+    better: tuple[str, ...]
 
 
 @dataclass
@@ -223,9 +269,12 @@ class RelaxResult:
         local rotation, L_j = L0_j Rx Ry Rz, then the root translation (metres) from `root0`.
     local : (J, 3, 3) float relaxed local rotations; world : WorldPose (J) relaxed world frames.
     vertices : (V, 3) float, metres, the whole relaxed body.
-    cost : half the sum of squared residuals at the end of the last round (scipy's cost).
+    cost : half the sum of squared residuals of the returned pose, paired as in the last round.
     evaluations : residual evaluations over all rounds; rounds : the rounds run.
     at_limit : how many parameters ended on their box limit.
+    steps : with a gate, every pose tried (`RelaxStep`), in order; empty without one.
+    figures_before, figures : with a gate, its figures of the captured pose and of the returned
+        one (None without a gate).
     """
 
     theta: np.ndarray
@@ -236,15 +285,30 @@ class RelaxResult:
     evaluations: int
     rounds: int
     at_limit: int  # parameters on their box limit
+    steps: tuple[RelaxStep, ...] = ()
+    figures_before: dict | None = None
+    figures: dict | None = None
+
+    @property
+    def accepted(self) -> bool:
+        """Whether a gated relaxation moved the pose (always True without a gate)."""
+        return not self.steps and self.figures is None or any(s.accepted for s in self.steps)
 
 
 def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 60, *,
-          numeric_jacobian: bool = False) -> RelaxResult:
-    """Relaxes the pose: `rounds` of pairing with the surface, each a bounded least squares.
+          numeric_jacobian: bool = False, gate: Gate | None = None,
+          figures_before: dict | None = None) -> RelaxResult:
+    """Relaxes the pose: `rounds` of pairing with the surface, each a bounded least squares,
+    each round's pose accepted only where the `gate` finds none of its figures worse.
 
     Each round pairs the supportable vertices with their closest surface points, then solves
-    the least squares of the module docstring from the last round's solution (trust-region
+    the least squares of the module docstring from the last accepted pose (trust-region
     reflective, box constraints `JOINT_LIMITS` in degrees per axis and `ROOT_RANGE` metres).
+    With a gate, the round's solution is tried, then `STEP_SCALES` of the step to it, and the
+    first pose whose figures are none worse than the last accepted pose's is accepted; when
+    none is, the last accepted pose is kept and the relaxation stops (a next round would pair
+    and solve the same). The returned pose is then never worse than the captured one by the
+    gate's figures.
 
     Parameters
     ----------
@@ -257,36 +321,66 @@ def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 60, *,
         Residual evaluations allowed per round.
     numeric_jacobian : bool, default False
         Swaps the analytic Jacobian for finite differences (a reference).
+    gate : Gate, optional
+        What judges each round's pose (`solver.contact.evaluate.SupportGate`: the evaluation's
+        own figures); None accepts every round.
+    figures_before : dict, optional
+        The gate's figures of the captured pose when the caller has them (computed otherwise).
 
     Returns
     -------
     RelaxResult
         The parameters theta (3 J + 3,) (radians per joint axis, then the root translation in
         metres), the relaxed local rotations (J, 3, 3) and world frames (J), the whole relaxed
-        skin (V, 3) in metres, the last round's cost, the evaluations over all rounds and the
-        number of parameters at their limit.
+        skin (V, 3) in metres, its cost, the evaluations over all rounds, the number of
+        parameters at their limit, and with a gate every pose tried and the figures before and
+        after.
     """
-    from solver.body.skinning import skin
-
     model = _Model(problem)
     lo, hi = joint_bounds(problem.body)
     theta = np.zeros(3 * model.n + 3)
-    sv = np.asarray(problem.surface_vertices, dtype=np.float64)
-    st = np.asarray(problem.surface_triangles, dtype=np.int64)
-    evaluations = 0
-    cost = 0.0
-    for _ in range(rounds):
-        v = model.vertices(theta)[0]
-        pairing = _surface_frames(v, sv, st)
-        sol = least_squares(residuals, theta,
-                            jac="2-point" if numeric_jacobian else residual_jacobian,
-                            bounds=(lo, hi),
-                            method="trf", tr_solver="lsmr", max_nfev=max_evaluations, ftol=FTOL, xtol=1e-8,
-                            x_scale="jac",
-                            args=(model, *pairing))
-        theta, cost = sol.x, float(sol.cost)
+    surface = problem.surface_mesh()
+    jac = "2-point" if numeric_jacobian else residual_jacobian
+    verts = _skin(model, theta)
+    figures = None
+    if gate is not None:
+        figures = gate.figures(verts) if figures_before is None else figures_before
+    before = figures
+    evaluations, run, steps = 0, 0, []
+    pairing = None
+    for run in range(1, rounds + 1):
+        pairing = _surface_frames(model.vertices(theta)[0], surface)
+        sol = least_squares(residuals, theta, jac=jac, bounds=(lo, hi), method="trf",
+                            tr_solver="lsmr", max_nfev=max_evaluations, ftol=FTOL, xtol=1e-8,
+                            x_scale="jac", args=(model, *pairing))
         evaluations += sol.nfev
+        if gate is None:
+            theta = sol.x
+            continue
+        for scale in STEP_SCALES:
+            tried = np.clip(theta + scale * (sol.x - theta), lo, hi)
+            tried_verts = _skin(model, tried)
+            tried_figures = gate.figures(tried_verts)
+            worse = tuple(gate.worse(figures, tried_figures))
+            steps.append(RelaxStep(run, scale, not worse, tried_figures, worse,
+                                   tuple(gate.worse(tried_figures, figures))))
+            if not worse:
+                theta, verts, figures = tried, tried_verts, tried_figures
+                break
+        else:
+            break
+    if gate is None:
+        verts = _skin(model, theta)
     local, world = model.pose(theta)
-    verts, _ = skin(problem.body, WorldPose(world.positions, world.rotmats), normals=False)
+    cost = 0.5 * float(np.sum(residuals(theta, model, *pairing) ** 2)) if pairing else 0.0
     at_limit = int(np.sum((theta <= lo + 1e-9) | (theta >= hi - 1e-9)))
-    return RelaxResult(theta, local, world, verts, cost, evaluations, rounds, at_limit)
+    return RelaxResult(theta, local, world, verts, cost, evaluations, run, at_limit,
+                       tuple(steps), before, figures)
+
+
+def _skin(model: _Model, theta: np.ndarray) -> np.ndarray:
+    """(V, 3) the whole skin in the pose theta."""
+    from solver.body.skinning import skin
+
+    _, world = model.pose(theta)
+    return skin(model.p.body, WorldPose(world.positions, world.rotmats), normals=False)[0]

@@ -14,14 +14,13 @@ import numpy as np
 from capture.files import write_atomic
 
 from solver.mesh import SurfaceMesh
-from solver.contact.evaluate import (FLOOR, evaluate_person, flat_seat_height, flat_surface,
-                                     support_inside)
+from solver.contact.evaluate import (FLOOR, SUPPORT_FIGURES, SupportGate, evaluate_person,
+                                     flat_seat_height, flat_surface, support_inside)
 from solver.contact.evaluate import PressureMap, contact_footprint
 from solver.contact.mat import PressureGrid, pressure_grid, write_pressure_csv
 from solver.contact.settle import Foam
 from solver.io.export import ExportError, frame_matrix, write_mesh
-from solver.body.relax import (PENETRATION_SHIFT, PENETRATION_WIDTH, RelaxError, RelaxProblem,
-                               relax)
+from solver.body.relax import PENETRATION_SHIFT, RelaxError, RelaxProblem, relax
 from solver.mesh import triangle_mesh
 from solver.surface.fit import FitResult, fit_surface
 from solver.io.render import (SKIN, SURFACE, MeshView, Panel, field_colors, render_panels,
@@ -116,8 +115,8 @@ def relax_problem(person: PlacedPerson, surface_vertices: np.ndarray,
     person : a person placed by `place_person`.
     surface_vertices : (N, 3) float, metres; surface_triangles : (F, 3) int, facing the body.
     threshold : importance (in [0, 1]) a vertex needs to count as supportable.
-    margin : metres of softness the surface was fitted with; the penetration step's middle
-        sits two step widths short of it (None: the paper's 1 cm).
+    margin : metres of softness the surface was fitted with: body points sunk in less are not
+        pushed out (None: the paper's 1 cm).
 
     Returns
     -------
@@ -131,28 +130,67 @@ def relax_problem(person: PlacedPerson, surface_vertices: np.ndarray,
     local0 = person.motion.local_rotmats[0].copy()
     local0[0] = rot @ local0[0]
     root0 = rot @ person.motion.root_positions[0] + shift
-    middle = PENETRATION_SHIFT if margin is None else max(margin - 2 * PENETRATION_WIDTH, 0.0)
     return RelaxProblem(person.body, local0, root0, ids, person.importance[ids],
                         np.asarray(surface_vertices, dtype=np.float64),
                         np.asarray(surface_triangles, dtype=np.int64),
-                        penetration_shift=middle)
+                        margin=PENETRATION_SHIFT if margin is None else margin)
 
 
 def relax_person(scenario: Scenario, person: PlacedPerson, surface: np.ndarray,
                  quads: np.ndarray):
-    """Relaxes one posed person onto a surface (vertices, quads): the solver's result, the
+    """Relaxes one posed person onto a surface (vertices, quads), accepting only what the
+    evaluation's support figures find none worse (`SupportGate`): the solver's result, the
     person's figures before and after (as `evaluate_person` gives them), and the solver's
-    seconds."""
+    seconds. When no round was accepted, the person keeps the captured pose exactly (its
+    figures after are those before)."""
     margin, (foam, floor) = scenario.surface.params.margin, foams(scenario.evaluation)
+    problem = relax_problem(person, surface, quad_triangles(quads), margin=margin)
+    mesh = problem.surface_mesh()
+    before = evaluate_person(mesh, person, margin, foam, floor)[0]
+    gate = SupportGate(mesh, person.importance, person.triangles, margin, foam)
     t = time.perf_counter()
-    res = relax(relax_problem(person, surface, quad_triangles(quads), margin=margin))
+    res = relax(problem, gate=gate, figures_before={k: before[k] for k in SUPPORT_FIGURES})
     seconds = time.perf_counter() - t
-    mesh = SurfaceMesh.from_quads(surface, quads)
+    if not res.accepted:
+        res = dataclasses.replace(res, vertices=person.vertices)
+        return res, before, before, seconds
     areas, normals = triangle_mesh(person.body.triangles, len(res.vertices)).measures(
         res.vertices)
     relaxed = dataclasses.replace(person, vertices=res.vertices, normals=normals, areas=areas)
-    return (res, evaluate_person(mesh, person, margin, foam, floor)[0],
-            evaluate_person(mesh, relaxed, margin, foam, floor)[0], seconds)
+    return res, before, evaluate_person(mesh, relaxed, margin, foam, floor)[0], seconds
+
+
+def relax_text(result) -> str:
+    """What a gated relaxation (`relax` with a gate) accepted and why, in one line: per round
+    the share of its step accepted and the figures it improved, or the figures that made
+    every tried step worse."""
+    names = {"mean_support_distance_m": "support distance", "coverage": "coverage",
+             "contact_coverage": "contact coverage", "max_penetration_m": "deepest cut"}
+    parts = []
+    for run in sorted({s.round for s in result.steps}):
+        tried = [s for s in result.steps if s.round == run]
+        taken = [s for s in tried if s.accepted]
+        if taken:
+            gain = ", ".join(names[n] for n in taken[0].better) or "nothing changed"
+            share = "" if taken[0].scale == 1 else f" ({taken[0].scale:g} of its step)"
+            parts.append(f"round {run} accepted{share}: better {gain}")
+        else:
+            worse = sorted({n for s in tried for n in s.worse}, key=list(names).index)
+            parts.append(f"round {run} rejected: {', '.join(names[n] for n in worse)} worse "
+                         f"at every step tried")
+    if not result.accepted:
+        parts.append("the captured pose is kept")
+    return "; ".join(parts)
+
+
+def relax_record(result) -> dict:
+    """report.json's record of a gated relaxation: whether the pose moved, the text of
+    `relax_text`, and every pose tried (round, share of its step, accepted, the figures worse
+    and better than the last accepted pose's, and its figures)."""
+    return {"accepted": result.accepted, "summary": relax_text(result),
+            "steps": [{"round": s.round, "scale": s.scale, "accepted": s.accepted,
+                       "worse": list(s.worse), "better": list(s.better),
+                       "figures": s.figures} for s in result.steps]}
 
 
 def report_parameters(scenario: Scenario) -> dict:
@@ -451,7 +489,8 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
         result = fit_people(scenario, people)
         surface, faces = result.surface, result.surface_faces
         say(f"fitted the surface in {result.iterations} iterations")
-    keys = ("mean_support_distance_m", "max_penetration_m", "coverage", "peak_pressure_kpa")
+    keys = ("mean_support_distance_m", "max_penetration_m", "coverage", "contact_coverage",
+            "peak_pressure_kpa")
     rows, meshes_before, meshes_after, relaxed = [], [], [], []
     for k in chosen:
         p = people[k]
@@ -465,13 +504,14 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
                      "parameters_at_limit": res.at_limit,
                      "before": {key: before[key] for key in keys},
                      "after": {key: after[key] for key in keys},
+                     "relaxation": relax_record(res),
                      "files": [f"{name}.obj", f"{name}.bvh"]})
         relaxed.append((p, res))
         meshes_before.append(MeshView(p.vertices, p.body.faces))
         meshes_after.append(MeshView(res.vertices, p.body.faces, (0.62, 0.78, 0.62)))
         say(f"{p.label}: relaxed in {seconds:.2f} s; mean support distance "
             f"{before['mean_support_distance_m'] * 100:.1f} -> "
-            f"{after['mean_support_distance_m'] * 100:.1f} cm")
+            f"{after['mean_support_distance_m'] * 100:.1f} cm; {relax_text(res)}")
     if save:
         for row, saved in zip(rows, save_relaxed(db, relaxed, str(surface_dir or "fitted"))):
             row["saved_pose"] = saved
