@@ -1,4 +1,4 @@
-"""Pose relaxation: the paper's section 6 and appendix B.
+"""Pose relaxation: the paper's section 6 and appendix B, judged by the evaluation's figures.
 
 The rig's pose is moved so that the supportable skin comes to rest on a surface without
 cutting into it, while staying close to the captured pose. Parameters: three angles per joint,
@@ -7,18 +7,24 @@ is all zeros and far from gimbal lock), and the root translation. Residuals, eac
 sqrt(lambda) and by the importance r_i of supportable vertex i:
 
     point-to-point   r_i (v_i - c_i)                       (c_i: closest surface point)
-    point-to-plane   r_i (n_i . v_i - d_i)                 (the surface's tangent plane)
-    penetration      r_i (1/2 - arctan(a (n_i . v_i - d_i) + b) / pi)
+    point-to-plane   r_i s_i,  s_i = n_i . v_i - d_i       (the surface's tangent plane)
+    penetration      r_i (2 / pi) arctan(max(0, -(s_i + m)) / w)
     similarity       theta - theta0
 
-The penetration term is a smooth step of the signed distance s = n . v - d from the surface: 1
-well behind it, 0 well in front. The paper's a = 1000 and b = 10 are in metres (its meshes came
-from Blender in metres): the step is about 1/a = 1 mm wide and its middle sits at s = -b/a =
--1 cm, slightly into the surface. Here they are `PENETRATION_WIDTH` = 1 mm and
-`PENETRATION_SHIFT` = 1 cm, so a = 1 / width and b = shift / width. A surface fitted with a
-softness margin m (the fit lets skin sink m into the foam) is relaxed onto with the step's middle
-two widths short of m, so the penalty is nearly full at the margin and absent well inside it
-(`solver.scene.run.relax_problem`); otherwise the paper's 1 cm holds.
+The paper's penetration term, 1/2 - arctan(a s + b) / pi with a = 1000 and b = 10 in metres, is
+a step about 1/a = 1 mm wide whose middle sits 1 cm behind the surface. Its half in front of the
+middle reaches far: on a surface fitted to the same pose, every skin point near the surface was
+pushed off it harder than the distance terms pulled it back (the support distance grew, the
+contact shrank, the deepest cut deepened). Here the step is cut at its middle and rescaled to
+rise from 0: nothing in front of the surface, and nothing sunk in by less than the softness
+margin m the surface was fitted with, is pushed; deeper skin is, over `PENETRATION_WIDTH` = 1/a
+(m is the paper's b/a = 1 cm, `DEFAULT_MARGIN`, when the surface's is not known).
+
+Skin with no importance takes no part in the distance terms, but where the surface cuts into it
+or it lies within `GUARD_BAND` in front of it (`guard_ids`: the calves at a seat's front edge)
+it may not sink deeper than it was at the start of a round, or into the surface, by more than
+`GUARD_TOLERANCE`, with weight `GUARD_WEIGHT`: pulling the thighs down must not push the
+calves into the seat.
 
 Only the vertices facing the surface (their closest point is the foot of the perpendicular, not a
 point on a border they lie beside) can be behind it: a thigh below the level of an armrest's
@@ -28,12 +34,17 @@ Jacobians are analytic, as in appendix B: d v_i / d theta_k = a_k x sum_{j below
 (u_ij - p_k), with a_k the world axis of the angle, p_k its joint, u_ij the point joint j moves
 vertex i to and w_ij the skinning weight; d v_i / d t = I for the root translation. The problem
 is solved by scipy's trust-region reflective least squares with box constraints (`JOINT_LIMITS`,
-in degrees from the captured pose), re-pairing with the surface between solves.
+in degrees from the captured pose), re-pairing with the surface between rounds.
+
+A round's pose is kept only where a `Gate` (the evaluation's own figures: support distance,
+coverage, contact coverage, deepest cut) finds none of them worse than the last kept pose's;
+otherwise a shorter step towards it is tried (`STEP_SCALES`), and when none passes the last
+kept pose is returned. The result is never worse than the captured pose by those figures.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -50,7 +61,10 @@ from solver.body.rig import descendants, rig_pose
 LAMBDAS = (0.2, 0.2, 0.5, 0.1)  # point-to-point, point-to-plane, penetration, similarity
 PENETRATION_WIDTH = 0.001  # metres: 1 / a
 FACING_TOLERANCE = 1e-6  # metres off the perpendicular foot that still counts as facing
-PENETRATION_SHIFT = 0.01  # metres: b / a, how far behind the surface the step's middle lies
+DEFAULT_MARGIN = 0.01  # metres: the paper's b / a, the step's middle behind the surface
+GUARD_WEIGHT = 0.3  # of the penetration term, for the skin with no importance the surface cuts
+GUARD_TOLERANCE = 3e-4  # metres such skin may sink past where a round found it
+GUARD_BAND = 0.01  # metres in front of the surface within which such skin is guarded too
 ROOT_RANGE = 0.15  # metres the root may move
 FTOL = 1e-5  # relative cost change at which a round stops
 
@@ -76,7 +90,9 @@ class RelaxProblem:
 
     local0 : (J, 3, 3) captured local rotations; root0 : (3,) captured root position (m);
     vertex_ids : (m,) the supportable vertices; importance : (m,) their r_i;
-    surface_vertices (N, 3), surface_triangles (F, 3): the surface (normals towards the body).
+    surface_vertices (N, 3), surface_triangles (F, 3): the surface (normals towards the body);
+    margin : metres the skin may sink into the surface before the penetration term pushes it;
+    guard_ids : (g,) vertices with no importance that may not sink deeper (module docstring).
     """
 
     body: Body
@@ -87,7 +103,8 @@ class RelaxProblem:
     surface_vertices: np.ndarray
     surface_triangles: np.ndarray
     lambdas: tuple[float, float, float, float] = LAMBDAS
-    margin: float = PENETRATION_SHIFT  # metres a body point may sink in before it is pushed out
+    margin: float = DEFAULT_MARGIN
+    guard_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     def surface_mesh(self) -> SurfaceMesh:
         """The surface as a `SurfaceMesh` (its closest-point tree), made on first use and kept."""
@@ -99,20 +116,23 @@ class RelaxProblem:
 
 
 class _Model:
-    """Forward model and analytic Jacobian of the supportable vertices."""
+    """Forward model and analytic Jacobian of the supportable vertices, then the guarded ones
+    (`ids`; the first `supported` are the supportable)."""
 
     def __init__(self, problem: RelaxProblem):
         self.p = problem
         body = problem.body
         self.n = len(body.joint_names)
-        w = body.weights[problem.vertex_ids].tocsr()
+        self.ids = np.concatenate([problem.vertex_ids, problem.guard_ids]).astype(np.int64)
+        self.supported = len(problem.vertex_ids)
+        w = body.weights[self.ids].tocsr()
         w.sum_duplicates()  # one entry per (vertex, joint): the Jacobian assigns, not adds
         w = w.tocoo()
         self.wi, self.wj, self.wv = w.row, w.col, w.data
-        self.m = len(problem.vertex_ids)
+        self.m = len(self.ids)
         # each (vertex, joint) entry's rest lever arm, and the weights that blend the entries
         # into vertices, both fixed for the problem
-        self.lever = body.vertices[problem.vertex_ids][self.wi] - body.joints[self.wj]
+        self.lever = body.vertices[self.ids][self.wi] - body.joints[self.wj]
         self.blend = sp.csr_matrix((self.wv, (self.wi, np.arange(len(self.wi)))),
                                    shape=(self.m, len(self.wi)))
         self.desc = descendants(body.parents)
@@ -187,58 +207,73 @@ def _surface_frames(points: np.ndarray, surface: SurfaceMesh):
     return closest, fn, facing.astype(np.float64)
 
 
-def penetration_step(signed: np.ndarray, margin: float) -> tuple[np.ndarray, np.ndarray]:
+def penetration_step(signed: np.ndarray, allowed) -> tuple[np.ndarray, np.ndarray]:
     """The penetration term's step (m,) in [0, 1) of the signed distances (m,) (metres, positive
     in front of the surface) and its derivative (m,) per metre: 0 in front of the surface and
-    down to `margin` behind it, then the paper's arctan step, of width `PENETRATION_WIDTH`, from
-    its middle on, rescaled to rise from 0 at the margin to 1 deep behind it.
-
-    The paper's step, 1/2 - arctan(a s + b) / pi, has a tail in front of its middle that pushes
-    every point near the surface away from it, harder than the distance terms pull it back:
-    relaxing onto a surface fitted to the same pose moved the body off it. Here only the part
-    of the body sunk deeper than the softness margin is pushed out."""
-    depth = np.maximum(-(signed + margin), 0.0) / PENETRATION_WIDTH
+    down to `allowed` behind it (metres, a number or (m,)), then rising as the paper's arctan
+    step does past its middle, over `PENETRATION_WIDTH`, towards 1 deep behind it."""
+    depth = np.maximum(-(signed + allowed), 0.0) / PENETRATION_WIDTH
     step = (2.0 / np.pi) * np.arctan(depth)
     slope = np.where(depth > 0.0, -(2.0 / np.pi) / PENETRATION_WIDTH / (1.0 + depth ** 2), 0.0)
     return step, slope
 
 
 def residuals(theta: np.ndarray, model: _Model, closest: np.ndarray, normals: np.ndarray,
-              facing: np.ndarray) -> np.ndarray:
+              weights: np.ndarray, allowed: np.ndarray) -> np.ndarray:
+    """The residuals of the module docstring at theta, for a round's pairing: per vertex of
+    the model (m) its closest surface point (m, 3), that face's unit normal (m, 3), the weight
+    of its penetration term (m,) (0 where it does not face the surface) and the depth (m,)
+    metres it may sink before that term pushes it."""
     lp, lt, lpen, ls = (np.sqrt(x) for x in model.p.lambdas)
-    r = model.p.importance
+    r, k = model.p.importance, model.supported
     v = model.vertices(theta)[0]
-    d = np.einsum("ij,ij->i", normals, closest)
-    s = np.einsum("ij,ij->i", normals, v) - d
+    s = np.einsum("ij,ij->i", normals, v - closest)
     return np.concatenate([
-        lp * (r[:, None] * (v - closest)).ravel(),
-        lt * r * s,
-        lpen * r * facing * penetration_step(s, model.p.margin)[0],
+        lp * (r[:, None] * (v[:k] - closest[:k])).ravel(),
+        lt * r * s[:k],
+        lpen * weights * penetration_step(s, allowed)[0],
         ls * theta,
     ])
 
 
 def residual_jacobian(theta: np.ndarray, model: _Model, closest: np.ndarray,
-                      normals: np.ndarray, facing: np.ndarray) -> np.ndarray:
+                      normals: np.ndarray, weights: np.ndarray,
+                      allowed: np.ndarray) -> np.ndarray:
+    """d residuals / d theta (R, P), analytic (appendix B)."""
     lp, lt, lpen, ls = (np.sqrt(x) for x in model.p.lambdas)
-    r = model.p.importance
+    r, k = model.p.importance, model.supported
     v, jv = model.jacobian_vertices(theta)  # (m, 3), (m, 3, P)
-    s = np.einsum("ij,ij->i", normals, v) - np.einsum("ij,ij->i", normals, closest)
+    s = np.einsum("ij,ij->i", normals, v - closest)
     jn = np.einsum("ic,icp->ip", normals, jv)  # (m, P): d s / d theta
-    dpen = penetration_step(s, model.p.margin)[1]
     return np.concatenate([
-        lp * (r[:, None, None] * jv).reshape(-1, jv.shape[2]),
-        lt * r[:, None] * jn,
-        lpen * (r * facing * dpen)[:, None] * jn,
+        lp * (r[:, None, None] * jv[:k]).reshape(-1, jv.shape[2]),
+        lt * r[:, None] * jn[:k],
+        lpen * (weights * penetration_step(s, allowed)[1])[:, None] * jn,
         ls * np.eye(jv.shape[2]),
     ])
 
 
+def pairing(model: _Model, theta: np.ndarray, surface: SurfaceMesh):
+    """A round's pairing at theta, the arguments of `residuals` after the model: the closest
+    surface points (m, 3), their faces' normals (m, 3), the penetration term's weights (m,)
+    and the depths (m,) each vertex may sink (the margin; for a guarded vertex where it is
+    now, at least 0, and `GUARD_TOLERANCE` more)."""
+    p, k = model.p, model.supported
+    v = model.vertices(theta)[0]
+    closest, normals, facing = _surface_frames(v, surface)
+    weights = np.concatenate([p.importance, np.full(model.m - k, GUARD_WEIGHT)]) * facing
+    allowed = np.full(model.m, float(p.margin))
+    depth = -np.einsum("ij,ij->i", normals[k:], v[k:] - closest[k:])
+    allowed[k:] = np.maximum(depth, 0.0) + GUARD_TOLERANCE
+    return closest, normals, weights, allowed
+
+
 class Gate(Protocol):
-    """What judges a relaxed pose: `figures` of the whole skin (V, 3) in metres (a dict), and
+    """What judges a relaxed pose: `figures` of the whole skin (V, 3) in metres (a dict; given
+    a `reference`, it may stop short once one figure is worse than the reference's), and
     `worse`, the names of the figures worse in `after` than in `before` (empty: not worse)."""
 
-    def figures(self, vertices: np.ndarray) -> dict: ...
+    def figures(self, vertices: np.ndarray, reference: dict | None = None) -> dict: ...
 
     def worse(self, before: dict, after: dict) -> list[str]: ...
 
@@ -347,12 +382,12 @@ def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 60, *,
         figures = gate.figures(verts) if figures_before is None else figures_before
     before = figures
     evaluations, run, steps = 0, 0, []
-    pairing = None
+    paired = None
     for run in range(1, rounds + 1):
-        pairing = _surface_frames(model.vertices(theta)[0], surface)
+        paired = pairing(model, theta, surface)
         sol = least_squares(residuals, theta, jac=jac, bounds=(lo, hi), method="trf",
                             tr_solver="lsmr", max_nfev=max_evaluations, ftol=FTOL, xtol=1e-8,
-                            x_scale="jac", args=(model, *pairing))
+                            x_scale="jac", args=(model, *paired))
         evaluations += sol.nfev
         if gate is None:
             theta = sol.x
@@ -360,7 +395,7 @@ def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 60, *,
         for scale in STEP_SCALES:
             tried = np.clip(theta + scale * (sol.x - theta), lo, hi)
             tried_verts = _skin(model, tried)
-            tried_figures = gate.figures(tried_verts)
+            tried_figures = gate.figures(tried_verts, reference=figures)
             worse = tuple(gate.worse(figures, tried_figures))
             steps.append(RelaxStep(run, scale, not worse, tried_figures, worse,
                                    tuple(gate.worse(tried_figures, figures))))
@@ -372,7 +407,7 @@ def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 60, *,
     if gate is None:
         verts = _skin(model, theta)
     local, world = model.pose(theta)
-    cost = 0.5 * float(np.sum(residuals(theta, model, *pairing) ** 2)) if pairing else 0.0
+    cost = 0.5 * float(np.sum(residuals(theta, model, *paired) ** 2)) if paired else 0.0
     at_limit = int(np.sum((theta <= lo + 1e-9) | (theta >= hi - 1e-9)))
     return RelaxResult(theta, local, world, verts, cost, evaluations, run, at_limit,
                        tuple(steps), before, figures)

@@ -211,14 +211,14 @@ def cut_vertices(vertices: np.ndarray, triangles: np.ndarray, signed: np.ndarray
     return cut
 
 
-# the support figures a relaxation may not worsen: +1 where more is better, -1 where less is
+# the figures of how well a surface supports a body, and which way is better: +1 more, -1 less
 SUPPORT_FIGURES = {"mean_support_distance_m": -1, "coverage": +1, "contact_coverage": +1,
                    "max_penetration_m": -1}
 
 
 def support_figures(surface: SurfaceMesh, vertices: np.ndarray, importance: np.ndarray,
                     triangles: np.ndarray, margin: float, foam: Foam, closest=None,
-                    winding=None) -> dict:
+                    winding=None, reference: dict | None = None) -> dict:
     """How well a surface supports a posed body: the `SUPPORT_FIGURES` of `evaluate_person`.
 
     Parameters
@@ -228,55 +228,70 @@ def support_figures(surface: SurfaceMesh, vertices: np.ndarray, importance: np.n
     vertices : (V, 3) float
         The body's skin, metres; triangles (F, 3) int close it.
     importance : (V,) float
-        Each vertex's importance; only the vertices with some count.
+        Each vertex's importance; the vertices with none do not count.
     margin : float
         Metres of softness the surface may sink into the body.
     foam : Foam
-        The surface's foam (its reach behind the surface bounds where it can be cut into).
+        The surface's foam (how far behind the surface the body can press it).
     closest : tuple, optional
         `surface.closest(vertices)` when already computed (all V vertices).
     winding : optional
         The body's `body_winding` when already built.
+    reference : dict, optional
+        Figures to judge against: when the distance or the coverage is worse than the
+        reference's, the figures stop there, without the costly ones (the contact coverage and
+        the penetration, which need the body's winding number).
 
     Returns
     -------
     dict
-        ``coverage`` (share of the importance within `margin` of the surface, either side),
-        ``contact_coverage`` (the share within `CONTACT_GAP` in front of it or sunk in where it
-        cuts into the body, by up to `margin`), ``mean_support_distance_m`` (the
-        importance-weighted mean distance, None without importance), ``max_penetration_m``
-        (`penetration_depth` of the surface's vertices near the body).
+        ``mean_support_distance_m`` (the importance-weighted mean distance to the surface, None
+        without importance), ``coverage`` (share of the importance within `margin` of the
+        surface, either side), ``contact_coverage`` (the share within `CONTACT_GAP` in front of
+        it or sunk in where it cuts into the body, by up to `margin`), ``max_penetration_m``
+        (`penetration_depth` of the surface's vertices near the body). With a `reference` that
+        is better by one of the first two, only those two.
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     triangles = np.asarray(triangles, dtype=np.int64)
-    if winding is None:
-        winding = body_winding(vertices, triangles)
-    lo, hi = vertices.min(axis=0) - 0.01, vertices.max(axis=0) + 0.01
-    near = np.all((surface.vertices >= lo) & (surface.vertices <= hi), axis=1)
-    penetration = penetration_depth(surface.vertices[near], vertices, triangles, winding)
     wanted = np.flatnonzero(importance > 0)
     weight = np.asarray(importance, dtype=np.float64)[wanted]
     total = weight.sum()
-    if not wanted.size:
-        return {"coverage": 0.0, "contact_coverage": 0.0, "max_penetration_m": penetration,
-                "mean_support_distance_m": None}
-    if closest is None:
-        dist, signed, _, _, points = surface.closest(vertices[wanted])
+    figures = {"mean_support_distance_m": None, "coverage": 0.0}
+    if wanted.size:
+        if closest is None:
+            dist, signed, _, _, points = surface.closest(vertices[wanted])
+        else:
+            dist, signed, points = closest[0][wanted], closest[1][wanted], closest[4][wanted]
+        figures = {"mean_support_distance_m": float(np.sum(weight * dist) / total),
+                   "coverage": float(weight[dist <= margin + 1e-9].sum() / total)}
+        if reference is not None and worse_figures(reference, figures):
+            return figures
+    if winding is None:
+        winding = body_winding(vertices, triangles)
+    if wanted.size:
+        front = (signed >= 0) & (signed <= CONTACT_GAP)
+        sunk = (signed < 0) & (signed >= -margin - 1e-9)
+        cut = np.zeros(len(wanted), dtype=bool)
+        cut[sunk] = cut_vertices(vertices, triangles, signed[sunk], points[sunk], foam, winding)
+        figures["contact_coverage"] = float(weight[front | cut].sum() / total)
     else:
-        dist, signed, points = closest[0][wanted], closest[1][wanted], closest[4][wanted]
-    cut = cut_vertices(vertices, triangles, signed, points, foam, winding)
-    touching = ((signed >= 0) & (signed <= CONTACT_GAP)) | (cut & (signed >= -margin - 1e-9))
-    return {"coverage": float(weight[dist <= margin + 1e-9].sum() / total),
-            "contact_coverage": float(weight[touching].sum() / total),
-            "max_penetration_m": penetration,
-            "mean_support_distance_m": float(np.sum(weight * dist) / total)}
+        figures["contact_coverage"] = 0.0
+    lo, hi = vertices.min(axis=0) - 0.01, vertices.max(axis=0) + 0.01
+    near = np.all((surface.vertices >= lo) & (surface.vertices <= hi), axis=1)
+    figures["max_penetration_m"] = penetration_depth(surface.vertices[near], vertices,
+                                                     triangles, winding)
+    return figures
 
 
 def worse_figures(before: dict, after: dict) -> list[str]:
     """The `SUPPORT_FIGURES` worse in `after` than in `before` (dicts of them), in their order;
-    a figure that is None in both (no importance) is not worse."""
+    a figure missing from either is not compared, and one None in both (no importance) is not
+    worse."""
     worse = []
     for name, better in SUPPORT_FIGURES.items():
+        if name not in before or name not in after:
+            continue
         a, b = after[name], before[name]
         if a is None and b is None:
             continue
@@ -287,8 +302,8 @@ def worse_figures(before: dict, after: dict) -> list[str]:
 
 @dataclass(frozen=True, eq=False)
 class SupportGate:
-    """Judges a posed body on a surface by the evaluation's own `support_figures` (what a
-    relaxation may not make worse, `solver.body.relax.Gate`): the surface, the body's
+    """Judges a posed body on a surface by the evaluation's own `support_figures`, what a
+    relaxation may not make worse (`solver.body.relax.Gate`): the surface, the body's
     importance (V,) and closed skin (F, 3), the softness margin (m) and the surface's foam."""
 
     surface: SurfaceMesh
@@ -297,10 +312,11 @@ class SupportGate:
     margin: float
     foam: Foam
 
-    def figures(self, vertices: np.ndarray) -> dict:
-        """`support_figures` of the skin posed at `vertices` (V, 3), metres."""
+    def figures(self, vertices: np.ndarray, reference: dict | None = None) -> dict:
+        """`support_figures` of the skin posed at `vertices` (V, 3), metres, cut short when
+        worse than `reference`."""
         return support_figures(self.surface, vertices, self.importance, self.triangles,
-                               self.margin, self.foam)
+                               self.margin, self.foam, reference=reference)
 
     def worse(self, before: dict, after: dict) -> list[str]:
         """`worse_figures`: the names of the figures worse in `after` than in `before`."""

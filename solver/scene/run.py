@@ -14,18 +14,20 @@ import numpy as np
 from capture.files import write_atomic
 
 from solver.mesh import SurfaceMesh
-from solver.contact.evaluate import (FLOOR, SUPPORT_FIGURES, SupportGate, evaluate_person,
-                                     flat_seat_height, flat_surface, support_inside)
+from solver.contact.evaluate import (FLOOR, SUPPORT_FIGURES, SupportGate, cut_vertices,
+                                     evaluate_person, flat_seat_height, flat_surface,
+                                     support_inside)
 from solver.contact.evaluate import PressureMap, contact_footprint
 from solver.contact.mat import PressureGrid, pressure_grid, write_pressure_csv
-from solver.contact.settle import Foam
+from solver.contact.settle import Foam, reach_depth
 from solver.io.export import ExportError, frame_matrix, write_mesh
-from solver.body.relax import PENETRATION_SHIFT, RelaxError, RelaxProblem, relax
+from solver.body.relax import DEFAULT_MARGIN, GUARD_BAND, RelaxError, RelaxProblem, relax
 from solver.mesh import triangle_mesh
 from solver.surface.fit import FitResult, fit_surface
 from solver.io.render import (SKIN, SURFACE, MeshView, Panel, field_colors, render_panels,
                               render_pressure_maps)
 from solver.scene.scenario import Scenario, load_scenario
+from solver.scene.schema import Evaluation
 from solver.scene.placement import PlacedPerson, place_person
 from solver.mesh import quad_triangles
 
@@ -106,9 +108,11 @@ def fit_people(scenario: Scenario, people: list[PlacedPerson],
 
 def relax_problem(person: PlacedPerson, surface_vertices: np.ndarray,
                   surface_triangles: np.ndarray, threshold: float = 0.02,
-                  margin: float | None = None) -> RelaxProblem:
+                  margin: float | None = None, foam: Foam | None = None) -> RelaxProblem:
     """The relaxation problem of a placed person: its rig in the scene frame, its vertices of
-    importance above `threshold`, and the surface to settle on.
+    importance above `threshold`, the rest of its skin that the surface cuts into or that lies
+    within `GUARD_BAND` in front of it (guarded: it may not sink deeper), and the surface to
+    settle on.
 
     Parameters
     ----------
@@ -117,6 +121,8 @@ def relax_problem(person: PlacedPerson, surface_vertices: np.ndarray,
     threshold : importance (in [0, 1]) a vertex needs to count as supportable.
     margin : metres of softness the surface was fitted with: body points sunk in less are not
         pushed out (None: the paper's 1 cm).
+    foam : the surface's foam, whose reach behind it bounds where it can cut into the body
+        (None: the scenario's default).
 
     Returns
     -------
@@ -130,10 +136,27 @@ def relax_problem(person: PlacedPerson, surface_vertices: np.ndarray,
     local0 = person.motion.local_rotmats[0].copy()
     local0[0] = rot @ local0[0]
     root0 = rot @ person.motion.root_positions[0] + shift
-    return RelaxProblem(person.body, local0, root0, ids, person.importance[ids],
-                        np.asarray(surface_vertices, dtype=np.float64),
-                        np.asarray(surface_triangles, dtype=np.int64),
-                        margin=PENETRATION_SHIFT if margin is None else margin)
+    problem = RelaxProblem(person.body, local0, root0, ids, person.importance[ids],
+                           np.asarray(surface_vertices, dtype=np.float64),
+                           np.asarray(surface_triangles, dtype=np.int64),
+                           margin=DEFAULT_MARGIN if margin is None else margin)
+    guards = guarded_vertices(person, problem.surface_mesh(), threshold,
+                              foam or foams(Evaluation())[0])
+    return dataclasses.replace(problem, guard_ids=guards)
+
+
+def guarded_vertices(person: PlacedPerson, surface: SurfaceMesh, threshold: float,
+                     foam: Foam) -> np.ndarray:
+    """(g,) the person's vertices of importance up to `threshold` that face the surface (their
+    closest point is no border point) and that it cuts into (`cut_vertices`) or that lie within
+    `GUARD_BAND` in front of it."""
+    rest = np.flatnonzero(person.importance <= threshold)
+    reach = max(reach_depth(foam), GUARD_BAND)
+    lo, hi = surface.vertices.min(axis=0) - reach, surface.vertices.max(axis=0) + reach
+    rest = rest[np.all((person.vertices[rest] >= lo) & (person.vertices[rest] <= hi), axis=1)]
+    _, signed, over, _, closest = surface.closest(person.vertices[rest])
+    cut = cut_vertices(person.vertices, person.triangles, signed, closest, foam)
+    return rest[over & (cut | ((signed >= 0) & (signed <= GUARD_BAND)))]
 
 
 def relax_person(scenario: Scenario, person: PlacedPerson, surface: np.ndarray,
@@ -144,7 +167,7 @@ def relax_person(scenario: Scenario, person: PlacedPerson, surface: np.ndarray,
     seconds. When no round was accepted, the person keeps the captured pose exactly (its
     figures after are those before)."""
     margin, (foam, floor) = scenario.surface.params.margin, foams(scenario.evaluation)
-    problem = relax_problem(person, surface, quad_triangles(quads), margin=margin)
+    problem = relax_problem(person, surface, quad_triangles(quads), margin=margin, foam=foam)
     mesh = problem.surface_mesh()
     before = evaluate_person(mesh, person, margin, foam, floor)[0]
     gate = SupportGate(mesh, person.importance, person.triangles, margin, foam)
