@@ -65,6 +65,7 @@ DEFAULT_MARGIN = 0.01  # metres: the paper's b / a, the step's middle behind the
 GUARD_WEIGHT = 0.3  # of the penetration term, for the skin with no importance the surface cuts
 GUARD_TOLERANCE = 3e-4  # metres such skin may sink past where a round found it
 GUARD_BAND = 0.01  # metres in front of the surface within which such skin is guarded too
+GUARD_SPACING = 0.015  # metres: one guarded vertex per cube of this side, the deepest
 ROOT_RANGE = 0.15  # metres the root may move
 FTOL = 1e-5  # relative cost change at which a round stops
 
@@ -278,7 +279,7 @@ class Gate(Protocol):
     def worse(self, before: dict, after: dict) -> list[str]: ...
 
 
-STEP_SCALES = (1.0, 0.5, 0.25)  # shares of a round's step tried, until one is not worse
+STEP_SCALES = (1.0, 0.5)  # shares of a round's step tried, until one is not worse
 
 
 @dataclass(frozen=True)
@@ -330,7 +331,7 @@ class RelaxResult:
         return not self.steps and self.figures is None or any(s.accepted for s in self.steps)
 
 
-def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 60, *,
+def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 20, *,
           numeric_jacobian: bool = False, gate: Gate | None = None,
           figures_before: dict | None = None) -> RelaxResult:
     """Relaxes the pose: `rounds` of pairing with the surface, each a bounded least squares,
@@ -352,7 +353,7 @@ def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 60, *,
         surface (metres).
     rounds : int, default 3
         Rounds of pairing and solving.
-    max_evaluations : int, default 60
+    max_evaluations : int, default 20
         Residual evaluations allowed per round.
     numeric_jacobian : bool, default False
         Swaps the analytic Jacobian for finite differences (a reference).

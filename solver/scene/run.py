@@ -21,7 +21,8 @@ from solver.contact.evaluate import PressureMap, contact_footprint
 from solver.contact.mat import PressureGrid, pressure_grid, write_pressure_csv
 from solver.contact.settle import Foam, reach_depth
 from solver.io.export import ExportError, frame_matrix, write_mesh
-from solver.body.relax import DEFAULT_MARGIN, GUARD_BAND, RelaxError, RelaxProblem, relax
+from solver.body.relax import (DEFAULT_MARGIN, GUARD_BAND, GUARD_SPACING, RelaxError,
+                               RelaxProblem, relax)
 from solver.mesh import triangle_mesh
 from solver.surface.fit import FitResult, fit_surface
 from solver.io.render import (SKIN, SURFACE, MeshView, Panel, field_colors, render_panels,
@@ -149,14 +150,20 @@ def guarded_vertices(person: PlacedPerson, surface: SurfaceMesh, threshold: floa
                      foam: Foam) -> np.ndarray:
     """(g,) the person's vertices of importance up to `threshold` that face the surface (their
     closest point is no border point) and that it cuts into (`cut_vertices`) or that lie within
-    `GUARD_BAND` in front of it."""
+    `GUARD_BAND` in front of it: of those in each `GUARD_SPACING` cube, the deepest."""
     rest = np.flatnonzero(person.importance <= threshold)
     reach = max(reach_depth(foam), GUARD_BAND)
     lo, hi = surface.vertices.min(axis=0) - reach, surface.vertices.max(axis=0) + reach
     rest = rest[np.all((person.vertices[rest] >= lo) & (person.vertices[rest] <= hi), axis=1)]
     _, signed, over, _, closest = surface.closest(person.vertices[rest])
     cut = cut_vertices(person.vertices, person.triangles, signed, closest, foam)
-    return rest[over & (cut | ((signed >= 0) & (signed <= GUARD_BAND)))]
+    keep = over & (cut | ((signed >= 0) & (signed <= GUARD_BAND)))
+    guarded, signed = rest[keep], signed[keep]
+    # one per GUARD_SPACING cell, the deepest: neighbours move together
+    deepest_first = np.argsort(signed, kind="stable")
+    cells = np.floor(person.vertices[guarded[deepest_first]] / GUARD_SPACING).astype(np.int64)
+    _, first = np.unique(cells, axis=0, return_index=True)
+    return np.sort(guarded[deepest_first[first]])
 
 
 def relax_person(scenario: Scenario, person: PlacedPerson, surface: np.ndarray,
