@@ -61,13 +61,14 @@ from solver.body.rig import descendants, rig_pose
 LAMBDAS = (0.2, 0.2, 0.5, 0.1)  # point-to-point, point-to-plane, penetration, similarity
 PENETRATION_WIDTH = 0.001  # metres: 1 / a
 FACING_TOLERANCE = 1e-6  # metres off the perpendicular foot that still counts as facing
-DEFAULT_MARGIN = 0.01  # metres: the paper's b / a, the step's middle behind the surface
+DEFAULT_MARGIN = 0.01  # metres skin may sink when the surface's margin is unknown: the paper's b/a
 GUARD_WEIGHT = 0.3  # of the penetration term, for the skin with no importance the surface cuts
 GUARD_TOLERANCE = 3e-4  # metres such skin may sink past where a round found it
 GUARD_BAND = 0.01  # metres in front of the surface within which such skin is guarded too
 GUARD_SPACING = 0.015  # metres: one guarded vertex per cube of this side, the deepest
 ROOT_RANGE = 0.15  # metres the root may move
 FTOL = 1e-5  # relative cost change at which a round stops
+TR_OPTIONS = {"maxiter": 20}  # lsmr's iterations per trust-region step: enough, and quick
 
 # How far (degrees, per axis) each joint may turn from the captured pose: loose where joints
 # are mobile, tight along the spine; fingers and toes hardly move.
@@ -106,6 +107,15 @@ class RelaxProblem:
     lambdas: tuple[float, float, float, float] = LAMBDAS
     margin: float = DEFAULT_MARGIN
     guard_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+
+    def __post_init__(self):
+        both = np.intersect1d(self.vertex_ids, self.guard_ids)
+        if both.size:
+            raise RelaxError(f"Expected guarded vertices that are not supportable, got "
+                             f"{both.size} in both (first {int(both[0])})")
+        if len(self.importance) != len(self.vertex_ids):
+            raise RelaxError(f"Expected one importance per supportable vertex "
+                             f"({len(self.vertex_ids)}), got {len(self.importance)}")
 
     def surface_mesh(self) -> SurfaceMesh:
         """The surface as a `SurfaceMesh` (its closest-point tree), made on first use and kept."""
@@ -327,20 +337,23 @@ class RelaxResult:
 
     @property
     def accepted(self) -> bool:
-        """Whether a gated relaxation moved the pose (always True without a gate)."""
-        return not self.steps and self.figures is None or any(s.accepted for s in self.steps)
+        """Whether a gate accepted some round (True without a gate: every round is taken)."""
+        if self.figures is None and not self.steps:
+            return True
+        return any(s.accepted for s in self.steps)
 
 
-def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 20, *,
+def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 15, *,
           numeric_jacobian: bool = False, gate: Gate | None = None,
           figures_before: dict | None = None) -> RelaxResult:
     """Relaxes the pose: `rounds` of pairing with the surface, each a bounded least squares,
     each round's pose accepted only where the `gate` finds none of its figures worse.
 
-    Each round pairs the supportable vertices with their closest surface points, then solves
-    the least squares of the module docstring from the last accepted pose (trust-region
-    reflective, box constraints `JOINT_LIMITS` in degrees per axis and `ROOT_RANGE` metres).
-    With a gate, the round's solution is tried, then `STEP_SCALES` of the step to it, and the
+    Each round pairs the supportable and guarded vertices with their closest surface points,
+    then solves the least squares of the module docstring from the last accepted pose
+    (trust-region reflective, box constraints `JOINT_LIMITS` in degrees per axis and
+    `ROOT_RANGE` metres). With a gate, the shares `STEP_SCALES` of the step from the last
+    accepted pose to the round's solution are tried in turn, the whole step first, and the
     first pose whose figures are none worse than the last accepted pose's is accepted; when
     none is, the last accepted pose is kept and the relaxation stops (a next round would pair
     and solve the same). The returned pose is then never worse than the captured one by the
@@ -353,7 +366,7 @@ def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 20, *,
         surface (metres).
     rounds : int, default 3
         Rounds of pairing and solving.
-    max_evaluations : int, default 20
+    max_evaluations : int, default 15
         Residual evaluations allowed per round.
     numeric_jacobian : bool, default False
         Swaps the analytic Jacobian for finite differences (a reference).
@@ -372,14 +385,17 @@ def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 20, *,
         parameters at their limit, and with a gate every pose tried and the figures before and
         after.
     """
+    if rounds < 1 or max_evaluations < 1:
+        raise RelaxError(f"Expected at least one round and one evaluation per round, got "
+                         f"rounds={rounds}, max_evaluations={max_evaluations}")
     model = _Model(problem)
     lo, hi = joint_bounds(problem.body)
     theta = np.zeros(3 * model.n + 3)
     surface = problem.surface_mesh()
     jac = "2-point" if numeric_jacobian else residual_jacobian
-    verts = _skin(model, theta)
-    figures = None
+    verts, figures = None, None
     if gate is not None:
+        verts = _skin(model, theta)
         figures = gate.figures(verts) if figures_before is None else figures_before
     before = figures
     evaluations, run, steps = 0, 0, []
@@ -388,13 +404,13 @@ def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 20, *,
         paired = pairing(model, theta, surface)
         sol = least_squares(residuals, theta, jac=jac, bounds=(lo, hi), method="trf",
                             tr_solver="lsmr", max_nfev=max_evaluations, ftol=FTOL, xtol=1e-8,
-                            x_scale="jac", args=(model, *paired))
+                            x_scale="jac", args=(model, *paired), tr_options=TR_OPTIONS)
         evaluations += sol.nfev
         if gate is None:
             theta = sol.x
             continue
         for scale in STEP_SCALES:
-            tried = np.clip(theta + scale * (sol.x - theta), lo, hi)
+            tried = theta + scale * (sol.x - theta)  # between two poses in the box: in it
             tried_verts = _skin(model, tried)
             tried_figures = gate.figures(tried_verts, reference=figures)
             worse = tuple(gate.worse(figures, tried_figures))
@@ -408,7 +424,7 @@ def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 20, *,
     if gate is None:
         verts = _skin(model, theta)
     local, world = model.pose(theta)
-    cost = 0.5 * float(np.sum(residuals(theta, model, *paired) ** 2)) if paired else 0.0
+    cost = 0.5 * float(np.sum(residuals(theta, model, *paired) ** 2))
     at_limit = int(np.sum((theta <= lo + 1e-9) | (theta >= hi - 1e-9)))
     return RelaxResult(theta, local, world, verts, cost, evaluations, run, at_limit,
                        tuple(steps), before, figures)
