@@ -38,8 +38,8 @@ in degrees from the captured pose), re-pairing with the surface between rounds.
 
 A round's pose is kept only where a `Gate` (the evaluation's own figures: support distance,
 coverage, contact coverage, deepest cut) finds none of them worse than the last kept pose's;
-otherwise a shorter step towards it is tried (`STEP_SCALES`), and when none passes the last
-kept pose is returned. The result is never worse than the captured pose by those figures.
+otherwise, in the first round, a shorter step towards it is tried (`STEP_SCALES`), and when
+none passes the last kept pose is returned. The result is never worse than the captured pose by those figures.
 """
 
 from __future__ import annotations
@@ -148,6 +148,7 @@ class _Model:
                                    shape=(self.m, len(self.wi)))
         self.desc = descendants(body.parents)
         self._last: tuple[np.ndarray, tuple] | None = None  # least_squares asks twice per x
+        self._levers: tuple[np.ndarray, tuple] | None = None
 
     def pose(self, theta: np.ndarray) -> tuple[np.ndarray, WorldPose]:
         angles = theta[:3 * self.n].reshape(self.n, 3)
@@ -165,35 +166,60 @@ class _Model:
         self._last = (theta.copy(), out)
         return out
 
-    def jacobian_vertices(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Vertices (m, 3) and d v / d theta (m, 3, P), P = 3 J + 3."""
+    def levers(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Vertices (m, 3); the world axes (J, 3, 3) of each joint's three angles (axis k of
+        joint j at [j, k]); and per vertex i and joint j the lever arm (m, 3, J) the turns at
+        j move it by: the sum over the joints l at or below j of w_il (u_il - p_j)."""
+        if self._levers is not None and np.array_equal(self._levers[0], theta):
+            return self._levers[1]
         v, u, local, world = self.vertices(theta)
         n, m = self.n, self.m
         angles = theta[:3 * n].reshape(n, 3)
         parents = self.p.body.parents
-        # world axes of each joint's three angles: L = L0 Rx Ry Rz under the parent's frame
+        # L = L0 Rx Ry Rz under the parent's frame
         base = np.where(parents[:, None, None] >= 0, world.rotmats[np.maximum(parents, 0)],
                         np.eye(3)) @ self.p.local0
         rx = Rotation.from_euler("X", angles[:, :1]).as_matrix()
         ry = Rotation.from_euler("Y", angles[:, 1:2]).as_matrix()
         axes = np.stack([base[:, :, 0], (base @ rx)[:, :, 1], (base @ rx @ ry)[:, :, 2]], axis=1)
-        # per vertex i and joint k: the sum over the joints j at or below k of
-        # w_ij (u_ij - p_k), the lever arm the rotation at k turns
         cu = np.zeros((m, 3, n))
         wsum = np.zeros((m, n))
         cu[self.wi, :, self.wj] = self.wv[:, None] * u
         wsum[self.wi, self.wj] = self.wv
         below = (cu.reshape(3 * m, n) @ self.desc).reshape(m, 3, n) - \
             (wsum @ self.desc)[:, None, :] * world.positions.T[None]
-        bx, by, bz = below[:, 0], below[:, 1], below[:, 2]  # (m, n) each
-        jac = np.zeros((m, 3, 3 * n + 3))
+        self._levers = (theta.copy(), (v, axes, below))
+        return v, axes, below
+
+    def jacobian_vertices(self, theta: np.ndarray,
+                          rows: slice = slice(None)) -> tuple[np.ndarray, np.ndarray]:
+        """Vertices (m, 3) and d v / d theta (r, 3, P) of the vertices `rows`, P = 3 J + 3:
+        a turn about axis a moves a vertex by a x its lever arm, the root by the identity."""
+        v, axes, below = self.levers(theta)
+        bx, by, bz = below[rows, 0], below[rows, 1], below[rows, 2]  # (r, J) each
+        n = self.n
+        jac = np.zeros((len(bx), 3, 3 * n + 3))
         for k in range(3):
-            ax, ay, az = axes[:, k, 0], axes[:, k, 1], axes[:, k, 2]  # (n,) each
+            ax, ay, az = axes[:, k, 0], axes[:, k, 1], axes[:, k, 2]  # (J,) each
             jac[:, 0, k:3 * n:3] = ay * bz - az * by
             jac[:, 1, k:3 * n:3] = az * bx - ax * bz
             jac[:, 2, k:3 * n:3] = ax * by - ay * bx
         jac[:, :, 3 * n:] = np.eye(3)[None]
         return v, jac
+
+    def normal_jacobian(self, theta: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """d (n_i . v_i) / d theta (m, P) for unit normals (m, 3): n . (a x b) = a . (b x n),
+        without the vertices' whole Jacobian."""
+        _, axes, below = self.levers(theta)
+        nx, ny, nz = normals[:, 0:1], normals[:, 1:2], normals[:, 2:3]  # (m, 1) each
+        bx, by, bz = below[:, 0], below[:, 1], below[:, 2]  # (m, J) each
+        cx, cy, cz = by * nz - bz * ny, bz * nx - bx * nz, bx * ny - by * nx
+        n = self.n
+        jn = np.empty((self.m, 3 * n + 3))
+        for k in range(3):
+            jn[:, k:3 * n:3] = axes[:, k, 0] * cx + axes[:, k, 1] * cy + axes[:, k, 2] * cz
+        jn[:, 3 * n:] = normals
+        return jn
 
 
 def joint_bounds(body: Body) -> tuple[np.ndarray, np.ndarray]:
@@ -253,15 +279,17 @@ def residual_jacobian(theta: np.ndarray, model: _Model, closest: np.ndarray,
     """d residuals / d theta (R, P), analytic (appendix B)."""
     lp, lt, lpen, ls = (np.sqrt(x) for x in model.p.lambdas)
     r, k = model.p.importance, model.supported
-    v, jv = model.jacobian_vertices(theta)  # (m, 3), (m, 3, P)
+    v, jv = model.jacobian_vertices(theta, slice(0, k))  # (m, 3), (k, 3, P)
+    jn = model.normal_jacobian(theta, normals)  # (m, P): d s / d theta
     s = np.einsum("ij,ij->i", normals, v - closest)
-    jn = np.einsum("ic,icp->ip", normals, jv)  # (m, P): d s / d theta
-    return np.concatenate([
-        lp * (r[:, None, None] * jv[:k]).reshape(-1, jv.shape[2]),
-        lt * r[:, None] * jn[:k],
-        lpen * (weights * penetration_step(s, allowed)[1])[:, None] * jn,
-        ls * np.eye(jv.shape[2]),
-    ])
+    size = jv.shape[2]
+    out = np.empty((4 * k + model.m + size, size))
+    np.multiply((lp * r)[:, None, None], jv, out=out[:3 * k].reshape(k, 3, size))
+    np.multiply((lt * r)[:, None], jn[:k], out=out[3 * k:4 * k])
+    np.multiply((lpen * weights * penetration_step(s, allowed)[1])[:, None], jn,
+                out=out[4 * k:4 * k + model.m])
+    out[4 * k + model.m:] = ls * np.eye(size)
+    return out
 
 
 def pairing(model: _Model, theta: np.ndarray, surface: SurfaceMesh):
@@ -289,7 +317,7 @@ class Gate(Protocol):
     def worse(self, before: dict, after: dict) -> list[str]: ...
 
 
-STEP_SCALES = (1.0, 0.5)  # shares of a round's step tried, until one is not worse
+STEP_SCALES = (1.0, 0.5)  # shares of the first round's step tried, until one is not worse
 
 
 @dataclass(frozen=True)
@@ -352,12 +380,12 @@ def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 15, *,
     Each round pairs the supportable and guarded vertices with their closest surface points,
     then solves the least squares of the module docstring from the last accepted pose
     (trust-region reflective, box constraints `JOINT_LIMITS` in degrees per axis and
-    `ROOT_RANGE` metres). With a gate, the shares `STEP_SCALES` of the step from the last
-    accepted pose to the round's solution are tried in turn, the whole step first, and the
-    first pose whose figures are none worse than the last accepted pose's is accepted; when
-    none is, the last accepted pose is kept and the relaxation stops (a next round would pair
-    and solve the same). The returned pose is then never worse than the captured one by the
-    gate's figures.
+    `ROOT_RANGE` metres). With a gate, the round's solution is accepted when none of its
+    figures is worse than the last accepted pose's; in the first round, whose step is the
+    longest, the shares `STEP_SCALES` of the step are tried in turn, the whole step first.
+    When no pose of a round is accepted, the last accepted one is kept and the relaxation stops
+    (a next round would pair and solve the same). The returned pose is then never worse than
+    the captured one by the gate's figures.
 
     Parameters
     ----------
@@ -409,7 +437,7 @@ def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 15, *,
         if gate is None:
             theta = sol.x
             continue
-        for scale in STEP_SCALES:
+        for scale in STEP_SCALES if run == 1 else STEP_SCALES[:1]:
             tried = theta + scale * (sol.x - theta)  # between two poses in the box: in it
             tried_verts = _skin(model, tried)
             tried_figures = gate.figures(tried_verts, reference=figures)
