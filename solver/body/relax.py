@@ -68,7 +68,7 @@ GUARD_BAND = 0.01  # metres in front of the surface within which such skin is gu
 GUARD_SPACING = 0.015  # metres: one guarded vertex per cube of this side, the deepest
 ROOT_RANGE = 0.15  # metres the root may move
 FTOL = 1e-5  # relative cost change at which a round stops
-TR_OPTIONS = {"maxiter": 20}  # lsmr's iterations per trust-region step: enough, and quick
+TR_OPTIONS = {"maxiter": 10}  # lsmr iterations per trust-region step: a rough step is enough
 
 # How far (degrees, per axis) each joint may turn from the captured pose: loose where joints
 # are mobile, tight along the spine; fingers and toes hardly move.
@@ -395,7 +395,8 @@ def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 15, *,
     rounds : int, default 3
         Rounds of pairing and solving.
     max_evaluations : int, default 15
-        Residual evaluations allowed per round.
+        Residual evaluations allowed in the first round; later rounds, which refine it, get
+        half as many.
     numeric_jacobian : bool, default False
         Swaps the analytic Jacobian for finite differences (a reference).
     gate : Gate, optional
@@ -430,8 +431,9 @@ def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 15, *,
     paired = None
     for run in range(1, rounds + 1):
         paired = pairing(model, theta, surface)
+        budget = max_evaluations if run == 1 else (max_evaluations + 1) // 2
         sol = least_squares(residuals, theta, jac=jac, bounds=(lo, hi), method="trf",
-                            tr_solver="lsmr", max_nfev=max_evaluations, ftol=FTOL, xtol=1e-8,
+                            tr_solver="lsmr", max_nfev=budget, ftol=FTOL, xtol=1e-8,
                             x_scale="jac", args=(model, *paired), tr_options=TR_OPTIONS)
         evaluations += sol.nfev
         if gate is None:
