@@ -39,7 +39,8 @@ in degrees from the captured pose), re-pairing with the surface between rounds.
 A round's pose is kept only where a `Gate` (the evaluation's own figures: support distance,
 coverage, contact coverage, deepest cut) finds none of them worse than the last kept pose's;
 otherwise, in the first round, a shorter step towards it is tried (`STEP_SCALES`), and when
-none passes the last kept pose is returned. The result is never worse than the captured pose by those figures.
+none passes the last kept pose is returned. The result is never worse than the captured pose
+by those figures.
 """
 
 from __future__ import annotations
