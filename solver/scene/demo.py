@@ -37,14 +37,14 @@ name = "slight"
 pose = "db:{pose}"
 body = {{ gender = 0.2, weight = 0.3, height = 0.4 }}
 position = [-0.33, 0.0, -0.1]
-support = "chair"  # the pose leans back: on a seat alone (pelvis, thighs) it tips over
+support = "seat"  # the pose leans back: the bench's back keeps it from tipping over
 
 [[person]]
 name = "broad"
 pose = "db:{pose}"
 body = {{ gender = 0.9, weight = 0.8, height = 0.6 }}
 position = [0.33, 0.0, -0.1]
-support = "chair"
+support = "seat"
 """
 
 

@@ -165,7 +165,7 @@ TEMPLATE_MODELS = {kind: _template_model(kind, cls) for kind, cls in TEMPLATE_PA
 
 def _template_kind(value: Any) -> str | None:
     kind = value.get("kind") if isinstance(value, dict) else getattr(value, "kind", None)
-    return kind if kind in TEMPLATE_MODELS else None
+    return kind if isinstance(kind, str) and kind in TEMPLATE_MODELS else None
 
 
 Template = Annotated[

@@ -82,8 +82,8 @@ def test_evaluate_takes_face_indices_as_far_as_its_vertices_go(api):
 def test_a_fit_past_the_time_limit_is_stopped_and_refused(api):
     import resource
 
-    body = _scenario({"grid": {"size": [0.5, 0.6], "resolution": [24, 18], "height": 0.42},
-                      "max_iterations": 10, "tolerance": 0.0})  # ~15 s of fitting
+    body = _scenario({"grid": {"size": [0.5, 0.6], "resolution": [48, 36], "height": 0.42},
+                      "max_iterations": 10, "tolerance": 0.0})  # well over 2 s of fitting
     start = time.monotonic()
     status, payload = _request(api, "POST", "/api/fit", body)
     assert status == 413 and b"time limit" in payload

