@@ -44,6 +44,7 @@ class PressureMap:
 
 
 LEG_REGIONS = ("thighs", "calves", "feet")
+SURFACE_PARTS = ("seat", "back", "leg rest")  # the names `surface_parts` gives contacts
 STEEP = np.cos(np.radians(45.0))  # a support steeper than 45 degrees is no seat
 
 
@@ -74,19 +75,21 @@ def contact_footprint(settled: Settled, n: int, names=None) -> np.ndarray:
     return footprint
 
 
-def skin_pressure(settled: Settled, n: int) -> np.ndarray:
+def skin_pressure(settled: Settled, n: int, names=None) -> np.ndarray:
     """(n,) kPa on each of the n body vertices: its normal contact force over its footprint
-    on the supports, summed over them."""
+    on the supports (those `names` when given, e.g. the surface's parts without the floor),
+    summed over them."""
     force = np.zeros(n)
     for c in settled.contacts:
-        np.add.at(force, c.vertices, c.normal_force)
-    footprint = contact_footprint(settled, n)
+        if names is None or c.name in names:
+            np.add.at(force, c.vertices, c.normal_force)
+    footprint = contact_footprint(settled, n, names)
     touched = footprint > 0
     force[touched] /= footprint[touched] * 1e3
     return force
 
 
-def surface_figures(settled: Settled, names=("seat", "back", "leg rest")) -> dict:
+def surface_figures(settled: Settled, names=SURFACE_PARTS) -> dict:
     """The pressure mat's figures over the contacts of the named supports: peak and peak
     pressure index and mean pressure (kPa), contact area (m^2), centre of pressure (m); all
     None when the body does not rest or nothing touches them."""
