@@ -17,8 +17,9 @@ _EXPORTS = {
     "posedb.library": ("DuplicateNameError", "Editor", "LockedError", "PoseInfo", "PoseLibrary",
                        "TakeData", "TakeInfo"),
     "posedb.record": ("record", "recordings", "recover"),
-    "posedb.schema": ("SCHEMA_VERSION", "SUPPORT_PARTS", "LibraryError", "NotFoundError",
-                      "SchemaError"),
+    "posedb.regions": ("BODY_REGIONS", "DEFAULT_SUPPORT", "SUPPORT_USES", "SupportNameError",
+                       "support_regions"),
+    "posedb.schema": ("SCHEMA_VERSION", "LibraryError", "NotFoundError", "SchemaError"),
     "posedb.suggest": ("HeldPosture", "held_postures"),
     "posedb.tags": ("TagError", "compile_expression"),
 }

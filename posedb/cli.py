@@ -10,7 +10,8 @@ import sys
 from capture.cli_output import print_event, print_status
 
 # the library (numpy, h5py) loads when a command runs: `sitrelax --help` stays fast
-from .constants import DEFAULT_MAX_SPEED, DEFAULT_MIN_DURATION, SUPPORT_PARTS
+from .constants import DEFAULT_MAX_SPEED, DEFAULT_MIN_DURATION
+from .regions import BODY_REGIONS, DEFAULT_SUPPORT, SUPPORT_GROUPS, SUPPORT_NAMES, SUPPORT_USES
 
 DEFAULT_DB = os.environ.get("SITRELAX_DB", "poses.h5")
 
@@ -289,6 +290,14 @@ def _register_take_commands(sub) -> None:
     p.set_defaults(func=_cmd_tag)
 
 
+def _support_option(p, what: str) -> None:
+    p.add_argument("--support", nargs="+", default=[DEFAULT_SUPPORT], choices=SUPPORT_NAMES,
+                   metavar="NAME",
+                   help=f"{what}: regions ({' '.join(BODY_REGIONS)}), parts "
+                        f"({' '.join(SUPPORT_GROUPS)}) or a use ({' '.join(SUPPORT_USES)}); "
+                        f"default {DEFAULT_SUPPORT}")
+
+
 def _register_pose_commands(sub) -> None:
     """`db pose add|rename|delete` and `db suggest`."""
     pose = sub.add_parser("pose", help="add, rename or delete poses")
@@ -298,8 +307,7 @@ def _register_pose_commands(sub) -> None:
     p.add_argument("frame", type=int, help="0-based frame of the take")
     p.add_argument("--name", required=True)
     p.add_argument("--tag", action="append", default=[])
-    p.add_argument("--support", nargs="+", default=["torso", "legs"], choices=SUPPORT_PARTS,
-                   help="body parts the pose needs supported (default: torso legs)")
+    _support_option(p, "the body regions the pose needs supported")
     p.add_argument("--notes", default="")
     p.set_defaults(func=_cmd_pose_add)
     p = _library_options(psub.add_parser("rename"), json_flag=False)
@@ -314,7 +322,7 @@ def _register_pose_commands(sub) -> None:
     p.add_argument("take")
     p.add_argument("--accept", action="store_true", help="store the proposals as poses")
     p.add_argument("--tag", action="append", default=[], help="tags for accepted poses")
-    p.add_argument("--support", nargs="+", default=["torso", "legs"], choices=SUPPORT_PARTS)
+    _support_option(p, "the body regions accepted poses need supported")
     p.add_argument("--max-speed", type=float, default=DEFAULT_MAX_SPEED,
                    help=f"stillness threshold, m/s (default {DEFAULT_MAX_SPEED})")
     p.add_argument("--min-duration", type=float, default=DEFAULT_MIN_DURATION,

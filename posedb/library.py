@@ -34,6 +34,7 @@ from . import files, schema
 from .compact import compact_into
 from .locking import LockedError, exclusive, try_exclusive
 from .posetable import PoseTable
+from .regions import DEFAULT_SUPPORT
 from .schema import LibraryError, NotFoundError, decode_supports, encode_supports
 from .tags import compile_expression, membership, normalise_tags
 from .verify import verify, verify_file
@@ -90,7 +91,8 @@ class TakeInfo:
 
 @dataclass(frozen=True)
 class PoseInfo:
-    """A pose: a named frame of a take, with tags, the body parts it needs supported and notes."""
+    """A pose: a named frame of a take, with tags, the body regions it needs supported (in
+    `posedb.regions.BODY_REGIONS` order) and notes."""
 
     id: str
     name: str
@@ -404,6 +406,8 @@ class PoseLibrary:
                 with files.replacing(target) as tmp:
                     files.copy_file(target, tmp)
                     with h5py.File(tmp, "r+") as f:
+                        with schema.storage_errors(self.path):
+                            schema.upgrade(f)  # an older file changes in this version's layout
                         editor = Editor(self, f)
                         yield editor
                         with schema.storage_errors(self.path):
@@ -421,6 +425,7 @@ class PoseLibrary:
             with files.replacing(target) as tmp:
                 with schema.open_checked(target) as src, h5py.File(tmp, "w") as dst:
                     compact_into(src, dst)
+                    schema.upgrade(dst)
             self._load()
         return {"path": str(self.path), "size_before": before,
                 "size_after": self.target.stat().st_size}
@@ -577,8 +582,10 @@ class Editor:
     # -- poses ----------------------------------------------------------------------------
 
     def add_pose(self, take: str, frame: int, name: str, *, tags: Iterable[str] = (),
-                 supports: Iterable[str] = ("torso", "legs"), notes: str = "") -> str:
-        """Adds a pose at `frame` (0-based) of `take`; returns its id."""
+                 supports: Iterable[str] | str = DEFAULT_SUPPORT, notes: str = "") -> str:
+        """Adds a pose at `frame` (0-based) of `take`; returns its id. `supports` names the body
+        regions the pose needs supported: regions, coarse parts or a use
+        (`posedb.regions.support_regions`; default a seat's)."""
         info = self._take(take)
         name = self._check_name(name, "pose")
         frame = int(frame)
@@ -649,7 +656,7 @@ class Editor:
         self._table_dirty = True
         return tags
 
-    def set_pose(self, ref: str, *, supports: Iterable[str] | None = None,
+    def set_pose(self, ref: str, *, supports: Iterable[str] | str | None = None,
                  notes: str | None = None) -> None:
         row = self._pose_row(ref)
         if supports is not None:

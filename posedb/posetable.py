@@ -4,7 +4,7 @@ Kept as numpy columns plus a boolean tag-membership matrix, so opening a library
 poses and searching it by tags takes milliseconds. On disk (group `/poses`):
 
     id, take, frame, rotation_start, rotation_count  int64 (P,)
-    supports uint8 (P,)   created_at float64 (P,)   root_position float64 (P, 3)
+    supports uint16 (P,)  created_at float64 (P,)   root_position float64 (P, 3)
     names_utf8 uint8      the pose names, UTF-8, joined by "\\n" (names hold no line break)
     notes_utf8 uint8 + notes_offsets int64 (P + 1,)   each pose's notes, UTF-8
     tag_vocabulary str (K,)   tag_matrix uint8 (P, K): 1 where pose p carries tag k
@@ -22,7 +22,7 @@ import numpy as np
 from .tags import compile_expression
 
 _NUMERIC = {"id": np.int64, "take": np.int64, "frame": np.int64, "rotation_start": np.int64,
-            "rotation_count": np.int64, "supports": np.uint8, "created_at": np.float64}
+            "rotation_count": np.int64, "supports": np.uint16, "created_at": np.float64}
 _STR = h5py.string_dtype()
 
 

@@ -1,6 +1,6 @@
-"""The pose library's HDF5 layout, version 1.
+"""The pose library's HDF5 layout, version 2.
 
-    /                       attrs: sitrelax_kind = "pose-library", sitrelax_schema = 1,
+    /                       attrs: sitrelax_kind = "pose-library", sitrelax_schema = 2,
                                    created_at, next_take_id, next_pose_id
     /skeletons/<skel-hash>  datasets: names (J,) str, parents (J,) int32, offsets (J, 3) float64
                             (file units), channels (J,) str (space-separated channel names per
@@ -18,20 +18,27 @@
                             takes received_at (T,) float64 Unix seconds
     /poses                  the pose table, one column per dataset (see `posedb.posetable`):
                             id, take, frame (0-based in the take), rotation_start,
-                            rotation_count int64; supports uint8 (bit k: SUPPORT_PARTS[k]);
-                            created_at float64; root_position (P, 3) float64 metres;
-                            names_utf8 (names joined by line breaks); notes_utf8 +
-                            notes_offsets; tag_vocabulary (K,) str + tag_matrix (P, K) uint8;
-                            rotations (R, 4) float32: each pose's own copy of its local
-                            rotations (xyzw)
+                            rotation_count int64; supports uint16 (bit k: SUPPORT_BITS[k], the
+                            body regions to support); created_at float64; root_position (P, 3)
+                            float64 metres; names_utf8 (names joined by line breaks);
+                            notes_utf8 + notes_offsets; tag_vocabulary (K,) str + tag_matrix
+                            (P, K) uint8; rotations (R, 4) float32: each pose's own copy of its
+                            local rotations (xyzw)
     /scenarios/<name>       attrs: scenario_json (the scenario's TOML data as JSON),
                             result_json (its summary row and per-person evaluation), source
                             (the file or template + pose it came from), created_at; written by
                             `sitrelax batch`
     /bodies                 reserved for body shapes
 
-A file of a newer schema is refused; an older one would be migrated by the functions in
-`MIGRATIONS` (none exist yet: 1 is the first version).
+Versions. 1 stored `supports` as uint8 with bits 0-7 for head, torso, arms, hands, legs, feet,
+thighs, calves (every bit in use). 2 widens the column to uint16 and adds the regions that split
+the torso and the arms (bits 8-12: upper_back, lower_back, pelvis, upper_arms, forearms); every
+bit keeps its meaning, so a version 1 mask reads unchanged in version 2: bit 1 (torso) is still
+the upper back, lower back and pelvis together. Version 2 writes region bits only (torso, arms
+and legs as their regions); the coarse bits 1, 2 and 4 are only ever read.
+
+A file of a newer schema is refused; an older one is read as it is and, before its first change,
+brought up to this version by the functions in `MIGRATIONS` (`upgrade`), step by step.
 """
 
 from __future__ import annotations
@@ -47,13 +54,16 @@ import numpy as np
 
 from capture import Skeleton
 
-from .constants import SUPPORT_PARTS  # noqa: F401 (posedb.schema.SUPPORT_PARTS, as before)
+from .regions import BODY_REGIONS, SUPPORT_GROUPS, SupportNameError, support_regions
 
 KIND_ATTR = "sitrelax_kind"
 KIND = "pose-library"
 VERSION_ATTR = "sitrelax_schema"
-SCHEMA_VERSION = 1
-MIGRATIONS: dict[int, Callable[[h5py.File], None]] = {}
+SCHEMA_VERSION = 2
+# bit k of a pose's `supports` names SUPPORT_BITS[k]: a region, or (bits 1, 2, 4, read from
+# version 1 files only) a coarse part, the union of its regions
+SUPPORT_BITS = ("head", "torso", "arms", "hands", "legs", "feet", "thighs", "calves",
+                "upper_back", "lower_back", "pelvis", "upper_arms", "forearms")
 
 _STR = h5py.string_dtype()
 
@@ -190,16 +200,44 @@ def read_skeleton(g: h5py.Group) -> Skeleton:
     )
 
 
-def encode_supports(parts: Iterable[str]) -> int:
-    """Bit mask of supported body parts; raises LibraryError naming an unknown part."""
+def encode_supports(names: Iterable[str] | str) -> int:
+    """The bit mask (SUPPORT_BITS) of the body regions that `names` cover: regions, coarse parts
+    or uses (`posedb.regions.support_regions`); a LibraryError names an unknown one."""
+    try:
+        regions = support_regions(names)
+    except SupportNameError as exc:
+        raise LibraryError(str(exc)) from None
     mask = 0
-    for p in parts:
-        key = str(p).strip().lower()
-        if key not in SUPPORT_PARTS:
-            raise LibraryError(f"Expected body parts from {SUPPORT_PARTS}, got {p!r}")
-        mask |= 1 << SUPPORT_PARTS.index(key)
+    for region in regions:
+        mask |= 1 << SUPPORT_BITS.index(region)
     return mask
 
 
 def decode_supports(mask: int) -> tuple[str, ...]:
-    return tuple(p for k, p in enumerate(SUPPORT_PARTS) if mask >> k & 1)
+    """The body regions (in BODY_REGIONS order) of a `supports` bit mask of any version."""
+    named = [name for k, name in enumerate(SUPPORT_BITS) if mask >> k & 1]
+    regions = {r for name in named for r in SUPPORT_GROUPS.get(name, (name,))}
+    return tuple(r for r in BODY_REGIONS if r in regions)
+
+
+def _widen_supports(f: h5py.File) -> None:
+    """Version 1 -> 2: the pose table rewritten with `supports` as uint16 (values unchanged)."""
+    from .posetable import PoseTable  # it needs this module's errors (through posedb.tags)
+
+    poses = f["poses"]
+    if "supports" in poses:
+        PoseTable.read(poses).write(poses)
+
+
+MIGRATIONS: dict[int, Callable[[h5py.File], None]] = {1: _widen_supports}
+
+
+def upgrade(f: h5py.File) -> int:
+    """Brings a library open for writing up to SCHEMA_VERSION, one MIGRATIONS step at a time
+    (`check` has refused a file no step leads from); returns the version it had."""
+    before = version = int(f.attrs[VERSION_ATTR])
+    while version < SCHEMA_VERSION:
+        MIGRATIONS[version](f)
+        version += 1
+        f.attrs[VERSION_ATTR] = version
+    return before

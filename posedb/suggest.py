@@ -20,6 +20,7 @@ from capture import PROFILES, Skeleton, skeleton_fk
 from capture.profiles import strip_namespace
 
 from .constants import DEFAULT_MAX_SPEED, DEFAULT_MIN_DURATION
+from .regions import DEFAULT_SUPPORT
 
 DEFAULT_SMOOTH = 0.2  # s
 DEFAULT_MIN_BOTTOM_DURATION = 0.2  # s: a squat's bottom holds ~0.3 s, of which the still part less
@@ -117,7 +118,7 @@ def held_postures(skeleton: Skeleton, channels: np.ndarray, frame_time: float,
 
 
 def suggest_poses(library, take: str, *, accept: bool = False, tags=(),
-                  supports=("torso", "legs"), max_speed: float = DEFAULT_MAX_SPEED,
+                  supports=DEFAULT_SUPPORT, max_speed: float = DEFAULT_MAX_SPEED,
                   min_duration: float = DEFAULT_MIN_DURATION,
                   min_bottom_duration: float | None = DEFAULT_MIN_BOTTOM_DURATION) -> list[dict]:
     """The held postures of a library take (`posedb.PoseLibrary`), as dicts; with `accept`,

@@ -22,7 +22,8 @@ from __future__ import annotations
 from capture.lazy import lazy_exports
 
 _EXPORTS = {
-    "solver.body.model": ("BODY_PARTS", "Body", "BodyShape", "BodyShapeError", "make_body"),
+    "solver.body.model": ("BODY_PARTS", "BODY_REGIONS", "Body", "BodyShape", "BodyShapeError",
+                          "make_body"),
     "solver.body.poses": ("CapturedPose", "PoseSourceError", "load_pose", "pose_body"),
     "solver.body.retarget": ("RetargetError", "joint_map_for", "place", "retarget",
                              "retarget_pose"),

@@ -12,8 +12,10 @@ Component inputs (names as below; set "List Access" where a list is said)
     positions : list of Point3d, where each person stands (document units), default origin
     headings  : list of float, degrees about the document's Z (up) axis, counter-clockwise
                 seen from above; 0 faces the person towards -Y (the Front view's camera)
-    support   : str, the body parts that must be supported, comma separated (default
-                "torso, legs"; parts: head, torso, arms, hands, legs, feet)
+    support   : str, the body regions that must be supported, comma separated: regions
+                (head, upper_back, lower_back, pelvis, thighs, calves, feet, upper_arms,
+                forearms, hands), parts (torso, arms, legs) or a use (seat, stool, chair,
+                lounger, bed, floor); default "seat" (pelvis and thighs)
     facing    : str, "front" (each recording's pelvis first turned to face forward) or
                 "capture" (the capture room's heading)
     creases   : list of Line, extra control edges to keep sharp (matched to control vertices
@@ -69,7 +71,7 @@ TIMEOUT = 180.0  # seconds to wait for a reply (the server stops a fit after its
 # metres per model unit, for a document unit name
 UNIT_SCALES = {"mm": 0.001, "cm": 0.01, "m": 1.0, "in": 0.0254, "ft": 0.3048}
 LENGTH_SETTINGS = ("margin", "pull_range", "step")  # fit parameters given in document units
-DEFAULT_SUPPORT = ("torso", "legs")
+DEFAULT_SUPPORT = "seat"  # the scenario schema's default (posedb.regions.DEFAULT_SUPPORT)
 
 
 class SitrelaxError(ValueError):
@@ -211,7 +213,7 @@ def person_request(pose, position=(0.0, 0.0, 0.0), heading_deg=0.0, support=DEFA
     pose : str, `db:NAME` or `bvh:bundled:NAME#frame=N`.
     position : (3,) float, document units.
     heading_deg : float, degrees about the document's up axis (see `heading_rotation`).
-    support : sequence of str, body parts to support.
+    support : str or sequence of str, a use or the body regions to support.
     facing : "front" or "capture".
     body : dict or None, shape parameters in [0, 1].
     scale : metres per document unit.
@@ -222,7 +224,8 @@ def person_request(pose, position=(0.0, 0.0, 0.0), heading_deg=0.0, support=DEFA
     """
     person = {"pose": str(pose), "position": to_sitrelax(position, scale),
               "rotation_deg": heading_rotation(heading_deg),
-              "support": [str(s) for s in support], "facing": str(facing)}
+              "support": support if isinstance(support, str) else [str(s) for s in support],
+              "facing": str(facing)}
     if body:
         person["body"] = dict(body)
     return person

@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from solver.body.model import SHAPE_KEYS, SUPPORT_PARTS, BodyShape
+from posedb.regions import support_regions
+from solver.body.model import BODY_REGIONS, SHAPE_KEYS, BodyShape
 from solver.contact.evaluate import peak_text
 from solver.scene import schema
 from solver.io.render import SKIN, SURFACE
@@ -158,10 +159,10 @@ class Studio:
             self.shape = {key: gui.add_slider(key.capitalize(), min=0.0, max=1.0, step=0.05,
                                               initial_value=getattr(BodyShape(), key))
                           for key in SHAPE_KEYS}
-            support = schema.default(schema.Person, "support")
-            self.parts = {part: gui.add_checkbox(f"Support {part}",
-                                                 initial_value=part in support)
-                          for part in SUPPORT_PARTS}
+            support = support_regions(schema.default(schema.Person, "support"))
+            self.parts = {region: gui.add_checkbox(f"Support {region.replace('_', ' ')}",
+                                                   initial_value=region in support)
+                          for region in BODY_REGIONS}
             self.apply = gui.add_button("Apply shape and support")
             self.remove = gui.add_button("Remove person")
         grid, params = schema.Grid(), self.design.params  # the schema's defaults
@@ -282,8 +283,9 @@ class Studio:
         body = p.get("body", {})
         for key, slider in self.shape.items():
             slider.value = float(body.get(key, getattr(BodyShape(), key)))
-        for part, box in self.parts.items():
-            box.value = part in p["support"]
+        support = support_regions(p["support"])  # a use or coarse part as its regions
+        for region, box in self.parts.items():
+            box.value = region in support
 
     def _apply_person(self) -> None:
         k = self._selected_index()

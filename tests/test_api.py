@@ -26,9 +26,10 @@ def test_posedb_public_api():
 
     assert sorted(posedb.__all__) == sorted([
         "DuplicateNameError", "Editor", "HeldPosture", "LibraryError", "LockedError",
-        "NotFoundError", "PoseInfo", "PoseLibrary", "SCHEMA_VERSION", "SUPPORT_PARTS",
-        "SchemaError", "TagError", "TakeData", "TakeInfo", "compile_expression",
-        "held_postures", "record", "recordings", "recover",
+        "NotFoundError", "PoseInfo", "PoseLibrary", "SCHEMA_VERSION", "SchemaError",
+        "TagError", "TakeData", "TakeInfo", "compile_expression", "held_postures", "record",
+        "recordings", "recover",
+        "BODY_REGIONS", "DEFAULT_SUPPORT", "SUPPORT_USES", "SupportNameError", "support_regions",
     ])
     for name in ("DuplicateNameError", "LockedError", "NotFoundError", "SchemaError",
                  "TagError"):
@@ -40,7 +41,7 @@ def test_solver_public_api():
     import solver
 
     assert sorted(solver.__all__) == sorted([
-        "BODY_PARTS", "BSplineSurface", "Body", "BodyShape", "BodyShapeError", "CapturedPose",
+        "BODY_PARTS", "BODY_REGIONS", "BSplineSurface", "Body", "BodyShape", "BodyShapeError", "CapturedPose",
         "ExportError", "bspline_of_grid", "grid_layout", "limit_matrix", "limit_positions",
         "write_3dm",
         "FitError", "FitParams", "FitResult", "MeshError", "MeshView", "PlacedPerson",

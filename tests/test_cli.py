@@ -227,6 +227,32 @@ def test_a_locked_library_and_a_missing_pose_are_one_line(tmp_path, capsys, monk
     assert not (tmp_path / "x.png").exists()
 
 
+def test_pose_supports_from_the_command_line(tmp_path, capsys):
+    """`db pose add --support` takes regions, coarse parts and uses (default a seat's), shows
+    the regions, and refuses an unknown name before anything is written."""
+    db = tmp_path / "poses.h5"
+    assert main(["db", "import", "bundled:cmu_75_18_high_sit.bvh", "--db", str(db)]) == 0
+    take = "cmu_75_18_high_sit"
+    assert main(["db", "pose", "add", take, "39", "--name", "default", "--db", str(db)]) == 0
+    assert main(["db", "pose", "add", take, "38", "--name", "lounging", "--support", "lounger",
+                 "calves", "--db", str(db)]) == 0
+    assert main(["db", "pose", "add", take, "37", "--name", "old_names", "--support", "torso",
+                 "arms", "--db", str(db)]) == 0
+    capsys.readouterr()
+    assert main(["db", "list", "--kind", "pose", "--json", "--db", str(db)]) == 0
+    supports = {r["name"]: r["supports"] for r in json.loads(capsys.readouterr().out)}
+    assert supports == {
+        "default": ["pelvis", "thighs"],
+        "lounging": ["head", "upper_back", "lower_back", "pelvis", "thighs", "calves"],
+        "old_names": ["upper_back", "lower_back", "pelvis", "upper_arms", "forearms"]}
+    before = db.read_bytes()
+    with pytest.raises(SystemExit):
+        main(["db", "pose", "add", take, "36", "--name", "x", "--support", "tail",
+              "--db", str(db)])
+    assert "invalid choice: 'tail'" in capsys.readouterr().err
+    assert db.read_bytes() == before
+
+
 def test_the_parser_loads_no_numerical_work():
     # `sitrelax --help` stays fast: each command imports numpy, scipy, h5py and the solver when
     # it runs, not when the parser is built

@@ -11,7 +11,7 @@ import solver
 # Their docstrings land separately (solver/scene/run.py and solver/scene/scenario.py are being
 # edited elsewhere); remove this set once they have numpydoc sections.
 # Exported values that are neither functions nor classes.
-CONSTANTS = {"BODY_PARTS"}
+CONSTANTS = {"BODY_PARTS", "BODY_REGIONS"}
 
 
 def _section(doc: str, name: str) -> bool:

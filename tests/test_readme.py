@@ -112,7 +112,7 @@ def test_the_readme_scenario_example_is_valid():
     assert list(scenario.surface.params.fixed) == [0, 7]
     assert scenario.foam_stiffness == 200.0
     (person,) = scenario.persons
-    assert person.pose == "db:relaxed_sit_01" and list(person.support) == ["torso", "legs"]
+    assert person.pose == "db:relaxed_sit_01" and person.support == ("pelvis", "thighs")  # a seat
 
 
 def test_the_grasshopper_section_lists_the_scripts_inputs_and_outputs():

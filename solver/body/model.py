@@ -23,43 +23,38 @@ import numpy as np
 import scipy.sparse as sp
 
 from capture.skeleton import joint_levels
-from posedb.schema import SUPPORT_PARTS
+from posedb.regions import BODY_REGIONS, SUPPORT_GROUPS, support_regions
 
 from solver.mesh import area_weighted_normals, enclosed_volume, quad_triangles
 from .sliders import SHAPE_KEYS  # noqa: F401 (the sliders)
 
 BODY_DENSITY = 1010.0  # kg/m^3: whole-body density with air in the lungs
 DM = 0.1  # metres per asset unit (decimetres)
+
+# The body regions (`posedb.regions.BODY_REGIONS`: what supports name and the mat's figures are
+# given for), each made of the CMU-MB bones that move it. The trunk's regions span front and
+# back and are named for the side a seat or backrest touches; the shoulders' collar bones are
+# the upper back's, and "pelvis" includes the buttocks, which the hip bones carry.
+REGION_BONES = {
+    "head": ("Head", "Neck", "Neck1"),
+    "upper_back": ("Spine", "Spine1", "LeftShoulder", "RightShoulder"),
+    "lower_back": ("LowerBack",),
+    "pelvis": ("Hips", "LHipJoint", "RHipJoint"),
+    "thighs": ("LeftUpLeg", "RightUpLeg"),
+    "calves": ("LeftLeg", "RightLeg"),
+    "feet": ("LeftFoot", "LeftToeBase", "RightFoot", "RightToeBase"),
+    "upper_arms": ("LeftArm", "RightArm"),
+    "forearms": ("LeftForeArm", "RightForeArm"),
+    "hands": ("LeftHand", "LeftFingerBase", "LeftHandFinger1", "LThumb", "RightHand",
+              "RightFingerBase", "RightHandFinger1", "RThumb"),
+}
+# The coarse parts the regions refine: a region's part is the group holding it
+# (`posedb.regions.SUPPORT_GROUPS`: torso, arms, legs), or the region itself.
 BODY_PARTS = ("head", "torso", "arms", "hands", "legs", "feet")
-# what a support may name: the parts, and the legs split at the knee (SUPPORT_PARTS)
-LEG_SEGMENTS = {"thighs": ("LeftUpLeg", "RightUpLeg"), "calves": ("LeftLeg", "RightLeg")}
-
-# Which part each CMU-MB bone's weights belong to.
-_BONE_PART = {
-    "Head": "head", "Neck": "head", "Neck1": "head",
-    "Hips": "torso", "LowerBack": "torso", "Spine": "torso", "Spine1": "torso",
-    "LHipJoint": "torso", "RHipJoint": "torso", "LeftShoulder": "torso", "RightShoulder": "torso",
-    "LeftArm": "arms", "LeftForeArm": "arms", "RightArm": "arms", "RightForeArm": "arms",
-    "LeftHand": "hands", "LeftFingerBase": "hands", "LeftHandFinger1": "hands", "LThumb": "hands",
-    "RightHand": "hands", "RightFingerBase": "hands", "RightHandFinger1": "hands",
-    "RThumb": "hands",
-    "LeftUpLeg": "legs", "LeftLeg": "legs", "RightUpLeg": "legs", "RightLeg": "legs",
-    "LeftFoot": "feet", "LeftToeBase": "feet", "RightFoot": "feet", "RightToeBase": "feet",
-}
-
-# Body regions, as seating studies report them: each is a piece of one part (REGION_PART), made
-# of the bones that move it. The trunk's regions span front and back and are named for the side
-# a seat or backrest touches; "pelvis" includes the buttocks, which the hip bones carry.
-BODY_REGIONS = ("head", "shoulders", "upper_back", "lower_back", "pelvis", "arms", "hands",
-                "thighs", "calves", "feet")
-REGION_PART = {"head": "head", "shoulders": "torso", "upper_back": "torso",
-               "lower_back": "torso", "pelvis": "torso", "arms": "arms", "hands": "hands",
-               "thighs": "legs", "calves": "legs", "feet": "feet"}
-_REGION_BONES = {
-    "shoulders": ("LeftShoulder", "RightShoulder"), "upper_back": ("Spine", "Spine1"),
-    "lower_back": ("LowerBack",), "pelvis": ("Hips", "LHipJoint", "RHipJoint"),
-    "thighs": LEG_SEGMENTS["thighs"], "calves": LEG_SEGMENTS["calves"],
-}
+REGION_PART = {r: next((g for g, rs in SUPPORT_GROUPS.items() if r in rs), r)
+               for r in BODY_REGIONS}
+if set(REGION_BONES) != set(BODY_REGIONS) or set(REGION_PART.values()) != set(BODY_PARTS):
+    raise ImportError("solver.body.model: REGION_BONES, BODY_REGIONS and BODY_PARTS disagree")
 
 
 class BodyShapeError(ValueError):
@@ -224,29 +219,14 @@ class Body:
             raise KeyError(f"No joint {name!r}; joints are {list(self.joint_names)}") from None
 
     @cached_property
-    def thigh(self) -> np.ndarray:
-        """(V,) bool: leg vertices that the thigh bones weigh on more than the shin bones (the
-        rest of the legs are the calves)."""
-        w = {seg: np.asarray(self.weights[:, [self.joint_index(b) for b in bones]].sum(axis=1))
-             .ravel() for seg, bones in LEG_SEGMENTS.items()}
-        return (self.parts == BODY_PARTS.index("legs")) & (w["thighs"] >= w["calves"])
-
-    @cached_property
     def regions(self) -> np.ndarray:
         """(V,) int8 index into BODY_REGIONS: of the regions of the vertex's part, the one whose
-        bones weigh most on it (a tie goes to the region listed first, so the thighs and calves
-        are exactly `thigh` and the rest of the legs).
+        bones weigh most on it (a tie goes to the region listed first).
 
-        Regions refine the parts: every vertex of a region belongs to its REGION_PART. A part's
-        bones not named in a region (the head's, the arms', the hands', the feet's) form the
-        region of the part's own name."""
-        bones = {r: _REGION_BONES.get(r, tuple(b for b, p in _BONE_PART.items() if p == r))
-                 for r in BODY_REGIONS}
-        rows, cols = [], []
-        for r, region in enumerate(BODY_REGIONS):
-            for b in bones[region]:
-                rows.append(self.joint_index(b))
-                cols.append(r)
+        Regions refine the parts: every vertex of a region belongs to its REGION_PART, so the
+        regions of a coarse part (torso, arms, legs) cover exactly the vertices of that part."""
+        rows = [self.joint_index(b) for r in BODY_REGIONS for b in REGION_BONES[r]]
+        cols = [k for k, r in enumerate(BODY_REGIONS) for _ in REGION_BONES[r]]
         incidence = sp.csr_matrix((np.ones(len(rows)), (rows, cols)),
                                   shape=(len(self.joint_names), len(BODY_REGIONS)))
         per_region = (self.weights @ incidence).toarray()
@@ -254,19 +234,26 @@ class Body:
         per_region[region_part[None, :] != self.parts[:, None]] = -1.0
         return per_region.argmax(axis=1).astype(np.int8)
 
-    def part_mask(self, parts) -> np.ndarray:
-        """(V,) bool: vertices of the named body parts (SUPPORT_PARTS: the parts, or the legs'
-        thighs or calves)."""
-        wanted, mask = [], np.zeros(len(self.vertices), dtype=bool)
-        for p in parts:
-            if p not in SUPPORT_PARTS:
-                raise BodyShapeError(f"Expected body parts from {SUPPORT_PARTS}, got {p!r}")
-            if p in LEG_SEGMENTS:
-                legs = self.parts == BODY_PARTS.index("legs")
-                mask |= self.thigh if p == "thighs" else legs & ~self.thigh
-            else:
-                wanted.append(BODY_PARTS.index(p))
-        return mask | np.isin(self.parts, wanted)
+    def part_mask(self, names) -> np.ndarray:
+        """(V,) bool: the vertices of the body regions a support names.
+
+        Parameters
+        ----------
+        names : str or iterable of str
+            Regions, coarse parts (torso, arms, legs) or uses (seat, chair, ...), as
+            `posedb.regions.support_regions` reads them.
+
+        Returns
+        -------
+        (V,) bool
+
+        Raises
+        ------
+        SupportNameError
+            If a name is no region, part or use.
+        """
+        wanted = [BODY_REGIONS.index(r) for r in support_regions(names)]
+        return np.isin(self.regions, wanted)
 
     def summary(self) -> dict:
         return {"shape": self.shape.as_dict(), "age_years": self.shape.age_years,
@@ -317,7 +304,8 @@ def make_body(shape: BodyShape = BodyShape()) -> Body:
          (assets["weight_rows"], assets["weight_cols"].astype(np.int64))),
         shape=(n_skin, len(names)),
     )
-    part_of_bone = np.array([BODY_PARTS.index(_BONE_PART[n]) for n in names])
+    bone_part = {b: REGION_PART[r] for r, bones in REGION_BONES.items() for b in bones}
+    part_of_bone = np.array([BODY_PARTS.index(bone_part[n]) for n in names])
     per_part = (w @ sp.csr_matrix((np.ones(len(names)), (np.arange(len(names)), part_of_bone)),
                                   shape=(len(names), len(BODY_PARTS)))).toarray()
     for arr in (skin, joints, tails):

@@ -7,7 +7,7 @@ unit normal, g the unit direction of gravity and A its Voronoi area,
     p = max(0, n . g)      |r_n| = A p      rho = |r_n| / max |r_n|
 
 Vertices facing up carry nothing. The importance rho weights the surface fit; vertices outside
-the body parts the designer chose get zero importance.
+the body regions the designer chose get zero importance.
 
 `model="equilibrium"` replaces max(0, n . g) by the normal compression of an envelope of springs
 when the body, turning and leaning on friction, balances its weight and the weight's moment
@@ -54,7 +54,7 @@ def pressure_field(vertices: np.ndarray, triangles: np.ndarray, *,
     gravity : (3,) float, default (0, -1, 0)
         Direction of gravity (normalised here; any non-zero length).
     mask : (V,) bool, optional
-        The vertices of the supported body parts; the others get zero importance.
+        The vertices of the supported body regions; the others get zero importance.
     normals : (V, 3) float, optional
         Precomputed unit vertex normals (otherwise from the mesh).
     areas : (V,) float, optional

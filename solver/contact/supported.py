@@ -18,7 +18,7 @@ class SupportedBody:
     label : the name messages use.
     triangles : (F, 3) int, the closed skin (needed by the evaluation and the fit's inside tests).
     areas : (V,) float, m^2, Voronoi areas (needed by the evaluation).
-    supported : (V,) bool, the body parts the surface is asked to support (all when None).
+    supported : (V,) bool, the body regions the surface is asked to support (all when None).
     mass_kg : the body's mass (needed by the evaluation).
     regions : (V,) int, optional, each vertex's body region (`solver.body.model.BODY_REGIONS`),
         for the evaluation's figures per region.

@@ -134,7 +134,7 @@ def run_demo(out_dir: str | os.PathLike, progress: Callable[[str], None] | None 
     t = time.perf_counter()
     lib = PoseLibrary(library)
     accepted = {take: suggest_poses(lib, take, accept=True, tags=jobs[take][2] + ["demo"],
-                                    supports=["legs"]) for take in jobs}
+                                    supports="seat") for take in jobs}
     seated = accepted["sitting"]
     if not seated:
         raise DemoError("no held seated posture was found in the recorded sitting take")

@@ -30,7 +30,7 @@
     body = { gender = 0.0, weight = 0.5, height = 0.5 }
     position = [0.0, 0.0, 0.0]        # metres
     rotation_deg = [0.0, 90.0, 0.0]   # about the world x, then y, then z axes
-    support = ["torso", "legs"]       # head, torso, arms, hands, legs (= thighs + calves), feet
+    support = "seat"                  # a use, or a list of body regions (see below)
 
 The surface starts from exactly one of: `grid`, a flat quad grid; `control_mesh`, a quad OBJ
 file or an inline {vertices, faces}; `template`, a piece of furniture
@@ -47,6 +47,12 @@ the origin, then turned by `rotation_deg` and moved by `position`. Relative path
 to the scenario file. The fields, their bounds and their defaults (the values above are the
 defaults, but for fixed, creases, name, body and rotation_deg) are `solver.scene.schema`'s;
 the fit parameters' defaults are `FitParams`'s.
+
+`support` names the body regions the surface must carry (`posedb.regions`): a use (seat =
+pelvis + thighs, stool, chair, lounger, bed, floor) or a list of regions (head, upper_back,
+lower_back, pelvis, thighs, calves, feet, upper_arms, forearms, hands), coarse parts (torso,
+arms, legs: the unions of their regions) and uses. `PersonSpec.support` holds the regions it
+expands to.
 """
 
 from __future__ import annotations
@@ -59,6 +65,7 @@ from typing import Any
 import numpy as np
 
 from capture.jointmap import JointMapError, read_joint_map
+from posedb.regions import support_regions
 
 from solver.body.model import BodyShape, BodyShapeError
 from solver.io.obj import MeshFileError, read_quad_obj
@@ -100,16 +107,21 @@ class SurfaceSpec:
 @dataclass(frozen=True)
 class PersonSpec:
     """A person of a scenario: the pose reference, the body shape, the placement (metres,
-    degrees about x, then y, then z) and the parts to support."""
+    degrees about x, then y, then z) and the body regions to support (BODY_REGIONS names, in
+    that order)."""
 
     pose: str
     body: BodyShape = field(default_factory=BodyShape)
     position: tuple[float, float, float] = tuple(_PERSON["position"])
     rotation_deg: tuple[float, float, float] = tuple(_PERSON["rotation_deg"])
-    support: tuple[str, ...] = tuple(_PERSON["support"])
+    support: tuple[str, ...] = support_regions(_PERSON["support"])  # body regions
     name: str = ""
     facing: str = _PERSON["facing"]
     joint_map: tuple[tuple[str, str], ...] = ()
+
+    def __post_init__(self) -> None:
+        # a use or coarse part given here too becomes its regions (SupportNameError otherwise)
+        object.__setattr__(self, "support", support_regions(self.support))
 
 
 @dataclass(frozen=True)
@@ -285,7 +297,7 @@ def _person(p: schema.Person, k: int, where: str, base: Path, files: bool) -> Pe
     except BodyShapeError as exc:  # the schema checks the same; kept for the message
         raise _fail(where, f"{at}.body", str(exc)) from None
     return PersonSpec(pose=pose, body=shape, position=tuple(p.position),
-                      rotation_deg=tuple(p.rotation_deg), support=tuple(p.support),
+                      rotation_deg=tuple(p.rotation_deg), support=p.support,
                       name=p.name if p.name is not None else f"person {k + 1}",
                       facing=p.facing, joint_map=_joint_map(p.joint_map, f"{at}.joint_map",
                                                             where, base, files))

@@ -10,7 +10,9 @@ HTTP API's requests and the studio, and the one place every scenario default com
       evaluation: Evaluation  foam_stiffness (kPa per metre), foam_thickness (m), friction,
                             floor (bool), floor_stiffness (kPa per metre)
       person: [Person]      pose, name, body (the `BodyShape` fields, each in [0, 1]),
-                            position (m), rotation_deg (about x, then y, then z), support
+                            position (m), rotation_deg (about x, then y, then z), support (a
+                            use, default "seat", or a list of body regions; as written:
+                            `solver.scene.scenario` expands it to regions)
 
 The models check types and bounds only. What depends on the control mesh (fixed and crease
 indices, creases the subdivision can take, an inline mesh's faces) and on where the scenario
@@ -26,12 +28,13 @@ import difflib
 import functools
 from typing import Annotated, Any, Literal, Union
 
-from pydantic import (BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError,
-                      create_model, model_validator)
+from pydantic import (BaseModel, BeforeValidator, ConfigDict, Discriminator, Field, Tag,
+                      ValidationError, create_model, model_validator)
 from pydantic_core import PydanticCustomError
 
+from posedb.regions import DEFAULT_SUPPORT, SUPPORT_NAMES, SupportNameError, support_regions
+
 from solver.body import model as body_model
-from solver.body.model import SUPPORT_PARTS
 from solver.surface.fit import FitParams
 from solver.surface.templates import TEMPLATE_PARAMS
 
@@ -47,7 +50,27 @@ Positive = Annotated[float, Field(strict=True, allow_inf_nan=False, gt=0.0)]
 Unit = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=0.0, le=1.0)]
 Index = Annotated[int, Field(strict=True, ge=0)]
 Vector3 = Annotated[list[Number], Field(min_length=3, max_length=3)]
-Part = Literal[SUPPORT_PARTS]  # type: ignore[valid-type]
+
+
+def _support_names(value: Any) -> Any:
+    """A support as written (a use name, or a list of region, part or use names), checked."""
+    if not isinstance(value, (str, list)):
+        raise PydanticCustomError("support", "expected a use name or a list of body regions, "
+                                  "got {got}", {"got": repr(value)})
+    try:
+        support_regions(value)
+    except SupportNameError as exc:
+        message = str(exc)
+        raise PydanticCustomError("support", "{message}",
+                                  {"message": message[:1].lower() + message[1:]}) from None
+    return value
+
+
+Support = Annotated[Union[str, list[str]], BeforeValidator(_support_names), Field(
+    description="the body regions to support: a use (seat, chair, ...) or a list of regions "
+                "(head, pelvis, thighs, ...), coarse parts (torso, arms, legs) or uses",
+    examples=[DEFAULT_SUPPORT, ["pelvis", "thighs", "lower_back"]],
+    json_schema_extra={"x-names": list(SUPPORT_NAMES)})]
 
 # each fit parameter's type and bounds; its default is FitParams's
 FIT_FIELDS: dict[str, Any] = {
@@ -195,7 +218,7 @@ class Person(_Model):
     body: BodyShape = BodyShape()  # type: ignore[valid-type]
     position: Vector3 = [0.0, 0.0, 0.0]
     rotation_deg: Vector3 = [0.0, 0.0, 0.0]
-    support: Annotated[list[Part], Field(min_length=1)] = ["torso", "legs"]
+    support: Support = DEFAULT_SUPPORT
     facing: Annotated[Literal["front", "capture"], Field(
         description="front: the pelvis turned to face +Z before rotation_deg (the same for "
                     "every recording); capture: the heading of the capture room")] = "front"

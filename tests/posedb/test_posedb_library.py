@@ -83,7 +83,8 @@ def test_skeletons_are_stored_once(tmp_path):
 def test_pose_lifecycle(lib):
     pose = lib.add_pose("cmu_75_18_high_sit", 39, "perch", tags=["Sit", "high"],
                         supports=["torso", "legs", "feet"], notes="knees at 90 degrees")
-    assert pose.tags == ("high", "sit") and pose.supports == ("torso", "legs", "feet")
+    assert pose.tags == ("high", "sit")
+    assert pose.supports == ("upper_back", "lower_back", "pelvis", "thighs", "calves", "feet")
     info, sk, rot, root = lib.pose_data("perch")
     take = lib.take_data("cmu_75_18_high_sit", 39, 40)
     np.testing.assert_allclose(rot, take.local_rotations[0], atol=1e-7)
@@ -92,13 +93,14 @@ def test_pose_lifecycle(lib):
     with lib.edit() as ed:
         ed.rename("perch", "high_perch")
         ed.tag("high_perch", add=["favourite"], remove=["high"])
-        ed.set_pose("high_perch", supports=["torso"], notes="")
+        ed.set_pose("high_perch", supports="seat", notes="")
     again = lib.pose("high_perch")
     assert again.id == pose.id and again.tags == ("favourite", "sit")
-    assert again.supports == ("torso",) and again.notes == ""
+    assert again.supports == ("pelvis", "thighs") and again.notes == ""
     with lib.edit() as ed:
-        ed.set_pose("high_perch", supports=["thighs", "calves", "torso"])
-    assert lib.pose("high_perch").supports == ("torso", "thighs", "calves")  # in bit order
+        ed.set_pose("high_perch", supports=["Forearms", "calves", "head", "calves"])
+    # in BODY_REGIONS order, each once
+    assert lib.pose("high_perch").supports == ("head", "calves", "forearms")
     with lib.edit() as ed:
         ed.delete_pose("high_perch")
     with pytest.raises(NotFoundError, match="No pose 'high_perch'"):
@@ -247,7 +249,10 @@ def test_duplicate_names(lib):
 @pytest.mark.parametrize("call, message", [
     (lambda lib: lib.add_pose("cmu_75_18_high_sit", 77, "x"), "frame in 0..76"),
     (lambda lib: lib.add_pose("nope", 1, "x"), "No take 'nope'"),
-    (lambda lib: lib.add_pose("cmu_75_18_high_sit", 1, "x", supports=["tail"]), "body parts"),
+    (lambda lib: lib.add_pose("cmu_75_18_high_sit", 1, "x", supports=["tail"]),
+     r"Expected body regions \(head, upper_back.*got 'tail'"),
+    (lambda lib: lib.add_pose("cmu_75_18_high_sit", 1, "x", supports=[]),
+     "at least one body region"),
     (lambda lib: lib.add_pose("cmu_75_18_high_sit", 1, "x", tags=["not"]), "Expected a tag"),
     (lambda lib: lib.add_pose("cmu_75_18_high_sit", 1, "a/b"), "without '/'"),
 ])

@@ -58,6 +58,19 @@ def test_a_heading_turns_about_rhinos_up_axis_as_the_placement_does(heading):
     assert np.allclose(in_rhino, expected)
 
 
+def test_the_default_support_is_the_scenario_schema_s_and_a_use_goes_as_written():
+    """The script cannot import the solver, so its default is written out: the same use."""
+    from posedb.regions import support_regions
+    from solver.scene import schema
+
+    assert gh.DEFAULT_SUPPORT == schema.default(schema.Person, "support")
+    assert support_regions(gh.DEFAULT_SUPPORT) == ("pelvis", "thighs")
+    assert gh.person_request(POSE)["support"] == "seat"
+    assert gh.person_request(POSE, support=("chair", "head"))["support"] == ["chair", "head"]
+    people = gh._people({"poses": [POSE], "support": " lounger, calves "}, 0.001)
+    assert people[0]["support"] == ["lounger", "calves"]
+
+
 def test_the_request_is_in_metres_y_up_with_lengths_converted():
     vertices, faces = _grid_mm(2, 2)
     person = gh.person_request(POSE, (100.0, 200.0, 0.0), 90.0, ["legs"])

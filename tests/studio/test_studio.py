@@ -206,3 +206,29 @@ def test_levels_from_a_slider_and_moves_are_taken(library):
     with pytest.raises(ValueError, match="position"):
         d.update_person(0, position=[0.0, 0.0])
     assert d.people[0]["position"] == [0.05, 0.0, -0.1]
+
+
+def test_the_support_checkboxes_are_the_body_regions(library, tmp_path):
+    """One box per body region, ticked for the schema's default (a seat); a person supported as
+    a use shows its regions, and the ticked boxes become the person's support."""
+    from posedb.regions import BODY_REGIONS
+
+    from studio.web import Studio
+
+    studio = Studio(db=str(library), port=0, out=str(tmp_path))
+    try:
+        assert list(studio.parts) == list(BODY_REGIONS)
+        assert {r for r, box in studio.parts.items() if box.value} == {"pelvis", "thighs"}
+        studio.add_person(HIGH_SIT)
+        studio.design.update_person(0, support="chair")
+        studio._show_person()
+        assert {r for r, box in studio.parts.items() if box.value} == {
+            "upper_back", "lower_back", "pelvis", "thighs"}
+        studio.parts["upper_back"].value = False
+        studio.parts["calves"].value = True
+        studio._apply_person()
+        assert studio.design.people[0]["support"] == ["lower_back", "pelvis", "thighs", "calves"]
+        assert studio.design.scenario().persons[0].support == (
+            "lower_back", "pelvis", "thighs", "calves")
+    finally:
+        studio.stop()

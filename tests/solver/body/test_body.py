@@ -7,6 +7,7 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from capture import WorldPose
+from posedb.regions import SUPPORT_GROUPS, SUPPORT_USES, SupportNameError
 from solver.body.model import BODY_PARTS, Body, BodyShape, BodyShapeError, make_body
 from solver.body.rig import rest_pose, rig_pose
 from solver.body.skinning import skin
@@ -88,7 +89,7 @@ def test_legs_split_at_the_knee(body):
     assert body.vertices[calves, 1].max() < knee + 0.05
     np.testing.assert_array_equal(body.part_mask(["thighs", "calves", "feet"]),
                                   legs | body.part_mask(["feet"]))
-    with pytest.raises(BodyShapeError, match="thighs"):
+    with pytest.raises(SupportNameError, match=r"Expected body regions \(head, .*got 'knees'"):
         body.part_mask(["knees"])
 
 
@@ -167,7 +168,7 @@ def test_regions_partition_the_body_and_sit_where_they_should(body):
     assert np.linalg.norm(centre["pelvis"] - joint["Hips"]) < 0.06
     assert np.linalg.norm(centre["lower_back"] - joint["LowerBack"]) < 0.1
     heights = [centre[r][1] for r in ("feet", "calves", "thighs", "pelvis", "lower_back",
-                                      "upper_back", "shoulders", "head")]
+                                      "upper_back", "head")]
     assert heights == sorted(heights)
     assert body.vertices[mask["head"], 1].min() > joint["Neck"][1] - 0.05
     assert body.vertices[mask["feet"], 1].max() < 0.15
@@ -175,3 +176,45 @@ def test_regions_partition_the_body_and_sit_where_they_should(body):
     behind = (body.vertices[:, 2] < joint["Hips"][2] - 0.08) & \
         (np.abs(body.vertices[:, 1] - joint["Hips"][1] + 0.03) < 0.04)
     assert mask["pelvis"][behind].mean() > 0.8
+
+
+def test_the_arms_split_at_the_elbow(body):
+    """Along each arm (0 at the shoulder joint, 1 at the elbow, 2 at the wrist, in the rest
+    pose) the upper arms lie before the elbow and the forearms after it, within the elbow's own
+    flesh (a tenth of a segment)."""
+    from solver.body.model import BODY_REGIONS
+
+    joint = lambda name: body.joints[body.joint_index(name)]  # noqa: E731
+    for side in ("Left", "Right"):
+        s, e, w = joint(f"{side}Arm"), joint(f"{side}ForeArm"), joint(f"{side}Hand")
+        this_side = np.sign(body.vertices[:, 0]) == np.sign(s[0])
+
+        def along(p):
+            upper = ((p - s) @ (e - s)) / ((e - s) @ (e - s))
+            lower = ((p - e) @ (w - e)) / ((w - e) @ (w - e))
+            return np.where(upper < 1.0, upper, 1.0 + np.maximum(lower, 0.0))
+
+        for region, low, high in (("upper_arms", -0.3, 1.1), ("forearms", 0.9, 2.1)):
+            mask = this_side & (body.regions == BODY_REGIONS.index(region))
+            t = along(body.vertices[mask])
+            assert mask.sum() > 200 and low < t.min() and t.max() < high, (side, region)
+
+
+@pytest.mark.parametrize("shape", [BodyShape(), BodyShape(gender=1.0, weight=0.9),
+                                   BodyShape(gender=0.0, weight=0.1, height=0.2)])
+def test_the_coarse_parts_are_the_unions_of_their_regions(shape):
+    """torso, arms and legs name exactly the vertices of that part (the bones' part), as they
+    did before the regions refined them; a use names the union of its regions."""
+    body = make_body(shape)
+    for part, regions in SUPPORT_GROUPS.items():
+        np.testing.assert_array_equal(body.part_mask([part]),
+                                      body.parts == BODY_PARTS.index(part))
+        union = np.zeros(len(body.vertices), dtype=bool)
+        for r in regions:
+            one = body.part_mask([r])
+            assert one.any() and not (one & union).any(), r
+            union |= one
+        np.testing.assert_array_equal(union, body.part_mask(part))
+    for use, regions in SUPPORT_USES.items():
+        np.testing.assert_array_equal(body.part_mask(use), body.part_mask(list(regions)))
+    assert body.part_mask("bed").all()

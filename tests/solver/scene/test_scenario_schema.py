@@ -85,10 +85,46 @@ def test_what_is_left_out_has_the_same_default_everywhere():
     assert from_toml.surface.params.sigma == 0.003
     assert from_toml.persons == from_api.persons == from_studio.persons
     assert from_toml.persons[0].position == (0.0, 0.0, 0.0)
-    assert from_toml.persons[0].support == ("torso", "legs")
+    assert schema.default(schema.Person, "support") == "seat"
+    assert from_toml.persons[0].support == ("pelvis", "thighs")  # a seat's regions
     assert from_toml.foam_stiffness == from_studio.foam_stiffness == 200.0
     assert (from_toml.surface.vertices == from_studio.surface.vertices).all()
     assert from_toml.surface.source == "grid 8x6, 1.2 x 0.8 m at 0.45 m"
+
+
+@pytest.mark.parametrize("support, regions", [
+    ("chair", ("upper_back", "lower_back", "pelvis", "thighs")),
+    (["torso", "legs"], ("upper_back", "lower_back", "pelvis", "thighs", "calves")),
+    (["seat", "calves", "Thighs"], ("pelvis", "thighs", "calves")),
+])
+def test_a_support_is_expanded_to_regions_alike_from_toml_api_and_studio(support, regions):
+    import tomllib
+
+    from solver.scene.scenario import scenario_toml
+
+    data = {"surface": {"grid": {}}, "person": [{"pose": POSE, "support": support}]}
+    from_toml = parse_scenario(tomllib.loads(scenario_toml(data)))
+    from_api = request_scenario(schema.Scenario.model_validate(data))
+    studio = Design(None)
+    studio.add_person(POSE, name="person 1", support=support)
+    assert from_toml.persons[0].support == from_api.persons[0].support == regions
+    assert studio.scenario().persons[0].support == regions
+    assert studio.scenario_data()["person"][0]["support"] == support  # kept as written
+
+
+@pytest.mark.parametrize("support, message", [
+    (["tail"], r"person\[0\]\.support: expected body regions \(head, upper_back, .*\), "
+               r"parts \(torso, arms, legs\) or uses \(seat, .*\), got 'tail'"),
+    ("sofa", "got 'sofa'"),
+    ([], r"person\[0\]\.support: expected at least one body region or a use"),
+    (3, r"person\[0\]\.support: expected a use name or a list of body regions, got 3"),
+])
+def test_a_bad_support_names_the_field_and_what_it_takes(support, message):
+    from solver.scene.scenario import ScenarioError
+
+    data = {"surface": {"grid": {}}, "person": [{"pose": POSE, "support": support}]}
+    with pytest.raises(ScenarioError, match=message):
+        parse_scenario(data, "s.toml")
 
 
 def _request(**surface) -> dict:
