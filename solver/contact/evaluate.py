@@ -203,7 +203,8 @@ def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float, 
         without importance), ``supported`` (bool: the body comes to rest), over the surface's
         contacts ``peak_pressure_kpa``, ``peak_pressure_index_kpa``, ``mean_pressure_kpa``,
         ``contact_area_m2`` and ``centre_of_pressure_m`` ((3,) list; None when the body does
-        not rest), and ``equilibrium`` (`equilibrium_figures`).
+        not rest), ``peak_region`` (`peak_region`), and ``equilibrium``
+        (`equilibrium_figures`).
     pressure_map : PressureMap
         The pressure (V,) in kPa on each body vertex, and the settle.
 
@@ -238,12 +239,25 @@ def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float, 
         "mean_support_distance_m": float(np.sum(importance * dist) / total) if total else None,
         "supported": settled.stable,
         **surface_figures(settled),
+        "peak_region": peak_region(settled, person.regions),
         "equilibrium": equilibrium_figures(settled),
         "mat": mat_figures(settled.contacts, contact_footprint(settled, len(vertices)),
                            person.mass_kg, person.regions, orientation=person.orientation)
         if settled.stable else None,
     }
     return figures, PressureMap(skin_pressure(settled, len(vertices)), settled)
+
+
+def peak_region(settled: Settled, regions: np.ndarray | None) -> str | None:
+    """The body region (`BODY_REGIONS`) of the highest pressure the surface's parts
+    (`SURFACE_PARTS`, not the floor) put on the body: the vertex of `peak_pressure_kpa`. None
+    when the body does not rest, nothing touches the surface, or `regions` (V,) is None."""
+    from solver.body.model import BODY_REGIONS
+
+    if regions is None or not settled.stable:
+        return None
+    pressure = skin_pressure(settled, len(regions), SURFACE_PARTS)
+    return str(BODY_REGIONS[regions[int(np.argmax(pressure))]]) if pressure.max() > 0 else None
 
 
 def flat_seat_height(surface: SurfaceMesh, person: SupportedBody) -> float:

@@ -52,7 +52,7 @@ def render_sheet(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarra
     problems : sequence of str
         Lines under the notes, in red (what misses a bar).
     colorbar : (label, low, high), optional
-        The pressure panels' viridis scale.
+        The pressure panels' viridis scale (one for all, drawn beside each).
     floor : float
         The floor's height y, metres.
     columns : int
@@ -99,14 +99,12 @@ def render_sheet(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarra
     cells = [grid[1 + k // columns, k % columns] for k in range(len(sections) + len(pressure))]
     for cell, sec in zip(cells, sections):
         draw_section(fig.add_subplot(cell), sec)
-    axes = []
     for cell, panel in zip(cells[len(sections):], pressure):
         ax = fig.add_subplot(cell)
         draw_meshes(ax, panel.meshes, panel.view)
         if panel.title:
             ax.set_title(textwrap.fill(panel.title, int(PANEL_INCHES[0] * 100 / 7)),
                          fontsize=9)
-        axes.append(ax)
-    if colorbar is not None and axes:
-        draw_colorbar(fig, axes, colorbar)
+        if colorbar is not None:  # each panel its own bar, all on the same scale
+            draw_colorbar(fig, [ax], colorbar)
     return save_png(fig, path)

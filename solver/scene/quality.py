@@ -35,22 +35,18 @@ def person_loads(person: dict) -> dict:
     -------
     dict
         `pelvis_thighs_share`, `calves_share`, `floor_share` (of m g; None without a rest),
-        `peak_region` (the region of the highest pressure on the surface, the floor left out;
-        None without contact) and `peak_kpa` there.
+        `peak_kpa` (the highest pressure the surface puts on the body, the floor left out) and
+        `peak_region` (the body region it lies on; both None without contact).
     """
+    peak = {"peak_kpa": person.get("peak_pressure_kpa"), "peak_region": person.get("peak_region")}
     mat = person.get("mat")
     if not mat:
-        return {"pelvis_thighs_share": None, "calves_share": None, "floor_share": None,
-                "peak_region": None, "peak_kpa": None}
+        return {"pelvis_thighs_share": None, "calves_share": None, "floor_share": None, **peak}
     share = {r: f["load_share"] for r, f in mat["total"]["regions"].items()}
-    on_surface = {r: f["peak_kpa"] for name, figures in mat["supports"].items()
-                  if name != "floor" for r, f in figures["regions"].items()}
-    peak = max(on_surface, key=on_surface.get) if on_surface else None
     floor = mat["supports"].get("floor")
     return {"pelvis_thighs_share": share.get("pelvis", 0.0) + share.get("thighs", 0.0),
             "calves_share": share.get("calves", 0.0),
-            "floor_share": floor["load_share"] if floor else 0.0,
-            "peak_region": peak, "peak_kpa": on_surface[peak] if peak else None}
+            "floor_share": floor["load_share"] if floor else 0.0, **peak}
 
 
 def surface_misses(guarantees: dict) -> list[str]:
@@ -87,8 +83,7 @@ def person_misses(person: dict) -> list[str]:
         misses.append(f"{name}: does not come to rest ({balance['reason']})")
         return misses
     loads = person_loads(person)
-    supported = person.get("supported_regions", person["support"])
-    if loads["peak_region"] is not None and loads["peak_region"] not in supported:
+    if loads["peak_region"] is not None and loads["peak_region"] not in person["support"]:
         misses.append(f"{name}: peak pressure {loads['peak_kpa']:.1f} kPa on the "
                       f"{loads['peak_region']}, which are not to be supported")
     if person.get("posture") in SEATED_POSTURES:

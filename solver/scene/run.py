@@ -62,19 +62,11 @@ def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.n
         rows.append({"name": p.label, "body": p.spec.body.as_dict(),
                      "height_m": p.body.height_m, "mass_kg": p.body.mass_kg,
                      "posture": scene_posture(p), "support": list(p.spec.support),
-                     "supported_regions": supported_regions(p), **figures,
+                     **figures,
                      "support_inside_others": support_inside(p.vertices, p.importance, others),
                      "flat": flat})
         maps.append(pm)
     return rows, maps
-
-
-def supported_regions(person: PlacedPerson) -> list[str]:
-    """The body regions (`BODY_REGIONS`, in that order) a person's support covers."""
-    from solver.body.model import BODY_REGIONS
-
-    present = set(np.unique(person.body.regions[person.supported]).tolist())
-    return [r for k, r in enumerate(BODY_REGIONS) if k in present]
 
 
 def fit_scene(scenario: Scenario, people: list[PlacedPerson],
