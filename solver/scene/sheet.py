@@ -91,7 +91,12 @@ def sheet_lines(report: dict) -> tuple[list[str], list[str]]:
         if loads["peak_region"] is not None:
             text += f"; peak {loads['peak_kpa']:.1f} kPa on the {loads['peak_region']}"
         notes.append(text)
-    problems = surface_misses(g) + [m for p in report["persons"] for m in person_misses(p)]
+    problems = surface_misses(g)
+    for p in report["persons"]:  # one line a person
+        misses = person_misses(p)
+        if misses:
+            name = misses[0].split(": ", 1)[0]
+            problems.append(f"{name}: " + "; ".join(m.split(": ", 1)[1] for m in misses))
     return notes, problems
 
 
