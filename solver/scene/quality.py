@@ -16,6 +16,8 @@ Shares are of the body's weight m g, over every support, the floor included.
 
 from __future__ import annotations
 
+import math
+
 COVERAGE_MIN = 0.95
 CONTACT_COVERAGE_MIN = 0.8
 SEATED_LOAD_MIN = 0.6  # share of m g on the pelvis and thighs
@@ -49,6 +51,12 @@ def person_loads(person: dict) -> dict:
             "floor_share": floor["load_share"] if floor else 0.0, **peak}
 
 
+def _short_of(value: float, bar: float) -> str:
+    """A share under its bar, with two decimals, or where two would round it up to the bar, cut
+    (not rounded) to three: 0.9496 is 0.949, not 0.95."""
+    return f"{value:.2f}" if round(value, 2) < bar else f"{math.floor(value * 1000) / 1000:.3f}"
+
+
 def surface_misses(guarantees: dict) -> list[str]:
     """What the surface misses of its bars (report.json's `guarantees`), one line each."""
     g, misses = guarantees, []
@@ -74,9 +82,11 @@ def person_misses(person: dict) -> list[str]:
     name = person["name"].split(" (")[0]
     misses = []
     if person["coverage"] < COVERAGE_MIN:
-        misses.append(f"{name}: coverage {person['coverage']:.2f} (bar {COVERAGE_MIN})")
+        misses.append(f"{name}: coverage {_short_of(person['coverage'], COVERAGE_MIN)} (bar "
+                      f"{COVERAGE_MIN})")
     if person["contact_coverage"] < CONTACT_COVERAGE_MIN:
-        misses.append(f"{name}: contact coverage {person['contact_coverage']:.2f} (bar "
+        misses.append(f"{name}: contact coverage "
+                      f"{_short_of(person['contact_coverage'], CONTACT_COVERAGE_MIN)} (bar "
                       f"{CONTACT_COVERAGE_MIN})")
     balance = person["equilibrium"]
     if not balance["stable"]:

@@ -124,14 +124,16 @@ def write_design_sheet(path: str | os.PathLike, title: str, surface: np.ndarray,
     sections = [person_section(f"{name}: section through the left hip", surface, faces, p)
                 for name, p in zip(names, people)]
     fields = [surface_pressure(m) for m in pressures]
-    peak = max([float(f.max()) for f in fields] + [1e-3])
+    peak = max([float(f.max()) for f in fields] + [0.0])
     panels = []
     for name, p, m, field in zip(names, people, pressures, fields):
         title_text = (f"{name}: peak {field.max():.1f} kPa from the surface" if
                       m.settled.stable else f"{name}: no rest ({m.settled.reason})")
-        panels.append(Panel([MeshView(p.vertices, p.body.faces, pressure_on_skin(field, peak))],
+        panels.append(Panel([MeshView(p.vertices, p.body.faces,
+                                      pressure_on_skin(field, max(peak, 1e-9)))],
                             pressure_view(m), title_text))
     return render_sheet(path, surface, faces, sections, panels, title=title, notes=notes,
                         problems=problems,
-                        colorbar=("pressure from the surface, kPa", 0.0, peak),
+                        colorbar=("pressure from the surface, kPa", 0.0, peak) if peak > 0
+                        else None,
                         floor=report["guarantees"]["floor_m"] or 0.0)

@@ -49,6 +49,8 @@ def test_a_person_within_every_bar_misses_none_and_its_loads_add_up():
 
 @pytest.mark.parametrize("change, words", [
     ({"coverage": 0.94}, "sitter: coverage 0.94 (bar 0.95)"),
+    ({"coverage": 0.9496}, "sitter: coverage 0.949 (bar 0.95)"),
+    ({"coverage": 0.9484}, "sitter: coverage 0.948 (bar 0.95)"),
     ({"contact_coverage": 0.7}, "sitter: contact coverage 0.70 (bar 0.8)"),
     ({"peak_region": "calves"}, "sitter: peak pressure 7.5 kPa on the calves, which are not"),
 ])
