@@ -88,7 +88,7 @@ def support_regions(names) -> tuple[str, ...]:
         raise SupportNameError(f"Expected at least one body region or a use, got {names!r}")
     wanted = set()
     for name in names:
-        key = name.strip().lower() if isinstance(name, str) else name
+        key = name.strip().lower() if isinstance(name, str) else None  # None: no name at all
         if key in SUPPORT_USES:
             wanted.update(SUPPORT_USES[key])
         elif key in SUPPORT_GROUPS:

@@ -26,7 +26,7 @@ STANDING_SECONDS = 3.0  # how much of the long standing recording is streamed
 SCENARIO = """\
 # Written by `sitrelax demo`: two people of different build on one seated pose from the library.
 [surface]
-grid = {{ size = [1.3, 0.6], resolution = [20, 6], height = 0.42 }}
+template = {{ kind = "bench", back = true }}  # a seat with a back for both, built around them
 level = 3
 sigma = 0.003
 tau_max = 0.5
@@ -37,14 +37,14 @@ name = "slight"
 pose = "db:{pose}"
 body = {{ gender = 0.2, weight = 0.3, height = 0.4 }}
 position = [-0.33, 0.0, -0.1]
-support = ["legs"]
+support = "chair"  # the pose leans back: on a seat alone (pelvis, thighs) it tips over
 
 [[person]]
 name = "broad"
 pose = "db:{pose}"
 body = {{ gender = 0.9, weight = 0.8, height = 0.6 }}
 position = [0.33, 0.0, -0.1]
-support = ["legs"]
+support = "chair"
 """
 
 

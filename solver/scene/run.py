@@ -94,7 +94,12 @@ def fit_scene(scenario: Scenario, people: list[PlacedPerson],
     result = fit_people(scenario, people, progress)
     timing["fit_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    persons, maps = evaluate_scene(scenario, people, result.surface, result.surface_faces)
+    # evaluated on the limit surface, as `surface.*` holds it and the guarantees judge it
+    from solver.surface.limit import limit_of_level
+
+    limit = limit_of_level(result.subdivision, result.surface,
+                           list(scenario.surface.params.creases) or None)
+    persons, maps = evaluate_scene(scenario, people, limit, result.surface_faces)
     timing["evaluate_s"] = time.perf_counter() - t
     return result, persons, maps
 

@@ -16,6 +16,7 @@
     pull_range = 0.25  # metres: farther body points do not pull yet
     step = 0.05        # metres a control vertex may move per iteration
     floor = 0.0        # metres: the surface stays above y = floor (JSON null: no floor)
+    min_ridge_radius = 0.015  # metres: the tightest it may bend away from the bodies
 
     [evaluation]
     foam_stiffness = 200.0  # kPa of pressure per metre the foam is pressed in

@@ -94,6 +94,9 @@ FIT_FIELDS: dict[str, Any] = {
                                                   "iteration (a trust region)")],
     "floor": Annotated[Union[Number, None], Field(description="the floor's height y, metres: "
                                                   "the surface stays above it (null: no floor)")],
+    "min_ridge_radius": Annotated[NonNegative, Field(
+        description="metres: the tightest the surface may bend away from the bodies (a solid "
+                    "up to this thick can follow it)")],
 }
 _missing = sorted({f.name for f in dataclasses.fields(FitParams)} ^ set(FIT_FIELDS))
 if _missing:  # a new fit parameter needs its bounds here (or a removed one its entry gone)

@@ -42,8 +42,9 @@ every time.
 A step is accepted only if it does not raise the judged energy (the programme's own objective:
 the energy with every body point at its nearest vertex of the new surface, plus the cost of the
 demands the new surface leaves unmet) and folds no neighbouring level-s quads further apart than
-FOLD_GUARD_DEG (or than the iterate before it); otherwise it is tried again with half the trust
-region, up to MAX_HALVINGS times, after which the fit has converged. So the judged energies of
+FOLD_GUARD_DEG (or than the iterate before it); otherwise it is tried again half as long (a
+backtracking line search along the programme's solution), up to MAX_HALVINGS times, after which
+the fit has converged. So the judged energies of
 the accepted iterates never rise (a rising tau can only lower them), and a surface that starts
 without folds ends without them. The loop stops once tau has reached tau_max and the energy has
 not improved by `tolerance` (relative) in PATIENCE iterations, or after `max_iterations`. The
@@ -84,7 +85,14 @@ DENSE_UP_TO = 150  # control vertices up to which the Hessian is built dense
 PROXIMAL = 0.01  # weight of the pull to the current control mesh (per coordinate)
 FOLD_GUARD_DEG = 50.0  # degrees between neighbouring level-s quads a step may not exceed
                        # (the guarantee's limit is 60 on the limit surface; a margin for it)
-MAX_HALVINGS = 4  # a rejected step is retried with half the trust region this often
+DEPTH_TOLERANCE = 1e-3  # metres beyond the margin an iterate is not yet judged for: the rows hold
+                        # the surface to a skin vertex's plane, the judgement measures behind
+                        # the nearest one's, and they differ by a fraction of a millimetre
+REPAIR_ROUNDS = 3  # rounds of rows on dense samples found deeper than the margin
+REPAIR_ITERATIONS = 10  # iterations each such round may take
+REPAIR_SAFETY = 2e-3  # metres inside the margin those rows hold the samples to
+SAG_ALLOWANCE = 0.01  # metres a triangle may sink deeper between its corners than at them
+MAX_HALVINGS = 4  # a rejected step is retried half as long this often
 FLOOR_REACH = 2.0  # steps: a surface vertex this near the floor gets a floor row (it moves at
                    # most one step per iteration, so none gets under unseen)
 
@@ -104,7 +112,9 @@ class FitParams:
     iterations); anchor : weak pull of every control vertex to its start; pull_range : metres
     beyond which body points do not pull yet; step : metres a control vertex may move per
     iteration (a trust region); floor : the floor's height y (metres) that every level-s
-    surface vertex stays above (soft rows, like non-penetration), None for no floor.
+    surface vertex stays above (soft rows, like non-penetration), None for no floor;
+    min_ridge_radius : metres, the tightest a step may bend the surface away from the bodies
+    (a ridge; a solid thicker than its radius cannot follow it).
     """
 
     level: int = 3
@@ -120,6 +130,8 @@ class FitParams:
     pull_range: float = 0.25
     step: float = 0.05  # metres a control vertex may move per iteration (a trust region)
     floor: float | None = 0.0  # metres: the level-s surface stays above y = floor (None: free)
+    min_ridge_radius: float = 0.015  # metres: where the surface bends away from the bodies, no
+                                    # tighter (a solid of up to this thickness can follow it)
 
 
 @dataclass
@@ -175,6 +187,12 @@ class _Fit:
     programme: Programme
     sampled_ids: np.ndarray  # the surface vertices that may carry non-penetration rows
     neighbours: np.ndarray  # (E, 2) level-s quads sharing an edge that is no crease
+    skins: list  # (vertices (V, 3), triangles (T, 3)) of every body with a closed skin
+    limit: sp.csr_matrix | None = None  # (ns, n0) control vertices -> limit points of level s
+    extra: "ExtraRows | None" = None  # rows on dense samples found too deep (`deep_samples`)
+    skins: list  # (vertices (V, 3), triangles (T, 3)) of every body with a closed skin
+    limit: sp.csr_matrix | None = None  # (ns, n0) control vertices -> limit points of level s
+    extra: "ExtraRows | None" = None  # rows on dense samples found too deep (`repair_rows`)
 
     @property
     def n0(self) -> int:
@@ -296,10 +314,11 @@ def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedB
                 rho[important], cKDTree(np.concatenate([points, FACING_SCALE * normals], axis=1)),
                 cKDTree(points), cKDTree(np.concatenate([points, EXIT_SCALE * normals], axis=1)),
                 fixed, smooth, diagonal.toarray() if dense else diagonal, proximal, dense,
-                Programme(sub, lap, n0, SLACK_WEIGHT / people), sampled,
+                Programme(sub.matrix, lap, n0, SLACK_WEIGHT / people), sampled,
                 neighbour_faces(sub.faces, sub.steps[-1].creases if sub.steps else
                                 (np.asarray(params.creases).reshape(-1, 2)
-                                 if params.creases else None)))
+                                 if params.creases else None)),
+                [(t.vertices, t.triangles) for t in targets if t.triangles is not None])
 
 
 def initial_rows(fit: _Fit) -> np.ndarray:
@@ -429,7 +448,8 @@ def constrain(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray, member: np.ndarra
     inside_row[ids] = inside
     held = np.where(wanted[ids], near_s, -1)
     body = _rows(rows, cn, demanded, surf, held,
-                 float(np.sum(np.maximum(0.0, depth - fit.params.margin) ** 2)))
+                 float(np.sum(np.maximum(0.0, depth - fit.params.margin - DEPTH_TOLERANCE)
+                              ** 2)))
     outside = ~inside_row[rows]
     body.demanded[outside] = np.minimum(body.demanded[outside], body.now[outside])
     if floor_member is None or fit.params.floor is None:
@@ -456,6 +476,108 @@ def floor_rows(fit: _Fit, surf: np.ndarray, member: np.ndarray) -> Rows:
 
 
 @dataclass(frozen=True, eq=False)
+class ExtraRows:
+    """Rows on points of the limit surface between its vertices: `points` (k, n0) maps the
+    control vertices to them (barycentric on limit points), each held in front of the plane
+    of the skin it was found behind, `normals` (k, 3), less the margin: n . p >= `demanded`."""
+
+    points: sp.csr_matrix
+    normals: np.ndarray
+    demanded: np.ndarray
+
+
+def deep_samples(fit: _Fit, v: np.ndarray) -> ExtraRows | None:
+    """Rows for the places where the limit surface of control vertices v (n0, 3) lies deeper
+    in a body than the margin less REPAIR_SAFETY between its vertices: over the barycentric
+    samples of every level-s triangle (the grid `guarantees.surface_guarantees` checks), the
+    deepest of each triangle that a body's winding number puts inside it, held in front of the
+    plane of the skin triangle nearest to it. None where there is no such place (or no closed
+    skin to look in)."""
+    import igl
+
+    from solver.mesh import face_normals, quad_triangles
+    from solver.surface.guarantees import SAMPLE_DIVISIONS
+    from solver.surface.limit import limit_matrix
+
+    if not fit.skins:
+        return None
+    if fit.limit is None:
+        fit.limit = limit_matrix(fit.n0, fit.faces, fit.params.level,
+                                 list(fit.params.creases) or None)
+    limit = fit.limit @ v
+    triangles = quad_triangles(fit.sub.faces)
+    d = SAMPLE_DIVISIONS
+    i, j = np.meshgrid(np.arange(d + 1), np.arange(d + 1), indexing="ij")
+    keep = (i + j) <= d
+    weights = np.stack([d - i[keep] - j[keep], i[keep], j[keep]], axis=1) / d  # (S, 3)
+    allowed = fit.params.margin - REPAIR_SAFETY
+    # only triangles with a corner inside a body, deeper than `allowed` less a centimetre
+    # (behind its nearest skin vertex's plane), can hold a sample deeper than `allowed`
+    # between their corners (a facet's sag is far less); the exact tests look at those
+    gap, nearest = fit.body_tree3.query(limit, distance_upper_bound=INSIDE_REACH)
+    near = np.isfinite(gap)
+    nearest[~near] = 0
+    behind = -np.einsum("ij,ij->i", limit - fit.points[nearest], fit.normals[nearest])
+    corner_deep = near & (behind > allowed - SAG_ALLOWANCE)
+    candidates = np.flatnonzero(corner_deep[triangles].any(axis=1))
+    if not len(candidates):
+        return None
+    points = np.einsum("sk,fkd->fsd", weights, limit[triangles[candidates]]).reshape(-1, 3)
+    suspect = np.ones(len(points), dtype=bool)
+    found: dict[int, tuple[float, int, np.ndarray, np.ndarray]] = {}
+    for body_v, body_t in fit.skins:
+        lo, hi = body_v.min(axis=0), body_v.max(axis=0)
+        near = np.flatnonzero(suspect & np.all((points >= lo) & (points <= hi), axis=1))
+        if len(near):
+            near = near[igl.fast_winding_number(body_v, body_t, points[near]) > 0.5]
+        if not len(near):
+            continue
+        dist2, face, closest = igl.point_mesh_squared_distance(points[near], body_v, body_t)
+        depth = np.sqrt(dist2)
+        deep = depth > allowed
+        normals = face_normals(body_v, body_t)[face[deep]]
+        for k, dk, n, c in zip(near[deep], depth[deep], normals, closest[deep]):
+            tri = int(candidates[k // len(weights)])
+            if tri not in found or dk > found[tri][0]:
+                found[tri] = (float(dk), int(k % len(weights)), n, c)
+    if not found:
+        return None
+    tris = np.fromiter(found, dtype=np.int64)
+    on_limit = sp.csr_matrix((np.concatenate([weights[found[t][1]] for t in tris]),
+                              (np.repeat(np.arange(len(tris)), 3), triangles[tris].ravel())),
+                             shape=(len(tris), len(limit)))
+    normals = np.array([found[t][2] for t in tris])
+    plane = np.einsum("ij,ij->i", normals, np.array([found[t][3] for t in tris]))
+    return ExtraRows((on_limit @ fit.limit).tocsr(), normals, plane - allowed)
+
+
+def add_extra_rows(fit: _Fit, extra: ExtraRows) -> None:
+    """Joins `extra` to the fit's rows on samples (after the level-s vertices in the
+    programme's point map) and sets the programme up for them."""
+    if fit.extra is not None:
+        extra = ExtraRows(sp.vstack([fit.extra.points, extra.points]).tocsr(),
+                          np.concatenate([fit.extra.normals, extra.normals]),
+                          np.concatenate([fit.extra.demanded, extra.demanded]))
+    fit.extra = extra
+    fit.programme = Programme(sp.vstack([fit.sub.matrix, extra.points]).tocsr(), fit.lap,
+                              fit.n0, fit.programme.slack_weight)
+
+
+def _with_extra(fit: _Fit, v: np.ndarray, rows: Rows) -> Rows:
+    """`rows` followed by the fit's rows on samples (if any), whose shortfall beyond
+    DEPTH_TOLERANCE joins `beyond_m2`."""
+    if fit.extra is None:
+        return rows
+    e = fit.extra
+    now = np.einsum("ij,ij->i", e.normals, e.points @ v)
+    ids = fit.sub.matrix.shape[0] + np.arange(len(now))
+    short = np.maximum(0.0, e.demanded - now - DEPTH_TOLERANCE)
+    return Rows(np.concatenate([rows.rows, ids]), np.concatenate([rows.normals, e.normals]),
+                np.concatenate([rows.demanded, e.demanded]), np.concatenate([rows.now, now]),
+                rows.skin, rows.beyond_m2 + float(np.sum(short ** 2)))
+
+
+@dataclass(frozen=True, eq=False)
 class Iterate:
     """A control mesh v (n0, 3) as the loop judges it: its level-s surface and normals, its
     own pairing and rows, the energy's parts and its largest fold.
@@ -478,6 +600,7 @@ class Iterate:
     rest: float  # smoothness and the pulls to the start
     unmet: float  # m^2, `Rows.beyond_m2`
     max_fold: float  # degrees between neighbouring level-s quads (creases left out)
+    min_ridge: float  # metres, the tightest radius where the surface bends away from bodies
     slack_weight: float
 
     def energy(self, tau: float) -> float:
@@ -494,20 +617,35 @@ def assess(fit: _Fit, v: np.ndarray, member: np.ndarray,
     surf = fit.sub.matrix @ v
     surf_n = fit.sub.normals(surf)
     pairing = pair(fit, surf)
-    rows = constrain(fit, surf, surf_n, member, floor_member, skin)
+    rows = _with_extra(fit, v, constrain(fit, surf, surf_n, member, floor_member, skin))
     diff = fit.b_imp - surf[pairing.pair]
     total = max(fit.w_imp.sum(), 1e-300)
     point = float(fit.w_imp @ np.einsum("ij,ij->i", diff, diff) / total)
     plane = float(fit.w_imp @ np.einsum("ij,ij->i", diff, surf_n[pairing.pair]) ** 2 / total)
     smooth = float(sum(v[:, a] @ (fit.smooth @ v[:, a]) for a in range(3)))
     pulls = float(np.sum(fit.fixed[:, None] * (v - fit.v0) ** 2))
-    fold = 0.0
-    if len(fit.neighbours):
-        n = quad_normals(surf, fit.sub.faces)
-        dots = np.einsum("ij,ij->i", n[fit.neighbours[:, 0]], n[fit.neighbours[:, 1]])
-        fold = float(np.degrees(np.arccos(np.clip(dots.min(), -1.0, 1.0))))
+    fold, ridge = _bends(fit, surf)
     return Iterate(v, surf, surf_n, pairing, rows, point, plane, smooth + pulls,
-                   rows.beyond_m2, fold, fit.programme.slack_weight)
+                   rows.beyond_m2, fold, ridge, fit.programme.slack_weight)
+
+
+def _bends(fit: _Fit, surf: np.ndarray) -> tuple[float, float]:
+    """The largest angle (degrees) between neighbouring level-s quads of surface `surf`
+    (ns, 3), creases left out, and the tightest radius (m) of its ridges: where it bends away
+    from the bodies (each quad's centre lies behind its neighbour's plane), the distance
+    between the two quads' centres over the angle between them (inf without a ridge)."""
+    if not len(fit.neighbours):
+        return 0.0, np.inf
+    quads = fit.sub.faces
+    n = quad_normals(surf, quads)
+    a, b = fit.neighbours[:, 0], fit.neighbours[:, 1]
+    angle = np.arccos(np.clip(np.einsum("ij,ij->i", n[a], n[b]), -1.0, 1.0))
+    centres = surf[quads].mean(axis=1)
+    gap = centres[b] - centres[a]
+    ridge = (np.einsum("ij,ij->i", gap, n[a]) < 0) & (np.einsum("ij,ij->i", gap, n[b]) > 0) & \
+        (angle > 1e-6)
+    radius = np.linalg.norm(gap[ridge], axis=1) / angle[ridge]
+    return float(np.degrees(angle.max())), float(radius.min()) if len(radius) else np.inf
 
 
 def terms_of(fit: _Fit, it: Iterate, tau: float) -> dict:
@@ -517,7 +655,8 @@ def terms_of(fit: _Fit, it: Iterate, tau: float) -> dict:
             "smoothness": smooth, "fixed": it.rest - smooth, "tau": tau,
             "out_of_bounds_m2": it.unmet,
             "laplacian_m2": float(np.mean(np.sum((fit.lap @ it.v) ** 2, axis=1))),
-            "max_fold_deg": it.max_fold}
+            "max_fold_deg": it.max_fold,
+            "min_ridge_radius_m": it.min_ridge if np.isfinite(it.min_ridge) else None}
 
 
 def converged(energies: Sequence[float], tolerance: float) -> bool:
@@ -546,11 +685,14 @@ def propose(fit: _Fit, it: Iterate, tau: float, radius: float, quadratic=None
 
 def acceptable(fit: _Fit, it: Iterate, candidate: Iterate, tau: float) -> str | None:
     """Why `candidate` may not follow `it` (None if it may): its judged energy at tau must not
-    rise, and it must not fold more than FOLD_GUARD_DEG or than `it` does."""
+    rise, it must not fold more than FOLD_GUARD_DEG or than `it` does, and its ridges must
+    not bend tighter than the `min_ridge_radius` parameter or than `it`'s do."""
     if candidate.energy(tau) > it.energy(tau):
         return "energy"
     if candidate.max_fold > max(FOLD_GUARD_DEG, it.max_fold):
         return "fold"
+    if candidate.min_ridge < min(fit.params.min_ridge_radius, it.min_ridge):
+        return "ridge"
     return None
 
 
@@ -589,7 +731,7 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
                 progress: Callable[[int, float, float], None] | None = None) -> FitResult:
     """Fits the control mesh to the bodies (see the module docstring): each iteration proposes
     a step (pair, assemble, constrain, solve) and accepts it only if it lowers the judged
-    energy and folds no further, or tries again with half the trust region; the result is the
+    energy and folds no further, or tries again half as long; the result is the
     last accepted iterate whose surface does not cross itself.
 
     Parameters
@@ -630,48 +772,95 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
     fit = prepare(control, faces, targets, params)
     member = initial_rows(fit)
     floor_member = np.zeros_like(member)
-    it = assess(fit, fit.v0.copy(), member, floor_member)
-    accepted, energies, statuses, residuals = [it], [], [], []
-    rejected = {"energy": 0, "fold": 0}
-    radius = params.step
-    stop = f"reached the iteration limit ({params.max_iterations})"
-    iteration = 0
-    for iteration in range(1, params.max_iterations + 1):
-        tau = params.tau_max * min(1.0, (iteration - 1) / TAU_RAMP)
-        quadratic = assemble(fit, it.pairing, it.surf_n, tau)
-        for _ in range(MAX_HALVINGS + 1):
-            v, status, residual = propose(fit, it, tau, radius, quadratic)
+    run = _Descent([assess(fit, fit.v0.copy(), member, floor_member)])
+    stop, iteration = descend(fit, run, member, floor_member, 1, params.max_iterations,
+                              progress)
+    repairs = []
+    for _ in range(REPAIR_ROUNDS):
+        extra = deep_samples(fit, run.accepted[-1].v)
+        if extra is None:
+            break
+        add_extra_rows(fit, extra)
+        again = _Descent([assess(fit, run.accepted[-1].v, member, floor_member,
+                                 run.accepted[-1].rows.skin)])
+        repair_stop, iteration = descend(fit, again, member, floor_member, iteration + 1,
+                                         iteration + REPAIR_ITERATIONS, progress,
+                                         tau=params.tau_max)
+        repairs.append({"rows": len(extra.demanded), "energies": again.energies,
+                        "stop_reason": repair_stop})
+        run.extend(again)
+    keep, crossings = uncrossed(fit, [a.v for a in run.accepted])
+    if repairs:
+        stop += (f"; {len(repairs)} round(s) of rows where the surface lay deeper than the "
+                 f"margin between its vertices ({sum(r['rows'] for r in repairs)} rows)")
+    if keep < len(run.accepted) - 1:
+        stop += (f"; the surface crossed itself ({crossings} triangle pairs) after accepted "
+                 f"iterate {keep}, which is kept")
+    result = run.accepted[keep]
+    terms = terms_of(fit, result, params.tau_max if repairs else
+                     params.tau_max * min(1.0, max(keep - 1, 0) / TAU_RAMP))
+    terms.update(best_iteration=keep, qp_setups=fit.programme.setups,
+                 rejected_steps=dict(run.rejected), repairs=repairs,
+                 largest_row_residual_m=run.residuals[keep - 1] if keep else 0.0)
+    return FitResult(result.v, fit.faces, result.surf, fit.sub.faces, iteration, stop,
+                     run.energies[:len(run.energies) - sum(len(r["energies"]) for r in repairs)],
+                     terms, time.perf_counter() - start, run.statuses, fit.sub)
+
+
+@dataclass(eq=False)
+class _Descent:
+    """A run of accepted iterates (the first is where it starts), the judged energy, OSQP's
+    status and the largest row residual of each step, and the steps refused and why."""
+
+    accepted: list
+    energies: list = field(default_factory=list)
+    statuses: list = field(default_factory=list)
+    residuals: list = field(default_factory=list)
+    rejected: dict = field(default_factory=lambda: {"energy": 0, "fold": 0, "ridge": 0})
+
+    def extend(self, other: "_Descent") -> None:
+        self.accepted += other.accepted[1:]
+        self.energies += other.energies
+        self.statuses += other.statuses
+        self.residuals += other.residuals
+        for why, count in other.rejected.items():
+            self.rejected[why] += count
+
+
+def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarray,
+            first: int, last: int, progress=None, tau: float | None = None
+            ) -> tuple[str, int]:
+    """Iterations `first`..`last` from the run's last iterate: each proposes a step and
+    accepts it (`acceptable`) or tries it half as long; tau ramps over the first TAU_RAMP
+    iterations unless given. Returns why it stopped and the last iteration."""
+    params = fit.params
+    it = run.accepted[-1]
+    iteration = first - 1
+    for iteration in range(first, last + 1):
+        t = params.tau_max * min(1.0, (iteration - 1) / TAU_RAMP) if tau is None else tau
+        target, status, residual = propose(fit, it, t, params.step,
+                                           assemble(fit, it.pairing, it.surf_n, t))
+        for halving in range(MAX_HALVINGS + 1):
+            v = it.v + 0.5 ** halving * (target - it.v)
             candidate = assess(fit, v, member, floor_member, it.rows.skin)
-            why = acceptable(fit, it, candidate, tau)
+            why = acceptable(fit, it, candidate, t)
             if why is None:
                 break
-            rejected[why] += 1
-            radius /= 2
+            run.rejected[why] += 1
         else:
-            stop = (f"converged: no step of {1e3 * 2 * radius:.1f} mm or more lowers the "
-                    f"energy without folding (energy {it.energy(tau):.6g})")
-            break
-        radius = min(params.step, 2 * radius)
+            return (f"converged: no step along the programme's solution (down to "
+                    f"1/{2 ** MAX_HALVINGS} of it) lowers the energy without folding (energy "
+                    f"{it.energy(t):.6g})"), iteration
         it = candidate
-        accepted.append(it)
-        energies.append(it.energy(tau))
-        statuses.append(status)
-        residuals.append(residual)
+        run.accepted.append(it)
+        run.energies.append(it.energy(t))
+        run.statuses.append(status)
+        run.residuals.append(residual)
         if progress is not None:
-            progress(iteration, energies[-1], tau)
-        if converged(energies, params.tolerance):
-            stop = (f"converged: the energy has not improved by {100 * params.tolerance:g} %"
-                    f" in {PATIENCE} iterations ({energies[-1]:.6g})")
-            break
-    keep, crossings = uncrossed(fit, [a.v for a in accepted])
-    if keep < len(accepted) - 1:
-        stop += (f"; the surface crossed itself ({crossings} triangle pairs) after iteration "
-                 f"{keep}, which is kept")
-    result = accepted[keep]
-    tau = params.tau_max * min(1.0, max(keep - 1, 0) / TAU_RAMP)
-    terms = terms_of(fit, result, tau)
-    terms.update(best_iteration=keep, qp_setups=fit.programme.setups,
-                 rejected_steps=dict(rejected),
-                 largest_row_residual_m=residuals[keep - 1] if keep else 0.0)
-    return FitResult(result.v, fit.faces, result.surf, fit.sub.faces, iteration, stop,
-                     energies, terms, time.perf_counter() - start, statuses, fit.sub)
+            progress(iteration, run.energies[-1], t)
+        if tau is None and converged(run.energies, params.tolerance) or \
+                tau is not None and len(run.energies) > PATIENCE and \
+                run.energies[-1] > run.energies[-1 - PATIENCE] * (1 - params.tolerance):
+            return (f"converged: the energy has not improved by {100 * params.tolerance:g} %"
+                    f" in {PATIENCE} iterations ({run.energies[-1]:.6g})"), iteration
+    return f"reached the iteration limit ({last})", iteration

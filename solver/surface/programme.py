@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from solver.surface.subdivision import Subdivision
 
 EPS_ABS, EPS_REL = 1e-5, 1e-4  # OSQP tolerances (metres for the constraints)
 
@@ -24,13 +23,15 @@ class Programme:
     fit; OSQP is set up again only when the set of rows changes, and updated in place otherwise.
     """
 
-    def __init__(self, sub: Subdivision, lap: sp.csr_matrix, n0: int, slack_weight: float):
+    def __init__(self, points: sp.spmatrix, lap: sp.csr_matrix, n0: int, slack_weight: float):
+        """points: (P, n0) the surface points rows may hold, as linear maps of the control
+        vertices (the level-s vertices, then any more); lap: (n0, n0) the control Laplacian."""
         import osqp
 
         self._osqp = osqp
         self.n0 = n0
         self.slack_weight = slack_weight
-        s = sub.matrix.tocsr()
+        s = sp.csr_matrix(points)
         self.s = s
         coupling = (s.T @ s).tocsr() + (lap.T @ lap) + sp.identity(n0)
         coupling.data[:] = 1.0

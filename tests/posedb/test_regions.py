@@ -44,6 +44,8 @@ def test_a_chair_is_a_seat_with_a_back_and_a_bed_carries_everything():
     ([], "at least one body region"),
     ("", "got ''"),
     ([3], "got 3"),
+    ([{}], r"got \{\}"),
+    ([["seat"]], r"got \['seat'\]"),
     (None, "Expected a body region, a use or a list of regions, got None"),
 ])
 def test_unknown_names_are_refused_by_name(names, message):

@@ -129,7 +129,7 @@ def test_a_fit_on_a_background_thread_comes_back_in_rhino_units(api, settings, p
     vertices, faces = _grid_mm()
     crease_row = [(vertices[k], vertices[k + 1]) for k in range(3 * 9 + 2, 3 * 9 + 6)]
     creases = gh.crease_pairs(vertices, faces, crease_row, 1e-6)
-    persons = [gh.person_request(POSE, at, heading, ["legs"]) for at, heading in people]
+    persons = [gh.person_request(POSE, at, heading, ["seat"]) for at, heading in people]
     request = gh.fit_request(vertices, faces, persons, creases, settings)
     state, finished = {}, threading.Event()
     thread = gh.start_fit(state, api.url, request, finished.set, timeout=60)

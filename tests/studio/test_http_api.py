@@ -64,11 +64,21 @@ def test_fit_of_one_person_answers_with_the_surface_and_its_evaluation(api):
     assert len(reply["surface"]["faces"]) == 8 * 6 * 64
     assert len(reply["control"]["vertices"]) == 9 * 7
     person = reply["persons"][0]
-    assert person["coverage"] >= 0.9
+    assert person["coverage"] >= 0.9 and person["support"] == ["pelvis", "thighs"]
+    assert "converged" in reply["stop_reason"]
+    # the example supports a seat, on which this pose (leaning back) finds no rest; in a chair
+    # (a template with a back, supporting the back too) the body rests and its pressure comes
+    # back
+    chair = json.loads(json.dumps(SINGLE))
+    chair["surface"] = {k: v for k, v in chair["surface"].items() if k != "grid"}
+    chair["surface"]["template"] = {"kind": "chair"}
+    chair["person"][0]["support"] = "chair"
+    status, reply = _request(api, "POST", "/api/fit", chair)
+    assert status == 200, reply
+    person = reply["persons"][0]
     assert person["equilibrium"]["stable"] and person["peak_pressure_kpa"] > 0
     # this pose leans back: a flat seat without a back lets it tip over
     assert person["flat"]["supported"] is False and person["flat"]["peak_pressure_kpa"] is None
-    assert "converged" in reply["stop_reason"]
 
 
 def test_the_same_fit_sent_with_an_inline_control_mesh_gives_the_same_surface(api):

@@ -37,7 +37,7 @@ def test_a_design_fits_relaxes_and_saves_what_reads_back(library, tmp_path):
     d = Design(library)
     assert len(d.vertices) == 9 * 7  # the scenario schema's 8 x 6 start
     d.new_grid((0.5, 0.6), (8, 6), 0.42)  # single_seated's start: the schema's is coarser
-    d.add_person("db:perch", position=[0.0, 0.0, -0.1], support=["legs"])
+    d.add_person("db:perch", position=[0.0, 0.0, -0.1], support=["seat"])
     outcome = d.fit()
     assert outcome.persons[0]["coverage"] >= 0.9
     assert len(outcome.result.surface) == 65 * 49  # an 8 x 6 grid at level 3

@@ -173,13 +173,13 @@ def test_a_scenario_fits_a_six_channel_pose(axis_studio_seated, tmp_path):
     scenario = tmp_path / "s.toml"
     scenario.write_text(f"""
 [surface]
-grid = {{ size = [0.5, 0.6], resolution = [8, 6], height = 0.45 }}
+template = {{ kind = "chair" }}
 max_iterations = 15
 
 [[person]]
 pose = "bvh:{axis_studio_seated}#frame=3"
 position = [0.0, 0.0, -0.05]
-support = ["legs"]
+support = "chair"
 """)
     report = run_fit(scenario, tmp_path / "out")
     person = report["persons"][0]

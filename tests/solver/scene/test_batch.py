@@ -159,8 +159,10 @@ def test_a_dask_scheduler_with_two_workers_and_one_killed(tmp_path):
         for r, l in zip(remote["jobs"], local["jobs"], strict=True):
             # the same jobs, the same answers (to rounding: BLAS may sum in another order)
             assert (r["job"], r["status"]) == (l["job"], l["status"]) == (r["job"], "ok")
-            assert {k: r[k] for k in numbers} == pytest.approx({k: l[k] for k in numbers},
-                                                               rel=1e-9)
+            # (a peak is None for a body that finds no rest: then on both)
+            assert [k for k in numbers if r[k] is None] == [k for k in numbers if l[k] is None]
+            assert {k: r[k] for k in numbers if r[k] is not None} == pytest.approx(
+                {k: l[k] for k in numbers if l[k] is not None}, rel=1e-9)
     finally:
         for proc in procs:
             if proc.poll() is None:

@@ -76,7 +76,7 @@ name = "slight"
 pose = "db:{pose}"
 body = {{ gender = 0.2, weight = 0.3, height = 0.4 }}
 position = [0.0, 0.0, -0.1]
-support = ["legs"]
+support = "seat"
 """
 
 

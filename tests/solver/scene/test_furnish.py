@@ -53,7 +53,7 @@ def test_the_chair_is_built_under_the_sitter_and_explicit_values_win():
     # the seat starts under the buttocks (not inside them), within a few centimetres
     buttocks = skin[people[0].body.regions == BODY_REGIONS.index("pelvis")]
     assert 0.005 <= buttocks[:, 1].min() - t.seat_height <= 0.05
-    assert t.seat_width > np.ptp(skin[people[0].body.thigh, 0])
+    assert t.seat_width > np.ptp(skin[people[0].body.regions == BODY_REGIONS.index("thighs"), 0])
     given, _ = place_scene(_scenario({"kind": "chair", "seat_height": 0.3, "arms": False}))
     assert given.surface.template.built.seat_height == 0.3
     assert given.surface.template.built.seat_depth == pytest.approx(t.seat_depth, abs=0.02)
@@ -63,7 +63,7 @@ def test_a_bench_spans_its_sitters():
     s, people = place_scene(_scenario({"kind": "bench"}, persons=(SITTER, SITTER)))
     assert s.surface.template.built.seats == 2
     xs = s.surface.vertices[:, 0]
-    hips = [p.vertices[p.body.thigh, 0] for p in people]
+    hips = [p.vertices[p.body.regions == BODY_REGIONS.index("thighs"), 0] for p in people]
     assert xs.min() < min(h.min() for h in hips) and xs.max() > max(h.max() for h in hips)
 
 

@@ -222,3 +222,19 @@ def test_floor_search_finds_the_full_skins_lowest_point():
             pose = rig_pose(body, local, rng.normal(size=3))
             full = skin(body, pose, normals=False)[0][:, 1].min()
             assert lowest_height(body, pose) == full  # the same arithmetic: exactly equal
+
+
+def test_ridge_guard_holds_the_rim_of_a_cradle_open(ball):
+    """The rim of the cradle under the ball bends away from it (a ridge); asked for ridges no
+    tighter than 30 cm, the fit keeps every ridge at least that wide and reports the steps it
+    refused for it (the free fit bends tighter)."""
+    v, t, normals, areas, importance = ball
+    grid_v, grid_f = grid_mesh((1.2, 0.8), (8, 6), 0.45)
+    body = [SupportedBody(v, normals, importance, "ball", t)]
+    params = F.FitParams(margin=0.02, sigma=0.001, max_iterations=25, min_ridge_radius=0.0)
+    free = F.fit_surface(grid_v, grid_f, body, params)
+    assert free.energy_terms["min_ridge_radius_m"] < 0.3
+    held = F.fit_surface(grid_v, grid_f, body, dataclasses.replace(params, min_ridge_radius=0.3))
+    ridge = held.energy_terms["min_ridge_radius_m"]
+    assert ridge is None or ridge >= 0.3
+    assert held.energy_terms["rejected_steps"]["ridge"] > 0
