@@ -106,30 +106,55 @@ def _fit(arg):
 
 
 def _relax_setup():
-    """The overweight body on the seat fitted for the thin one (the paper's figure 8)."""
-    from solver.surface.fit import fit_surface
+    """The overweight body on the seat fitted for the thin one (the paper's figure 8): the
+    relaxation problem, the gate of the evaluation's figures and those figures before, as
+    `relax_person` has them."""
+    from solver.contact.evaluate import SupportGate
     from solver.mesh import quad_triangles
     from solver.scene.placement import place_person
-    from solver.scene.run import relax_problem
+    from solver.scene.run import fit_people, foams, relax_problem
 
     thin, targets, params = _example("seat_for_thin")
     heavy, _, _ = _example("seat_for_heavy")
-    fit = fit_surface(thin.surface.vertices, thin.surface.faces, targets, params)
-    tris = quad_triangles(fit.surface_faces)
+    fit = fit_people(thin, targets)
     person = place_person(heavy.persons[0], None, 0)
-    return relax_problem(person, fit.surface, tris, margin=params.margin)
+    foam, _ = foams(heavy.evaluation)
+    problem = relax_problem(person, fit.surface, quad_triangles(fit.surface_faces),
+                            margin=params.margin, foam=foam)
+    gate = SupportGate(problem.surface_mesh(), person.importance, person.triangles,
+                       params.margin, foam)
+    return problem, gate, gate.figures(person.vertices)
 
 
-def _relax(problem):
+def _relax(arg):
     from solver.body.relax import relax
 
-    return relax(problem)
+    problem, gate, before = arg
+    return relax(problem, gate=gate, figures_before=before)
 
 
-def _relax_numeric(problem):
+def _relax_numeric(arg):
     from solver.body.relax import relax
 
-    return relax(problem, numeric_jacobian=True)
+    problem, gate, before = arg
+    return relax(problem, gate=gate, figures_before=before, numeric_jacobian=True)
+
+
+def _relax_person_setup():
+    """The same, as `sitrelax relax` runs it: the scenario, the person and the surface."""
+    from solver.scene.placement import place_person
+    from solver.scene.run import fit_people
+
+    thin, targets, _ = _example("seat_for_thin")
+    heavy, _, _ = _example("seat_for_heavy")
+    fit = fit_people(thin, targets)
+    return heavy, place_person(heavy.persons[0], None, 0), fit.surface, fit.surface_faces
+
+
+def _relax_person(arg):
+    from solver.scene.run import relax_person
+
+    return relax_person(*arg)
 
 
 def _settle_setup():
@@ -230,8 +255,12 @@ def solver_cases() -> list[BenchCase]:
                   "penetration, the settle, mat figures", _evaluate_setup, _evaluate,
                   repeats=7),
         BenchCase("relax", "relax one pose (the overweight body onto the thin body's seat) "
-                  "with the analytic Jacobian", _relax_setup, _relax, _relax_numeric,
+                  "with the analytic Jacobian, each round judged by the evaluation's figures "
+                  "(those before given)", _relax_setup, _relax, _relax_numeric,
                   "finite-difference Jacobian", repeats=7, baseline_repeats=1),
+        BenchCase("relax_person", "the same as `sitrelax relax` does it: the problem and its "
+                  "guarded skin, the figures before, the relaxation, the figures after",
+                  _relax_person_setup, _relax_person, repeats=5),
         BenchCase("batch_scaling", "24-job sigma sweep of single_seated (fit, evaluate, export) "
                   "on 2 local Dask workers", _batch_setup, _batch_on(2), _batch_on(1),
                   "the same on 1 worker", repeats=2, baseline_repeats=2, warmup=False),

@@ -262,8 +262,11 @@ def _cmd_relax(args: argparse.Namespace) -> int:
         b, a = p["before"], p["after"]
         print(f"{p['name']}: support distance {b['mean_support_distance_m'] * 100:.1f} -> "
               f"{a['mean_support_distance_m'] * 100:.1f} cm, coverage {b['coverage']:.2f} -> "
-              f"{a['coverage']:.2f}, peak {peak_text(b)} -> {peak_text(a)} "
+              f"{a['coverage']:.2f}, contact {b['contact_coverage']:.2f} -> "
+              f"{a['contact_coverage']:.2f}, deepest cut {b['max_penetration_m'] * 1000:.0f} -> "
+              f"{a['max_penetration_m'] * 1000:.0f} mm, peak {peak_text(b)} -> {peak_text(a)} "
               f"({p['seconds']:.2f} s)")
+        print(f"  {p['relaxation']['summary']}")
         if "saved_pose" in p:
             print(f"  saved as pose {p['saved_pose']['name']!r} ({p['saved_pose']['id']})")
     return 0

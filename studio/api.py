@@ -420,7 +420,7 @@ def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
     @app.post("/api/relax", summary="Fit, then relax one person onto the surface")
     def relax(req: RelaxRequest) -> dict:
         from solver.scene.placement import place_scene
-        from solver.scene.run import fit_people, relax_person
+        from solver.scene.run import fit_people, relax_person, relax_record
 
         scenario = request_scenario(req.scenario, ("scenario",))
         if req.index >= len(scenario.persons):
@@ -435,7 +435,7 @@ def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
                                                    result.surface_faces)
         return {"label": person.label, "evaluations": res.evaluations,
                 "parameters_at_limit": res.at_limit, "seconds": seconds,
-                "before": before, "after": after,
+                "before": before, "after": after, "relaxation": relax_record(res),
                 "surface": _mesh(result.surface, result.surface_faces),
                 "body": _mesh(res.vertices, person.body.triangles)}
 

@@ -24,7 +24,7 @@ import numpy as np
 from capture.files import write_atomic
 from solver.scene import schema
 from solver.surface.fit import FitResult
-from solver.scene.run import fit_scene, relax_person, run_fit
+from solver.scene.run import fit_scene, relax_person, relax_text, run_fit
 from solver.scene.scenario import Scenario, parse_scenario, read_control_mesh, scenario_toml
 from solver.scene.placement import PlacedPerson, place_person
 
@@ -72,6 +72,7 @@ class RelaxOutcome:
     before: dict
     after: dict
     seconds: float
+    summary: str = ""  # what the relaxation accepted and why (`relax_text`)
 
 
 class Design:
@@ -221,7 +222,7 @@ class Design:
         res, before, after, _ = relax_person(self.scenario(), person, self.last.result.surface,
                                              self.last.result.surface_faces)
         return RelaxOutcome(k, res.vertices, person.body.triangles, before, after,
-                            time.perf_counter() - start)
+                            time.perf_counter() - start, relax_text(res))
 
     def save_toml(self, path: str | os.PathLike) -> Path:
         path = Path(path)

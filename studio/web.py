@@ -441,7 +441,8 @@ class Studio:
                                           color=(150, 200, 150), opacity=0.8)
         self._status(f"Relaxed {self.design.people[k]['name']} in {res.seconds:.2f} s: mean "
                      f"support distance {100 * res.before['mean_support_distance_m']:.1f} -> "
-                     f"{100 * res.after['mean_support_distance_m']:.1f} cm (green).")
+                     f"{100 * res.after['mean_support_distance_m']:.1f} cm (green); "
+                     f"{res.summary}.")
 
     def _save_db(self) -> None:
         name = self.design.save_to_library(check_name(self.name.value))

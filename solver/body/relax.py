@@ -1,4 +1,4 @@
-"""Pose relaxation: the paper's section 6 and appendix B.
+"""Pose relaxation: the paper's section 6 and appendix B, judged by the evaluation's figures.
 
 The rig's pose is moved so that the supportable skin comes to rest on a surface without
 cutting into it, while staying close to the captured pose. Parameters: three angles per joint,
@@ -7,18 +7,24 @@ is all zeros and far from gimbal lock), and the root translation. Residuals, eac
 sqrt(lambda) and by the importance r_i of supportable vertex i:
 
     point-to-point   r_i (v_i - c_i)                       (c_i: closest surface point)
-    point-to-plane   r_i (n_i . v_i - d_i)                 (the surface's tangent plane)
-    penetration      r_i (1/2 - arctan(a (n_i . v_i - d_i) + b) / pi)
+    point-to-plane   r_i s_i,  s_i = n_i . v_i - d_i       (the surface's tangent plane)
+    penetration      r_i (2 / pi) arctan(max(0, -(s_i + m)) / w)
     similarity       theta - theta0
 
-The penetration term is a smooth step of the signed distance s = n . v - d from the surface: 1
-well behind it, 0 well in front. The paper's a = 1000 and b = 10 are in metres (its meshes came
-from Blender in metres): the step is about 1/a = 1 mm wide and its middle sits at s = -b/a =
--1 cm, slightly into the surface. Here they are `PENETRATION_WIDTH` = 1 mm and
-`PENETRATION_SHIFT` = 1 cm, so a = 1 / width and b = shift / width. A surface fitted with a
-softness margin m (the fit lets skin sink m into the foam) is relaxed onto with the step's middle
-two widths short of m, so the penalty is nearly full at the margin and absent well inside it
-(`solver.scene.run.relax_problem`); otherwise the paper's 1 cm holds.
+The paper's penetration term, 1/2 - arctan(a s + b) / pi with a = 1000 and b = 10 in metres, is
+a step about 1/a = 1 mm wide whose middle sits 1 cm behind the surface. Its half in front of the
+middle reaches far: on a surface fitted to the same pose, every skin point near the surface was
+pushed off it harder than the distance terms pulled it back (the support distance grew, the
+contact shrank, the deepest cut deepened). Here the step is cut at its middle and rescaled to
+rise from 0: nothing in front of the surface, and nothing sunk in by less than the softness
+margin m the surface was fitted with, is pushed; deeper skin is, over `PENETRATION_WIDTH` = 1/a
+(m is the paper's b/a = 1 cm, `DEFAULT_MARGIN`, when the surface's is not known).
+
+Skin with no importance takes no part in the distance terms, but where the surface cuts into it
+or it lies within `GUARD_BAND` in front of it (`guard_ids`: the calves at a seat's front edge)
+it may not sink deeper than it was at the start of a round, or into the surface, by more than
+`GUARD_TOLERANCE`, with weight `GUARD_WEIGHT`: pulling the thighs down must not push the
+calves into the seat.
 
 Only the vertices facing the surface (their closest point is the foot of the perpendicular, not a
 point on a border they lie beside) can be behind it: a thigh below the level of an armrest's
@@ -28,12 +34,19 @@ Jacobians are analytic, as in appendix B: d v_i / d theta_k = a_k x sum_{j below
 (u_ij - p_k), with a_k the world axis of the angle, p_k its joint, u_ij the point joint j moves
 vertex i to and w_ij the skinning weight; d v_i / d t = I for the root translation. The problem
 is solved by scipy's trust-region reflective least squares with box constraints (`JOINT_LIMITS`,
-in degrees from the captured pose), re-pairing with the surface between solves.
+in degrees from the captured pose), re-pairing with the surface between rounds.
+
+A round's pose is kept only where a `Gate` (the evaluation's own figures: support distance,
+coverage, contact coverage, deepest cut) finds none of them worse than the last kept pose's;
+otherwise, in the first round, a shorter step towards it is tried (`STEP_SCALES`), and when
+none passes the last kept pose is returned. The result is never worse than the captured pose
+by those figures.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 import scipy.sparse as sp
@@ -43,15 +56,20 @@ from scipy.spatial.transform import Rotation
 from capture import WorldPose
 
 from solver.body.model import Body
-from solver.mesh import face_normals
+from solver.mesh import SurfaceMesh
 from solver.body.rig import descendants, rig_pose
 
 LAMBDAS = (0.2, 0.2, 0.5, 0.1)  # point-to-point, point-to-plane, penetration, similarity
 PENETRATION_WIDTH = 0.001  # metres: 1 / a
 FACING_TOLERANCE = 1e-6  # metres off the perpendicular foot that still counts as facing
-PENETRATION_SHIFT = 0.01  # metres: b / a, how far behind the surface the step's middle lies
+DEFAULT_MARGIN = 0.01  # metres skin may sink when the surface's margin is unknown: the paper's b/a
+GUARD_WEIGHT = 0.3  # of the penetration term, for the skin with no importance the surface cuts
+GUARD_TOLERANCE = 3e-4  # metres such skin may sink past where a round found it
+GUARD_BAND = 0.01  # metres in front of the surface within which such skin is guarded too
+GUARD_SPACING = 0.015  # metres: one guarded vertex per cube of this side, the deepest
 ROOT_RANGE = 0.15  # metres the root may move
 FTOL = 1e-5  # relative cost change at which a round stops
+TR_OPTIONS = {"maxiter": 10}  # lsmr iterations per trust-region step: a rough step is enough
 
 # How far (degrees, per axis) each joint may turn from the captured pose: loose where joints
 # are mobile, tight along the spine; fingers and toes hardly move.
@@ -75,7 +93,9 @@ class RelaxProblem:
 
     local0 : (J, 3, 3) captured local rotations; root0 : (3,) captured root position (m);
     vertex_ids : (m,) the supportable vertices; importance : (m,) their r_i;
-    surface_vertices (N, 3), surface_triangles (F, 3): the surface (normals towards the body).
+    surface_vertices (N, 3), surface_triangles (F, 3): the surface (normals towards the body);
+    margin : metres the skin may sink into the surface before the penetration term pushes it;
+    guard_ids : (g,) vertices with no importance that may not sink deeper (module docstring).
     """
 
     body: Body
@@ -86,28 +106,50 @@ class RelaxProblem:
     surface_vertices: np.ndarray
     surface_triangles: np.ndarray
     lambdas: tuple[float, float, float, float] = LAMBDAS
-    penetration_shift: float = PENETRATION_SHIFT  # metres behind the surface: the step's middle
+    margin: float = DEFAULT_MARGIN
+    guard_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+
+    def __post_init__(self):
+        both = np.intersect1d(self.vertex_ids, self.guard_ids)
+        if both.size:
+            raise RelaxError(f"Expected guarded vertices that are not supportable, got "
+                             f"{both.size} in both (first {int(both[0])})")
+        if len(self.importance) != len(self.vertex_ids):
+            raise RelaxError(f"Expected one importance per supportable vertex "
+                             f"({len(self.vertex_ids)}), got {len(self.importance)}")
+
+    def surface_mesh(self) -> SurfaceMesh:
+        """The surface as a `SurfaceMesh` (its closest-point tree), made on first use and kept."""
+        mesh = self.__dict__.get("_surface_mesh")
+        if mesh is None:
+            mesh = SurfaceMesh.from_triangles(self.surface_vertices, self.surface_triangles)
+            object.__setattr__(self, "_surface_mesh", mesh)
+        return mesh
 
 
 class _Model:
-    """Forward model and analytic Jacobian of the supportable vertices."""
+    """Forward model and analytic Jacobian of the supportable vertices, then the guarded ones
+    (`ids`; the first `supported` are the supportable)."""
 
     def __init__(self, problem: RelaxProblem):
         self.p = problem
         body = problem.body
         self.n = len(body.joint_names)
-        w = body.weights[problem.vertex_ids].tocsr()
+        self.ids = np.concatenate([problem.vertex_ids, problem.guard_ids]).astype(np.int64)
+        self.supported = len(problem.vertex_ids)
+        w = body.weights[self.ids].tocsr()
         w.sum_duplicates()  # one entry per (vertex, joint): the Jacobian assigns, not adds
         w = w.tocoo()
         self.wi, self.wj, self.wv = w.row, w.col, w.data
-        self.m = len(problem.vertex_ids)
+        self.m = len(self.ids)
         # each (vertex, joint) entry's rest lever arm, and the weights that blend the entries
         # into vertices, both fixed for the problem
-        self.lever = body.vertices[problem.vertex_ids][self.wi] - body.joints[self.wj]
+        self.lever = body.vertices[self.ids][self.wi] - body.joints[self.wj]
         self.blend = sp.csr_matrix((self.wv, (self.wi, np.arange(len(self.wi)))),
                                    shape=(self.m, len(self.wi)))
         self.desc = descendants(body.parents)
         self._last: tuple[np.ndarray, tuple] | None = None  # least_squares asks twice per x
+        self._levers: tuple[np.ndarray, tuple] | None = None
 
     def pose(self, theta: np.ndarray) -> tuple[np.ndarray, WorldPose]:
         angles = theta[:3 * self.n].reshape(self.n, 3)
@@ -125,35 +167,60 @@ class _Model:
         self._last = (theta.copy(), out)
         return out
 
-    def jacobian_vertices(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Vertices (m, 3) and d v / d theta (m, 3, P), P = 3 J + 3."""
+    def levers(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Vertices (m, 3); the world axes (J, 3, 3) of each joint's three angles (axis k of
+        joint j at [j, k]); and per vertex i and joint j the lever arm (m, 3, J) the turns at
+        j move it by: the sum over the joints l at or below j of w_il (u_il - p_j)."""
+        if self._levers is not None and np.array_equal(self._levers[0], theta):
+            return self._levers[1]
         v, u, local, world = self.vertices(theta)
         n, m = self.n, self.m
         angles = theta[:3 * n].reshape(n, 3)
         parents = self.p.body.parents
-        # world axes of each joint's three angles: L = L0 Rx Ry Rz under the parent's frame
+        # L = L0 Rx Ry Rz under the parent's frame
         base = np.where(parents[:, None, None] >= 0, world.rotmats[np.maximum(parents, 0)],
                         np.eye(3)) @ self.p.local0
         rx = Rotation.from_euler("X", angles[:, :1]).as_matrix()
         ry = Rotation.from_euler("Y", angles[:, 1:2]).as_matrix()
         axes = np.stack([base[:, :, 0], (base @ rx)[:, :, 1], (base @ rx @ ry)[:, :, 2]], axis=1)
-        # per vertex i and joint k: the sum over the joints j at or below k of
-        # w_ij (u_ij - p_k), the lever arm the rotation at k turns
         cu = np.zeros((m, 3, n))
         wsum = np.zeros((m, n))
         cu[self.wi, :, self.wj] = self.wv[:, None] * u
         wsum[self.wi, self.wj] = self.wv
         below = (cu.reshape(3 * m, n) @ self.desc).reshape(m, 3, n) - \
             (wsum @ self.desc)[:, None, :] * world.positions.T[None]
-        bx, by, bz = below[:, 0], below[:, 1], below[:, 2]  # (m, n) each
-        jac = np.zeros((m, 3, 3 * n + 3))
+        self._levers = (theta.copy(), (v, axes, below))
+        return v, axes, below
+
+    def jacobian_vertices(self, theta: np.ndarray,
+                          rows: slice = slice(None)) -> tuple[np.ndarray, np.ndarray]:
+        """Vertices (m, 3) and d v / d theta (r, 3, P) of the vertices `rows`, P = 3 J + 3:
+        a turn about axis a moves a vertex by a x its lever arm, the root by the identity."""
+        v, axes, below = self.levers(theta)
+        bx, by, bz = below[rows, 0], below[rows, 1], below[rows, 2]  # (r, J) each
+        n = self.n
+        jac = np.zeros((len(bx), 3, 3 * n + 3))
         for k in range(3):
-            ax, ay, az = axes[:, k, 0], axes[:, k, 1], axes[:, k, 2]  # (n,) each
+            ax, ay, az = axes[:, k, 0], axes[:, k, 1], axes[:, k, 2]  # (J,) each
             jac[:, 0, k:3 * n:3] = ay * bz - az * by
             jac[:, 1, k:3 * n:3] = az * bx - ax * bz
             jac[:, 2, k:3 * n:3] = ax * by - ay * bx
         jac[:, :, 3 * n:] = np.eye(3)[None]
         return v, jac
+
+    def normal_jacobian(self, theta: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """d (n_i . v_i) / d theta (m, P) for unit normals (m, 3): n . (a x b) = a . (b x n),
+        without the vertices' whole Jacobian."""
+        _, axes, below = self.levers(theta)
+        nx, ny, nz = normals[:, 0:1], normals[:, 1:2], normals[:, 2:3]  # (m, 1) each
+        bx, by, bz = below[:, 0], below[:, 1], below[:, 2]  # (m, J) each
+        cx, cy, cz = by * nz - bz * ny, bz * nx - bx * nz, bx * ny - by * nx
+        n = self.n
+        jn = np.empty((self.m, 3 * n + 3))
+        for k in range(3):
+            jn[:, k:3 * n:3] = axes[:, k, 0] * cx + axes[:, k, 1] * cy + axes[:, k, 2] * cz
+        jn[:, 3 * n:] = normals
+        return jn
 
 
 def joint_bounds(body: Body) -> tuple[np.ndarray, np.ndarray]:
@@ -164,55 +231,109 @@ def joint_bounds(body: Body) -> tuple[np.ndarray, np.ndarray]:
     return -hi, hi
 
 
-def _surface_frames(points: np.ndarray, sv: np.ndarray, st: np.ndarray):
+def _surface_frames(points: np.ndarray, surface: SurfaceMesh):
     """Closest surface points (m, 3), unit normals (m, 3) of their faces, and whether each
     point faces its surface point (m,): its closest point is the foot of the perpendicular,
     not a point on the surface's border that the point lies beside.
 
     Only a facing point can be behind the surface; one beside the border and below its
     plane has not cut into anything, and the penetration term leaves it alone."""
-    import igl
-
-    _, face, closest = igl.point_mesh_squared_distance(points, sv, st)
-    fn = face_normals(sv, st[face])
-    offset = points - closest
-    along = np.einsum("ij,ij->i", offset, fn)
-    sideways = np.linalg.norm(offset - along[:, None] * fn, axis=1)
+    _, along, _, face, closest = surface.closest(points)
+    fn = surface.face_normals[face]
+    sideways = np.linalg.norm(points - closest - along[:, None] * fn, axis=1)
     facing = sideways <= FACING_TOLERANCE + 1e-3 * np.abs(along)
     return closest, fn, facing.astype(np.float64)
 
 
+def penetration_step(signed: np.ndarray, allowed) -> tuple[np.ndarray, np.ndarray]:
+    """The penetration term's step (m,) in [0, 1) of the signed distances (m,) (metres, positive
+    in front of the surface) and its derivative (m,) per metre: 0 in front of the surface and
+    down to `allowed` behind it (metres, a number or (m,)), then rising as the paper's arctan
+    step does past its middle, over `PENETRATION_WIDTH`, towards 1 deep behind it."""
+    depth = np.maximum(-(signed + allowed), 0.0) / PENETRATION_WIDTH
+    step = (2.0 / np.pi) * np.arctan(depth)
+    slope = np.where(depth > 0.0, -(2.0 / np.pi) / PENETRATION_WIDTH / (1.0 + depth ** 2), 0.0)
+    return step, slope
+
+
 def residuals(theta: np.ndarray, model: _Model, closest: np.ndarray, normals: np.ndarray,
-              facing: np.ndarray) -> np.ndarray:
+              weights: np.ndarray, allowed: np.ndarray) -> np.ndarray:
+    """The residuals of the module docstring at theta, for a round's pairing: per vertex of
+    the model (m) its closest surface point (m, 3), that face's unit normal (m, 3), the weight
+    of its penetration term (m,) (0 where it does not face the surface) and the depth (m,)
+    metres it may sink before that term pushes it."""
     lp, lt, lpen, ls = (np.sqrt(x) for x in model.p.lambdas)
-    r = model.p.importance
+    r, k = model.p.importance, model.supported
     v = model.vertices(theta)[0]
-    d = np.einsum("ij,ij->i", normals, closest)
-    s = np.einsum("ij,ij->i", normals, v) - d
-    a, b = 1.0 / PENETRATION_WIDTH, model.p.penetration_shift / PENETRATION_WIDTH
+    s = np.einsum("ij,ij->i", normals, v - closest)
     return np.concatenate([
-        lp * (r[:, None] * (v - closest)).ravel(),
-        lt * r * s,
-        lpen * r * facing * (0.5 - np.arctan(a * s + b) / np.pi),
+        lp * (r[:, None] * (v[:k] - closest[:k])).ravel(),
+        lt * r * s[:k],
+        lpen * weights * penetration_step(s, allowed)[0],
         ls * theta,
     ])
 
 
 def residual_jacobian(theta: np.ndarray, model: _Model, closest: np.ndarray,
-                      normals: np.ndarray, facing: np.ndarray) -> np.ndarray:
+                      normals: np.ndarray, weights: np.ndarray,
+                      allowed: np.ndarray) -> np.ndarray:
+    """d residuals / d theta (R, P), analytic (appendix B)."""
     lp, lt, lpen, ls = (np.sqrt(x) for x in model.p.lambdas)
-    r = model.p.importance
-    v, jv = model.jacobian_vertices(theta)  # (m, 3), (m, 3, P)
-    s = np.einsum("ij,ij->i", normals, v) - np.einsum("ij,ij->i", normals, closest)
-    a, b = 1.0 / PENETRATION_WIDTH, model.p.penetration_shift / PENETRATION_WIDTH
-    jn = np.einsum("ic,icp->ip", normals, jv)  # (m, P): d s / d theta
-    dpen = -(a / np.pi) / (1.0 + (a * s + b) ** 2)
-    return np.concatenate([
-        lp * (r[:, None, None] * jv).reshape(-1, jv.shape[2]),
-        lt * r[:, None] * jn,
-        lpen * (r * facing * dpen)[:, None] * jn,
-        ls * np.eye(jv.shape[2]),
-    ])
+    r, k = model.p.importance, model.supported
+    v, jv = model.jacobian_vertices(theta, slice(0, k))  # (m, 3), (k, 3, P)
+    jn = model.normal_jacobian(theta, normals)  # (m, P): d s / d theta
+    s = np.einsum("ij,ij->i", normals, v - closest)
+    size = jv.shape[2]
+    out = np.empty((4 * k + model.m + size, size))
+    np.multiply((lp * r)[:, None, None], jv, out=out[:3 * k].reshape(k, 3, size))
+    np.multiply((lt * r)[:, None], jn[:k], out=out[3 * k:4 * k])
+    np.multiply((lpen * weights * penetration_step(s, allowed)[1])[:, None], jn,
+                out=out[4 * k:4 * k + model.m])
+    out[4 * k + model.m:] = ls * np.eye(size)
+    return out
+
+
+def pairing(model: _Model, theta: np.ndarray, surface: SurfaceMesh):
+    """A round's pairing at theta, the arguments of `residuals` after the model: the closest
+    surface points (m, 3), their faces' normals (m, 3), the penetration term's weights (m,)
+    and the depths (m,) each vertex may sink (the margin; for a guarded vertex where it is
+    now, at least 0, and `GUARD_TOLERANCE` more)."""
+    p, k = model.p, model.supported
+    v = model.vertices(theta)[0]
+    closest, normals, facing = _surface_frames(v, surface)
+    weights = np.concatenate([p.importance, np.full(model.m - k, GUARD_WEIGHT)]) * facing
+    allowed = np.full(model.m, float(p.margin))
+    depth = -np.einsum("ij,ij->i", normals[k:], v[k:] - closest[k:])
+    allowed[k:] = np.maximum(depth, 0.0) + GUARD_TOLERANCE
+    return closest, normals, weights, allowed
+
+
+class Gate(Protocol):
+    """What judges a relaxed pose: `figures` of the whole skin (V, 3) in metres (a dict; given
+    a `reference`, it may stop short once one figure is worse than the reference's), and
+    `worse`, the names of the figures worse in `after` than in `before` (empty: not worse)."""
+
+    def figures(self, vertices: np.ndarray, reference: dict | None = None) -> dict: ...
+
+    def worse(self, before: dict, after: dict) -> list[str]: ...
+
+
+STEP_SCALES = (1.0, 0.5)  # shares of the first round's step tried, until one is not worse
+
+
+@dataclass(frozen=True)
+class RelaxStep:
+    """One pose a gated relaxation tried: its round (from 1), the share of the round's step
+    (1: the round's solution, 1/2: half way to it from the last accepted pose), whether it was
+    accepted, its figures, and the names of the figures worse than the last accepted pose's
+    (why it was rejected) and better (what it gained)."""
+
+    round: int
+    scale: float
+    accepted: bool
+    figures: dict
+    worse: tuple[str, ...]
+    better: tuple[str, ...]
 
 
 @dataclass
@@ -223,9 +344,12 @@ class RelaxResult:
         local rotation, L_j = L0_j Rx Ry Rz, then the root translation (metres) from `root0`.
     local : (J, 3, 3) float relaxed local rotations; world : WorldPose (J) relaxed world frames.
     vertices : (V, 3) float, metres, the whole relaxed body.
-    cost : half the sum of squared residuals at the end of the last round (scipy's cost).
+    cost : half the sum of squared residuals of the returned pose, paired as in the last round.
     evaluations : residual evaluations over all rounds; rounds : the rounds run.
     at_limit : how many parameters ended on their box limit.
+    steps : with a gate, every pose tried (`RelaxStep`), in order; empty without one.
+    figures_before, figures : with a gate, its figures of the captured pose and of the returned
+        one (None without a gate).
     """
 
     theta: np.ndarray
@@ -236,15 +360,33 @@ class RelaxResult:
     evaluations: int
     rounds: int
     at_limit: int  # parameters on their box limit
+    steps: tuple[RelaxStep, ...] = ()
+    figures_before: dict | None = None
+    figures: dict | None = None
+
+    @property
+    def accepted(self) -> bool:
+        """Whether a gate accepted some round (True without a gate: every round is taken)."""
+        if self.figures is None and not self.steps:
+            return True
+        return any(s.accepted for s in self.steps)
 
 
-def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 60, *,
-          numeric_jacobian: bool = False) -> RelaxResult:
-    """Relaxes the pose: `rounds` of pairing with the surface, each a bounded least squares.
+def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 15, *,
+          numeric_jacobian: bool = False, gate: Gate | None = None,
+          figures_before: dict | None = None) -> RelaxResult:
+    """Relaxes the pose: `rounds` of pairing with the surface, each a bounded least squares,
+    each round's pose accepted only where the `gate` finds none of its figures worse.
 
-    Each round pairs the supportable vertices with their closest surface points, then solves
-    the least squares of the module docstring from the last round's solution (trust-region
-    reflective, box constraints `JOINT_LIMITS` in degrees per axis and `ROOT_RANGE` metres).
+    Each round pairs the supportable and guarded vertices with their closest surface points,
+    then solves the least squares of the module docstring from the last accepted pose
+    (trust-region reflective, box constraints `JOINT_LIMITS` in degrees per axis and
+    `ROOT_RANGE` metres). With a gate, the round's solution is accepted when none of its
+    figures is worse than the last accepted pose's; in the first round, whose step is the
+    longest, the shares `STEP_SCALES` of the step are tried in turn, the whole step first.
+    When no pose of a round is accepted, the last accepted one is kept and the relaxation stops
+    (a next round would pair and solve the same). The returned pose is then never worse than
+    the captured one by the gate's figures.
 
     Parameters
     ----------
@@ -253,40 +395,75 @@ def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 60, *,
         surface (metres).
     rounds : int, default 3
         Rounds of pairing and solving.
-    max_evaluations : int, default 60
-        Residual evaluations allowed per round.
+    max_evaluations : int, default 15
+        Residual evaluations allowed in the first round; later rounds, which refine it, get
+        half as many.
     numeric_jacobian : bool, default False
         Swaps the analytic Jacobian for finite differences (a reference).
+    gate : Gate, optional
+        What judges each round's pose (`solver.contact.evaluate.SupportGate`: the evaluation's
+        own figures); None accepts every round.
+    figures_before : dict, optional
+        The gate's figures of the captured pose when the caller has them (computed otherwise).
 
     Returns
     -------
     RelaxResult
         The parameters theta (3 J + 3,) (radians per joint axis, then the root translation in
         metres), the relaxed local rotations (J, 3, 3) and world frames (J), the whole relaxed
-        skin (V, 3) in metres, the last round's cost, the evaluations over all rounds and the
-        number of parameters at their limit.
+        skin (V, 3) in metres, its cost, the evaluations over all rounds, the number of
+        parameters at their limit, and with a gate every pose tried and the figures before and
+        after.
     """
-    from solver.body.skinning import skin
-
+    if rounds < 1 or max_evaluations < 1:
+        raise RelaxError(f"Expected at least one round and one evaluation per round, got "
+                         f"rounds={rounds}, max_evaluations={max_evaluations}")
     model = _Model(problem)
     lo, hi = joint_bounds(problem.body)
     theta = np.zeros(3 * model.n + 3)
-    sv = np.asarray(problem.surface_vertices, dtype=np.float64)
-    st = np.asarray(problem.surface_triangles, dtype=np.int64)
-    evaluations = 0
-    cost = 0.0
-    for _ in range(rounds):
-        v = model.vertices(theta)[0]
-        pairing = _surface_frames(v, sv, st)
-        sol = least_squares(residuals, theta,
-                            jac="2-point" if numeric_jacobian else residual_jacobian,
-                            bounds=(lo, hi),
-                            method="trf", tr_solver="lsmr", max_nfev=max_evaluations, ftol=FTOL, xtol=1e-8,
-                            x_scale="jac",
-                            args=(model, *pairing))
-        theta, cost = sol.x, float(sol.cost)
+    surface = problem.surface_mesh()
+    jac = "2-point" if numeric_jacobian else residual_jacobian
+    verts, figures = None, None
+    if gate is not None:
+        verts = _skin(model, theta)
+        figures = gate.figures(verts) if figures_before is None else figures_before
+    before = figures
+    evaluations, run, steps = 0, 0, []
+    paired = None
+    for run in range(1, rounds + 1):
+        paired = pairing(model, theta, surface)
+        budget = max_evaluations if run == 1 else (max_evaluations + 1) // 2
+        sol = least_squares(residuals, theta, jac=jac, bounds=(lo, hi), method="trf",
+                            tr_solver="lsmr", max_nfev=budget, ftol=FTOL, xtol=1e-8,
+                            x_scale="jac", args=(model, *paired), tr_options=TR_OPTIONS)
         evaluations += sol.nfev
+        if gate is None:
+            theta = sol.x
+            continue
+        for scale in STEP_SCALES if run == 1 else STEP_SCALES[:1]:
+            tried = theta + scale * (sol.x - theta)  # between two poses in the box: in it
+            tried_verts = _skin(model, tried)
+            tried_figures = gate.figures(tried_verts, reference=figures)
+            worse = tuple(gate.worse(figures, tried_figures))
+            steps.append(RelaxStep(run, scale, not worse, tried_figures, worse,
+                                   tuple(gate.worse(tried_figures, figures))))
+            if not worse:
+                theta, verts, figures = tried, tried_verts, tried_figures
+                break
+        else:
+            break
+    if gate is None:
+        verts = _skin(model, theta)
     local, world = model.pose(theta)
-    verts, _ = skin(problem.body, WorldPose(world.positions, world.rotmats), normals=False)
+    cost = 0.5 * float(np.sum(residuals(theta, model, *paired) ** 2))
     at_limit = int(np.sum((theta <= lo + 1e-9) | (theta >= hi - 1e-9)))
-    return RelaxResult(theta, local, world, verts, cost, evaluations, rounds, at_limit)
+    return RelaxResult(theta, local, world, verts, cost, evaluations, run, at_limit,
+                       tuple(steps), before, figures)
+
+
+def _skin(model: _Model, theta: np.ndarray) -> np.ndarray:
+    """(V, 3) the whole skin in the pose theta."""
+    from solver.body.skinning import skin
+
+    _, world = model.pose(theta)
+    return skin(model.p.body, WorldPose(world.positions, world.rotmats), normals=False)[0]

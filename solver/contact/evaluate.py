@@ -33,6 +33,7 @@ from solver.threads import with_limited_threads
 
 FLOOR = Foam(stiffness=30000e3, thickness=0.02)  # a hard floor under shoes and heels
 CONTACT_GAP = 0.005  # metres in front of the surface a body point counts as touching it
+DEPTH_BATCH = 256  # surface points `penetration_depth` tests for inside at once
 
 
 @dataclass(frozen=True, eq=False)
@@ -141,34 +142,195 @@ def equilibrium_figures(settled: Settled) -> dict:
             "supports": supports}
 
 
-def penetration_depth(surface_points: np.ndarray, body_vertices: np.ndarray,
-                      body_triangles: np.ndarray) -> float:
-    """Largest depth (m) of the given surface points inside a closed body mesh (0 if none); the
-    distance is exact, the inside test the fast winding number."""
+def body_winding(vertices: np.ndarray, triangles: np.ndarray):
+    """The closed body's fast winding number tree (libigl's `FastWindingNumberBVH`), built once
+    for `cut_vertices` and `penetration_depth` to share. vertices (V, 3) m, triangles (F, 3)."""
     import igl
 
-    signed = igl.signed_distance(np.asarray(surface_points, dtype=np.float64),
-                                       np.asarray(body_vertices, dtype=np.float64),
-                                       np.asarray(body_triangles, dtype=np.int64),
-                                       igl.SIGNED_DISTANCE_TYPE_FAST_WINDING_NUMBER)[0]
-    return float(max(0.0, -signed.min()))
+    tree = igl.FastWindingNumberBVH()
+    tree.init(np.asarray(vertices, dtype=np.float64), np.asarray(triangles, dtype=np.int64))
+    return tree
+
+
+def penetration_depth(surface_points: np.ndarray, body_vertices: np.ndarray,
+                      body_triangles: np.ndarray, winding=None) -> float:
+    """Largest depth (m) of the given surface points (P, 3) inside a closed body mesh (0 if
+    none): inside where the body's fast winding number (`winding`, its `body_winding`, built
+    here when None) exceeds one half, the depth the exact distance to the skin.
+
+    A point's distance to its nearest body vertex bounds its depth from above, so the points
+    are taken largest bound first, tested for inside in batches of `DEPTH_BATCH` and measured
+    in smaller ones, until no bound left exceeds the deepest depth found; each measured against
+    the skin triangles that can hold its closest point (a triangle within that bound has a
+    vertex within it plus the triangle's longest edge)."""
+    import igl
+    from scipy.spatial import cKDTree
+
+    points = np.asarray(surface_points, dtype=np.float64)
+    if not len(points):
+        return 0.0
+    vertices = np.asarray(body_vertices, dtype=np.float64)
+    triangles = np.asarray(body_triangles, dtype=np.int64)
+    if winding is None:
+        winding = body_winding(vertices, triangles)
+    tree = cKDTree(vertices)
+    bound, _ = tree.query(points)
+    order = np.argsort(-bound)
+    a, b, c = (vertices[triangles[:, k]] for k in range(3))
+    longest = np.sqrt(np.maximum(np.maximum(np.einsum("ij,ij->i", a - b, a - b),
+                                            np.einsum("ij,ij->i", b - c, b - c)),
+                                 np.einsum("ij,ij->i", c - a, c - a)))
+    reach = float(np.quantile(longest, 0.99))  # longer triangles are few: always measured
+    long = triangles[longest > reach]
+    deepest = 0.0
+    for start in range(0, len(order), DEPTH_BATCH):
+        batch = order[start:start + DEPTH_BATCH]
+        batch = batch[bound[batch] > deepest]
+        if not batch.size:
+            break
+        inside = batch[winding.winding_number(points[batch]) > 0.5]
+        for first in range(0, len(inside), DEPTH_BATCH // 8):
+            measured = inside[first:first + DEPTH_BATCH // 8]
+            measured = measured[bound[measured] > deepest]
+            if not measured.size:
+                break
+            near = np.zeros(len(vertices), dtype=bool)
+            for ids in tree.query_ball_point(points[measured], bound[measured] + reach):
+                near[ids] = True
+            candidates = np.concatenate([triangles[near[triangles].any(axis=1)], long])
+            squared, _, _ = igl.point_mesh_squared_distance(points[measured], vertices,
+                                                            candidates)
+            deepest = max(deepest, float(np.sqrt(squared.max())))
+    return deepest
 
 
 def cut_vertices(vertices: np.ndarray, triangles: np.ndarray, signed: np.ndarray,
-                 closest: np.ndarray, foam: Foam) -> np.ndarray:
-    """(V,) bool: the body vertices behind a surface (their `signed` distances (V,), within its
-    foam's reach) whose `closest` surface points (V, 3) lie inside the closed body: where the
-    surface cuts into the body, so the skin presses its foam (elsewhere behind it, the skin is
-    on the surface's far side)."""
-    import igl
-
-    cut = np.zeros(len(vertices), dtype=bool)
+                 closest: np.ndarray, foam: Foam, winding=None) -> np.ndarray:
+    """(P,) bool: of P body points, those behind a surface (their `signed` distances (P,),
+    within its foam's reach) whose `closest` surface points (P, 3) lie inside the closed body
+    (`vertices` (V, 3), `triangles` (F, 3); `winding` its `body_winding`, built when None and
+    needed): where the surface cuts into the body, so the skin presses its foam (elsewhere
+    behind it, the skin is on the surface's far side)."""
+    cut = np.zeros(len(signed), dtype=bool)
     behind = np.flatnonzero((signed < 0) & (signed > -reach_depth(foam)))
     if behind.size:
-        cut[behind] = igl.fast_winding_number(np.asarray(vertices, dtype=np.float64),
-                                              np.asarray(triangles, dtype=np.int64),
-                                              closest[behind]) > 0.5
+        if winding is None:
+            winding = body_winding(vertices, triangles)
+        cut[behind] = winding.winding_number(np.asarray(closest[behind],
+                                                        dtype=np.float64)) > 0.5
     return cut
+
+
+# the figures of how well a surface supports a body, and which way is better: +1 more, -1 less
+SUPPORT_FIGURES = {"mean_support_distance_m": -1, "coverage": +1, "contact_coverage": +1,
+                   "max_penetration_m": -1}
+
+
+def support_figures(surface: SurfaceMesh, vertices: np.ndarray, importance: np.ndarray,
+                    triangles: np.ndarray, margin: float, foam: Foam, closest=None,
+                    winding=None, reference: dict | None = None) -> dict:
+    """How well a surface supports a posed body: the `SUPPORT_FIGURES` of `evaluate_person`.
+
+    Parameters
+    ----------
+    surface : SurfaceMesh
+        The surface, metres, its face normals towards the side bodies rest on.
+    vertices : (V, 3) float
+        The body's skin, metres; triangles (F, 3) int close it.
+    importance : (V,) float
+        Each vertex's importance; the vertices with none do not count.
+    margin : float
+        Metres of softness the surface may sink into the body.
+    foam : Foam
+        The surface's foam (how far behind the surface the body can press it).
+    closest : tuple, optional
+        `surface.closest(vertices)` when already computed (all V vertices).
+    winding : optional
+        The body's `body_winding` when already built.
+    reference : dict, optional
+        Figures to judge against: when the distance or the coverage is worse than the
+        reference's, the figures stop there, without the costly ones (the contact coverage and
+        the penetration, which need the body's winding number).
+
+    Returns
+    -------
+    dict
+        ``mean_support_distance_m`` (the importance-weighted mean distance to the surface, None
+        without importance), ``coverage`` (share of the importance within `margin` of the
+        surface, either side), ``contact_coverage`` (the share within `CONTACT_GAP` in front of
+        it or sunk in where it cuts into the body, by up to `margin`), ``max_penetration_m``
+        (`penetration_depth` of the surface's vertices near the body). With a `reference` that
+        is better by one of the first two, only those two.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    triangles = np.asarray(triangles, dtype=np.int64)
+    wanted = np.flatnonzero(importance > 0)
+    weight = np.asarray(importance, dtype=np.float64)[wanted]
+    total = weight.sum()
+    figures = {"mean_support_distance_m": None, "coverage": 0.0}
+    if wanted.size:
+        if closest is None:
+            dist, signed, _, _, points = surface.closest(vertices[wanted])
+        else:
+            dist, signed, points = closest[0][wanted], closest[1][wanted], closest[4][wanted]
+        figures = {"mean_support_distance_m": float(np.sum(weight * dist) / total),
+                   "coverage": float(weight[dist <= margin + 1e-9].sum() / total)}
+        if reference is not None and worse_figures(reference, figures):
+            return figures
+    if winding is None:
+        winding = body_winding(vertices, triangles)
+    if wanted.size:
+        front = (signed >= 0) & (signed <= CONTACT_GAP)
+        sunk = (signed < 0) & (signed >= -margin - 1e-9)
+        cut = np.zeros(len(wanted), dtype=bool)
+        cut[sunk] = cut_vertices(vertices, triangles, signed[sunk], points[sunk], foam, winding)
+        figures["contact_coverage"] = float(weight[front | cut].sum() / total)
+    else:
+        figures["contact_coverage"] = 0.0
+    lo, hi = vertices.min(axis=0) - 0.01, vertices.max(axis=0) + 0.01
+    near = np.all((surface.vertices >= lo) & (surface.vertices <= hi), axis=1)
+    figures["max_penetration_m"] = penetration_depth(surface.vertices[near], vertices,
+                                                     triangles, winding)
+    return figures
+
+
+def worse_figures(before: dict, after: dict) -> list[str]:
+    """The `SUPPORT_FIGURES` worse in `after` than in `before` (dicts of them), in their order;
+    a figure missing from either is not compared, and one None in both (no importance) is not
+    worse."""
+    worse = []
+    for name, better in SUPPORT_FIGURES.items():
+        if name not in before or name not in after:
+            continue
+        a, b = after[name], before[name]
+        if a is None and b is None:
+            continue
+        if a is None or b is None or (a - b) * better < 0:
+            worse.append(name)
+    return worse
+
+
+@dataclass(frozen=True, eq=False)
+class SupportGate:
+    """Judges a posed body on a surface by the evaluation's own `support_figures`, what a
+    relaxation may not make worse (`solver.body.relax.Gate`): the surface, the body's
+    importance (V,) and closed skin (F, 3), the softness margin (m) and the surface's foam."""
+
+    surface: SurfaceMesh
+    importance: np.ndarray
+    triangles: np.ndarray
+    margin: float
+    foam: Foam
+
+    def figures(self, vertices: np.ndarray, reference: dict | None = None) -> dict:
+        """`support_figures` of the skin posed at `vertices` (V, 3), metres, cut short when
+        worse than `reference`."""
+        return support_figures(self.surface, vertices, self.importance, self.triangles,
+                               self.margin, self.foam, reference=reference)
+
+    def worse(self, before: dict, after: dict) -> list[str]:
+        """`worse_figures`: the names of the figures worse in `after` than in `before`."""
+        return worse_figures(before, after)
 
 
 @with_limited_threads  # small products: one BLAS thread (SITRELAX_THREADS), see solver.threads
@@ -216,27 +378,20 @@ def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float, 
     if person.areas is None or person.triangles is None or person.mass_kg is None:
         raise ValueError(f"{person.label}: an evaluation needs the body's areas, closed skin "
                          "and mass")
-    vertices, importance, triangles = person.vertices, person.importance, person.triangles
-    dist, signed, over, face, closest = surface.closest(vertices)
-    total = importance.sum()
-    coverage = float(importance[dist <= margin + 1e-9].sum() / total) if total > 0 else 0.0
-    lo, hi = vertices.min(axis=0) - 0.01, vertices.max(axis=0) + 0.01
-    near = np.all((surface.vertices >= lo) & (surface.vertices <= hi), axis=1)
-    penetration = penetration_depth(surface.vertices[near], vertices, triangles) \
-        if near.any() else 0.0
-    cut = cut_vertices(vertices, triangles, signed, closest, foam)
-    touching = ((signed >= 0) & (signed <= CONTACT_GAP)) | (cut & (signed >= -margin - 1e-9))
-    contact = float(importance[touching].sum() / total) if total > 0 else 0.0
+    vertices, triangles = person.vertices, person.triangles
+    near = surface.closest(vertices)
+    winding = body_winding(vertices, triangles)
+    support = support_figures(surface, vertices, person.importance, triangles, margin, foam,
+                              near, winding)
+    dist, signed, over, face, closest = near
+    cut = cut_vertices(vertices, triangles, signed, closest, foam, winding)
     supports = [Support("surface", foam, surface, parts=surface_parts(person.regions))]
     if floor is not None:
         supports.append(Support("floor", floor))
     settled = settle(vertices, person.normals, person.areas, triangles, person.mass_kg,
-                     supports, cut=cut, closest={0: (dist, signed, over, face, closest)})
+                     supports, cut=cut, closest={0: near})
     figures = {
-        "coverage": coverage,
-        "contact_coverage": contact,
-        "max_penetration_m": penetration,
-        "mean_support_distance_m": float(np.sum(importance * dist) / total) if total else None,
+        **support,
         "supported": settled.stable,
         **surface_figures(settled),
         "peak_region": peak_region(settled, person.regions),

@@ -14,19 +14,21 @@ import numpy as np
 from capture.files import write_atomic
 
 from solver.mesh import SurfaceMesh
-from solver.contact.evaluate import (FLOOR, evaluate_person, flat_seat_height, flat_surface,
+from solver.contact.evaluate import (FLOOR, SUPPORT_FIGURES, SupportGate, cut_vertices,
+                                     evaluate_person, flat_seat_height, flat_surface,
                                      support_inside)
 from solver.contact.evaluate import PressureMap, contact_footprint
 from solver.contact.mat import PressureGrid, pressure_grid, write_pressure_csv
-from solver.contact.settle import Foam
+from solver.contact.settle import Foam, reach_depth
 from solver.io.export import ExportError, frame_matrix, write_mesh
-from solver.body.relax import (PENETRATION_SHIFT, PENETRATION_WIDTH, RelaxError, RelaxProblem,
-                               relax)
+from solver.body.relax import (DEFAULT_MARGIN, GUARD_BAND, GUARD_SPACING, RelaxError,
+                               RelaxProblem, relax)
 from solver.mesh import triangle_mesh
 from solver.surface.fit import FitError, FitResult, fit_surface
 from solver.io.render import (SKIN, SURFACE, MeshView, Panel, field_colors, render_panels,
                               render_pressure_maps)
 from solver.scene.scenario import Scenario, load_scenario
+from solver.scene.schema import Evaluation
 from solver.scene.placement import PlacedPerson, place_scene, scene_posture
 from solver.mesh import quad_triangles
 
@@ -117,17 +119,21 @@ def fit_people(scenario: Scenario, people: list[PlacedPerson],
 
 def relax_problem(person: PlacedPerson, surface_vertices: np.ndarray,
                   surface_triangles: np.ndarray, threshold: float = 0.02,
-                  margin: float | None = None) -> RelaxProblem:
+                  margin: float | None = None, foam: Foam | None = None) -> RelaxProblem:
     """The relaxation problem of a placed person: its rig in the scene frame, its vertices of
-    importance above `threshold`, and the surface to settle on.
+    importance above `threshold`, the rest of its skin that the surface cuts into or that lies
+    within `GUARD_BAND` in front of it (guarded: it may not sink deeper), and the surface to
+    settle on.
 
     Parameters
     ----------
     person : a person placed by `place_person`.
     surface_vertices : (N, 3) float, metres; surface_triangles : (F, 3) int, facing the body.
     threshold : importance (in [0, 1]) a vertex needs to count as supportable.
-    margin : metres of softness the surface was fitted with; the penetration step's middle
-        sits two step widths short of it (None: the paper's 1 cm).
+    margin : metres of softness the surface was fitted with: body points sunk in less are not
+        pushed out (None: the paper's 1 cm).
+    foam : the surface's foam, whose reach behind it bounds where it can cut into the body
+        (None: the scenario's default).
 
     Returns
     -------
@@ -141,28 +147,90 @@ def relax_problem(person: PlacedPerson, surface_vertices: np.ndarray,
     local0 = person.motion.local_rotmats[0].copy()
     local0[0] = rot @ local0[0]
     root0 = rot @ person.motion.root_positions[0] + shift
-    middle = PENETRATION_SHIFT if margin is None else max(margin - 2 * PENETRATION_WIDTH, 0.0)
-    return RelaxProblem(person.body, local0, root0, ids, person.importance[ids],
-                        np.asarray(surface_vertices, dtype=np.float64),
-                        np.asarray(surface_triangles, dtype=np.int64),
-                        penetration_shift=middle)
+    problem = RelaxProblem(person.body, local0, root0, ids, person.importance[ids],
+                           np.asarray(surface_vertices, dtype=np.float64),
+                           np.asarray(surface_triangles, dtype=np.int64),
+                           margin=DEFAULT_MARGIN if margin is None else margin)
+    guards = guarded_vertices(person, problem.surface_mesh(), threshold,
+                              foam or foams(Evaluation())[0])
+    return dataclasses.replace(problem, guard_ids=guards)
+
+
+def guarded_vertices(person: PlacedPerson, surface: SurfaceMesh, threshold: float,
+                     foam: Foam) -> np.ndarray:
+    """(g,) the person's vertices of importance up to `threshold` that face the surface (their
+    closest point is no border point) and that it cuts into (`cut_vertices`) or that lie within
+    `GUARD_BAND` in front of it: of those in each `GUARD_SPACING` cube, the deepest."""
+    rest = np.flatnonzero(person.importance <= threshold)
+    reach = max(reach_depth(foam), GUARD_BAND)
+    lo, hi = surface.vertices.min(axis=0) - reach, surface.vertices.max(axis=0) + reach
+    rest = rest[np.all((person.vertices[rest] >= lo) & (person.vertices[rest] <= hi), axis=1)]
+    _, signed, over, _, closest = surface.closest(person.vertices[rest])
+    cut = cut_vertices(person.vertices, person.triangles, signed, closest, foam)
+    keep = over & (cut | ((signed >= 0) & (signed <= GUARD_BAND)))
+    guarded, signed = rest[keep], signed[keep]
+    # one per GUARD_SPACING cell, the deepest: neighbours move together
+    deepest_first = np.argsort(signed, kind="stable")
+    cells = np.floor(person.vertices[guarded[deepest_first]] / GUARD_SPACING).astype(np.int64)
+    _, first = np.unique(cells, axis=0, return_index=True)
+    return np.sort(guarded[deepest_first[first]])
 
 
 def relax_person(scenario: Scenario, person: PlacedPerson, surface: np.ndarray,
                  quads: np.ndarray):
-    """Relaxes one posed person onto a surface (vertices, quads): the solver's result, the
+    """Relaxes one posed person onto a surface (vertices, quads), accepting only what the
+    evaluation's support figures find none worse (`SupportGate`): the solver's result, the
     person's figures before and after (as `evaluate_person` gives them), and the solver's
-    seconds."""
+    seconds. When no round was accepted, the person keeps the captured pose exactly (its
+    figures after are those before)."""
     margin, (foam, floor) = scenario.surface.params.margin, foams(scenario.evaluation)
+    problem = relax_problem(person, surface, quad_triangles(quads), margin=margin, foam=foam)
+    mesh = problem.surface_mesh()
+    before = evaluate_person(mesh, person, margin, foam, floor)[0]
+    gate = SupportGate(mesh, person.importance, person.triangles, margin, foam)
     t = time.perf_counter()
-    res = relax(relax_problem(person, surface, quad_triangles(quads), margin=margin))
+    res = relax(problem, gate=gate, figures_before={k: before[k] for k in SUPPORT_FIGURES})
     seconds = time.perf_counter() - t
-    mesh = SurfaceMesh.from_quads(surface, quads)
+    if not res.accepted:
+        res = dataclasses.replace(res, vertices=person.vertices)
+        return res, before, before, seconds
     areas, normals = triangle_mesh(person.body.triangles, len(res.vertices)).measures(
         res.vertices)
     relaxed = dataclasses.replace(person, vertices=res.vertices, normals=normals, areas=areas)
-    return (res, evaluate_person(mesh, person, margin, foam, floor)[0],
-            evaluate_person(mesh, relaxed, margin, foam, floor)[0], seconds)
+    return res, before, evaluate_person(mesh, relaxed, margin, foam, floor)[0], seconds
+
+
+def relax_text(result) -> str:
+    """What a gated relaxation (`relax` with a gate) accepted and why, in one line: per round
+    the share of its step accepted and the figures it improved, or the figures that made
+    every tried step worse."""
+    names = {"mean_support_distance_m": "support distance", "coverage": "coverage",
+             "contact_coverage": "contact coverage", "max_penetration_m": "deepest cut"}
+    parts = []
+    for run in sorted({s.round for s in result.steps}):
+        tried = [s for s in result.steps if s.round == run]
+        taken = [s for s in tried if s.accepted]
+        if taken:
+            gain = ", ".join(names[n] for n in taken[0].better) or "nothing changed"
+            share = "" if taken[0].scale == 1 else f" ({taken[0].scale:g} of its step)"
+            parts.append(f"round {run} accepted{share}: better {gain}")
+        else:
+            worse = sorted({n for s in tried for n in s.worse}, key=list(names).index)
+            parts.append(f"round {run} rejected: {', '.join(names[n] for n in worse)} worse "
+                         f"at every step tried")
+    if not result.accepted:
+        parts.append("the captured pose is kept")
+    return "; ".join(parts)
+
+
+def relax_record(result) -> dict:
+    """report.json's record of a gated relaxation: whether the pose moved, the text of
+    `relax_text`, and every pose tried (round, share of its step, accepted, the figures worse
+    and better than the last accepted pose's, and its figures)."""
+    return {"accepted": result.accepted, "summary": relax_text(result),
+            "steps": [{"round": s.round, "scale": s.scale, "accepted": s.accepted,
+                       "worse": list(s.worse), "better": list(s.better),
+                       "figures": s.figures} for s in result.steps]}
 
 
 def report_parameters(scenario: Scenario) -> dict:
@@ -484,7 +552,8 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
         result = fit_people(scenario, people)
         surface, faces = result.surface, result.surface_faces
         say(f"fitted the surface in {result.iterations} iterations")
-    keys = ("mean_support_distance_m", "max_penetration_m", "coverage", "peak_pressure_kpa")
+    keys = ("mean_support_distance_m", "max_penetration_m", "coverage", "contact_coverage",
+            "peak_pressure_kpa")
     rows, meshes_before, meshes_after, relaxed = [], [], [], []
     for k in chosen:
         p = people[k]
@@ -498,13 +567,14 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
                      "parameters_at_limit": res.at_limit,
                      "before": {key: before[key] for key in keys},
                      "after": {key: after[key] for key in keys},
+                     "relaxation": relax_record(res),
                      "files": [f"{name}.obj", f"{name}.bvh"]})
         relaxed.append((p, res))
         meshes_before.append(MeshView(p.vertices, p.body.faces))
         meshes_after.append(MeshView(res.vertices, p.body.faces, (0.62, 0.78, 0.62)))
         say(f"{p.label}: relaxed in {seconds:.2f} s; mean support distance "
             f"{before['mean_support_distance_m'] * 100:.1f} -> "
-            f"{after['mean_support_distance_m'] * 100:.1f} cm")
+            f"{after['mean_support_distance_m'] * 100:.1f} cm; {relax_text(res)}")
     if save:
         for row, saved in zip(rows, save_relaxed(db, relaxed, str(surface_dir or "fitted"))):
             row["saved_pose"] = saved

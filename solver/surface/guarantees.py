@@ -88,22 +88,17 @@ def barycentric_samples(vertices: np.ndarray, triangles: np.ndarray,
 def penetration_dense(points: np.ndarray, bodies: Sequence[tuple[np.ndarray, np.ndarray]]
                       ) -> float:
     """Largest depth (m) of `points` (P, 3) inside any of the closed bodies ((V, 3) vertices,
-    (T, 3) triangles each), 0 if none is inside."""
-    import igl
+    (T, 3) triangles each), 0 if none is inside: the evaluation's `penetration_depth` of the
+    points in each body's bounding box."""
+    from solver.contact.evaluate import penetration_depth
 
     deepest = 0.0
     for body_vertices, body_triangles in bodies:
         bv = np.asarray(body_vertices, dtype=np.float64)
-        bt = np.asarray(body_triangles, dtype=np.int64)
         lo, hi = bv.min(axis=0), bv.max(axis=0)
         near = points[np.all((points >= lo) & (points <= hi), axis=1)]
-        if not len(near):
-            continue
-        inside = near[igl.fast_winding_number(bv, bt, near) > 0.5]
-        if not len(inside):
-            continue
-        dist2 = igl.point_mesh_squared_distance(inside, bv, bt)[0]
-        deepest = max(deepest, float(np.sqrt(dist2.max())))
+        if len(near):
+            deepest = max(deepest, penetration_depth(near, bv, body_triangles))
     return deepest
 
 

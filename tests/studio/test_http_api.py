@@ -127,6 +127,12 @@ def test_pressure_evaluate_and_relax(api):
     assert status == 200 and ev["persons"][0]["coverage"] == 0.0
     status, relaxed = _request(api, "POST", "/api/relax", {"scenario": SINGLE, "index": 0})
     assert status == 200 and len(relaxed["body"]["vertices"]) == 13380
+    # relaxing is never worse by the evaluation's figures, and says what it accepted
+    b, a = relaxed["before"], relaxed["after"]
+    assert a["mean_support_distance_m"] <= b["mean_support_distance_m"]
+    assert a["coverage"] >= b["coverage"] and a["contact_coverage"] >= b["contact_coverage"]
+    assert a["max_penetration_m"] <= b["max_penetration_m"]
+    assert relaxed["relaxation"]["steps"] and relaxed["relaxation"]["summary"]
     status, reply = _request(api, "POST", "/api/relax", {"scenario": SINGLE, "index": 3})
     assert status == 400 and "index" in reply["detail"]
 

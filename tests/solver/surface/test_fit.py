@@ -254,21 +254,25 @@ EXAMPLES = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios"
 
 
 # The seated examples support a seat (pelvis and thighs). Their poses lean back, and on a surface
-# under the pelvis and thighs alone most of them tip back off it (as they do off a flat seat at
-# its height): the settle finds no rest for single_seated, seat_for_thin, facing_pair (both) and
-# four of six_overlapping's six (tips over, or no rest within its 15 steps; within 60 they tip
-# over). Those that rest lean back 7-8 degrees with their feet off the floor. The seat's front
-# edge also cuts the calves it no longer supports: 38 mm (seat_for_heavy), 46 mm (facing_pair's
-# south), up to 49 mm (six_overlapping), past the margin plus 5 mm. Measured when the examples
-# became seats; the reclining example (seat and back) meets both bars.
+# under the pelvis and thighs alone some tip back off it (as they do off a flat seat at its
+# height): facing_pair's north, seat_for_thin and two of six_overlapping's six. Those that rest
+# press hardest on their calves, where the seat's front edge meets them (single_seated and
+# seat_for_heavy). seat_for_heavy's surface sinks 31.4 mm behind the skin at the calves, 0.4 mm
+# past the margin plus 1 mm: the rows that would lift it (the fit's rows on dense samples) would
+# fold it more than 50 degrees. reclining's 8 x 6 grid, from under the thighs to behind the back,
+# covers 0.94 of its importance within the margin and 0.73 in contact. Measured after the fit's
+# guards and the anatomical supports; a strict xfail fails the run once its example meets the bar.
 NO_REST = "tips back off a seat under the pelvis and thighs alone (the pose leans back)"
-CUT = "the seat's front edge cuts the unsupported calves past the margin"
+CALF_PEAK = "the peak presses the unsupported calves, where the seat's front edge meets them"
 _EXAMPLE_MARKS = {
-    "single_seated": {"rest": NO_REST},
+    "single_seated": {"rest": CALF_PEAK},
     "seat_for_thin": {"rest": NO_REST},
-    "seat_for_heavy": {"surface": CUT},
-    "facing_pair": {"rest": NO_REST, "surface": CUT},
-    "six_overlapping": {"rest": NO_REST, "surface": CUT},
+    "seat_for_heavy": {"rest": CALF_PEAK, "surface": "31.4 mm behind the calves' skin, 0.4 mm "
+                       "past the margin plus 1 mm: lifting it would fold the surface"},
+    "facing_pair": {"rest": NO_REST},
+    "six_overlapping": {"rest": NO_REST},
+    "reclining": {"surface": "coverage 0.94 within the margin, 0.73 in contact: the grid does "
+                  "not follow the back's curve"},
 }
 _REPORTS: dict = {}
 
@@ -296,6 +300,22 @@ def _examples(bar: str) -> list:
             marks.append(pytest.mark.xfail(strict=True, reason=reason))
         params.append(pytest.param(name, marks=marks))
     return params
+
+
+@pytest.mark.parametrize("name", _examples("energy"))
+def test_example_fits_never_raise_their_judged_energy(name, tmp_path_factory):
+    """From one accepted iterate to the next the judged energy never rises by more than 1 %
+    (it may not rise at all; the 1 % is the bar), in the fit's loop and in each round of rows
+    on dense samples after it; and every example's surface comes out without a fold or a
+    crossing (the loop's guards)."""
+    report = _example_report(name, tmp_path_factory)
+    runs = [report["energies"]] + [r["energies"] for r in report["energy_terms"]["repairs"]]
+    for energies in runs:
+        e = np.asarray(energies)
+        assert np.all(e[1:] <= e[:-1] * 1.01), e
+    assert len(report["energies"]) >= 3
+    g = report["guarantees"]
+    assert g["folds"] == 0 and g["self_intersections"] == 0 and not g["below_floor"], g
 
 
 @pytest.mark.parametrize("name", _examples("surface"))
