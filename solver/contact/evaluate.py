@@ -45,6 +45,7 @@ class PressureMap:
 
 
 LEG_REGIONS = ("thighs", "calves", "feet")
+SURFACE_PARTS = ("seat", "back", "leg rest")  # the names `surface_parts` gives contacts
 STEEP = np.cos(np.radians(45.0))  # a support steeper than 45 degrees is no seat
 
 
@@ -75,19 +76,21 @@ def contact_footprint(settled: Settled, n: int, names=None) -> np.ndarray:
     return footprint
 
 
-def skin_pressure(settled: Settled, n: int) -> np.ndarray:
+def skin_pressure(settled: Settled, n: int, names=None) -> np.ndarray:
     """(n,) kPa on each of the n body vertices: its normal contact force over its footprint
-    on the supports, summed over them."""
+    on the supports (those `names` when given, e.g. the surface's parts without the floor),
+    summed over them."""
     force = np.zeros(n)
     for c in settled.contacts:
-        np.add.at(force, c.vertices, c.normal_force)
-    footprint = contact_footprint(settled, n)
+        if names is None or c.name in names:
+            np.add.at(force, c.vertices, c.normal_force)
+    footprint = contact_footprint(settled, n, names)
     touched = footprint > 0
     force[touched] /= footprint[touched] * 1e3
     return force
 
 
-def surface_figures(settled: Settled, names=("seat", "back", "leg rest")) -> dict:
+def surface_figures(settled: Settled, names=SURFACE_PARTS) -> dict:
     """The pressure mat's figures over the contacts of the named supports: peak and peak
     pressure index and mean pressure (kPa), contact area (m^2), centre of pressure (m); all
     None when the body does not rest or nothing touches them."""
@@ -362,7 +365,8 @@ def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float, 
         without importance), ``supported`` (bool: the body comes to rest), over the surface's
         contacts ``peak_pressure_kpa``, ``peak_pressure_index_kpa``, ``mean_pressure_kpa``,
         ``contact_area_m2`` and ``centre_of_pressure_m`` ((3,) list; None when the body does
-        not rest), and ``equilibrium`` (`equilibrium_figures`).
+        not rest), ``peak_region`` (`peak_region`), and ``equilibrium``
+        (`equilibrium_figures`).
     pressure_map : PressureMap
         The pressure (V,) in kPa on each body vertex, and the settle.
 
@@ -390,12 +394,25 @@ def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float, 
         **support,
         "supported": settled.stable,
         **surface_figures(settled),
+        "peak_region": peak_region(settled, person.regions),
         "equilibrium": equilibrium_figures(settled),
         "mat": mat_figures(settled.contacts, contact_footprint(settled, len(vertices)),
                            person.mass_kg, person.regions, orientation=person.orientation)
         if settled.stable else None,
     }
     return figures, PressureMap(skin_pressure(settled, len(vertices)), settled)
+
+
+def peak_region(settled: Settled, regions: np.ndarray | None) -> str | None:
+    """The body region (`BODY_REGIONS`) of the highest pressure the surface's parts
+    (`SURFACE_PARTS`, not the floor) put on the body: the vertex of `peak_pressure_kpa`. None
+    when the body does not rest, nothing touches the surface, or `regions` (V,) is None."""
+    from solver.body.model import BODY_REGIONS
+
+    if regions is None or not settled.stable:
+        return None
+    pressure = skin_pressure(settled, len(regions), SURFACE_PARTS)
+    return str(BODY_REGIONS[regions[int(np.argmax(pressure))]]) if pressure.max() > 0 else None
 
 
 def flat_seat_height(surface: SurfaceMesh, person: SupportedBody) -> float:

@@ -314,6 +314,121 @@ def write_overall_dxf(path: str | os.PathLike, vertices: np.ndarray, faces: np.n
     return dims
 
 
+SECTION_WIDTHS = {"SURFACE": 2.0, "BODY": 1.0, "SOLID": 0.8}  # line widths, points
+FLOOR_COLOR = (0.3, 0.6, 0.3)
+
+
+def draw_section(ax, sec: Section) -> None:
+    """Draws one section into a matplotlib axes: millimetres along the section and above the
+    floor, the floor as a line, equal aspect, titled with the surface's length and top.
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    sec : Section
+    """
+    from solver.io.render import SKIN, SURFACE
+
+    colors = {"SURFACE": SURFACE, "BODY": tuple(0.8 * c for c in SKIN),
+              "SOLID": (0.4, 0.4, 0.4)}
+    for layer, lines in sec.curves.items():
+        width = SECTION_WIDTHS.get(layer, 1.0)
+        for line in lines:
+            ax.plot(line[:, 0] * 1000, line[:, 1] * 1000, color=colors.get(layer, (0, 0, 0)),
+                    lw=width)
+    box = sec.extent()
+    label = sec.name
+    if box is not None:
+        ax.axhline(0.0, color=FLOOR_COLOR, lw=0.8)
+        label += (f": {1000 * (box[1][0] - box[0][0]):.0f} mm long, top "
+                  f"{1000 * box[1][1]:.0f} mm")
+    ax.set_title(label, fontsize=9)
+    ax.set_aspect("equal")
+    ax.set_xlabel("mm along the section", fontsize=8)
+    ax.set_ylabel("mm above the floor", fontsize=8)
+    ax.tick_params(labelsize=7)
+
+
+# square-on views of a surface: direction towards the camera, and what the picture's
+# horizontal and vertical extents measure (`overall_dimensions` keys; "height_mm" from the floor)
+ELEVATIONS = {
+    "front": ((0.0, 0.0, 1.0), "width_mm", "height_mm"),
+    "side": ((1.0, 0.0, 0.0), "depth_mm", "height_mm"),
+    "top": ((0.0, 1.0, 0.0), "width_mm", "depth_mm"),
+}
+_ELEVATION_TITLES = {"front": "front (from +z)", "side": "side (from +x)",
+                     "top": "top (plan)"}
+
+
+def draw_elevation(ax, vertices: np.ndarray, faces: np.ndarray, view: str,
+                   floor: float = 0.0) -> dict:
+    """Draws a surface alone, square-on, with its overall dimensions: shaded on both sides
+    (its underside darker, so that a fold, an overhang or a curtain shows), its border as a
+    line, the floor as a line in the front and side views, and dimension lines in millimetres:
+    the width and height (front), the depth and height (side), the width and depth (top).
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    vertices : (N, 3) float
+        Metres, Y up.
+    faces : (F, 4) or (F, 3) int
+    view : str
+        "front", "side" or "top" (`ELEVATIONS`).
+    floor : float
+        The floor's height y, metres (heights are given above it).
+
+    Returns
+    -------
+    dict
+        `overall_dimensions` of the vertices (the numbers written on the drawing), mm.
+
+    Raises
+    ------
+    DrawingError
+        For an unknown view.
+    """
+    from solver.io.render import SURFACE, MeshView, camera_axes, draw_meshes
+
+    if view not in ELEVATIONS:
+        raise DrawingError(f"Expected a view from {sorted(ELEVATIONS)}, got {view!r}")
+    direction, across, upward = ELEVATIONS[view]
+    mm = np.asarray(vertices, dtype=np.float64) * 1000.0
+    draw_meshes(ax, [MeshView(mm, faces, SURFACE, back_color=(0.72, 0.62, 0.55))], direction)
+    right, up, _ = camera_axes(direction)
+    flat = np.stack([mm @ right, mm @ up], axis=1)
+    for loop in boundary_loops(faces):
+        ax.plot(flat[loop, 0], flat[loop, 1], color="0.25", lw=0.7)
+    dims = overall_dimensions(np.asarray(vertices) - [0.0, floor, 0.0])
+    (x0, y0), (x1, y1) = flat.min(axis=0), flat.max(axis=0)
+    span = max(x1 - x0, y1 - y0, 1.0)
+    gap = 0.08 * span
+    low = floor * 1000.0 if upward == "height_mm" else y0
+    if upward == "height_mm":
+        ax.plot([x0 - gap, x1 + gap], [low, low], color=FLOOR_COLOR, lw=1.0)
+    _png_dimension(ax, (x0, y0 - gap), (x1, y0 - gap), f"{dims[across]:.0f}", below=True)
+    _png_dimension(ax, (x1 + gap, low), (x1 + gap, y1), f"{dims[upward]:.0f}", below=False)
+    ax.set_xlim(x0 - 1.6 * gap, x1 + 2.6 * gap)
+    ax.set_ylim(min(y0, low) - 2.4 * gap, y1 + 0.8 * gap)
+    ax.set_title(f"{_ELEVATION_TITLES[view]}: {across[:-3]} {dims[across]:.0f}, "
+                 f"{upward[:-3]} {dims[upward]:.0f} mm", fontsize=9)
+    return dims
+
+
+def _png_dimension(ax, p1, p2, text: str, below: bool) -> None:
+    """A dimension line with arrows at both ends from p1 to p2 (picture coordinates) and its
+    text: under a horizontal one (`below`), beside a vertical one."""
+    ax.annotate("", xy=p1, xytext=p2, arrowprops={"arrowstyle": "<|-|>", "lw": 0.8,
+                                                   "color": "0.15", "shrinkA": 0, "shrinkB": 0})
+    middle = ((p1[0] + p2[0]) / 2, (p1[1] + p2[1]) / 2)
+    if below:
+        ax.annotate(text, middle, xytext=(0, -3), textcoords="offset points", ha="center",
+                    va="top", fontsize=8)
+    else:
+        ax.annotate(text, middle, xytext=(3, 0), textcoords="offset points", ha="left",
+                    va="center", fontsize=8, rotation=90)
+
+
 def render_sections(path: str | os.PathLike, sections: list[Section], *, columns: int = 2,
                     title: str | None = None) -> Path:
     """A PNG of sections (headless matplotlib), millimetres, floor at 0, one panel each.
@@ -336,37 +451,25 @@ def render_sections(path: str | os.PathLike, sections: list[Section], *, columns
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from solver.io.render import SKIN, SURFACE
-
     if not sections:
         raise DrawingError("Expected at least one section to draw, got none")
     columns = min(columns, len(sections))
     rows = -(-len(sections) // columns)
     fig = Figure(figsize=(5 * columns, 3.6 * rows + 0.4), dpi=100)
     FigureCanvasAgg(fig)
-    styles = {"SURFACE": (SURFACE, 2.0), "BODY": (SKIN, 1.0), "SOLID": ((0.4, 0.4, 0.4), 0.8)}
     for k, sec in enumerate(sections):
-        ax = fig.add_subplot(rows, columns, k + 1)
-        for layer, lines in sec.curves.items():
-            color, width = styles.get(layer, ((0, 0, 0), 1.0))
-            for line in lines:
-                ax.plot(line[:, 0] * 1000, line[:, 1] * 1000, color=color, lw=width)
-        box = sec.extent()
-        label = sec.name
-        if box is not None:
-            ax.axhline(0.0, color=(0.3, 0.6, 0.3), lw=0.8)
-            label += (f": {1000 * (box[1][0] - box[0][0]):.0f} mm long, top "
-                      f"{1000 * box[1][1]:.0f} mm")
-        ax.set_title(label, fontsize=9)
-        ax.set_aspect("equal")
-        ax.set_xlabel("mm along the section")
-        ax.set_ylabel("mm above the floor")
+        draw_section(fig.add_subplot(rows, columns, k + 1), sec)
     if title:
         fig.suptitle(title)
     fig.tight_layout()
+    return save_png(fig, path)
+
+
+def save_png(fig, path: str | os.PathLike) -> Path:
+    """Writes a matplotlib figure as PNG atomically (white background); returns the path."""
     import io
 
     buf = io.BytesIO()
-    fig.savefig(buf, format="png")
+    fig.savefig(buf, format="png", facecolor="white")
     write_atomic(Path(path), buf.getvalue())
     return Path(path)

@@ -24,15 +24,20 @@ SURFACE = (0.55, 0.68, 0.82)
 @dataclass
 class MeshView:
     """A mesh to draw: vertices (V, 3), faces (F, 3) or (F, 4), and a colour: one RGB, or
-    per-face (F, 3) or per-vertex (V, 3) RGB values in [0, 1]."""
+    per-face (F, 3) or per-vertex (V, 3) RGB values in [0, 1]. Faces turned away from the
+    camera are left out, unless `back_color` (one RGB) is given: then they are drawn in it, so
+    a sheet's underside shows wherever it is seen (a fold, an overhang, a curtain)."""
 
     vertices: np.ndarray
     faces: np.ndarray
     color: Sequence[float] | np.ndarray = SKIN
     edges: bool = False
+    back_color: Sequence[float] | None = None
 
 
-def _camera(view: str | Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def camera_axes(view: str | Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(3,) unit vectors of a view: the picture's right, its up, and towards the camera. A
+    camera looking straight down (or up) has the scene's -z as its up."""
     if isinstance(view, str) and view not in VIEWS:
         raise ValueError(f"Expected a view from {sorted(VIEWS)} or a direction, got {view!r}")
     d = np.asarray(VIEWS[view] if isinstance(view, str) else view, dtype=float)
@@ -43,10 +48,24 @@ def _camera(view: str | Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.nda
     return right, np.cross(back, right), back
 
 
-def _draw(ax, meshes: Sequence[MeshView], view, light) -> None:
+def draw_meshes(ax, meshes: Sequence[MeshView], view: str | Sequence[float] = "three-quarter",
+                light: Sequence[float] = (0.4, 0.8, 0.6)) -> None:
+    """Draws meshes into a matplotlib axes, orthographic and flat-shaded (see the module
+    docstring), the axes fitted to them, equal aspect, no frame.
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    meshes : sequence of MeshView
+    view : str or (3,) float
+        A name from `VIEWS`, or a direction from the scene towards the camera (any length).
+        The picture's x is the camera's right, its y the camera's up (`camera_axes`).
+    light : (3,) float
+        Direction of the light (any length).
+    """
     from matplotlib.collections import PolyCollection
 
-    right, up, back = _camera(view)
+    right, up, back = camera_axes(view)
     light = np.asarray(light, dtype=float)
     light /= np.linalg.norm(light)
     polys, colors, depths = [], [], []
@@ -65,6 +84,9 @@ def _draw(ax, meshes: Sequence[MeshView], view, light) -> None:
         elif len(col) == len(v) and len(v) != len(f):
             col = col[f].mean(axis=1)
         shade = 0.35 + 0.65 * np.clip(np.abs(normal @ light), 0, 1)
+        if mesh.back_color is not None:
+            col = np.where(facing[:, None], col, np.asarray(mesh.back_color, dtype=float))
+            facing = np.ones(len(f), dtype=bool)
         keep = np.flatnonzero(facing)
         xy = np.stack([corners @ right, corners @ up], axis=-1)[keep]
         polys.extend(xy)
@@ -111,19 +133,20 @@ def render_panels(path: str | os.PathLike, panels: Sequence[Panel], *, columns: 
     FigureCanvasAgg(fig)
     for k, panel in enumerate(panels):
         ax = fig.add_subplot(rows, columns, k + 1)
-        _draw(ax, panel.meshes, panel.view, light)
+        draw_meshes(ax, panel.meshes, panel.view, light)
         if panel.title:  # wrapped to the axes' width (about 11 px of panel a character)
             ax.set_title(textwrap.fill(panel.title, max(20, panel_size[0] // 11)), fontsize=10)
     if title:
         fig.suptitle(title, fontsize=12)
     if colorbar is not None:
-        _colorbar(fig, fig.axes, colorbar)
+        draw_colorbar(fig, fig.axes, colorbar)
     path = Path(path)
     fig.savefig(path, facecolor="white")
     return path
 
 
-def _colorbar(fig, axes, colorbar) -> None:
+def draw_colorbar(fig, axes, colorbar: tuple[str, float, float]) -> None:
+    """A viridis colour bar (label, low, high) beside the matplotlib axes."""
     from matplotlib import cm
     from matplotlib.colors import Normalize
 
@@ -179,11 +202,11 @@ def render_png(path: str | os.PathLike, meshes: Sequence[MeshView], *,
     fig = Figure(figsize=(size[0] / 100, size[1] / 100), dpi=100)
     FigureCanvasAgg(fig)
     ax = fig.add_axes([0.02, 0.02, 0.96, 0.9 if title else 0.96])
-    _draw(ax, meshes, view, light)
+    draw_meshes(ax, meshes, view, light)
     if title:
         fig.suptitle(title, fontsize=12)
     if colorbar is not None:
-        _colorbar(fig, [ax], colorbar)
+        draw_colorbar(fig, [ax], colorbar)
     path = Path(path)
     fig.savefig(path, facecolor="white")
     return path

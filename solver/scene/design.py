@@ -3,12 +3,15 @@ a template chosen for them all (`DESIGNS`), the people set side by side, the tem
 around them, and the scenario written (scenario.toml, loadable by `sitrelax fit`) and fitted by
 `run_fit`, the same path as `sitrelax fit`.
 
-    posture    one person       several (side by side)
-    seated     chair (back)     bench with a back, a seat each
-    perched    stool            bench (backless)
-    reclined   lounger          lounger, as wide as all
-    floor      floor cushion    floor cushion, as wide as all
-    lying      bed              a shared bed
+    posture    one person       several (side by side)           support (a use)
+    seated     chair (back)     bench with a back, a seat each   chair
+    perched    stool            bench (backless)                 stool
+    reclined   lounger          lounger, as wide as all          lounger
+    floor      floor cushion    floor cushion, as wide as all    floor
+    lying      bed              a shared bed                     bed
+
+Each person's support is the use of the furniture (`posedb.regions.SUPPORT_USES`: the body
+regions that kind of furniture carries), so the scenario says `support = "chair"`.
 
 People sitting on the floor or lying are lifted by the cushion's or the bed's height (`LIFT`),
 a reclined person until the pelvis is `RECLINED_PELVIS` high, so there is furniture under them. Standing poses and poses of different postures stop with a
@@ -37,21 +40,22 @@ class DesignError(ValueError):
 @dataclass(frozen=True)
 class Design:
     """What a posture gets: the template for one person and for several, their extra
-    parameters, and the body parts it supports (the scenario's `support`)."""
+    parameters, and the use it is for (`posedb.regions.SUPPORT_USES`, the scenario's
+    `support`: the body regions that use carries)."""
 
     single: str
     several: str
-    support: tuple[str, ...]
+    use: str
     single_given: tuple[tuple[str, object], ...] = ()
     several_given: tuple[tuple[str, object], ...] = ()
 
 
 DESIGNS = {
-    "seated": Design("chair", "bench", ("torso", "thighs"), (), (("back", True),)),
-    "perched": Design("stool", "bench", ("torso", "thighs")),
-    "reclined": Design("lounger", "lounger", ("head", "torso", "legs")),
-    "floor": Design("floor_cushion", "floor_cushion", ("torso", "legs", "feet")),
-    "lying": Design("bed", "bed", ("head", "torso", "arms", "legs", "feet")),
+    "seated": Design("chair", "bench", "chair", (), (("back", True),)),
+    "perched": Design("stool", "bench", "stool"),
+    "reclined": Design("lounger", "lounger", "lounger"),
+    "floor": Design("floor_cushion", "floor_cushion", "floor"),
+    "lying": Design("bed", "bed", "bed"),
 }
 LIFT = {"floor": 0.13, "lying": 0.46}  # metres people are raised: cushion / bed top + 1 cm
 RECLINED_PELVIS = 0.4  # metres: a reclined person is raised until the pelvis is this high
@@ -84,7 +88,8 @@ def design_scenario(poses: Sequence[str], db: str | os.PathLike | None = None,
     Returns
     -------
     data : the scenario (as `parse_scenario` reads it): the template with every dimension
-        measured on the people, the people side by side, each with the template's support.
+        measured on the people, the people side by side, each supported as the template's
+        use.
     decisions : postures (per pose), their figures, the template kind.
 
     Raises DesignError for no pose, a standing pose, or poses of different postures.
@@ -111,7 +116,7 @@ def design_scenario(poses: Sequence[str], db: str | os.PathLike | None = None,
     given = dict(design.single_given if one else design.several_given)
     lifts = [LIFT.get(posture, 0.0) if posture != "reclined" else
              max(RECLINED_PELVIS - figures.pelvis_height, 0.0) for _, figures in read]
-    people = [{"name": f"person {k + 1}", "pose": p, "support": list(design.support),
+    people = [{"name": f"person {k + 1}", "pose": p, "support": design.use,
                "position": [0.0, float(lift), 0.0]}
               for k, (p, lift) in enumerate(zip(poses, lifts))]
     data = {"surface": {"template": {"kind": kind, **given}}, "person": people}

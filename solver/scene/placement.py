@@ -160,3 +160,15 @@ def furnished(scenario: Scenario, people: list[PlacedPerson]) -> Scenario:
     built = dataclasses.replace(surface.template, built=mesh.params)
     return dataclasses.replace(scenario, surface=dataclasses.replace(
         surface, vertices=mesh.vertices, source=mesh.source, template=built))
+
+
+def scene_posture(person: PlacedPerson) -> str:
+    """The posture of a placed person as the scene holds it (`solver.body.posture`): its joints
+    placed as its skin is, set down with the lowest skin point on the floor; so a seated pose
+    turned back in the scene reads as reclined, one laid on a bed as lying."""
+    from solver.body.posture import classify_posture, posture_figures
+
+    joints = person.motion.world.positions[0] @ person.transform[:3, :3].T + \
+        person.transform[:3, 3]
+    joints[:, 1] -= person.vertices[:, 1].min()
+    return classify_posture(posture_figures(joints, person.body.joint_names))

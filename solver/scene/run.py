@@ -29,7 +29,7 @@ from solver.io.render import (SKIN, SURFACE, MeshView, Panel, field_colors, rend
                               render_pressure_maps)
 from solver.scene.scenario import Scenario, load_scenario
 from solver.scene.schema import Evaluation
-from solver.scene.placement import PlacedPerson, place_scene
+from solver.scene.placement import PlacedPerson, place_scene, scene_posture
 from solver.mesh import quad_triangles
 
 if TYPE_CHECKING:
@@ -63,7 +63,8 @@ def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.n
         others = [(q.vertices, q.triangles) for j, q in enumerate(people) if j != k]
         rows.append({"name": p.label, "body": p.spec.body.as_dict(),
                      "height_m": p.body.height_m, "mass_kg": p.body.mass_kg,
-                     "support": list(p.spec.support), **figures,
+                     "posture": scene_posture(p), "support": list(p.spec.support),
+                     **figures,
                      "support_inside_others": support_inside(p.vertices, p.importance, others),
                      "flat": flat})
         maps.append(pm)
@@ -312,6 +313,19 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     t = time.perf_counter()
     guarantees = fit_guarantees(result, people, scenario.surface.params)
     timing["guarantees_s"] = time.perf_counter() - t
+    if pictures:
+        from solver.scene.sheet import write_design_sheet
+        from solver.surface.limit import limit_of_level
+
+        t = time.perf_counter()
+        title = Path(scenario_path).stem if scenario_path else "scenario"
+        creases = list(scenario.surface.params.creases) or None
+        limit = limit_of_level(result.subdivision, result.surface, creases)
+        write_design_sheet(out / "sheet.png", title, limit, result.surface_faces, people, maps,
+                           {"guarantees": guarantees, "persons": persons, "timing": timing,
+                            "iterations": result.iterations})
+        files["sheet_png"] = "sheet.png"
+        timing["sheet_s"] = time.perf_counter() - t
     timing["total_s"] = time.perf_counter() - start
     report = {
         "scenario": str(scenario_path),

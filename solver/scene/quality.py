@@ -1,0 +1,106 @@
+"""The bars a fitted piece of furniture should meet, read from its report (report.json's
+`guarantees` and `persons`), and what it misses, in words.
+
+The surface (`solver.surface.guarantees`): no self-intersection, no fold over 60 degrees, above
+the floor, no body point deeper than the margin (plus 1 mm) on a dense sampling. Each person:
+
+    coverage           >= 0.95 of the supported importance within the margin of the surface
+    contact_coverage   >= 0.8 touching it (within 5 mm in front, or sunk in up to the margin)
+    rest               the body comes to rest on the surface (and the floor)
+    peak               the highest pressure on the surface lies on a region asked to be supported
+    seated             a person seated upright carries >= 60 % of the weight on the pelvis and
+                       thighs and < 10 % on the calves (`solver.body.posture`)
+
+Shares are of the body's weight m g, over every support, the floor included.
+"""
+
+from __future__ import annotations
+
+import math
+
+COVERAGE_MIN = 0.95
+CONTACT_COVERAGE_MIN = 0.8
+SEATED_LOAD_MIN = 0.6  # share of m g on the pelvis and thighs
+SEATED_CALVES_MAX = 0.1  # share of m g on the calves
+SEATED_POSTURES = ("seated",)
+
+
+def person_loads(person: dict) -> dict:
+    """A person's load figures from its report row.
+
+    Parameters
+    ----------
+    person : dict
+        One of report.json's `persons` (its `mat` None when the body does not rest).
+
+    Returns
+    -------
+    dict
+        `pelvis_thighs_share`, `calves_share`, `floor_share` (of m g; None without a rest),
+        `peak_kpa` (the highest pressure the surface puts on the body, the floor left out) and
+        `peak_region` (the body region it lies on; both None without contact).
+    """
+    peak = {"peak_kpa": person.get("peak_pressure_kpa"), "peak_region": person.get("peak_region")}
+    mat = person.get("mat")
+    if not mat:
+        return {"pelvis_thighs_share": None, "calves_share": None, "floor_share": None, **peak}
+    share = {r: f["load_share"] for r, f in mat["total"]["regions"].items()}
+    floor = mat["supports"].get("floor")
+    return {"pelvis_thighs_share": share.get("pelvis", 0.0) + share.get("thighs", 0.0),
+            "calves_share": share.get("calves", 0.0),
+            "floor_share": floor["load_share"] if floor else 0.0, **peak}
+
+
+def _short_of(value: float, bar: float) -> str:
+    """A share under its bar, with two decimals, or where two would round it up to the bar, cut
+    (not rounded) to three: 0.9496 is 0.949, not 0.95."""
+    return f"{value:.2f}" if round(value, 2) < bar else f"{math.floor(value * 1000) / 1000:.3f}"
+
+
+def surface_misses(guarantees: dict) -> list[str]:
+    """What the surface misses of its bars (report.json's `guarantees`), one line each."""
+    g, misses = guarantees, []
+    if g["self_intersections"]:
+        misses.append(f"the surface crosses itself ({g['self_intersections']} pairs of "
+                      f"triangles)")
+    if g["folds"]:
+        misses.append(f"{g['folds']} folds: neighbouring faces up to {g['max_fold_deg']:.0f} "
+                      f"degrees apart (a fold is over 60)")
+    if g["below_floor"]:
+        misses.append(f"dips {1000 * (g['floor_m'] - g['min_height_m']):.0f} mm under the "
+                      f"floor")
+    deepest, margin = g["max_penetration_dense_m"], g["margin_m"]
+    if deepest > margin + 1e-3:
+        misses.append(f"cuts {1000 * deepest:.0f} mm into a body (margin {1000 * margin:.0f} "
+                      f"mm)")
+    return misses
+
+
+def person_misses(person: dict) -> list[str]:
+    """What one person misses of its bars (see the module docstring), one line each, naming
+    the person."""
+    name = person["name"].split(" (")[0]
+    misses = []
+    if person["coverage"] < COVERAGE_MIN:
+        misses.append(f"{name}: coverage {_short_of(person['coverage'], COVERAGE_MIN)} (bar "
+                      f"{COVERAGE_MIN})")
+    if person["contact_coverage"] < CONTACT_COVERAGE_MIN:
+        misses.append(f"{name}: contact coverage "
+                      f"{_short_of(person['contact_coverage'], CONTACT_COVERAGE_MIN)} (bar "
+                      f"{CONTACT_COVERAGE_MIN})")
+    balance = person["equilibrium"]
+    if not balance["stable"]:
+        misses.append(f"{name}: does not come to rest ({balance['reason']})")
+        return misses
+    loads = person_loads(person)
+    if loads["peak_region"] is not None and loads["peak_region"] not in person["support"]:
+        misses.append(f"{name}: peak pressure {loads['peak_kpa']:.1f} kPa on the "
+                      f"{loads['peak_region']}, which are not to be supported")
+    if person.get("posture") in SEATED_POSTURES:
+        if loads["pelvis_thighs_share"] < SEATED_LOAD_MIN:
+            misses.append(f"{name}: {100 * loads['pelvis_thighs_share']:.0f} % of the weight "
+                          f"on pelvis and thighs (bar {100 * SEATED_LOAD_MIN:.0f} %)")
+        if loads["calves_share"] >= SEATED_CALVES_MAX:
+            misses.append(f"{name}: {100 * loads['calves_share']:.0f} % of the weight on the "
+                          f"calves (bar under {100 * SEATED_CALVES_MAX:.0f} %)")
+    return misses

@@ -1,0 +1,77 @@
+"""The bars a report is judged by (solver.scene.quality), on hand-made report rows."""
+
+import pytest
+
+from solver.scene.quality import person_loads, person_misses, surface_misses
+
+GOOD_SURFACE = {"self_intersections": 0, "max_fold_deg": 20.0, "folds": 0,
+                "min_height_m": 0.3, "below_floor": False, "max_penetration_dense_m": 0.0305,
+                "margin_m": 0.03, "floor_m": 0.0, "ok": True}
+
+
+def _person(**change) -> dict:
+    regions = {"pelvis": {"load_share": 0.3}, "thighs": {"load_share": 0.35},
+               "calves": {"load_share": 0.05}, "feet": {"load_share": 0.3}}
+    row = {"name": "sitter (x.bvh frame 1)", "posture": "seated",
+           "support": ["pelvis", "thighs"], "coverage": 0.96, "contact_coverage": 0.85,
+           "peak_pressure_kpa": 7.5, "peak_region": "thighs",
+           "equilibrium": {"stable": True, "reason": None},
+           "mat": {"total": {"regions": regions},
+                   "supports": {"seat": {"load_share": 0.7}, "floor": {"load_share": 0.3}}}}
+    row.update(change)
+    return row
+
+
+def test_a_surface_within_every_bar_misses_none():
+    assert surface_misses(GOOD_SURFACE) == []
+
+
+@pytest.mark.parametrize("change, words", [
+    ({"self_intersections": 3}, "crosses itself (3 pairs"),
+    ({"folds": 2, "max_fold_deg": 75.0}, "2 folds: neighbouring faces up to 75 degrees"),
+    ({"below_floor": True, "min_height_m": -0.012}, "dips 12 mm under the floor"),
+    ({"max_penetration_dense_m": 0.0312}, "cuts 31 mm into a body (margin 30 mm)"),
+])
+def test_each_surface_bar_missed_is_said(change, words):
+    misses = surface_misses({**GOOD_SURFACE, **change})
+    assert len(misses) == 1 and words in misses[0]
+
+
+def test_a_person_within_every_bar_misses_none_and_its_loads_add_up():
+    person = _person()
+    assert person_misses(person) == []
+    loads = person_loads(person)
+    assert loads["pelvis_thighs_share"] == pytest.approx(0.65)
+    assert loads["calves_share"] == pytest.approx(0.05)
+    assert loads["floor_share"] == pytest.approx(0.3)
+    assert (loads["peak_kpa"], loads["peak_region"]) == (7.5, "thighs")
+
+
+@pytest.mark.parametrize("change, words", [
+    ({"coverage": 0.94}, "sitter: coverage 0.94 (bar 0.95)"),
+    ({"coverage": 0.9496}, "sitter: coverage 0.949 (bar 0.95)"),
+    ({"coverage": 0.9484}, "sitter: coverage 0.948 (bar 0.95)"),
+    ({"contact_coverage": 0.7}, "sitter: contact coverage 0.70 (bar 0.8)"),
+    ({"peak_region": "calves"}, "sitter: peak pressure 7.5 kPa on the calves, which are not"),
+])
+def test_each_person_bar_missed_is_said(change, words):
+    misses = person_misses(_person(**change))
+    assert len(misses) == 1 and misses[0].startswith(words)
+
+
+def test_seated_load_bars_hold_for_seated_people_only():
+    regions = {"pelvis": {"load_share": 0.2}, "thighs": {"load_share": 0.2},
+               "calves": {"load_share": 0.12}}
+    mat = {"total": {"regions": regions}, "supports": {"seat": {"load_share": 0.52}}}
+    seated = person_misses(_person(mat=mat))
+    assert any("40 % of the weight on pelvis and thighs (bar 60 %)" in m for m in seated)
+    assert any("12 % of the weight on the calves (bar under 10 %)" in m for m in seated)
+    assert person_misses(_person(mat=mat, posture="reclined")) == []
+    assert person_loads(_person(mat=mat))["floor_share"] == 0.0
+
+
+def test_a_body_that_does_not_rest_says_why_and_has_no_loads():
+    person = _person(equilibrium={"stable": False, "reason": "tips over"}, mat=None,
+                     peak_pressure_kpa=None, peak_region=None)
+    assert person_misses(person) == ["sitter: does not come to rest (tips over)"]
+    assert person_loads(person)["pelvis_thighs_share"] is None
