@@ -415,6 +415,15 @@ def peak_region(settled: Settled, regions: np.ndarray | None) -> str | None:
     return str(BODY_REGIONS[regions[int(np.argmax(pressure))]]) if pressure.max() > 0 else None
 
 
+def surface_pressure(pressure: PressureMap) -> np.ndarray:
+    """(V,) kPa the surface (not the floor) puts on each body vertex, 0 where it does not touch
+    or the body does not rest."""
+    n = len(pressure.pressure_kpa)
+    if not pressure.settled.stable:
+        return np.zeros(n)
+    return skin_pressure(pressure.settled, n, SURFACE_PARTS)
+
+
 def flat_seat_height(surface: SurfaceMesh, person: SupportedBody) -> float:
     """Height of the fitted surface under the body's most important tenth."""
     vertices, importance = person.vertices, person.importance

@@ -17,7 +17,7 @@ from solver.mesh import SurfaceMesh
 from solver.contact.evaluate import (FLOOR, SUPPORT_FIGURES, SupportGate, cut_vertices,
                                      evaluate_person, flat_seat_height, flat_surface,
                                      support_inside)
-from solver.contact.evaluate import PressureMap, contact_footprint
+from solver.contact.evaluate import PressureMap, contact_footprint, surface_pressure
 from solver.contact.mat import PressureGrid, pressure_grid, write_pressure_csv
 from solver.contact.settle import Foam, reach_depth
 from solver.io.export import ExportError, frame_matrix, write_mesh
@@ -403,7 +403,9 @@ def export_scene(out: Path, result: FitResult, people: list[PlacedPerson],
     from solver.scene.cad import cad_surface, write_scene_3dm
 
     files = {}
-    maps = [m.pressure_kpa for m in settles]
+    # the pictures and colours show what the surface presses (the floor under the feet, 30 to 80
+    # kPa on a hard floor, would leave the seat's few kPa without colour)
+    maps = [surface_pressure(m) for m in settles]
     frame = {"unit": unit or "m", "up": up or "y"}
     files["control_obj"] = write_mesh(
         out / "control.obj", result.control, result.faces, **frame,
@@ -460,12 +462,12 @@ def _scene_pictures(out: Path, result: FitResult, people: list[PlacedPerson],
         for p, m in zip(people, maps)]
     render_panels(out / "scene.png", [Panel(scene, "three-quarter", "fitted surface"),
                                       Panel(scene, "side", "side")], columns=2,
-                  colorbar=("pressure, kPa", 0.0, peak))
+                  colorbar=("pressure from the surface, kPa", 0.0, peak))
     files["scene_png"] = "scene.png"
     panels = [Panel([MeshView(p.vertices, p.body.faces, field_colors(m, 0.0, peak))], "below",
                     f"{p.label}: peak {float(m.max()):.1f} kPa") for p, m in zip(people, maps)]
     render_panels(out / "pressure.png", panels, columns=min(3, len(panels)),
-                  colorbar=("pressure, kPa", 0.0, peak))
+                  colorbar=("pressure from the surface, kPa", 0.0, peak))
     files["pressure_png"] = "pressure.png"
 
 

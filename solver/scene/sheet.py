@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from solver.contact.evaluate import SURFACE_PARTS, PressureMap, skin_pressure
+from solver.contact.evaluate import SURFACE_PARTS, PressureMap, surface_pressure
 from solver.io.drawing import Section, section
 from solver.io.render import MeshView, Panel
 from solver.scene.placement import PlacedPerson
@@ -46,15 +46,6 @@ def person_section(name: str, surface: np.ndarray, faces: np.ndarray,
     origin = person.transform[:3, :3] @ hip + person.transform[:3, 3]
     return section(name, origin, forward, {"SURFACE": (surface, faces),
                                            "BODY": (person.vertices, person.triangles)})
-
-
-def surface_pressure(pressure: PressureMap) -> np.ndarray:
-    """(V,) kPa the surface (not the floor) puts on each body vertex, 0 where it does not touch
-    or the body does not rest."""
-    n = len(pressure.pressure_kpa)
-    if not pressure.settled.stable:
-        return np.zeros(n)
-    return skin_pressure(pressure.settled, n, SURFACE_PARTS)
 
 
 def pressure_view(pressure: PressureMap) -> np.ndarray:

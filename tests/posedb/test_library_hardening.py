@@ -77,8 +77,13 @@ def _kill_commits(db: Path, kills: int, seed: int = 0) -> dict:
 
 @posix_only
 def test_20_killed_commits_leave_no_temporary_after_the_next_command(db):
-    result = _kill_commits(db, 20)
-    assert result["notes"] == result["left_a_copy"]
+    # where a kill lands is chance (a busy machine shifts it): rounds of 20 until one lands
+    # inside a commit, five at most; every round must leave nothing behind
+    for seed in range(5):
+        result = _kill_commits(db, 20, seed=seed)
+        assert result["notes"] == result["left_a_copy"]
+        if result["left_a_copy"]:
+            break
     assert result["left_a_copy"] > 0, result  # the kills did land inside commits
 
 
