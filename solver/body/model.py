@@ -57,6 +57,10 @@ if set(REGION_BONES) != set(BODY_REGIONS) or set(REGION_PART.values()) != set(BO
     raise ImportError("solver.body.model: REGION_BONES, BODY_REGIONS and BODY_PARTS disagree")
 
 
+# per trunk region, the most a supported skin vertex's rest normal may face forward (+Z)
+TRUNK_FACING = {"upper_back": 0.0, "lower_back": 0.0, "pelvis": 0.5}
+
+
 class BodyShapeError(ValueError):
     """Shape parameters outside what the body model accepts."""
 
@@ -246,14 +250,30 @@ class Body:
         Returns
         -------
         (V,) bool
+            The named regions' vertices; of the trunk's regions only the skin that does not
+            face forward in the rest pose (`TRUNK_FACING`), unless the torso or a bed is named.
 
         Raises
         ------
         SupportNameError
             If a name is no region, part or use.
         """
-        wanted = [BODY_REGIONS.index(r) for r in support_regions(names)]
-        return np.isin(self.regions, wanted)
+        regions = support_regions(names)
+        mask = np.isin(self.regions, [BODY_REGIONS.index(r) for r in regions])
+        # the trunk's regions span front and back; named as regions or by a seat's, chair's or
+        # lounger's use, a support carries their back (a backrest the back, a seat the
+        # buttocks): skin that faces forward in the rest pose (the body faces +Z) is no part of
+        # what they ask for, the chest and belly under the upper and lower back, the groin and
+        # lower belly in front of the pelvis. The whole torso (the coarse part) and a bed (which
+        # may carry a body lying on its front) keep the front.
+        raw = {str(n).strip().lower() for n in ([names] if isinstance(names, str) else names)}
+        if raw & {"torso", "bed"}:
+            return mask
+        facing = self.normals[:, 2]
+        for region, most in TRUNK_FACING.items():
+            if region in regions:
+                mask[(self.regions == BODY_REGIONS.index(region)) & (facing > most)] = False
+        return mask
 
     def summary(self) -> dict:
         return {"shape": self.shape.as_dict(), "age_years": self.shape.age_years,

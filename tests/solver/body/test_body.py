@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from capture import WorldPose
 from posedb.regions import SUPPORT_GROUPS, SUPPORT_USES, SupportNameError
-from solver.body.model import BODY_PARTS, Body, BodyShape, BodyShapeError, make_body
+from solver.body.model import BODY_PARTS, BODY_REGIONS, Body, BodyShape, BodyShapeError, make_body
 from solver.body.rig import rest_pose, rig_pose
 from solver.body.skinning import skin
 
@@ -211,10 +211,28 @@ def test_the_coarse_parts_are_the_unions_of_their_regions(shape):
                                       body.parts == BODY_PARTS.index(part))
         union = np.zeros(len(body.vertices), dtype=bool)
         for r in regions:
-            one = body.part_mask([r])
+            one = body.regions == BODY_REGIONS.index(r)
             assert one.any() and not (one & union).any(), r
+            assert not (body.part_mask([r]) & ~one).any(), r  # a region names only its own
             union |= one
         np.testing.assert_array_equal(union, body.part_mask(part))
     for use, regions in SUPPORT_USES.items():
-        np.testing.assert_array_equal(body.part_mask(use), body.part_mask(list(regions)))
+        if use != "bed":
+            np.testing.assert_array_equal(body.part_mask(use), body.part_mask(list(regions)))
     assert body.part_mask("bed").all()
+
+
+@pytest.mark.parametrize("region", ["upper_back", "lower_back", "pelvis"])
+def test_a_trunk_region_named_for_support_is_its_back_not_its_front(region):
+    """A backrest carries the back, a seat the buttocks: named as a region (or by a chair's
+    use), the trunk's regions leave out the skin facing forward in the rest pose (the chest and
+    belly, the groin); the whole torso keeps it."""
+    body = make_body()
+    whole = body.regions == BODY_REGIONS.index(region)
+    named = body.part_mask([region])
+    forward = body.normals[:, 2] > 0.5
+    backward = body.normals[:, 2] < -0.5
+    assert (whole & backward).any() and (whole & forward).any()
+    assert named[whole & backward].all() and not named[whole & forward].any()
+    assert body.part_mask(["torso"])[whole].all()
+    assert not body.part_mask("chair")[whole & forward].any()
