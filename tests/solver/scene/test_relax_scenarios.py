@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from solver.contact.evaluate import SUPPORT_FIGURES, worse_figures
-from solver.scene.placement import place_person
+from solver.scene.placement import place_scene
 from solver.scene.run import fit_people, relax_person, relax_record
 from solver.scene.scenario import load_scenario
 
@@ -16,8 +16,7 @@ EXAMPLES = Path(__file__).resolve().parents[3] / "solver" / "data" / "scenarios"
 
 def _relaxed(name: str) -> list[tuple]:
     """Per person of the example: the person, the relaxation, its figures before and after."""
-    scenario = load_scenario(EXAMPLES / f"{name}.toml")
-    people = [place_person(p, None, k) for k, p in enumerate(scenario.persons)]
+    scenario, people = place_scene(load_scenario(EXAMPLES / f"{name}.toml"))
     fit = fit_people(scenario, people)
     rows = []
     for person in people:
