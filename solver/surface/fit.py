@@ -231,10 +231,6 @@ class Rows:
     skin: np.ndarray | None = None
     beyond_m2: float = 0.0
 
-    def unmet_m2(self) -> float:
-        """Sum of squares (m^2) of the demands the surface leaves unmet."""
-        return float(np.sum(np.maximum(0.0, self.demanded - self.now) ** 2))
-
     def bound(self, step: float) -> np.ndarray:
         """(R,) the step's bound on n . v: a violated row need only improve by most of a
         trust-region step (it stays feasible within the trust region)."""

@@ -103,17 +103,16 @@ def test_rows_hold_surface_vertices_out_of_the_ball(ball_fit):
     assert member[rows.rows].all()
 
 
-def test_judged_energy_counts_unmet_demand(ball_fit):
+def test_judged_energy_counts_the_surface_out_of_bounds(ball_fit):
+    """An iterate's energy: the blend of its point terms plus the rest plus the slack weight
+    times how far its surface is out of bounds (`Rows.beyond_m2`)."""
     fit = ball_fit
     member = np.zeros(fit.sub.matrix.shape[0], dtype=bool)
     it = F.assess(fit, fit.v0, member)
-    surf = it.surf
-    rows = F.Rows(np.array([0, 5]), np.array([[0.0, 1.0, 0.0]] * 2),
-                  np.array([surf[0, 1] + 0.01, -np.inf]), surf[[0, 5], 1])
-    assert rows.unmet_m2() == pytest.approx(1e-4)
-    short = dataclasses.replace(it, rows=rows, unmet=rows.unmet_m2())
-    assert short.energy(0.5) - it.energy(0.5) == pytest.approx(
-        fit.programme.slack_weight * (1e-4 - it.unmet))
+    out = dataclasses.replace(it, unmet=it.unmet + 1e-4)
+    assert out.energy(0.5) - it.energy(0.5) == pytest.approx(fit.programme.slack_weight * 1e-4)
+    # the grid at 0.45 m cuts into the ball's lower half: it is out of bounds already
+    assert it.unmet == it.rows.beyond_m2 > 0
     # the energy's data part blends point-to-point and point-to-plane, the latter never larger
     assert it.plane <= it.point
     assert it.energy(0.0) - it.energy(1.0) == pytest.approx(it.point - it.plane)
