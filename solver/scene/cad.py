@@ -19,7 +19,6 @@ import numpy as np
 from solver.io.rhino import write_3dm
 from solver.mesh import quad_triangles
 from solver.surface.fit import FitResult
-from solver.surface.limit import limit_of_level
 from solver.surface.nurbs import (BSplineSurface, bspline_of_grid, grid_layout, grid_patches,
                                   subdivided_grid)
 
@@ -51,7 +50,7 @@ def cad_surface(result: FitResult, creases=()) -> CadSurface:
     sub = result.subdivision
     if sub is None:
         raise ValueError("Expected a FitResult that carries its subdivision, got none")
-    limit = limit_of_level(sub, result.surface, list(creases) or None)
+    limit = result.limit_surface(creases)
     moved = np.linalg.norm(limit - result.surface, axis=1)
     dist2, _, _ = igl.point_mesh_squared_distance(limit, result.surface,
                                                   quad_triangles(result.surface_faces))

@@ -97,10 +97,7 @@ def fit_scene(scenario: Scenario, people: list[PlacedPerson],
     timing["fit_s"] = time.perf_counter() - t
     t = time.perf_counter()
     # evaluated on the limit surface, as `surface.*` holds it and the guarantees judge it
-    from solver.surface.limit import limit_of_level
-
-    limit = limit_of_level(result.subdivision, result.surface,
-                           list(scenario.surface.params.creases) or None)
+    limit = result.limit_surface(scenario.surface.params.creases)
     persons, maps = evaluate_scene(scenario, people, limit, result.surface_faces)
     timing["evaluate_s"] = time.perf_counter() - t
     return result, persons, maps
@@ -315,12 +312,10 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     timing["guarantees_s"] = time.perf_counter() - t
     if pictures:
         from solver.scene.sheet import write_design_sheet
-        from solver.surface.limit import limit_of_level
 
         t = time.perf_counter()
         title = Path(scenario_path).stem if scenario_path else "scenario"
-        creases = list(scenario.surface.params.creases) or None
-        limit = limit_of_level(result.subdivision, result.surface, creases)
+        limit = result.limit_surface(scenario.surface.params.creases)
         write_design_sheet(out / "sheet.png", title, limit, result.surface_faces, people, maps,
                            {"guarantees": guarantees, "persons": persons, "timing": timing,
                             "iterations": result.iterations})
@@ -357,12 +352,11 @@ def fit_guarantees(result: FitResult, people: list[PlacedPerson], params) -> dic
     holds (the level-s quads at their limit points; the level's creases are no folds), against
     the posed bodies, with the fit's margin and floor (`params`, the `FitParams`)."""
     from solver.surface.guarantees import surface_guarantees
-    from solver.surface.limit import limit_of_level
 
     sub = result.subdivision
     if sub is None:
         raise ValueError("Expected a FitResult that carries its subdivision, got none")
-    limit = limit_of_level(sub, result.surface, list(params.creases) or None)
+    limit = result.limit_surface(params.creases)
     sharp = sub.steps[-1].creases if sub.level > 0 else \
         (np.asarray(params.creases, dtype=np.int64).reshape(-1, 2) if params.creases else None)
     return surface_guarantees(limit, result.surface_faces,
@@ -378,10 +372,9 @@ def _workshop(out: Path, result: FitResult, people: list[PlacedPerson], workshop
     if workshop is None or not workshop.any:
         return None
     from solver.scene.workshop import export_workshop
-    from solver.surface.limit import limit_of_level
 
     t = time.perf_counter()
-    limit = limit_of_level(result.subdivision, result.surface, list(creases) or None)
+    limit = result.limit_surface(creases)
     more, fabrication = export_workshop(out, limit, result.surface_faces, people, workshop)
     files.update(more)
     timing["workshop_s"] = time.perf_counter() - t

@@ -151,6 +151,18 @@ class FitResult:
     seconds: float
     qp_statuses: list[str] = field(default_factory=list)
     subdivision: Subdivision | None = None
+    limit: np.ndarray | None = None  # (ns, 3) the level-s vertices' limit points
+
+    def limit_surface(self, creases=()) -> np.ndarray:
+        """(ns, 3) metres: the limit points of the level-s vertices (what `surface.*` holds), as
+        the fit computed them, or from the subdivision and the control `creases`."""
+        if self.limit is not None:
+            return self.limit
+        from solver.surface.limit import limit_of_level
+
+        if self.subdivision is None:
+            raise ValueError("Expected a FitResult that carries its subdivision, got none")
+        return limit_of_level(self.subdivision, self.surface, list(creases) or None)
 
 
 def control_laplacian(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
@@ -482,6 +494,17 @@ class ExtraRows:
     demanded: np.ndarray
 
 
+def limit_points(fit: _Fit, v: np.ndarray) -> np.ndarray:
+    """(ns, 3) the limit points of the level-s vertices of control vertices v (n0, 3) (their
+    map built once a fit, when first asked for)."""
+    from solver.surface.limit import limit_matrix
+
+    if fit.limit is None:
+        fit.limit = limit_matrix(fit.n0, fit.faces, fit.params.level,
+                                 list(fit.params.creases) or None)
+    return fit.limit @ v
+
+
 def deep_samples(fit: _Fit, v: np.ndarray) -> ExtraRows | None:
     """Rows for the places where the limit surface of control vertices v (n0, 3) lies deeper
     in a body than the margin less REPAIR_SAFETY between its vertices: over the barycentric
@@ -492,20 +515,13 @@ def deep_samples(fit: _Fit, v: np.ndarray) -> ExtraRows | None:
     import igl
 
     from solver.mesh import face_normals, quad_triangles
-    from solver.surface.guarantees import SAMPLE_DIVISIONS
-    from solver.surface.limit import limit_matrix
+    from solver.surface.guarantees import barycentric_weights
 
     if not fit.skins:
         return None
-    if fit.limit is None:
-        fit.limit = limit_matrix(fit.n0, fit.faces, fit.params.level,
-                                 list(fit.params.creases) or None)
-    limit = fit.limit @ v
+    limit = limit_points(fit, v)
     triangles = quad_triangles(fit.sub.faces)
-    d = SAMPLE_DIVISIONS
-    i, j = np.meshgrid(np.arange(d + 1), np.arange(d + 1), indexing="ij")
-    keep = (i + j) <= d
-    weights = np.stack([d - i[keep] - j[keep], i[keep], j[keep]], axis=1) / d  # (S, 3)
+    weights = barycentric_weights()  # (S, 3)
     allowed = fit.params.margin - REPAIR_SAFETY
     # only triangles with a corner inside a body, deeper than `allowed` less a centimetre
     # (behind its nearest skin vertex's plane), can hold a sample deeper than `allowed`
@@ -519,11 +535,10 @@ def deep_samples(fit: _Fit, v: np.ndarray) -> ExtraRows | None:
     if not len(candidates):
         return None
     points = np.einsum("sk,fkd->fsd", weights, limit[triangles[candidates]]).reshape(-1, 3)
-    suspect = np.ones(len(points), dtype=bool)
     found: dict[int, tuple[float, int, np.ndarray, np.ndarray]] = {}
     for body_v, body_t in fit.skins:
         lo, hi = body_v.min(axis=0), body_v.max(axis=0)
-        near = np.flatnonzero(suspect & np.all((points >= lo) & (points <= hi), axis=1))
+        near = np.flatnonzero(np.all((points >= lo) & (points <= hi), axis=1))
         if len(near):
             near = near[igl.fast_winding_number(body_v, body_t, points[near]) > 0.5]
         if not len(near):
@@ -531,7 +546,7 @@ def deep_samples(fit: _Fit, v: np.ndarray) -> ExtraRows | None:
         dist2, face, closest = igl.point_mesh_squared_distance(points[near], body_v, body_t)
         depth = np.sqrt(dist2)
         deep = depth > allowed
-        normals = face_normals(body_v, body_t)[face[deep]]
+        normals = face_normals(body_v, body_t[face[deep]])
         for k, dk, n, c in zip(near[deep], depth[deep], normals, closest[deep]):
             tri = int(candidates[k // len(weights)])
             if tri not in found or dk > found[tri][0]:
@@ -662,13 +677,13 @@ def converged(energies: Sequence[float], tolerance: float) -> bool:
     return len(post) > PATIENCE and min(post) > min(post[:-PATIENCE]) * (1 - tolerance)
 
 
-def propose(fit: _Fit, it: Iterate, tau: float, radius: float, quadratic=None
+def propose(fit: _Fit, it: Iterate, radius: float, quadratic
             ) -> tuple[np.ndarray, str, float]:
     """One step from iterate `it`: the programme at its pairing and rows, within a trust
     region of `radius` metres per coordinate. Returns the new control vertices (n0, 3),
     OSQP's status and the largest row residual (m). `quadratic`: the (H, g) of `assemble`
-    for this iterate and tau, when the caller has it already."""
-    h, g = quadratic if quadratic is not None else assemble(fit, it.pairing, it.surf_n, tau)
+    for this iterate at the step's tau."""
+    h, g = quadratic
     x0 = it.v.T.reshape(-1)
     g = g + fit.proximal * x0  # the proximal pull to the current iterate
     try:
@@ -696,10 +711,8 @@ def _crossings(fit: _Fit, v: np.ndarray) -> int:
     """Crossing triangle pairs of the limit surface of control vertices v (what `surface.*`
     holds)."""
     from solver.mesh import quad_triangles, self_intersections
-    from solver.surface.limit import limit_of_level
 
-    limit = limit_of_level(fit.sub, fit.sub.matrix @ v, list(fit.params.creases) or None)
-    return len(self_intersections(limit, quad_triangles(fit.sub.faces)))
+    return len(self_intersections(limit_points(fit, v), quad_triangles(fit.sub.faces)))
 
 
 def uncrossed(fit: _Fit, accepted: Sequence[np.ndarray]) -> tuple[int, int]:
@@ -800,7 +813,8 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
                  largest_row_residual_m=run.residuals[keep - 1] if keep else 0.0)
     return FitResult(result.v, fit.faces, result.surf, fit.sub.faces, iteration, stop,
                      run.energies[:len(run.energies) - sum(len(r["energies"]) for r in repairs)],
-                     terms, time.perf_counter() - start, run.statuses, fit.sub)
+                     terms, time.perf_counter() - start, run.statuses, fit.sub,
+                     limit_points(fit, result.v))
 
 
 @dataclass(eq=False)
@@ -834,7 +848,7 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
     iteration = first - 1
     for iteration in range(first, last + 1):
         t = params.tau_max * min(1.0, (iteration - 1) / TAU_RAMP) if tau is None else tau
-        target, status, residual = propose(fit, it, t, params.step,
+        target, status, residual = propose(fit, it, params.step,
                                            assemble(fit, it.pairing, it.surf_n, t))
         for halving in range(MAX_HALVINGS + 1):
             v = it.v + 0.5 ** halving * (target - it.v)

@@ -73,14 +73,19 @@ def fold_angles(vertices: np.ndarray, quads: np.ndarray,
     return np.degrees(np.arccos(np.clip(dots, -1.0, 1.0)))
 
 
-def barycentric_samples(vertices: np.ndarray, triangles: np.ndarray,
-                        divisions: int = SAMPLE_DIVISIONS) -> np.ndarray:
-    """(F * (d + 1)(d + 2) / 2, 3) points on every triangle: the barycentric grid with each
-    edge in `divisions` (d) parts, corners included."""
+def barycentric_weights(divisions: int = SAMPLE_DIVISIONS) -> np.ndarray:
+    """((d + 1)(d + 2) / 2, 3) the barycentric grid with each triangle edge in `divisions` (d)
+    parts, corners included."""
     i, j = np.meshgrid(np.arange(divisions + 1), np.arange(divisions + 1), indexing="ij")
     inside = (i + j) <= divisions
     a, b = i[inside] / divisions, j[inside] / divisions
-    weights = np.stack([1.0 - a - b, a, b], axis=1)  # (S, 3)
+    return np.stack([1.0 - a - b, a, b], axis=1)
+
+
+def barycentric_samples(vertices: np.ndarray, triangles: np.ndarray,
+                        divisions: int = SAMPLE_DIVISIONS) -> np.ndarray:
+    """(F * (d + 1)(d + 2) / 2, 3) points on every triangle at `barycentric_weights`."""
+    weights = barycentric_weights(divisions)
     corners = np.asarray(vertices, dtype=np.float64)[np.asarray(triangles, dtype=np.int64)]
     return np.einsum("sk,fkd->fsd", weights, corners).reshape(-1, 3)
 
