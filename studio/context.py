@@ -1,0 +1,33 @@
+"""What every studio view of one browser tab is given (`StudioContext`), and what a view is
+(`View`): the studio builds one set of views per connected tab, each in its own GUI tab, each
+drawing its 3D nodes under its own scene prefix (`/record`, `/library`, `/design`)."""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+
+@dataclass
+class StudioContext:
+    """Shared by the views of every tab: the pose library's path (None: none opened), the folder
+    exports and saved scenarios go to, the upload limit in bytes, and one lock that serialises
+    the library writes of all tabs (each write is one commit of the library's own editing)."""
+
+    db: str | None
+    out: Path
+    limit: int
+    library_lock: threading.RLock = field(default_factory=threading.RLock)
+
+
+class View(Protocol):
+    """One view of one tab. Built as ``ViewClass(client, tab, context)`` where `client` is the
+    tab's `viser.ClientHandle` (its own GUI and scene), `tab` the GUI container the view fills
+    (``with tab:`` places GUI elements in it) and `context` the `StudioContext`."""
+
+    prefix: str  # the scene path under which the view draws, e.g. "/record"
+
+    def close(self) -> None:
+        """Stops what the view runs (streams, fits) when its tab goes away."""
