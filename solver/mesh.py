@@ -219,7 +219,7 @@ class SurfaceMesh:
 
 
 def self_intersections(vertices: np.ndarray, triangles: np.ndarray,
-                       chunk: int = 200_000) -> np.ndarray:
+                       chunk: int = 200_000, depth: float = 0.0) -> np.ndarray:
     """(P, 2) pairs of triangles that share no vertex and yet meet, i < j.
 
     Broad phase: the triangles' bounding boxes binned on a uniform grid (cells twice the
@@ -232,6 +232,8 @@ def self_intersections(vertices: np.ndarray, triangles: np.ndarray,
     triangles : (F, 3) int
     chunk : int
         Pairs tested at once (memory bound).
+    depth : float
+        Metres two triangles must overlap by along every axis to count (0: touching counts).
 
     Returns
     -------
@@ -249,7 +251,8 @@ def self_intersections(vertices: np.ndarray, triangles: np.ndarray,
     hits = [np.zeros((0, 2), dtype=np.int64)]
     for s in range(0, len(a), chunk):
         ka, kb = a[s:s + chunk], b[s:s + chunk]
-        meet = _no_separating_axis(corners[ka], corners[kb])
+        meet = _no_separating_axis(corners[ka], corners[kb],
+                                   -depth if depth > 0 else 1e-12)
         hits.append(np.stack([ka[meet], kb[meet]], axis=1))
     return np.concatenate(hits)
 

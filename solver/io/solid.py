@@ -9,14 +9,18 @@ the convention every slicer and CAM program assumes.
 
 Two solids are made:
 
-* an offset shell (`thicken`): the surface, a copy moved by the thickness along the vertex
-  normals away from the bodies, and side walls joining the two along the surface's border;
+* an offset shell (`thicken`): the surface, a sheet every point of which lies the thickness
+  away from it on the side away from the bodies, and side walls joining the two along the
+  surface's border;
 * a plinth (`plinth`): the surface, its copy dropped onto the floor (y = 0), and side walls.
 
-A naive offset folds over where the surface bends away from the bodies more tightly than the
-thickness (a convex radius under the thickness); `check_solid` finds such folds and places
-where the offset comes nearer the surface than the thickness, and `thicken` refuses to return
-a solid that has them.
+Where the surface bends away from the bodies more tightly than the thickness (a convex radius
+under it), moving each vertex along its normal folds the offset over itself. There the
+offset is trimmed as a cutter would leave it: the region within the thickness of those faces
+is the union of one convex piece per face (its triangle, and the triangle moved along the
+normals of the faces around its corners), merged with the rest of the shell by manifold3d,
+so the underside keeps every point the thickness away from the surface and has a valley
+where the two sides meet. `check_solid` measures what comes out.
 """
 
 from __future__ import annotations
@@ -31,8 +35,8 @@ import numpy as np
 
 from capture.files import write_atomic
 
-from solver.mesh import SurfaceMesh, enclosed_volume, face_normals, quad_triangles, \
-    self_intersections, vertex_normals
+from solver.mesh import SurfaceMesh, enclosed_volume, face_cross, face_normals, \
+    quad_triangles, self_intersections, vertex_normals
 
 THICKNESS_TOLERANCE = 1e-4  # m: the offset's vertices may miss the thickness by this much
 # Between vertices, flat faces cut the chords of tight bends, so the two sheets come nearer
@@ -50,16 +54,18 @@ class SolidError(ValueError):
 class Solid:
     """A closed triangle mesh: vertices (V, 3) metres, Y up; triangles (F, 3) counter-clockwise
     seen from outside. `kind` is "offset" or "plinth"; `thickness` the offset (m, None for a
-    plinth); the first `n_surface` vertices are the surface's, the next `n_surface` their
-    offset (or floor) copies, in the same order; the first `n_surface_triangles` triangles
-    are the surface's, the next as many their copies' (reversed), then the side walls."""
+    plinth); the first `n_surface` vertices are the surface's and `surface_triangles` its
+    triangles over them (the solid's top); `trimmed` counts the surface triangles under which
+    the offset was trimmed (see the module notes; 0 where moving every vertex along its normal
+    made a sound offset, whose next `n_surface` vertices are then their offset copies)."""
 
     vertices: np.ndarray
     triangles: np.ndarray
     kind: str
     thickness: float | None
     n_surface: int
-    n_surface_triangles: int
+    surface_triangles: np.ndarray
+    trimmed: int = 0
 
 
 @dataclass(frozen=True)
@@ -77,6 +83,7 @@ class SolidCheck:
     clearance_m: float | None = None
     surface_folds: int = 0
     intersecting_pairs: int = 0
+    trimmed: int = 0
 
     @property
     def ok(self) -> bool:
@@ -183,11 +190,15 @@ def _close(top: np.ndarray, faces: np.ndarray, bottom: np.ndarray) -> np.ndarray
 
 
 def thicken(vertices: np.ndarray, faces: np.ndarray, thickness: float, *,
-            check: bool = True) -> Solid:
+            check: bool = True, trim: bool = True) -> Solid:
     """The surface thickened away from the bodies by a constant `thickness`.
 
     Each vertex is copied `thickness` along minus its area-weighted unit normal (the normals
-    point towards the bodies), and side walls close the border.
+    point towards the bodies), the copy's triangles are split until their middles lie within
+    3/4 `THICKNESS_TOLERANCE` of the thickness too (each new vertex put the thickness from
+    the surface), and side walls close the border. Where that offset folds over,
+    runs into the surface or crosses itself (the surface bends away from the bodies more
+    tightly than the thickness), it is trimmed (with `trim`): see the module notes.
 
     Parameters
     ----------
@@ -199,6 +210,9 @@ def thicken(vertices: np.ndarray, faces: np.ndarray, thickness: float, *,
         Metres, > 0.
     check : bool, default True
         Run `check_solid` and raise if it fails.
+    trim : bool, default True
+        Trim the offset where moving the vertices along their normals does not make a sound
+        one (False: return that offset as it is).
 
     Returns
     -------
@@ -207,18 +221,254 @@ def thicken(vertices: np.ndarray, faces: np.ndarray, thickness: float, *,
     Raises
     ------
     SolidError
-        On bad input, or (with `check`) when the offset folds over or runs into the surface.
+        On bad input, or (with `check`) when the solid fails its checks.
     """
     v, f = _validate(vertices, faces)
     if not np.isfinite(thickness) or thickness <= 0:
         raise SolidError(f"Expected a thickness > 0 m, got {thickness}")
+    t = float(thickness)
     tris = f if f.shape[1] == 3 else quad_triangles(f)
-    offset = _true_offset(v, tris, v - thickness * vertex_normals(v, tris), thickness)
-    solid = Solid(np.concatenate([v, offset]), _close(v, f, offset), "offset",
-                  float(thickness), len(v), len(tris))
+    offset = _true_offset(v, tris, v - t * vertex_normals(v, tris), t)
+    plain = Solid(np.concatenate([v, offset]), _close(v, f, offset), "offset", t, len(v), tris)
+    unsound = _unsound_faces(plain) if trim else np.zeros(len(tris), dtype=bool)
+    if unsound.any():
+        solid = _trimmed(v, tris, offset, t, unsound)
+    else:
+        solid = Solid(*_offset_shell(v, tris, offset, t), "offset", t, len(v), tris)
     if check:
         _raise_if_bad(solid)
     return solid
+
+
+MAX_SPLITS = 2  # times the offset sheet's triangles may be split into four
+
+
+def _offset_shell(v: np.ndarray, tris: np.ndarray, offset: np.ndarray,
+                  t: float) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and triangles of a closed shell: the surface (`v`, `tris`), its offset sheet
+    (`offset`, the copies of `v`, then the vertices splitting adds) and walls along the
+    border. The sheet's triangles are split into four while a middle lies nearer the surface
+    than the thickness less 3/4 `THICKNESS_TOLERANCE` (chords of a sheet that bulges away
+    from the surface), each new vertex put `t` from the surface."""
+    n = len(v)
+    mesh = SurfaceMesh.from_triangles(v, tris)
+    bottom, sheet = offset.copy(), np.asarray(tris, dtype=np.int64)
+    chains = [list(edge) for edge in boundary_edges(tris).tolist()]  # along the border
+    if not chains:
+        raise SolidError("Expected a surface with a border, got a closed one")
+    for _ in range(MAX_SPLITS):
+        middles = bottom[sheet].mean(axis=1)
+        if mesh.closest(middles)[0].min() >= t - 0.75 * THICKNESS_TOLERANCE:
+            break
+        edges = np.concatenate([sheet[:, [0, 1]], sheet[:, [1, 2]], sheet[:, [2, 0]]])
+        pairs, inverse = np.unique(np.sort(edges, axis=1), axis=0, return_inverse=True)
+        halves = len(bottom) + np.arange(len(pairs))
+        bottom = np.concatenate([bottom, _at_thickness(
+            mesh, 0.5 * (bottom[pairs[:, 0]] + bottom[pairs[:, 1]]), t)])
+        m = halves[inverse.ravel()].reshape(3, -1).T  # halves of edges 01, 12, 20
+        a, b, c = sheet.T
+        sheet = np.concatenate([np.stack([a, m[:, 0], m[:, 2]], axis=1),
+                                np.stack([m[:, 0], b, m[:, 1]], axis=1),
+                                np.stack([m[:, 2], m[:, 1], c], axis=1), m])
+        half = dict(zip(map(tuple, pairs.tolist()), halves.tolist()))
+        chains = [chain[:1] + [x for p, q in zip(chain[:-1], chain[1:])
+                               for x in (half[(min(p, q), max(p, q))], q)]
+                  for chain in chains]
+    walls = []
+    for chain in chains:  # the surface runs a -> b: the wall fans from b over the copies
+        a, b = chain[0], chain[-1]
+        walls.append([b, a, n + a])
+        walls.extend([b, n + p, n + q] for p, q in zip(chain[:-1], chain[1:]))
+    triangles = np.concatenate([tris, sheet[:, ::-1] + n, np.asarray(walls, dtype=np.int64)])
+    return np.concatenate([v, bottom]), triangles
+
+
+def _at_thickness(mesh: SurfaceMesh, points: np.ndarray, t: float) -> np.ndarray:
+    """Points moved along the line from their closest surface point to `t` from it."""
+    dist, _, _, _, closest = mesh.closest(points)
+    away = (points - closest) / np.maximum(dist, 1e-300)[:, None]
+    return closest + t * away
+
+
+def _unsound_faces(solid: Solid, rings: int = 2) -> np.ndarray:
+    """(F,) bool: the surface triangles whose part of a plain offset is unsound (its offset
+    folds over, a corner's copy lies nearer the surface than the thickness allows, or its
+    offset or wall crosses another triangle), grown by `rings` rings of neighbours and closed
+    so that the sound rest has no two triangles meeting at a corner only."""
+    n, tris, t = solid.n_surface, solid.surface_triangles, solid.thickness
+    top, bottom = solid.vertices[:n], solid.vertices[n:]
+    nf = len(tris)
+    bad = np.einsum("ij,ij->i", face_normals(top, tris), face_normals(bottom, tris)) <= 0
+    mesh = SurfaceMesh.from_triangles(top, tris)
+    near = mesh.closest(bottom)[0] < t - THICKNESS_TOLERANCE
+    bad |= near[tris].any(axis=1)
+    # a copy's middle nearer than its chord explains (where the copies' directions part by an
+    # angle a, a chord of the thickness's sphere lies t (1 - cos a/2) inside) comes near
+    # another part of the surface
+    directions = (top - bottom) / t
+    spread = np.stack([np.einsum("ij,ij->i", directions[tris[:, i]], directions[tris[:, j]])
+                       for i, j in ((0, 1), (1, 2), (2, 0))], axis=1).min(axis=1)
+    chord = t * (1.0 - np.sqrt(np.clip(0.5 * (1.0 + spread), 0.0, 1.0)))
+    short = t - mesh.closest(bottom[tris].mean(axis=1))[0]
+    bad |= short > 2.0 * chord + THICKNESS_TOLERANCE
+    crossing = self_intersections(solid.vertices, solid.triangles).ravel()
+    # the solid's triangles: the surface's, their offsets, then the walls (two per border edge)
+    offsets = crossing[(crossing >= nf) & (crossing < 2 * nf)] - nf
+    bad[offsets] = True
+    walls = crossing[crossing >= 2 * nf] - 2 * nf
+    if len(walls):
+        border = boundary_edges(tris)
+        corners = np.unique(border[walls % len(border)])
+        bad |= np.isin(tris, corners).any(axis=1)
+    if not bad.any():
+        return bad
+    adjacency = _vertex_faces(tris, n)
+    for _ in range(rings):
+        bad = np.asarray(adjacency.T @ (adjacency @ bad) > 0).ravel()
+    while True:  # a vertex where the sound part meets itself at a corner only joins the rest
+        good = tris[~bad]
+        if len(good) == 0:
+            return bad
+        edges = np.sort(np.concatenate([good[:, [0, 1]], good[:, [1, 2]], good[:, [2, 0]]]),
+                        axis=1)
+        key, count = np.unique(edges, axis=0, return_counts=True)
+        open_ends = np.bincount(key[count == 1].ravel(), minlength=n)
+        pinched = open_ends > 2
+        if not pinched.any():
+            return bad
+        bad |= pinched[tris].any(axis=1)
+
+
+def _vertex_faces(tris: np.ndarray, n: int):
+    """(n, F) sparse incidence of vertices and triangles."""
+    import scipy.sparse as sp
+
+    rows = tris.ravel()
+    cols = np.repeat(np.arange(len(tris)), 3)
+    return sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, len(tris)))
+
+
+# The convex piece of a trimmed triangle: its corners' copies along the directions of the
+# normals of the faces around any of them (spherical triangles between a vertex normal and each
+# two neighbouring face normals, sampled finely enough that a chord of the thickness's sphere
+# cuts it by at most SAGITTA); and points slightly wider than the triangle half-way down, so that
+# neighbouring pieces overlap in volume rather than touch in a plane.
+SAGITTA = 5e-5  # m
+WIDEN = 1e-3  # of the distance from the triangle's centre
+
+
+def _trimmed(v: np.ndarray, tris: np.ndarray, offset: np.ndarray, t: float,
+             unsound: np.ndarray) -> Solid:
+    """The plain offset of the sound triangles merged (manifold3d) with one convex piece per
+    unsound triangle; the surface's vertices first."""
+    import manifold3d
+
+    normals = face_normals(v, tris)
+    incidence = _vertex_faces(tris, len(v)).tocsr()
+    step = 2.0 * np.arccos(1.0 - SAGITTA / t)
+    # pieces also under the sound faces at the seam: the plain offset's wall there leans
+    # between their normals and the trimmed ones', so their own sweep must reach past it
+    seam = np.zeros(len(v), dtype=bool)
+    seam[tris[unsound].ravel()] = True
+    swept = unsound | seam[tris].any(axis=1)
+    around = {}  # vertex -> the directions of the normals around it
+    for corner in np.unique(tris[swept]):
+        ring = incidence.indices[incidence.indptr[corner]:incidence.indptr[corner + 1]]
+        around[corner] = _directions(v[corner] - offset[corner], normals[ring], tris[ring],
+                                     step)
+    pieces = []
+    for face in np.flatnonzero(swept):
+        corners = v[tris[face]]
+        widened = corners + WIDEN * (corners - corners.mean(axis=0)) - 0.5 * t * normals[face]
+        # every corner along every direction: the triangle swept over the directions' cap
+        directions = np.vstack([around[c] for c in tris[face]])
+        below = (corners[:, None, :] - t * directions[None, :, :]).reshape(-1, 3)
+        pieces.append(manifold3d.Manifold.hull_points(np.vstack([corners, widened, below])))
+    union = manifold3d.Manifold.batch_boolean(pieces, manifold3d.OpType.Add)
+    good = ~unsound
+    if good.any():
+        used = np.unique(tris[good])
+        index = np.full(len(v), -1)
+        index[used] = np.arange(len(used))
+        union = union + _manifold(*_offset_shell(v[used], index[tris[good]], offset[used], t))
+    if union.status().name != "NoError":
+        raise SolidError(f"Trimming the offset failed: manifold3d says "
+                         f"{union.status().name}")
+    mesh = union.to_mesh64()
+    out_v = np.array(mesh.vert_properties, dtype=np.float64)[:, :3]
+    out_t = np.asarray(mesh.tri_verts, dtype=np.int64)
+    # where pieces meet, their faces cut chords a fraction of a millimetre inside the
+    # thickness: the underside's vertices (over the surface's inside, past half the
+    # thickness) are put the thickness away, as the plain offset's are
+    surface = SurfaceMesh.from_triangles(v, tris)
+    dist, _, _, face, closest = surface.closest(out_v)
+    under = (dist > 0.5 * t) & ~_on_border(surface, boundary_edges(tris), face, closest)
+    target = closest + t * (out_v - closest) / np.maximum(dist, 1e-300)[:, None]
+    before = face_cross(out_v, out_t)
+    while under.any():  # a move that turns a face over (a sliver, a step) is not made
+        moved = out_v.copy()
+        moved[under] = target[under]
+        after = face_cross(moved, out_t)
+        turned = np.einsum("ij,ij->i", before, after) <= 0.5 * np.linalg.norm(
+            before, axis=1) * np.linalg.norm(after, axis=1)
+        turned &= under[out_t].any(axis=1)
+        if not turned.any():
+            out_v = moved
+            break
+        under[out_t[turned].ravel()] = False
+    return _surface_first(v, tris, out_v, out_t, t, int(unsound.sum()))
+
+
+def _directions(up: np.ndarray, ring: np.ndarray, ring_tris: np.ndarray,
+                step: float) -> np.ndarray:
+    """Unit directions covering the normals around a vertex: for each two faces of its ring
+    that share an edge, the spherical triangle of the vertex's own direction (`up`, from its
+    offset copy to the vertex) and their normals, sampled on a barycentric grid no coarser
+    than `step` radians."""
+    centre = up / np.linalg.norm(up)
+    out = [centre[None], ring]
+    k = len(ring)
+    for i in range(k):
+        for j in range(i + 1, k):
+            if len(np.intersect1d(ring_tris[i], ring_tris[j])) < 2:
+                continue  # not neighbours
+            a, b = ring[i], ring[j]
+            widest = max(np.arccos(np.clip(x @ y, -1.0, 1.0))
+                         for x, y in ((centre, a), (centre, b), (a, b)))
+            m = int(np.ceil(widest / step))
+            if m <= 1:
+                continue
+            u, w = np.meshgrid(np.arange(m + 1), np.arange(m + 1), indexing="ij")
+            keep = u + w <= m
+            u, w = u[keep] / m, w[keep] / m
+            d = (1 - u - w)[:, None] * centre + u[:, None] * a + w[:, None] * b
+            out.append(d / np.linalg.norm(d, axis=1, keepdims=True))
+    return np.vstack(out)
+
+
+def _manifold(vertices: np.ndarray, triangles: np.ndarray):
+    import manifold3d
+
+    return manifold3d.Manifold(manifold3d.Mesh64(
+        vert_properties=np.ascontiguousarray(vertices, dtype=np.float64),
+        tri_verts=np.ascontiguousarray(triangles, dtype=np.uint64)))
+
+
+def _surface_first(v: np.ndarray, tris: np.ndarray, out_v: np.ndarray, out_t: np.ndarray,
+                   t: float, trimmed: int) -> Solid:
+    """The merged mesh renumbered so that the surface's vertices come first, as they were.
+    A surface vertex the merge left out (where coplanar pieces met, their triangles are
+    joined) stays, used by no triangle."""
+    from scipy.spatial import cKDTree
+
+    dist, nearest = cKDTree(out_v).query(v)
+    found = dist <= 1e-9
+    rest = np.setdiff1d(np.arange(len(out_v)), nearest[found])
+    renumber = np.empty(len(out_v), dtype=np.int64)
+    renumber[nearest[found]] = np.flatnonzero(found)
+    renumber[rest] = len(v) + np.arange(len(rest))
+    return Solid(np.concatenate([v, out_v[rest]]), renumber[out_t], "offset", t, len(v), tris,
+                 trimmed)
 
 
 def _true_offset(v: np.ndarray, tris: np.ndarray, offset: np.ndarray, thickness: float,
@@ -278,7 +528,7 @@ def plinth(vertices: np.ndarray, faces: np.ndarray, *, floor: float = 0.0,
         raise SolidError("Expected a surface whose normals point up, towards the bodies; "
                          "a plinth under a surface facing down has no inside")
     solid = Solid(np.concatenate([v, shadow]), _close(v, f, shadow), "plinth", None, len(v),
-                  len(tris))
+                  tris)
     if check:
         _raise_if_bad(solid)
     return solid
@@ -292,8 +542,9 @@ def _raise_if_bad(solid: Solid) -> None:
 
 def check_solid(solid: Solid) -> SolidCheck:
     """Checks a solid with trimesh (closed, consistently wound), manifold3d (status, volume),
-    an exact test for triangles crossing each other (`self_intersections`) and, for an
-    offset, the offset's distance from the surface and its folds.
+    an exact test for triangles crossing each other (`self_intersections`, deeper than
+    `CROSSING_DEPTH`) and, for an offset, the underside's distance from the surface and
+    its folds.
 
     Parameters
     ----------
@@ -302,39 +553,106 @@ def check_solid(solid: Solid) -> SolidCheck:
     Returns
     -------
     SolidCheck
-        Thickness figures are the least and largest distance from the offset's vertices to
-        the surface (None for a plinth); `too_close` counts the vertices nearer than the
-        thickness less `THICKNESS_TOLERANCE` (where the offset runs into the surface);
-        `clearance_m` is the least distance between the two sheets, probed also at face
-        centres both ways and from the surface's vertices.
+        For an offset (None for a plinth): the underside is every triangle of the solid that
+        is not the surface's and lies over the surface's inside (not beside its border) at
+        least half the thickness away; those facing the bodies are `folded_faces`, the others
+        the underside proper. Thickness figures are the least and largest distance from the
+        underside's vertices to the surface; `too_close` counts those nearer than the
+        thickness less `THICKNESS_TOLERANCE`; `clearance_m` is the least distance between
+        the underside and the surface, probed also at its triangles' centres and from the
+        surface's vertices.
     """
     import manifold3d
     import trimesh
 
     mesh = trimesh.Trimesh(solid.vertices, solid.triangles, process=False)
-    manifold = manifold3d.Manifold(manifold3d.Mesh(
-        vert_properties=np.ascontiguousarray(solid.vertices, dtype=np.float32),
-        tri_verts=np.ascontiguousarray(solid.triangles, dtype=np.uint32)))
+    manifold = manifold3d.Manifold(manifold3d.Mesh64(
+        vert_properties=np.ascontiguousarray(solid.vertices, dtype=np.float64),
+        tri_verts=np.ascontiguousarray(solid.triangles, dtype=np.uint64)))
     status = manifold.status().name
     volume = float(manifold.volume()) if status == "NoError" else \
         enclosed_volume(solid.vertices, solid.triangles)
     folded, low, high, close, clearance = 0, None, None, 0, None
-    creases = surface_folds(solid.vertices[:solid.n_surface],
-                            solid.triangles[:solid.n_surface_triangles])
+    top = solid.vertices[:solid.n_surface]
+    creases = surface_folds(top, solid.surface_triangles)
     if solid.kind == "offset":
-        n = solid.n_surface
-        top, bottom = solid.vertices[:n], solid.vertices[n:]
-        tris = solid.triangles[:solid.n_surface_triangles]
-        folded = int(np.sum(np.einsum("ij,ij->i", face_normals(top, tris),
-                                      face_normals(bottom, tris)) <= 0))
-        d_out, d_in = offset_distances(top, bottom, tris)
-        at_vertices = d_out[:n]
-        low, high = float(at_vertices.min()), float(at_vertices.max())
-        close = int(np.sum(at_vertices < solid.thickness - THICKNESS_TOLERANCE))
-        clearance = float(min(d_out.min(), d_in.min()))
+        folded, low, high, close, clearance = _underside(solid)
+    crossing = self_intersections(solid.vertices, solid.triangles, depth=CROSSING_DEPTH)
     return SolidCheck(bool(mesh.is_watertight), bool(mesh.is_winding_consistent), status,
-                      volume, folded, low, high, close, clearance, creases,
-                      len(self_intersections(solid.vertices, solid.triangles)))
+                      volume, folded, low, high, close, clearance, creases, len(crossing),
+                      solid.trimmed)
+
+
+# m: triangles of a solid cross only where they overlap deeper than this. Where the trimmed
+# offset's pieces meet, the merge leaves slivers whose corners lie a fraction of a micrometre
+# apart; a workshop's tolerance is a hundredfold coarser.
+CROSSING_DEPTH = 1e-6
+
+
+def _underside(solid: Solid):
+    """(folded faces, least and largest thickness, vertices too close, clearance) of an
+    offset solid (see `check_solid`)."""
+    t = solid.thickness
+    surface = SurfaceMesh.from_triangles(solid.vertices[:solid.n_surface],
+                                         solid.surface_triangles)
+    edges = boundary_edges(solid.surface_triangles)
+    # the walls meet the surface; the underside, its steps and any fold lie over its inside
+    tris = solid.triangles[(solid.triangles >= solid.n_surface).all(axis=1)]
+    dist, _, _, face, closest = surface.closest(solid.vertices[tris].mean(axis=1))
+    sheet = ~_on_border(surface, edges, face, closest) & (dist >= 0.5 * t)
+    facing = np.einsum("ij,ij->i", face_normals(solid.vertices, tris),
+                       surface.face_normals[face])
+    # a sliver thinner than CROSSING_DEPTH (left where merged pieces meet) has no meaningful
+    # normal; a fold faces the bodies, a step where pieces meet stands across
+    corners = solid.vertices[tris]
+    longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
+    sliver = np.linalg.norm(face_cross(solid.vertices, tris), axis=1) < \
+        CROSSING_DEPTH * longest
+    folded = int(np.sum(sheet & (facing > 0.5) & ~sliver))
+    if not sheet.any():
+        return folded, None, None, 0, None
+    d_corner, _, _, c_face, c_closest = surface.closest(solid.vertices[np.unique(tris[sheet])])
+    d_corner = d_corner[~_on_border(surface, edges, c_face, c_closest)]
+    inside = np.setdiff1d(np.arange(solid.n_surface), edges)
+    d_in = SurfaceMesh.from_triangles(solid.vertices, tris[sheet]).closest(
+        surface.vertices[inside])[0]
+    low, high = float(d_corner.min()), float(d_corner.max())
+    close = int(np.sum(d_corner < t - THICKNESS_TOLERANCE))
+    return folded, low, high, close, float(min(dist[sheet].min(), d_in.min(initial=np.inf),
+                                               low))
+
+
+def _on_border(surface: SurfaceMesh, edges: np.ndarray, face: np.ndarray,
+               points: np.ndarray) -> np.ndarray:
+    """(P,) bool: which closest points (on triangles `face` of `surface`) lie within
+    `THICKNESS_TOLERANCE` of the surface's border `edges` (of an edge of their triangle that
+    no other triangle shares, or of a corner on the border): points beside the border, on
+    the side walls."""
+    corners = surface.triangles[face]
+    a, b, c = (surface.vertices[corners[:, k]] for k in range(3))
+    ab, ac, ap = b - a, c - a, points - a
+    d00, d01, d11 = (np.einsum("ij,ij->i", x, y) for x, y in ((ab, ab), (ab, ac), (ac, ac)))
+    d20, d21 = np.einsum("ij,ij->i", ap, ab), np.einsum("ij,ij->i", ap, ac)
+    den = np.maximum(d00 * d11 - d01 * d01, 1e-300)
+    wb = (d11 * d20 - d01 * d21) / den
+    wc = (d00 * d21 - d01 * d20) / den
+    weights = np.stack([1.0 - wb - wc, wb, wc], axis=1)  # of corners 0, 1, 2
+    twice_area = np.sqrt(den)
+    key = {tuple(e) for e in np.sort(edges, axis=1).tolist()}
+    result = np.zeros(len(points), dtype=bool)
+    for k in range(3):  # the edge opposite corner k, at weight x altitude from the point
+        i, j = corners[:, (k + 1) % 3], corners[:, (k + 2) % 3]
+        length = np.linalg.norm(surface.vertices[j] - surface.vertices[i], axis=1)
+        near = weights[:, k] * twice_area / np.maximum(length, 1e-300) < THICKNESS_TOLERANCE
+        if near.any():
+            pair = np.sort(np.stack([i[near], j[near]], axis=1), axis=1)
+            result[np.flatnonzero(near)] |= np.array([tuple(e) in key for e in pair.tolist()])
+    rim = np.zeros(len(surface.vertices), dtype=bool)  # a triangle may touch it at a corner
+    rim[edges.ravel()] = True
+    for k in range(3):
+        result |= rim[corners[:, k]] & (np.linalg.norm(
+            points - surface.vertices[corners[:, k]], axis=1) < THICKNESS_TOLERANCE)
+    return result
 
 
 def surface_folds(vertices: np.ndarray, triangles: np.ndarray) -> int:
@@ -359,30 +677,6 @@ def surface_folds(vertices: np.ndarray, triangles: np.ndarray) -> int:
     pair = np.all(edges[1:] == edges[:-1], axis=1)
     dots = np.einsum("ij,ij->i", normals[face[:-1][pair]], normals[face[1:][pair]])
     return int(np.sum(dots < 0))
-
-
-def offset_distances(top: np.ndarray, bottom: np.ndarray,
-                     triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Distances between a surface and its offset sheet (the same triangles).
-
-    Parameters
-    ----------
-    top, bottom : (N, 3) float
-        The surface and its offset, metres.
-    triangles : (F, 3) int
-
-    Returns
-    -------
-    d_out, d_in : (N + F,) float
-        Metres from the offset's vertices then face centres to the surface, and from the
-        surface's vertices then face centres to the offset.
-    """
-    def probes(v):
-        return np.concatenate([v, v[triangles].mean(axis=1)])
-
-    d_out = SurfaceMesh.from_triangles(top, triangles).closest(probes(bottom))[0]
-    d_in = SurfaceMesh.from_triangles(bottom, triangles).closest(probes(top))[0]
-    return d_out, d_in
 
 
 def workshop_vertices(vertices: np.ndarray) -> np.ndarray:
@@ -448,11 +742,14 @@ def model_3mf(solid: Solid, name: str = "sitrelax solid") -> bytes:
     Returns
     -------
     bytes
-        A zip with one mesh object in unit millimetre, Z up (see `workshop_vertices`).
+        A zip with one mesh object in unit millimetre, Z up (see `workshop_vertices`), with
+        the vertices its triangles use.
     """
     from xml.sax.saxutils import quoteattr
 
-    v = workshop_vertices(solid.vertices)
+    used, triangles = np.unique(solid.triangles, return_inverse=True)
+    v = workshop_vertices(solid.vertices[used])
+    triangles = triangles.reshape(-1, 3)
     body = io.StringIO()
     body.write('<?xml version="1.0" encoding="UTF-8"?>\n<model unit="millimeter" '
                'xml:lang="en-US" xmlns="http://schemas.microsoft.com/3dmanufacturing/core/'
@@ -460,7 +757,7 @@ def model_3mf(solid: Solid, name: str = "sitrelax solid") -> bytes:
                '><mesh><vertices>\n')
     np.savetxt(body, v, fmt='<vertex x="%.4f" y="%.4f" z="%.4f"/>')
     body.write('</vertices><triangles>\n')
-    np.savetxt(body, solid.triangles, fmt='<triangle v1="%d" v2="%d" v3="%d"/>')
+    np.savetxt(body, triangles, fmt='<triangle v1="%d" v2="%d" v3="%d"/>')
     body.write('</triangles></mesh></object></resources>\n'
                '<build><item objectid="1"/></build></model>\n')
     buf = io.BytesIO()

@@ -2,6 +2,9 @@
 
 import numpy as np
 import pytest
+import trimesh
+
+from solver.io.solid import boundary_edges
 
 
 def bent_grid(radius: float = 0.012, bend: float = 1.0, columns: int = 161, rows: int = 9,
@@ -39,3 +42,21 @@ def ridge():
 @pytest.fixture
 def fine_ridge():
     return bent_grid(bend=-1.0)
+
+
+def underside_distances(solid):
+    """trimesh's distances (not the solid module's) from the points of the solid's underside
+    (its vertices and triangle middles more than half the thickness below the surface's
+    inside) to the surface, and their count."""
+    surface = trimesh.Trimesh(solid.vertices[:solid.n_surface], solid.surface_triangles,
+                              process=False)
+    probes = np.concatenate([solid.vertices[solid.n_surface:],
+                             solid.vertices[solid.triangles].mean(axis=1)])
+    closest, dist, _ = trimesh.proximity.closest_point(surface, probes)
+    edges = surface.vertices[boundary_edges(solid.surface_triangles)]  # (B, 2, 3)
+    a, ab = edges[:, 0], edges[:, 1] - edges[:, 0]
+    s = np.clip(np.einsum("pbk,bk->pb", closest[:, None] - a[None], ab) /
+                np.einsum("bk,bk->b", ab, ab), 0.0, 1.0)
+    to_border = np.linalg.norm(closest[:, None] - (a[None] + s[..., None] * ab[None]), axis=2)
+    keep = (to_border.min(axis=1) > 1e-4) & (dist > 0.5 * solid.thickness)
+    return dist[keep]

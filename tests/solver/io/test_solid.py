@@ -13,6 +13,8 @@ from solver.io.solid import (SolidError, boundary_edges, check_solid, model_3mf,
                              write_stl)
 from solver.mesh import quad_triangles, voronoi_areas
 
+from .conftest import underside_distances
+
 
 def test_boundary_edges_of_one_quad_run_its_way():
     edges = boundary_edges(np.array([[0, 1, 2, 3]]))
@@ -37,14 +39,41 @@ def test_offset_of_a_trough_is_watertight_manifold_and_as_thick_as_asked(trough)
     assert 0.005 * area < check.volume_m3 < 1.05 * 0.005 * area
 
 
-def test_offset_deeper_than_a_ridge_radius_folds_and_is_refused(ridge):
+def test_plain_offset_deeper_than_a_ridge_radius_folds_and_is_refused(ridge):
     vertices, quads, _ = ridge
     assert check_solid(thicken(vertices, quads, 0.006)).ok  # under the 12 mm radius
     with pytest.raises(SolidError, match="fold over"):
-        thicken(vertices, quads, 0.02)
-    check = check_solid(thicken(vertices, quads, 0.02, check=False))
+        thicken(vertices, quads, 0.02, trim=False)
+    check = check_solid(thicken(vertices, quads, 0.02, check=False, trim=False))
     assert check.watertight and check.folded_faces > 0 and not check.ok
     assert check.intersecting_pairs > 0  # the exact test sees the fold cross itself too
+
+
+@pytest.mark.parametrize("thickness", [0.02, pytest.param(0.03, marks=pytest.mark.slow)])
+def test_offset_deeper_than_a_ridge_radius_is_trimmed_into_a_sound_solid(ridge, thickness):
+    """Under a 12 mm ridge the plain offset folds; trimmed, the solid is closed and manifold
+    (trimesh, manifold3d), crosses nowhere, keeps the surface as its top, and its underside
+    lies the thickness from the surface within 0.1 mm by trimesh's own distance query."""
+    vertices, quads, _ = ridge
+    solid = thicken(vertices, quads, thickness)
+    check = check_solid(solid)
+    assert check.ok, check.problem()
+    assert solid.trimmed > 0 and check.trimmed == solid.trimmed
+    mesh = trimesh.Trimesh(solid.vertices, solid.triangles, process=False)
+    assert mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0
+    assert check.intersecting_pairs == 0 and check.folded_faces == 0
+    assert np.array_equal(solid.vertices[:len(vertices)], vertices)
+    # the top is the surface: the triangles lying on it cover its area exactly
+    surface = trimesh.Trimesh(vertices, quad_triangles(quads), process=False)
+    on_top = np.abs(trimesh.proximity.signed_distance(
+        surface, solid.vertices[solid.triangles].mean(axis=1))) < 1e-9
+    assert mesh.area_faces[on_top].sum() == pytest.approx(surface.area, rel=1e-9)
+    dist = underside_distances(solid)
+    assert len(dist) > 100
+    assert np.all(np.abs(dist - thickness) <= 1e-4), (dist.min(), dist.max())
+    # the trimmed shell holds less than thickness x area (the ridge's inside is shared)
+    area = voronoi_areas(vertices, quad_triangles(quads)).sum()
+    assert 0.7 * thickness * area < check.volume_m3 < thickness * area
 
 
 def test_crossing_triangles_are_found_and_neighbours_are_not():
@@ -119,7 +148,7 @@ def test_3mf_reads_back_with_lib3mf_in_millimetres(tmp_path, trough):
     objects = model.GetMeshObjects()
     assert objects.MoveNext()
     mesh = objects.GetCurrentMeshObject()
-    assert (mesh.GetVertexCount(), mesh.GetTriangleCount()) == (len(solid.vertices),
-                                                                len(solid.triangles))
+    assert (mesh.GetVertexCount(), mesh.GetTriangleCount()) == (
+        len(np.unique(solid.triangles)), len(solid.triangles))
     names = zipfile.ZipFile(io.BytesIO(model_3mf(solid))).namelist()
     assert "3D/3dmodel.model" in names
