@@ -247,9 +247,9 @@ def _offset_shell(v: np.ndarray, tris: np.ndarray, offset: np.ndarray,
                   t: float) -> tuple[np.ndarray, np.ndarray]:
     """Vertices and triangles of a closed shell: the surface (`v`, `tris`), its offset sheet
     (`offset`, the copies of `v`, then the vertices splitting adds) and walls along the
-    border. The sheet's triangles are split into four while a middle lies nearer the surface
-    than the thickness less 3/4 `THICKNESS_TOLERANCE` (chords of a sheet that bulges away
-    from the surface), each new vertex put `t` from the surface."""
+    border. The sheet's triangles are split into four while a middle lies further than 3/4
+    `THICKNESS_TOLERANCE` from the thickness (the chords of a curved sheet), each new vertex
+    put `t` from the surface."""
     n = len(v)
     mesh = SurfaceMesh.from_triangles(v, tris)
     bottom, sheet = offset.copy(), np.asarray(tris, dtype=np.int64)
@@ -258,7 +258,7 @@ def _offset_shell(v: np.ndarray, tris: np.ndarray, offset: np.ndarray,
         raise SolidError("Expected a surface with a border, got a closed one")
     for _ in range(MAX_SPLITS):
         middles = bottom[sheet].mean(axis=1)
-        if mesh.closest(middles)[0].min() >= t - 0.75 * THICKNESS_TOLERANCE:
+        if np.abs(mesh.closest(middles)[0] - t).max() <= 0.75 * THICKNESS_TOLERANCE:
             break
         edges = np.concatenate([sheet[:, [0, 1]], sheet[:, [1, 2]], sheet[:, [2, 0]]])
         pairs, inverse = np.unique(np.sort(edges, axis=1), axis=0, return_inverse=True)
@@ -309,8 +309,11 @@ def _unsound_faces(solid: Solid, rings: int = 2) -> np.ndarray:
     spread = np.stack([np.einsum("ij,ij->i", directions[tris[:, i]], directions[tris[:, j]])
                        for i, j in ((0, 1), (1, 2), (2, 0))], axis=1).min(axis=1)
     chord = t * (1.0 - np.sqrt(np.clip(0.5 * (1.0 + spread), 0.0, 1.0)))
-    short = t - mesh.closest(bottom[tris].mean(axis=1))[0]
-    bad |= short > 2.0 * chord + THICKNESS_TOLERANCE
+    middle = mesh.closest(bottom[tris].mean(axis=1))[0]
+    bad |= t - middle > 2.0 * chord + THICKNESS_TOLERANCE
+    # under a bend away from the bodies a little wider than the thickness the copy's sheet is
+    # tight, and its chords stand out past the thickness by more than splitting mends
+    bad |= middle - t > 0.5 * THICKNESS_TOLERANCE * 4 ** MAX_SPLITS
     crossing = self_intersections(solid.vertices, solid.triangles).ravel()
     # the solid's triangles: the surface's, their offsets, then the walls (two per border edge)
     offsets = crossing[(crossing >= nf) & (crossing < 2 * nf)] - nf

@@ -46,12 +46,13 @@ def fine_ridge():
 
 def underside_distances(solid):
     """trimesh's distances (not the solid module's) from the points of the solid's underside
-    (its vertices and triangle middles more than half the thickness below the surface's
-    inside) to the surface, and their count."""
+    to the surface: of its vertices, then of the middles of its triangles (those not
+    touching the surface, more than half the thickness below its inside)."""
     surface = trimesh.Trimesh(solid.vertices[:solid.n_surface], solid.surface_triangles,
                               process=False)
-    probes = np.concatenate([solid.vertices[solid.n_surface:],
-                             solid.vertices[solid.triangles].mean(axis=1)])
+    below = solid.triangles[(solid.triangles >= solid.n_surface).all(axis=1)]
+    corners = np.unique(below)
+    probes = np.concatenate([solid.vertices[corners], solid.vertices[below].mean(axis=1)])
     closest, dist, _ = trimesh.proximity.closest_point(surface, probes)
     edges = surface.vertices[boundary_edges(solid.surface_triangles)]  # (B, 2, 3)
     a, ab = edges[:, 0], edges[:, 1] - edges[:, 0]
@@ -59,4 +60,4 @@ def underside_distances(solid):
                 np.einsum("bk,bk->b", ab, ab), 0.0, 1.0)
     to_border = np.linalg.norm(closest[:, None] - (a[None] + s[..., None] * ab[None]), axis=2)
     keep = (to_border.min(axis=1) > 1e-4) & (dist > 0.5 * solid.thickness)
-    return dist[keep]
+    return dist[:len(corners)][keep[:len(corners)]], dist[len(corners):][keep[len(corners):]]

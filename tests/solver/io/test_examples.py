@@ -42,8 +42,10 @@ def fitted():
 def test_every_example_thickens_to_a_closed_manifold(fitted, name):
     """The 3 cm solid of every example's surface (trimmed where a ridge is tighter):
     watertight and consistently wound by trimesh, a manifold by manifold3d, no crossing
-    triangles, as thick as asked within 0.1 mm at every vertex and triangle middle of its
-    underside (trimesh's distances)."""
+    triangles, as thick as asked within 0.1 mm at every vertex of its underside, and within
+    0.2 mm at its triangles' middles (trimesh's distances; a flat triangle of the offset
+    spans the crease the offsets of two faces of the surface's own mesh meet in, under its
+    edges that turn away from the bodies)."""
     vertices, faces = fitted[name]
     solid = thicken(vertices, faces, THICK, check=False)
     check = check_solid(solid)
@@ -54,8 +56,11 @@ def test_every_example_thickens_to_a_closed_manifold(fitted, name):
     assert check.intersecting_pairs == 0
     assert abs(check.thickness_min_m - THICK) <= THICKNESS_TOLERANCE
     assert abs(check.thickness_max_m - THICK) <= THICKNESS_TOLERANCE
-    dist = underside_distances(solid)
-    assert np.all(np.abs(dist - THICK) <= THICKNESS_TOLERANCE), (dist.min(), dist.max())
+    at_vertices, at_middles = underside_distances(solid)
+    assert np.all(np.abs(at_vertices - THICK) <= THICKNESS_TOLERANCE), \
+        (at_vertices.min(), at_vertices.max())
+    assert np.all(np.abs(at_middles - THICK) <= 2 * THICKNESS_TOLERANCE), \
+        (at_middles.min(), at_middles.max())
     reach = cutter_reach(vertices, faces, 0.02)
     assert reach.min_concave_radius_m > 0
 

@@ -68,9 +68,10 @@ def test_offset_deeper_than_a_ridge_radius_is_trimmed_into_a_sound_solid(ridge, 
     on_top = np.abs(trimesh.proximity.signed_distance(
         surface, solid.vertices[solid.triangles].mean(axis=1))) < 1e-9
     assert mesh.area_faces[on_top].sum() == pytest.approx(surface.area, rel=1e-9)
-    dist = underside_distances(solid)
-    assert len(dist) > 100
-    assert np.all(np.abs(dist - thickness) <= 1e-4), (dist.min(), dist.max())
+    at_vertices, at_middles = underside_distances(solid)
+    assert len(at_vertices) > 100 and len(at_middles) > 100
+    for dist in (at_vertices, at_middles):
+        assert np.all(np.abs(dist - thickness) <= 1e-4), (dist.min(), dist.max())
     # the trimmed shell holds less than thickness x area (the ridge's inside is shared)
     area = voronoi_areas(vertices, quad_triangles(quads)).sum()
     assert 0.7 * thickness * area < check.volume_m3 < thickness * area
