@@ -93,6 +93,8 @@ REPAIR_ITERATIONS = 10  # iterations each such round may take
 REPAIR_SAFETY = 2e-3  # metres inside the margin those rows hold the samples to
 SAG_ALLOWANCE = 0.01  # metres a triangle may sink deeper between its corners than at them
 MAX_HALVINGS = 4  # a rejected step is retried half as long this often
+FREEZES = 2  # times a step that folds or ridges too far is retried with the control vertices
+             # that shape the offending quads held still
 FLOOR_REACH = 2.0  # steps: a surface vertex this near the floor gets a floor row (it moves at
                    # most one step per iteration, so none gets under unseen)
 
@@ -152,6 +154,7 @@ class FitResult:
     qp_statuses: list[str] = field(default_factory=list)
     subdivision: Subdivision | None = None
     limit: np.ndarray | None = None  # (ns, 3) the level-s vertices' limit points
+    state: "FitState | None" = field(default=None, repr=False, compare=False)
 
     def limit_surface(self, creases=()) -> np.ndarray:
         """(ns, 3) metres: the limit points of the level-s vertices (what `surface.*` holds), as
@@ -163,6 +166,34 @@ class FitResult:
         if self.subdivision is None:
             raise ValueError("Expected a FitResult that carries its subdivision, got none")
         return limit_of_level(self.subdivision, self.surface, list(creases) or None)
+
+
+@dataclass(frozen=True, eq=False)
+class FitState:
+    """What a fit leaves for a warm refit of the same control mesh (`fit_surface`'s `warm`):
+    the subdivision's key (control vertices, level, creases), the start, the limit map, the
+    surface vertices that carried rows (so that the programme's set-up seldom changes) and the
+    bodies with their search trees (reused while the bodies are unchanged)."""
+
+    key: tuple
+    start: np.ndarray  # (n0, 3) the control vertices that fit started from (its `control`)
+    limit: sp.csr_matrix | None
+    member: np.ndarray  # (ns,) bool
+    floor_member: np.ndarray  # (ns,) bool
+    points: np.ndarray  # (P, 3)
+    normals: np.ndarray  # (P, 3)
+    trees: tuple  # (body_tree, body_tree3, exit_tree), as `_search_trees` builds them
+
+
+def _search_trees(points: np.ndarray, normals: np.ndarray) -> tuple:
+    """The body vertices' search trees: (position, FACING_SCALE x normal), positions,
+    (position, EXIT_SCALE x normal)."""
+    return (cKDTree(np.concatenate([points, FACING_SCALE * normals], axis=1)), cKDTree(points),
+            cKDTree(np.concatenate([points, EXIT_SCALE * normals], axis=1)))
+
+
+def _state_key(n0: int, params: "FitParams") -> tuple:
+    return n0, params.level, tuple(map(tuple, params.creases))
 
 
 def control_laplacian(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
@@ -202,9 +233,6 @@ class _Fit:
     skins: list  # (vertices (V, 3), triangles (T, 3)) of every body with a closed skin
     limit: sp.csr_matrix | None = None  # (ns, n0) control vertices -> limit points of level s
     extra: "ExtraRows | None" = None  # rows on dense samples found too deep (`deep_samples`)
-    skins: list  # (vertices (V, 3), triangles (T, 3)) of every body with a closed skin
-    limit: sp.csr_matrix | None = None  # (ns, n0) control vertices -> limit points of level s
-    extra: "ExtraRows | None" = None  # rows on dense samples found too deep (`repair_rows`)
 
     @property
     def n0(self) -> int:
@@ -289,8 +317,9 @@ def _check_facing(surface0: np.ndarray, quads: np.ndarray, points: np.ndarray,
 
 
 def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedBody],
-            params: FitParams) -> _Fit:
-    """Checks the inputs and builds what stays fixed over the fit (see `_Fit`)."""
+            params: FitParams, state: FitState | None = None) -> _Fit:
+    """Checks the inputs and builds what stays fixed over the fit (see `_Fit`), reusing what
+    `state` (a fit of the same control mesh) built where it still holds."""
     v0 = np.asarray(control, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     n0 = len(v0)
@@ -318,22 +347,28 @@ def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedB
     # non-penetration rows on the surface vertices that are vertex points of the level before
     # (every other vertex each way, about 2 cm apart on a seat): a quarter of the rows
     sampled = np.arange(sub.steps[-1].matrix.shape[1] if sub.steps else sub.matrix.shape[0])
+    same = state is not None and state.key == _state_key(n0, params)
+    if same and np.array_equal(state.points, points) and np.array_equal(state.normals, normals):
+        trees = state.trees  # the bodies did not move: their trees hold
+    else:
+        trees = _search_trees(points, normals)
     return _Fit(v0, faces, params, sub, lap, points, normals, points[important],
-                rho[important], cKDTree(np.concatenate([points, FACING_SCALE * normals], axis=1)),
-                cKDTree(points), cKDTree(np.concatenate([points, EXIT_SCALE * normals], axis=1)),
+                rho[important], *trees,
                 fixed, smooth, diagonal.toarray() if dense else diagonal, proximal, dense,
                 Programme(sub.matrix, lap, n0, SLACK_WEIGHT / people), sampled,
                 neighbour_faces(sub.faces, sub.steps[-1].creases if sub.steps else
                                 (np.asarray(params.creases).reshape(-1, 2)
                                  if params.creases else None)),
-                [(t.vertices, t.triangles) for t in targets if t.triangles is not None])
+                [(t.vertices, t.triangles) for t in targets if t.triangles is not None],
+                state.limit if same else None)
 
 
-def initial_rows(fit: _Fit) -> np.ndarray:
-    """(ns,) bool: the sampled surface vertices a body could reach from the start, where rows
-    begin, so that the set (and OSQP's set-up) seldom changes as the surface moves."""
+def initial_rows(fit: _Fit, v: np.ndarray) -> np.ndarray:
+    """(ns,) bool: the sampled surface vertices a body could reach from control vertices v
+    (n0, 3), where the fit starts, where rows begin, so that the set (and OSQP's set-up) seldom
+    changes as the surface moves."""
     member = np.zeros(fit.sub.matrix.shape[0], dtype=bool)
-    reach, _ = fit.body_tree3.query((fit.sub.matrix @ fit.v0)[fit.sampled_ids],
+    reach, _ = fit.body_tree3.query((fit.sub.matrix @ v)[fit.sampled_ids],
                                     distance_upper_bound=REACH)
     member[fit.sampled_ids[np.isfinite(reach)]] = True
     return member
@@ -642,11 +677,19 @@ def assess(fit: _Fit, v: np.ndarray, member: np.ndarray,
 
 def _bends(fit: _Fit, surf: np.ndarray) -> tuple[float, float]:
     """The largest angle (degrees) between neighbouring level-s quads of surface `surf`
-    (ns, 3), creases left out, and the tightest radius (m) of its ridges: where it bends away
-    from the bodies (each quad's centre lies behind its neighbour's plane), the distance
-    between the two quads' centres over the angle between them (inf without a ridge)."""
+    (ns, 3), creases left out, and the tightest radius (m) of its ridges (inf without a ridge):
+    the extremes of `_bend_pairs`."""
     if not len(fit.neighbours):
         return 0.0, np.inf
+    angle, radius = _bend_pairs(fit, surf)
+    return float(np.degrees(angle.max())), float(radius.min())
+
+
+def _bend_pairs(fit: _Fit, surf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per pair of neighbouring level-s quads (`fit.neighbours`) of surface `surf` (ns, 3):
+    the angle (radians) between them and the radius (m) of the ridge they make where the
+    surface bends away from the bodies (each quad's centre lies behind its neighbour's plane),
+    the distance between their centres over that angle (inf where they make no ridge)."""
     quads = fit.sub.faces
     n = quad_normals(surf, quads)
     a, b = fit.neighbours[:, 0], fit.neighbours[:, 1]
@@ -655,8 +698,22 @@ def _bends(fit: _Fit, surf: np.ndarray) -> tuple[float, float]:
     gap = centres[b] - centres[a]
     ridge = (np.einsum("ij,ij->i", gap, n[a]) < 0) & (np.einsum("ij,ij->i", gap, n[b]) > 0) & \
         (angle > 1e-6)
-    radius = np.linalg.norm(gap[ridge], axis=1) / angle[ridge]
-    return float(np.degrees(angle.max())), float(radius.min()) if len(radius) else np.inf
+    radius = np.full(len(angle), np.inf)
+    radius[ridge] = np.linalg.norm(gap[ridge], axis=1) / angle[ridge]
+    return angle, radius
+
+
+def _bent_controls(fit: _Fit, it: Iterate, candidate: Iterate) -> np.ndarray:
+    """(n0,) bool: the control vertices that shape the level-s quads where `candidate` folds
+    or ridges past what `acceptable` allows after `it`."""
+    angle, radius = _bend_pairs(fit, candidate.surf)
+    bad = (np.degrees(angle) > max(FOLD_GUARD_DEG, it.max_fold)) | \
+        (radius < min(fit.params.min_ridge_radius, it.min_ridge))
+    quads = np.unique(fit.neighbours[bad].ravel())
+    corners = np.unique(fit.sub.faces[quads].ravel())
+    shaping = np.zeros(fit.n0, dtype=bool)
+    shaping[fit.sub.matrix[corners].indices] = True
+    return shaping
 
 
 def terms_of(fit: _Fit, it: Iterate, tau: float) -> dict:
@@ -737,11 +794,20 @@ def uncrossed(fit: _Fit, accepted: Sequence[np.ndarray]) -> tuple[int, int]:
 @with_limited_threads  # small products: one BLAS thread (SITRELAX_THREADS), see solver.threads
 def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedBody],
                 params: FitParams = FitParams(),
-                progress: Callable[[int, float, float], None] | None = None) -> FitResult:
+                progress: Callable[[int, float, float], None] | None = None, *,
+                warm: FitResult | None = None, cancel: Callable[[], bool] | None = None
+                ) -> FitResult:
     """Fits the control mesh to the bodies (see the module docstring): each iteration proposes
     a step (pair, assemble, constrain, solve) and accepts it only if it lowers the judged
     energy and folds no further, or tries again half as long; the result is the
     last accepted iterate whose surface does not cross itself.
+
+    A warm refit (`warm`, the result of an earlier fit of the same control mesh, after a person
+    moved or a control vertex was edited) starts from that result's control vertices (each
+    moved as far as the designer moved it in `control` since) at tau_max, reuses what still holds (the limit map, the rows, the bodies' search trees when
+    they did not move) and stops as soon as the surface is settled: once an accepted step
+    lowers the judged energy by less than `tolerance` (relative). The energy is the cold fit's
+    own: the pulls still hold the control vertices to `control`, the designer's start.
 
     Parameters
     ----------
@@ -757,6 +823,11 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
         rule and per-iteration step (metres).
     progress : callable, optional
         Called after every accepted iteration as ``progress(iteration, energy, tau)``.
+    warm : FitResult, optional
+        An earlier fit of a control mesh with the same vertex count and quads to start from.
+    cancel : callable, optional
+        Polled between iterations; when it returns True the fit ends early with the last
+        accepted iterate (the best so far) and a `stop_reason` that begins with "cancelled".
 
     Returns
     -------
@@ -772,20 +843,30 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
     FitError
         If there is no body, a fixed vertex index is out of range, a body has nothing to
         support or lies beyond `REACH` of the surface, the control mesh faces away from the
-        bodies, or the quadratic programme fails.
+        bodies, `warm` is a fit of another control mesh, or the quadratic programme fails.
     MeshError
         If the control mesh cannot be subdivided (bad faces, non-manifold edges, creases off
         its edges).
     """
     start = time.perf_counter()
-    fit = prepare(control, faces, targets, params)
-    member = initial_rows(fit)
+    state = _warm_state(warm, control, faces)
+    fit = prepare(control, faces, targets, params, state)
+    v_start = fit.v0
+    if warm is not None:  # a designer's edit of the start moves the fitted mesh as much
+        v_start = warm.control + (fit.v0 - state.start if state is not None else 0.0)
+    member = initial_rows(fit, v_start)
     floor_member = np.zeros_like(member)
-    run = _Descent([assess(fit, fit.v0.copy(), member, floor_member)])
+    if state is not None and len(state.member) == len(member):
+        member |= state.member  # the rows of the last fit: OSQP's set-up stays
+        floor_member |= state.floor_member
+    run = _Descent([assess(fit, v_start.copy(), member, floor_member)])
     stop, iteration = descend(fit, run, member, floor_member, 1, params.max_iterations,
-                              progress)
+                              progress, tau=None if warm is None else params.tau_max,
+                              settle=warm is not None, cancel=cancel)
     repairs = []
     for _ in range(REPAIR_ROUNDS):
+        if stop.startswith("cancelled"):
+            break
         extra = deep_samples(fit, run.accepted[-1].v)
         if extra is None:
             break
@@ -794,7 +875,9 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
                                  run.accepted[-1].rows.skin)])
         repair_stop, iteration = descend(fit, again, member, floor_member, iteration + 1,
                                          iteration + REPAIR_ITERATIONS, progress,
-                                         tau=params.tau_max)
+                                         tau=params.tau_max, cancel=cancel)
+        if repair_stop.startswith("cancelled"):
+            stop = repair_stop
         repairs.append({"rows": len(extra.demanded), "energies": again.energies,
                         "stop_reason": repair_stop})
         run.extend(again)
@@ -806,7 +889,7 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
         stop += (f"; the surface crossed itself ({crossings} triangle pairs) after accepted "
                  f"iterate {keep}, which is kept")
     result = run.accepted[keep]
-    terms = terms_of(fit, result, params.tau_max if repairs else
+    terms = terms_of(fit, result, params.tau_max if repairs or warm is not None else
                      params.tau_max * min(1.0, max(keep - 1, 0) / TAU_RAMP))
     terms.update(best_iteration=keep, qp_setups=fit.programme.setups,
                  rejected_steps=dict(run.rejected), repairs=repairs,
@@ -814,7 +897,26 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
     return FitResult(result.v, fit.faces, result.surf, fit.sub.faces, iteration, stop,
                      run.energies[:len(run.energies) - sum(len(r["energies"]) for r in repairs)],
                      terms, time.perf_counter() - start, run.statuses, fit.sub,
-                     limit_points(fit, result.v))
+                     limit_points(fit, result.v),
+                     FitState(_state_key(fit.n0, params), fit.v0, fit.limit, member,
+                              floor_member,
+                              fit.points, fit.normals,
+                              (fit.body_tree, fit.body_tree3, fit.exit_tree)))
+
+
+def _warm_state(warm: FitResult | None, control: np.ndarray, faces: np.ndarray
+                ) -> FitState | None:
+    """The state a warm refit reuses; a FitError when `warm` fitted another control mesh."""
+    if warm is None:
+        return None
+    control, faces = np.asarray(control), np.asarray(faces)
+    if warm.control.shape != control.shape or warm.faces.shape != faces.shape or \
+            not np.array_equal(warm.faces, faces):
+        raise FitError(f"Expected a warm start from a fit of the same control mesh "
+                       f"({len(control)} vertices, {len(faces)} quads), got one of "
+                       f"{len(warm.control)} vertices and {len(warm.faces)} quads "
+                       "(or other quads)")
+    return warm.state
 
 
 @dataclass(eq=False)
@@ -838,29 +940,47 @@ class _Descent:
 
 
 def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarray,
-            first: int, last: int, progress=None, tau: float | None = None
+            first: int, last: int, progress=None, tau: float | None = None,
+            settle: bool = False, cancel: Callable[[], bool] | None = None
             ) -> tuple[str, int]:
     """Iterations `first`..`last` from the run's last iterate: each proposes a step and
     accepts it (`acceptable`) or tries it half as long; tau ramps over the first TAU_RAMP
-    iterations unless given. Returns why it stopped and the last iteration."""
+    iterations unless given. With `settle`, it stops once an accepted step lowers the energy
+    by less than the tolerance (relative); `cancel` is polled before each iteration. Returns
+    why it stopped and the last iteration."""
     params = fit.params
     it = run.accepted[-1]
     iteration = first - 1
     for iteration in range(first, last + 1):
+        if cancel is not None and cancel():
+            return (f"cancelled after {iteration - first} iteration(s); the last accepted "
+                    f"iterate is kept"), iteration - 1
         t = params.tau_max * min(1.0, (iteration - 1) / TAU_RAMP) if tau is None else tau
         target, status, residual = propose(fit, it, params.step,
                                            assemble(fit, it.pairing, it.surf_n, t))
-        for halving in range(MAX_HALVINGS + 1):
-            v = it.v + 0.5 ** halving * (target - it.v)
+        moving = np.ones((fit.n0, 1))
+        halving = freezes = 0
+        while halving <= MAX_HALVINGS:
+            v = it.v + 0.5 ** halving * moving * (target - it.v)
             candidate = assess(fit, v, member, floor_member, it.rows.skin)
             why = acceptable(fit, it, candidate, t)
             if why is None:
                 break
             run.rejected[why] += 1
+            if why != "energy" and freezes < FREEZES:
+                # the programme knows no fold or ridge: the step is tried again, as long, with
+                # the control vertices that shape the offending quads held where they are
+                frozen = _bent_controls(fit, it, candidate) & (moving[:, 0] > 0)
+                if frozen.any() and not frozen.all():
+                    moving[frozen] = 0.0
+                    freezes += 1
+                    continue
+            halving += 1
         else:
             return (f"converged: no step along the programme's solution (down to "
                     f"1/{2 ** MAX_HALVINGS} of it) lowers the energy without folding (energy "
                     f"{it.energy(t):.6g})"), iteration
+        before = it.energy(t)
         it = candidate
         run.accepted.append(it)
         run.energies.append(it.energy(t))
@@ -868,6 +988,9 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
         run.residuals.append(residual)
         if progress is not None:
             progress(iteration, run.energies[-1], t)
+        if settle and run.energies[-1] > before * (1 - params.tolerance):
+            return (f"settled: the last step lowered the energy by less than "
+                    f"{100 * params.tolerance:g} % ({run.energies[-1]:.6g})"), iteration
         if tau is None and converged(run.energies, params.tolerance) or \
                 tau is not None and len(run.energies) > PATIENCE and \
                 run.energies[-1] > run.energies[-1 - PATIENCE] * (1 - params.tolerance):
