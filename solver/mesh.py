@@ -255,7 +255,26 @@ def self_intersections(vertices: np.ndarray, triangles: np.ndarray,
 
 
 def _box_pairs(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """(P, 2) pairs i < j of boxes (lo, hi: (F, 3)) that overlap."""
+    """(P, 2) pairs i < j of boxes (lo, hi: (F, 3)) that overlap.
+
+    Boxes of about one size (a surface's triangles): two boxes overlap only where their
+    centres lie within the sum of their half diagonals, so a k-d tree's pairs of centres within
+    twice the largest half diagonal hold every overlapping pair. Otherwise the boxes are binned
+    on a uniform grid (cells twice the median box)."""
+    half = 0.5 * np.linalg.norm(hi - lo, axis=1)
+    if len(lo) > 1 and half.max() <= 2.0 * np.median(half):
+        from scipy.spatial import cKDTree
+
+        pairs = cKDTree(0.5 * (lo + hi)).query_pairs(2.0 * half.max() + 1e-12,
+                                                      output_type="ndarray")  # i < j
+        a, b = pairs[:, 0], pairs[:, 1]
+        overlap = (lo[a] <= hi[b]) & (lo[b] <= hi[a])
+        return pairs[overlap[:, 0] & overlap[:, 1] & overlap[:, 2]]
+    return _grid_box_pairs(lo, hi)
+
+
+def _grid_box_pairs(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """`_box_pairs` by binning the boxes on a uniform grid (cells twice the median box)."""
     size = 2.0 * np.median((hi - lo).max(axis=1)) + 1e-12
     first = np.floor((lo - lo.min(axis=0)) / size).astype(np.int64)
     span = np.floor((hi - lo.min(axis=0)) / size).astype(np.int64) - first + 1

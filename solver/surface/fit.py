@@ -82,7 +82,9 @@ TAU_RAMP = 5  # iterations over which tau rises from 0 to tau_max
 PATIENCE = 5  # iterations without improvement before the loop stops
 SLACK_WEIGHT = 1e3  # cost per m^2 of a non-penetration row left unmet (soft constraints)
 DENSE_UP_TO = 150  # control vertices up to which the Hessian is built dense
-PROXIMAL = 0.01  # weight of the pull to the current control mesh (per coordinate)
+PROXIMAL = 0.001  # weight of the pull to the current control mesh (per coordinate): enough
+                  # to damp the alternation between pairing and solving; a stronger one slows
+                  # the loop's tail (each step goes that much less of the way)
 FOLD_GUARD_DEG = 50.0  # degrees between neighbouring level-s quads a step may not exceed
                        # (the guarantee's limit is 60 on the limit surface; a margin for it)
 DEPTH_TOLERANCE = 1e-3  # metres beyond the margin an iterate is not yet judged for: the rows hold
@@ -168,12 +170,63 @@ class FitResult:
         return limit_of_level(self.subdivision, self.surface, list(creases) or None)
 
 
+class _Skin:
+    """A body's closed skin (vertices (V, 3) m, triangles (T, 3)) where `stack` (a slice)
+    says which of the fit's stacked body vertices are its own, with its winding-number and
+    closest-point structures (libigl's), built when first asked for. A skin that has only been
+    moved (every vertex by the same vector) since keeps them: queries are moved back by
+    `offset`, the vector it moved by since they were built."""
+
+    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, stack: slice):
+        self.vertices = np.asarray(vertices, dtype=np.float64)
+        self.triangles = np.asarray(triangles, dtype=np.int64)
+        self.stack = stack
+        self.offset = np.zeros(3)
+        self._built = self.vertices  # the positions the structures are built on
+        self._winding = self._closest = None
+
+    def moved(self, vertices: np.ndarray, triangles: np.ndarray, stack: slice) -> "_Skin":
+        """This skin at `vertices`: its structures kept when the vertices are these moved by
+        one vector (and the triangles the same), else a new skin."""
+        vertices = np.asarray(vertices, dtype=np.float64)
+        if vertices.shape == self.vertices.shape and np.array_equal(triangles, self.triangles):
+            shift = vertices[0] - self._built[0]
+            if np.allclose(vertices - shift, self._built, rtol=0.0, atol=1e-12):
+                skin = _Skin.__new__(_Skin)
+                skin.__dict__.update(self.__dict__, vertices=vertices, stack=stack,
+                                     offset=shift)
+                return skin
+        return _Skin(vertices, triangles, stack)
+
+    def winding(self, points: np.ndarray) -> np.ndarray:
+        """(k,) the skin's winding number at points (k, 3)."""
+        import igl
+
+        if self._winding is None:
+            self._winding = igl.FastWindingNumberBVH()
+            self._winding.init(self._built, self.triangles)
+        return self._winding.winding_number(points - self.offset)
+
+    def closest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Squared distances (k,), triangles (k,) and closest points (k, 3) on the skin of
+        points (k, 3)."""
+        import igl
+
+        if self._closest is None:
+            self._closest = igl.AABB()
+            self._closest.init(self._built, self.triangles)
+        dist2, face, at = self._closest.squared_distance(self._built, self.triangles,
+                                                          points - self.offset)
+        return dist2, face, at + self.offset
+
+
 @dataclass(frozen=True, eq=False)
 class FitState:
     """What a fit leaves for a warm refit of the same control mesh (`fit_surface`'s `warm`):
     the subdivision's key (control vertices, level, creases), the start, the limit map, the
-    surface vertices that carried rows (so that the programme's set-up seldom changes) and the
-    bodies with their search trees (reused while the bodies are unchanged)."""
+    surface vertices that carried rows and the programme set up for them (so that OSQP is seldom
+    set up again) and the bodies with their search structures (reused while the bodies only
+    move)."""
 
     key: tuple
     start: np.ndarray  # (n0, 3) the control vertices that fit started from (its `control`)
@@ -183,6 +236,11 @@ class FitState:
     points: np.ndarray  # (P, 3)
     normals: np.ndarray  # (P, 3)
     trees: tuple  # (body_tree, body_tree3, exit_tree), as `_search_trees` builds them
+    tree_offset: np.ndarray  # (3,) how far the points moved since the trees were built
+    skins: list  # the fit's `_Skin`s
+    programme: Programme | None  # the fit's programme while it has no rows on dense samples
+    neighbours: np.ndarray  # `_Fit.neighbours`
+    quad_maps: tuple  # `_Fit.quad_maps`
 
 
 def _search_trees(points: np.ndarray, normals: np.ndarray) -> tuple:
@@ -230,7 +288,11 @@ class _Fit:
     programme: Programme
     sampled_ids: np.ndarray  # the surface vertices that may carry non-penetration rows
     neighbours: np.ndarray  # (E, 2) level-s quads sharing an edge that is no crease
-    skins: list  # (vertices (V, 3), triangles (T, 3)) of every body with a closed skin
+    quad_maps: tuple  # control vertices -> level-s quads' diagonals (2 Fs, n0) and the gaps
+                      # between the centres of neighbouring quads (E, n0)
+    skins: list  # `_Skin` of every body with a closed skin
+    tree_offset: np.ndarray  # (3,) the bodies' move since their trees were built: the trees
+                             # are queried this much back
     limit: sp.csr_matrix | None = None  # (ns, n0) control vertices -> limit points of level s
     extra: "ExtraRows | None" = None  # rows on dense samples found too deep (`deep_samples`)
 
@@ -285,9 +347,15 @@ def _stack(targets: Sequence[SupportedBody]):
     return points, normals, rho, owner
 
 
-def _check_reach(surface0: np.ndarray, targets: Sequence[SupportedBody], points: np.ndarray,
-                 owner: np.ndarray, important: np.ndarray) -> None:
-    near, _ = cKDTree(surface0).query(points[important])
+def _check_bodies(surface0: np.ndarray, surface_normals: np.ndarray,
+                  targets: Sequence[SupportedBody], points: np.ndarray, normals: np.ndarray,
+                  rho: np.ndarray, owner: np.ndarray, important: np.ndarray) -> None:
+    """A FitError when a body has nothing to support or lies beyond REACH of the start surface
+    `surface0` (ns, 3), or when the control mesh's faces point away from the bodies: the skin
+    to be supported faces the surface, so its normals run against the surface's normals
+    (`surface_normals`, (ns, 3)) where they meet (at the nearest surface vertex); if on the
+    importance-weighted balance they run along them, the faces are reversed."""
+    near, vertex = cKDTree(surface0).query(points[important])
     for k, t in enumerate(targets):
         mine = owner[important] == k
         if not mine.any():
@@ -297,18 +365,7 @@ def _check_reach(surface0: np.ndarray, targets: Sequence[SupportedBody], points:
             raise FitError(f"{t.label} is entirely outside the surface's reach: its nearest "
                            f"supported point is {near[mine].min():.2f} m from the surface "
                            f"(reach {REACH} m); move the person or the surface")
-
-
-def _check_facing(surface0: np.ndarray, quads: np.ndarray, points: np.ndarray,
-                  normals: np.ndarray, rho: np.ndarray, important: np.ndarray) -> None:
-    """A FitError when the control mesh's faces point away from the bodies: the skin to be
-    supported faces the surface, so its normals run against the surface's normals where they
-    meet; if on the importance-weighted balance they run along them, the faces are reversed."""
-    from solver.mesh import SurfaceMesh
-
-    mesh = SurfaceMesh.from_quads(surface0, quads)
-    _, _, _, face, _ = mesh.closest(points[important])
-    along = np.einsum("ij,ij->i", normals[important], mesh.face_normals[face])
+    along = np.einsum("ij,ij->i", normals[important], surface_normals[vertex])
     share = float(rho[important] @ (along > 0) / rho[important].sum())
     if share > 0.5:
         raise FitError(f"The control mesh's faces point away from the bodies: "
@@ -332,8 +389,9 @@ def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedB
     lap = control_laplacian(v0, faces)
     points, normals, rho, owner = _stack(targets)
     important = np.flatnonzero(rho > 1e-3)
-    _check_reach(sub.matrix @ v0, targets, points, owner, important)
-    _check_facing(sub.matrix @ v0, sub.faces, points, normals, rho, important)
+    surface0 = sub.matrix @ v0
+    _check_bodies(surface0, sub.normals(surface0), targets, points, normals, rho, owner,
+                  important)
     fixed = np.full(n0, params.anchor / n0)
     fixed[list(params.fixed)] += params.gamma
     smooth = (params.sigma / n0) * (lap.T @ lap)
@@ -348,19 +406,58 @@ def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedB
     # (every other vertex each way, about 2 cm apart on a seat): a quarter of the rows
     sampled = np.arange(sub.steps[-1].matrix.shape[1] if sub.steps else sub.matrix.shape[0])
     same = state is not None and state.key == _state_key(n0, params)
-    if same and np.array_equal(state.points, points) and np.array_equal(state.normals, normals):
-        trees = state.trees  # the bodies did not move: their trees hold
+    if same:  # the same control quads (`_warm_state`), level and creases
+        neighbours, quad_maps = state.neighbours, state.quad_maps
     else:
-        trees = _search_trees(points, normals)
+        neighbours = neighbour_faces(sub.faces, sub.steps[-1].creases if sub.steps else
+                                     (np.asarray(params.creases).reshape(-1, 2)
+                                      if params.creases else None))
+        quad_maps = _quad_maps(sub, neighbours)
+    trees = None
+    if state is not None and state.points.shape == points.shape and \
+            np.allclose(state.normals, normals, rtol=0.0, atol=1e-9):
+        shift = points[0] - state.points[0]
+        if np.allclose(points - shift, state.points, rtol=0.0, atol=1e-12):
+            # the bodies only moved (or not at all): their trees hold, queried moved back
+            trees, offset = state.trees, state.tree_offset + shift
+    if trees is None:
+        trees, offset = _search_trees(points, normals), np.zeros(3)
+    if same and state.programme is not None and \
+            state.programme.slack_weight == SLACK_WEIGHT / people:
+        programme = state.programme  # its set-up holds while its rows do
+    else:
+        programme = Programme(sub.matrix, lap, n0, SLACK_WEIGHT / people)
+    skins, at = [], 0
+    for t in targets:
+        stack = slice(at, at + len(t.vertices))
+        at = stack.stop
+        if t.triangles is None:
+            continue
+        old = state.skins[len(skins)] if state is not None and \
+            len(skins) < len(state.skins) else None
+        skins.append(old.moved(t.vertices, t.triangles, stack) if old is not None else
+                     _Skin(t.vertices, t.triangles, stack))
     return _Fit(v0, faces, params, sub, lap, points, normals, points[important],
                 rho[important], *trees,
                 fixed, smooth, diagonal.toarray() if dense else diagonal, proximal, dense,
-                Programme(sub.matrix, lap, n0, SLACK_WEIGHT / people), sampled,
-                neighbour_faces(sub.faces, sub.steps[-1].creases if sub.steps else
-                                (np.asarray(params.creases).reshape(-1, 2)
-                                 if params.creases else None)),
-                [(t.vertices, t.triangles) for t in targets if t.triangles is not None],
-                state.limit if same else None)
+                programme, sampled, neighbours, quad_maps,
+                skins, offset, state.limit if same else None)
+
+
+def _quad_maps(sub: Subdivision, neighbours: np.ndarray) -> tuple:
+    """The linear maps from control vertices to the level-s quads' diagonals, v2 - v0 over
+    v3 - v1 (2 Fs, n0), and to the gaps between the centres of neighbouring quads (E, n0)."""
+    quads = sub.faces
+    count, ns = len(quads), sub.matrix.shape[0]
+    rows = np.arange(count)
+    diagonals = sp.csr_matrix(
+        (np.tile([1.0, -1.0, 1.0, -1.0], count),
+         (np.repeat(np.concatenate([rows, count + rows]).reshape(2, -1).T, 2, axis=1).ravel(),
+          quads[:, [2, 0, 3, 1]].ravel())), shape=(2 * count, ns))
+    centres = sp.csr_matrix((np.full(4 * count, 0.25), (np.repeat(rows, 4), quads.ravel())),
+                            shape=(count, ns))
+    gaps = centres[neighbours[:, 1]] - centres[neighbours[:, 0]]
+    return (diagonals @ sub.matrix).tocsr(), (gaps @ sub.matrix).tocsr()
 
 
 def initial_rows(fit: _Fit, v: np.ndarray) -> np.ndarray:
@@ -368,7 +465,7 @@ def initial_rows(fit: _Fit, v: np.ndarray) -> np.ndarray:
     (n0, 3), where the fit starts, where rows begin, so that the set (and OSQP's set-up) seldom
     changes as the surface moves."""
     member = np.zeros(fit.sub.matrix.shape[0], dtype=bool)
-    reach, _ = fit.body_tree3.query((fit.sub.matrix @ v)[fit.sampled_ids],
+    reach, _ = fit.body_tree3.query((fit.sub.matrix @ v)[fit.sampled_ids] - fit.tree_offset,
                                     distance_upper_bound=REACH)
     member[fit.sampled_ids[np.isfinite(reach)]] = True
     return member
@@ -431,7 +528,8 @@ def _nearest_skin(fit: _Fit, sv: np.ndarray, sn: np.ndarray, skin: np.ndarray | 
     points, normals = fit.points, fit.normals
     # closest body vertex facing the surface (a vertex whose search finds nothing within reach
     # is far from every body: no row)
-    _, near_s = fit.body_tree.query(np.concatenate([sv, -FACING_SCALE * sn], axis=1),
+    _, near_s = fit.body_tree.query(np.concatenate([sv - fit.tree_offset, -FACING_SCALE * sn],
+                                                   axis=1),
                                     distance_upper_bound=FACING_REACH)
     far = near_s == len(points)
     near_s[far] = 0
@@ -441,7 +539,7 @@ def _nearest_skin(fit: _Fit, sv: np.ndarray, sn: np.ndarray, skin: np.ndarray | 
     # inside it lies farther than INSIDE_REACH from its skin); it leaves through the skin it
     # was held to before it went in or, new to the rows, through the skin facing against the
     # surface's normal
-    _, nearest = fit.body_tree3.query(sv, distance_upper_bound=INSIDE_REACH)
+    _, nearest = fit.body_tree3.query(sv - fit.tree_offset, distance_upper_bound=INSIDE_REACH)
     outside = nearest == len(points)
     nearest[outside] = 0
     inside = ~outside & (np.einsum("ij,ij->i", sv - points[nearest], normals[nearest]) < 0)
@@ -450,8 +548,8 @@ def _nearest_skin(fit: _Fit, sv: np.ndarray, sn: np.ndarray, skin: np.ndarray | 
         near_s[kept] = skin[kept]
     new = inside & ~kept
     if new.any():
-        _, near_s[new] = fit.exit_tree.query(np.concatenate([sv[new], -EXIT_SCALE * sn[new]],
-                                                            axis=1))
+        _, near_s[new] = fit.exit_tree.query(np.concatenate([sv[new] - fit.tree_offset,
+                                                             -EXIT_SCALE * sn[new]], axis=1))
     # how deep: behind the tangent plane of the nearest skin vertex (smooth as the surface
     # slides along the skin, where the distance to the nearest vertex would jump by a facet)
     behind = -np.einsum("ij,ij->i", sv - points[nearest], normals[nearest])
@@ -547,8 +645,6 @@ def deep_samples(fit: _Fit, v: np.ndarray) -> ExtraRows | None:
     deepest of each triangle that a body's winding number puts inside it, held in front of the
     plane of the skin triangle nearest to it. None where there is no such place (or no closed
     skin to look in)."""
-    import igl
-
     from solver.mesh import face_normals, quad_triangles
     from solver.surface.guarantees import barycentric_weights
 
@@ -561,7 +657,8 @@ def deep_samples(fit: _Fit, v: np.ndarray) -> ExtraRows | None:
     # only triangles with a corner inside a body, deeper than `allowed` less a centimetre
     # (behind its nearest skin vertex's plane), can hold a sample deeper than `allowed`
     # between their corners (a facet's sag is far less); the exact tests look at those
-    gap, nearest = fit.body_tree3.query(limit, distance_upper_bound=INSIDE_REACH)
+    gap, nearest = fit.body_tree3.query(limit - fit.tree_offset,
+                                        distance_upper_bound=INSIDE_REACH)
     near = np.isfinite(gap)
     nearest[~near] = 0
     behind = -np.einsum("ij,ij->i", limit - fit.points[nearest], fit.normals[nearest])
@@ -570,15 +667,24 @@ def deep_samples(fit: _Fit, v: np.ndarray) -> ExtraRows | None:
     if not len(candidates):
         return None
     points = np.einsum("sk,fkd->fsd", weights, limit[triangles[candidates]]).reshape(-1, 3)
+    # a sample within `allowed` of a skin vertex lies no deeper than that in its body: only
+    # the others need the exact (and costlier) tests of that body
+    within = fit.body_tree3.query_ball_point(points - fit.tree_offset, allowed)
+    counts = np.fromiter(map(len, within), dtype=np.int64, count=len(points))
+    sample = np.repeat(np.arange(len(points)), counts)
+    vertex = np.concatenate(within).astype(np.int64) if counts.sum() else sample
     found: dict[int, tuple[float, int, np.ndarray, np.ndarray]] = {}
-    for body_v, body_t in fit.skins:
+    for skin in fit.skins:
+        body_v, body_t = skin.vertices, skin.triangles
         lo, hi = body_v.min(axis=0), body_v.max(axis=0)
-        near = np.flatnonzero(np.all((points >= lo) & (points <= hi), axis=1))
+        shallow = np.zeros(len(points), dtype=bool)
+        shallow[sample[(vertex >= skin.stack.start) & (vertex < skin.stack.stop)]] = True
+        near = np.flatnonzero(np.all((points >= lo) & (points <= hi), axis=1) & ~shallow)
         if len(near):
-            near = near[igl.fast_winding_number(body_v, body_t, points[near]) > 0.5]
+            near = near[skin.winding(points[near]) > 0.5]
         if not len(near):
             continue
-        dist2, face, closest = igl.point_mesh_squared_distance(points[near], body_v, body_t)
+        dist2, face, closest = skin.closest(points[near])
         depth = np.sqrt(dist2)
         deep = depth > allowed
         normals = face_normals(body_v, body_t[face[deep]])
@@ -605,8 +711,10 @@ def add_extra_rows(fit: _Fit, extra: ExtraRows) -> None:
                           np.concatenate([fit.extra.normals, extra.normals]),
                           np.concatenate([fit.extra.demanded, extra.demanded]))
     fit.extra = extra
-    fit.programme = Programme(sp.vstack([fit.sub.matrix, extra.points]).tocsr(), fit.lap,
-                              fit.n0, fit.programme.slack_weight)
+    programme = Programme(sp.vstack([fit.sub.matrix, extra.points]).tocsr(), fit.lap,
+                          fit.n0, fit.programme.slack_weight)
+    programme.setups = fit.programme.setups  # the fit counts them all
+    fit.programme = programme
 
 
 def _with_extra(fit: _Fit, v: np.ndarray, rows: Rows) -> Rows:
@@ -670,32 +778,35 @@ def assess(fit: _Fit, v: np.ndarray, member: np.ndarray,
     plane = float(fit.w_imp @ np.einsum("ij,ij->i", diff, surf_n[pairing.pair]) ** 2 / total)
     smooth = float(sum(v[:, a] @ (fit.smooth @ v[:, a]) for a in range(3)))
     pulls = float(np.sum(fit.fixed[:, None] * (v - fit.v0) ** 2))
-    fold, ridge = _bends(fit, surf)
+    fold, ridge = _bends(fit, v)
     return Iterate(v, surf, surf_n, pairing, rows, point, plane, smooth + pulls,
                    rows.beyond_m2, fold, ridge, fit.programme.slack_weight)
 
 
-def _bends(fit: _Fit, surf: np.ndarray) -> tuple[float, float]:
-    """The largest angle (degrees) between neighbouring level-s quads of surface `surf`
-    (ns, 3), creases left out, and the tightest radius (m) of its ridges (inf without a ridge):
+def _bends(fit: _Fit, v: np.ndarray) -> tuple[float, float]:
+    """The largest angle (degrees) between neighbouring level-s quads of the surface of
+    control vertices v (n0, 3), creases left out, and the tightest radius (m) of its ridges (inf without a ridge):
     the extremes of `_bend_pairs`."""
     if not len(fit.neighbours):
         return 0.0, np.inf
-    angle, radius = _bend_pairs(fit, surf)
+    angle, radius = _bend_pairs(fit, v)
     return float(np.degrees(angle.max())), float(radius.min())
 
 
-def _bend_pairs(fit: _Fit, surf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per pair of neighbouring level-s quads (`fit.neighbours`) of surface `surf` (ns, 3):
-    the angle (radians) between them and the radius (m) of the ridge they make where the
-    surface bends away from the bodies (each quad's centre lies behind its neighbour's plane),
-    the distance between their centres over that angle (inf where they make no ridge)."""
-    quads = fit.sub.faces
-    n = quad_normals(surf, quads)
+def _bend_pairs(fit: _Fit, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per pair of neighbouring level-s quads (`fit.neighbours`) of the surface of control
+    vertices v (n0, 3): the angle (radians) between them and the radius (m) of the ridge they
+    make where the surface bends away from the bodies (each quad's centre lies behind its
+    neighbour's plane), the distance between their centres over that angle (inf where they
+    make no ridge). The quads' normals (`quad_normals`: the cross product of their diagonals)
+    and centres come straight from the control vertices, through `fit.quad_maps`."""
+    diagonals, centre_map = fit.quad_maps
+    both = diagonals @ v
+    n = np.cross(both[:len(both) // 2], both[len(both) // 2:])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
     a, b = fit.neighbours[:, 0], fit.neighbours[:, 1]
     angle = np.arccos(np.clip(np.einsum("ij,ij->i", n[a], n[b]), -1.0, 1.0))
-    centres = surf[quads].mean(axis=1)
-    gap = centres[b] - centres[a]
+    gap = centre_map @ v
     ridge = (np.einsum("ij,ij->i", gap, n[a]) < 0) & (np.einsum("ij,ij->i", gap, n[b]) > 0) & \
         (angle > 1e-6)
     radius = np.full(len(angle), np.inf)
@@ -706,7 +817,7 @@ def _bend_pairs(fit: _Fit, surf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _bent_controls(fit: _Fit, it: Iterate, candidate: Iterate) -> np.ndarray:
     """(n0,) bool: the control vertices that shape the level-s quads where `candidate` folds
     or ridges past what `acceptable` allows after `it`."""
-    angle, radius = _bend_pairs(fit, candidate.surf)
+    angle, radius = _bend_pairs(fit, candidate.v)
     bad = (np.degrees(angle) > max(FOLD_GUARD_DEG, it.max_fold)) | \
         (radius < min(fit.params.min_ridge_radius, it.min_ridge))
     quads = np.unique(fit.neighbours[bad].ravel())
@@ -854,11 +965,13 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
     v_start = fit.v0
     if warm is not None:  # a designer's edit of the start moves the fitted mesh as much
         v_start = warm.control + (fit.v0 - state.start if state is not None else 0.0)
-    member = initial_rows(fit, v_start)
-    floor_member = np.zeros_like(member)
-    if state is not None and len(state.member) == len(member):
-        member |= state.member  # the rows of the last fit: OSQP's set-up stays
-        floor_member |= state.floor_member
+    if state is not None and len(state.member) == fit.sub.matrix.shape[0]:
+        # the rows of the last fit (those that come near join as before): OSQP's set-up stays
+        member, floor_member = state.member.copy(), state.floor_member.copy()
+    else:
+        member = initial_rows(fit, v_start)
+        floor_member = np.zeros_like(member)
+    setups = fit.programme.setups  # a reused programme counts its earlier set-ups
     run = _Descent([assess(fit, v_start.copy(), member, floor_member)])
     stop, iteration = descend(fit, run, member, floor_member, 1, params.max_iterations,
                               progress, tau=None if warm is None else params.tau_max,
@@ -875,7 +988,7 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
                                  run.accepted[-1].rows.skin)])
         repair_stop, iteration = descend(fit, again, member, floor_member, iteration + 1,
                                          iteration + REPAIR_ITERATIONS, progress,
-                                         tau=params.tau_max, cancel=cancel)
+                                         tau=params.tau_max, settle=True, cancel=cancel)
         if repair_stop.startswith("cancelled"):
             stop = repair_stop
         repairs.append({"rows": len(extra.demanded), "energies": again.energies,
@@ -891,7 +1004,7 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
     result = run.accepted[keep]
     terms = terms_of(fit, result, params.tau_max if repairs or warm is not None else
                      params.tau_max * min(1.0, max(keep - 1, 0) / TAU_RAMP))
-    terms.update(best_iteration=keep, qp_setups=fit.programme.setups,
+    terms.update(best_iteration=keep, qp_setups=fit.programme.setups - setups,
                  rejected_steps=dict(run.rejected), repairs=repairs,
                  largest_row_residual_m=run.residuals[keep - 1] if keep else 0.0)
     return FitResult(result.v, fit.faces, result.surf, fit.sub.faces, iteration, stop,
@@ -901,7 +1014,9 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
                      FitState(_state_key(fit.n0, params), fit.v0, fit.limit, member,
                               floor_member,
                               fit.points, fit.normals,
-                              (fit.body_tree, fit.body_tree3, fit.exit_tree)))
+                              (fit.body_tree, fit.body_tree3, fit.exit_tree), fit.tree_offset,
+                              fit.skins, fit.programme if fit.extra is None else None,
+                              fit.neighbours, fit.quad_maps))
 
 
 def _warm_state(warm: FitResult | None, control: np.ndarray, faces: np.ndarray
