@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+import solver.threads  # noqa: F401  (libigl's thread count, set before libigl first runs)
+
 
 def quad_triangles(quads: np.ndarray) -> np.ndarray:
     """(2F, 3) triangles of (F, 4) quads, each split along its 0-2 diagonal."""
