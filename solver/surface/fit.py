@@ -288,8 +288,8 @@ class _Fit:
     programme: Programme
     sampled_ids: np.ndarray  # the surface vertices that may carry non-penetration rows
     neighbours: np.ndarray  # (E, 2) level-s quads sharing an edge that is no crease
-    quad_maps: tuple  # control vertices -> level-s quads' diagonals (2 Fs, n0) and the gaps
-                      # between the centres of neighbouring quads (E, n0)
+    quad_maps: tuple  # level-s vertices -> their quads' diagonals (2 Fs, ns) and the gaps
+                      # between the centres of neighbouring quads (E, ns)
     skins: list  # `_Skin` of every body with a closed skin
     tree_offset: np.ndarray  # (3,) the bodies' move since their trees were built: the trees
                              # are queried this much back
@@ -445,8 +445,8 @@ def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedB
 
 
 def _quad_maps(sub: Subdivision, neighbours: np.ndarray) -> tuple:
-    """The linear maps from control vertices to the level-s quads' diagonals, v2 - v0 over
-    v3 - v1 (2 Fs, n0), and to the gaps between the centres of neighbouring quads (E, n0)."""
+    """The linear maps from the level-s vertices to their quads' diagonals, v2 - v0 over
+    v3 - v1 (2 Fs, ns), and to the gaps between the centres of neighbouring quads (E, ns)."""
     quads = sub.faces
     count, ns = len(quads), sub.matrix.shape[0]
     rows = np.arange(count)
@@ -457,7 +457,7 @@ def _quad_maps(sub: Subdivision, neighbours: np.ndarray) -> tuple:
     centres = sp.csr_matrix((np.full(4 * count, 0.25), (np.repeat(rows, 4), quads.ravel())),
                             shape=(count, ns))
     gaps = centres[neighbours[:, 1]] - centres[neighbours[:, 0]]
-    return (diagonals @ sub.matrix).tocsr(), (gaps @ sub.matrix).tocsr()
+    return diagonals, gaps.tocsr()
 
 
 def initial_rows(fit: _Fit, v: np.ndarray) -> np.ndarray:
@@ -475,7 +475,7 @@ def pair(fit: _Fit, surf: np.ndarray) -> Pairing:
     """Each important body point pulls its closest surface vertex. Body points farther than the
     pull range do not pull (yet): the surface grows towards the bodies from where the designer
     put it, instead of reaching across the scene."""
-    surf_tree = cKDTree(surf)
+    surf_tree = cKDTree(surf, balanced_tree=False, compact_nodes=False)  # built each time
     gap, nearest = surf_tree.query(fit.b_imp, distance_upper_bound=fit.params.pull_range)
     reached = np.isfinite(gap)
     if not reached.all():  # the energy still counts them, at their nearest surface vertex
@@ -526,20 +526,24 @@ def _nearest_skin(fit: _Fit, sv: np.ndarray, sn: np.ndarray, skin: np.ndarray | 
     the body vertices the rows held the vertices to before (-1 for none), kept for the
     vertices now inside a body (so the demand on them does not jump as the surface moves)."""
     points, normals = fit.points, fit.normals
-    # closest body vertex facing the surface (a vertex whose search finds nothing within reach
-    # is far from every body: no row)
-    _, near_s = fit.body_tree.query(np.concatenate([sv - fit.tree_offset, -FACING_SCALE * sn],
-                                                   axis=1),
+    gap, nearest = fit.body_tree3.query(sv - fit.tree_offset, distance_upper_bound=INSIDE_REACH)
+    # closest body vertex facing the surface, sought only where a skin vertex lies within
+    # CONSTRAINT_RADIUS: the one it finds lies no nearer than that, so elsewhere (or where the
+    # search finds nothing within reach) the surface vertex is far from every body: no row
+    near_s = np.zeros(len(sv), dtype=np.int64)
+    dist = np.full(len(sv), np.inf)
+    reach = np.flatnonzero(gap <= CONSTRAINT_RADIUS)
+    _, facing = fit.body_tree.query(np.concatenate([sv[reach] - fit.tree_offset,
+                                                    -FACING_SCALE * sn[reach]], axis=1),
                                     distance_upper_bound=FACING_REACH)
-    far = near_s == len(points)
-    near_s[far] = 0
-    dist = np.where(far, np.inf, np.linalg.norm(points[near_s] - sv, axis=1))
+    found = facing < len(points)
+    near_s[reach[found]] = facing[found]
+    dist[reach[found]] = np.linalg.norm(points[facing[found]] - sv[reach[found]], axis=1)
     # a surface vertex inside a body (behind its nearest skin vertex) is always constrained,
     # however far the skin it faces: it must get out (no body part is so thick that a point
     # inside it lies farther than INSIDE_REACH from its skin); it leaves through the skin it
     # was held to before it went in or, new to the rows, through the skin facing against the
     # surface's normal
-    _, nearest = fit.body_tree3.query(sv - fit.tree_offset, distance_upper_bound=INSIDE_REACH)
     outside = nearest == len(points)
     nearest[outside] = 0
     inside = ~outside & (np.einsum("ij,ij->i", sv - points[nearest], normals[nearest]) < 0)
@@ -778,35 +782,35 @@ def assess(fit: _Fit, v: np.ndarray, member: np.ndarray,
     plane = float(fit.w_imp @ np.einsum("ij,ij->i", diff, surf_n[pairing.pair]) ** 2 / total)
     smooth = float(sum(v[:, a] @ (fit.smooth @ v[:, a]) for a in range(3)))
     pulls = float(np.sum(fit.fixed[:, None] * (v - fit.v0) ** 2))
-    fold, ridge = _bends(fit, v)
+    fold, ridge = _bends(fit, surf)
     return Iterate(v, surf, surf_n, pairing, rows, point, plane, smooth + pulls,
                    rows.beyond_m2, fold, ridge, fit.programme.slack_weight)
 
 
-def _bends(fit: _Fit, v: np.ndarray) -> tuple[float, float]:
-    """The largest angle (degrees) between neighbouring level-s quads of the surface of
-    control vertices v (n0, 3), creases left out, and the tightest radius (m) of its ridges (inf without a ridge):
+def _bends(fit: _Fit, surf: np.ndarray) -> tuple[float, float]:
+    """The largest angle (degrees) between neighbouring level-s quads of surface `surf`
+    (ns, 3), creases left out, and the tightest radius (m) of its ridges (inf without a ridge):
     the extremes of `_bend_pairs`."""
     if not len(fit.neighbours):
         return 0.0, np.inf
-    angle, radius = _bend_pairs(fit, v)
+    angle, radius = _bend_pairs(fit, surf)
     return float(np.degrees(angle.max())), float(radius.min())
 
 
-def _bend_pairs(fit: _Fit, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per pair of neighbouring level-s quads (`fit.neighbours`) of the surface of control
-    vertices v (n0, 3): the angle (radians) between them and the radius (m) of the ridge they
+def _bend_pairs(fit: _Fit, surf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per pair of neighbouring level-s quads (`fit.neighbours`) of surface `surf` (ns, 3):
+    the angle (radians) between them and the radius (m) of the ridge they
     make where the surface bends away from the bodies (each quad's centre lies behind its
     neighbour's plane), the distance between their centres over that angle (inf where they
     make no ridge). The quads' normals (`quad_normals`: the cross product of their diagonals)
-    and centres come straight from the control vertices, through `fit.quad_maps`."""
+    and centres' gaps come from `fit.quad_maps`."""
     diagonals, centre_map = fit.quad_maps
-    both = diagonals @ v
+    both = diagonals @ surf
     n = np.cross(both[:len(both) // 2], both[len(both) // 2:])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
     a, b = fit.neighbours[:, 0], fit.neighbours[:, 1]
     angle = np.arccos(np.clip(np.einsum("ij,ij->i", n[a], n[b]), -1.0, 1.0))
-    gap = centre_map @ v
+    gap = centre_map @ surf
     ridge = (np.einsum("ij,ij->i", gap, n[a]) < 0) & (np.einsum("ij,ij->i", gap, n[b]) > 0) & \
         (angle > 1e-6)
     radius = np.full(len(angle), np.inf)
@@ -817,7 +821,7 @@ def _bend_pairs(fit: _Fit, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _bent_controls(fit: _Fit, it: Iterate, candidate: Iterate) -> np.ndarray:
     """(n0,) bool: the control vertices that shape the level-s quads where `candidate` folds
     or ridges past what `acceptable` allows after `it`."""
-    angle, radius = _bend_pairs(fit, candidate.v)
+    angle, radius = _bend_pairs(fit, candidate.surf)
     bad = (np.degrees(angle) > max(FOLD_GUARD_DEG, it.max_fold)) | \
         (radius < min(fit.params.min_ridge_radius, it.min_ridge))
     quads = np.unique(fit.neighbours[bad].ravel())
