@@ -44,12 +44,18 @@ the energy with every body point at its nearest vertex of the new surface, plus 
 demands the new surface leaves unmet) and folds no neighbouring level-s quads further apart than
 FOLD_GUARD_DEG (or than the iterate before it); otherwise it is tried again half as long (a
 backtracking line search along the programme's solution), up to MAX_HALVINGS times, after which
-the fit has converged. So the judged energies of
+the fit has converged. The programme knows nothing of folds and ridges, so in a warm refit
+(which starts against the guards) a step refused for one is first tried again as long with the
+control vertices that shape the offending quads held still (up to FREEZES times). So the judged energies of
 the accepted iterates never rise (a rising tau can only lower them), and a surface that starts
 without folds ends without them. The loop stops once tau has reached tau_max and the energy has
 not improved by `tolerance` (relative) in PATIENCE iterations, or after `max_iterations`. The
 result is the last accepted iterate whose limit surface does not cross itself (checked once at
 the end, and by bisection over the accepted iterates if it does).
+
+A warm refit (`fit_surface`'s `warm`: a person moved, a control vertex was edited) starts from
+the last result at tau_max with what still holds of its set-up, and stops once settled; a
+`cancel` callable ends any fit early with its last accepted iterate.
 """
 
 from __future__ import annotations
@@ -95,8 +101,10 @@ REPAIR_ITERATIONS = 10  # iterations each such round may take
 REPAIR_SAFETY = 2e-3  # metres inside the margin those rows hold the samples to
 SAG_ALLOWANCE = 0.01  # metres a triangle may sink deeper between its corners than at them
 MAX_HALVINGS = 4  # a rejected step is retried half as long this often
-FREEZES = 2  # times a step that folds or ridges too far is retried with the control vertices
-             # that shape the offending quads held still
+FREEZES = 2  # times a warm refit's step that folds or ridges too far is retried with the
+             # control vertices that shape the offending quads held still (a cold fit's steps
+             # are not: held vertices next to moving ones leave kinks that a thin solid's
+             # offset folds over)
 FLOOR_REACH = 2.0  # steps: a surface vertex this near the floor gets a floor row (it moves at
                    # most one step per iteration, so none gets under unseen)
 
@@ -979,7 +987,8 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
     run = _Descent([assess(fit, v_start.copy(), member, floor_member)])
     stop, iteration = descend(fit, run, member, floor_member, 1, params.max_iterations,
                               progress, tau=None if warm is None else params.tau_max,
-                              settle=warm is not None, cancel=cancel)
+                              settle=warm is not None, cancel=cancel,
+                              freeze=warm is not None)
     repairs = []
     for _ in range(REPAIR_ROUNDS):
         if stop.startswith("cancelled"):
@@ -992,7 +1001,8 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
                                  run.accepted[-1].rows.skin)])
         repair_stop, iteration = descend(fit, again, member, floor_member, iteration + 1,
                                          iteration + REPAIR_ITERATIONS, progress,
-                                         tau=params.tau_max, settle=True, cancel=cancel)
+                                         tau=params.tau_max, settle=True, cancel=cancel,
+                                         freeze=warm is not None)
         if repair_stop.startswith("cancelled"):
             stop = repair_stop
         repairs.append({"rows": len(extra.demanded), "energies": again.energies,
@@ -1060,13 +1070,15 @@ class _Descent:
 
 def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarray,
             first: int, last: int, progress=None, tau: float | None = None,
-            settle: bool = False, cancel: Callable[[], bool] | None = None
-            ) -> tuple[str, int]:
+            settle: bool = False, cancel: Callable[[], bool] | None = None,
+            freeze: bool = False) -> tuple[str, int]:
     """Iterations `first`..`last` from the run's last iterate: each proposes a step and
     accepts it (`acceptable`) or tries it half as long; tau ramps over the first TAU_RAMP
     iterations unless given. With `settle`, it stops once an accepted step lowers the energy
-    by less than the tolerance (relative); `cancel` is polled before each iteration. Returns
-    why it stopped and the last iteration."""
+    by less than the tolerance (relative); `cancel` is polled before each iteration; with
+    `freeze`, a step refused for a fold or a ridge is first tried again with the control
+    vertices that shape the offending quads held still. Returns why it stopped and the last
+    iteration."""
     params = fit.params
     it = run.accepted[-1]
     iteration = first - 1
@@ -1086,7 +1098,7 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
             if why is None:
                 break
             run.rejected[why] += 1
-            if why != "energy" and freezes < FREEZES:
+            if freeze and why != "energy" and freezes < FREEZES:
                 # the programme knows no fold or ridge: the step is tried again, as long, with
                 # the control vertices that shape the offending quads held where they are
                 frozen = _bent_controls(fit, it, candidate) & (moving[:, 0] > 0)
