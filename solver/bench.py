@@ -105,6 +105,80 @@ def _fit(arg):
     return fit_surface(scenario.surface.vertices, scenario.surface.faces, targets, params)
 
 
+def _refit_setup():
+    """single_seated fitted once, and its person moved 2 cm forward (the way they face)."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from solver.scene.placement import place_person
+
+    scenario, people, params = _fit_setup()
+    first = _fit((scenario, people, params))
+    spec = scenario.persons[0]
+    moved = replace(spec, position=tuple(np.asarray(spec.position) + [0.0, 0.0, 0.02]))
+    return scenario, [place_person(moved, None, 0)], params, first
+
+
+def _refit_warm(arg):
+    from solver.surface.fit import fit_surface
+
+    scenario, targets, params, first = arg
+    return fit_surface(scenario.surface.vertices, scenario.surface.faces, targets, params,
+                       warm=first)
+
+
+def _spin() -> None:
+    while True:  # a busy core until terminated
+        pass
+
+
+class _BusyCores:
+    """One busy process per core, started on first use and kept until `stop` (or exit): the
+    load under which `fit_under_load` runs, while the idle baseline of the same session runs
+    after `stop`."""
+
+    def __init__(self):
+        self.processes: list = []
+
+    def start(self) -> None:
+        import atexit
+        import multiprocessing
+        import os
+
+        if self.processes:
+            return
+        context = multiprocessing.get_context("fork")
+        self.processes = [context.Process(target=_spin, daemon=True)
+                          for _ in range(os.cpu_count() or 1)]
+        for process in self.processes:
+            process.start()
+        atexit.register(self.stop)
+
+    def stop(self) -> None:
+        for process in self.processes:
+            process.terminate()
+        for process in self.processes:
+            process.join()
+        self.processes = []
+
+
+def _load_setup():
+    return _fit_setup(), _BusyCores()
+
+
+def _fit_loaded(arg):
+    fit, load = arg
+    load.start()  # the warm-up run pays for the start
+    return _fit(fit)
+
+
+def _fit_idle(arg):
+    fit, load = arg
+    load.stop()  # the baseline's warm-up run pays for the stop
+    return _fit(fit)
+
+
 def _relax_setup():
     """The overweight body on the seat fitted for the thin one (the paper's figure 8): the
     relaxation problem, the gate of the evaluation's figures and those figures before, as
@@ -248,6 +322,13 @@ def solver_cases() -> list[BenchCase]:
                   "loop's stop", _fit_setup, _fit, repeats=5),
         BenchCase("fit_six", "fit a 52x6 grid, level 3, to six seated people, to the loop's "
                   "stop", _fit_six_setup, _fit, repeats=3),
+        BenchCase("refit_warm", "refit single_seated from its fit after the person moved 2 "
+                  "cm, to the loop's settling (warm: the last result, tau_max, reused set-up)",
+                  _refit_setup, _refit_warm, repeats=15),
+        BenchCase("fit_under_load", "fit_single with one busy process per core running "
+                  "(speedup: idle time over loaded time, so 0.4x is 2.5x slower)",
+                  _load_setup, _fit_loaded, _fit_idle, "fit_single idle", repeats=5,
+                  baseline_repeats=5),
         BenchCase("settle", "the seated 13,380-vertex body settling in equilibrium on its "
                   "fitted seat and the floor (given the vertices the seat cuts into)",
                   _settle_setup, _settle, repeats=15),

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+import solver.threads  # noqa: F401  (libigl's thread count, set before libigl first runs)
+
 
 def quad_triangles(quads: np.ndarray) -> np.ndarray:
     """(2F, 3) triangles of (F, 4) quads, each split along its 0-2 diagonal."""
@@ -258,7 +260,26 @@ def self_intersections(vertices: np.ndarray, triangles: np.ndarray,
 
 
 def _box_pairs(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """(P, 2) pairs i < j of boxes (lo, hi: (F, 3)) that overlap."""
+    """(P, 2) pairs i < j of boxes (lo, hi: (F, 3)) that overlap.
+
+    Boxes of about one size (a surface's triangles): two boxes overlap only where their
+    centres lie within the sum of their half diagonals, so a k-d tree's pairs of centres within
+    twice the largest half diagonal hold every overlapping pair. Otherwise the boxes are binned
+    on a uniform grid (cells twice the median box)."""
+    half = 0.5 * np.linalg.norm(hi - lo, axis=1)
+    if len(lo) > 1 and half.max() <= 2.0 * np.median(half):
+        from scipy.spatial import cKDTree
+
+        pairs = cKDTree(0.5 * (lo + hi)).query_pairs(2.0 * half.max() + 1e-12,
+                                                      output_type="ndarray")  # i < j
+        a, b = pairs[:, 0], pairs[:, 1]
+        overlap = (lo[a] <= hi[b]) & (lo[b] <= hi[a])
+        return pairs[overlap[:, 0] & overlap[:, 1] & overlap[:, 2]]
+    return _grid_box_pairs(lo, hi)
+
+
+def _grid_box_pairs(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """`_box_pairs` by binning the boxes on a uniform grid (cells twice the median box)."""
     size = 2.0 * np.median((hi - lo).max(axis=1)) + 1e-12
     first = np.floor((lo - lo.min(axis=0)) / size).astype(np.int64)
     span = np.floor((hi - lo.min(axis=0)) / size).astype(np.int64) - first + 1
@@ -285,7 +306,29 @@ def _box_pairs(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 
 def _no_separating_axis(p: np.ndarray, q: np.ndarray, gap: float = 1e-12) -> np.ndarray:
     """(P,) whether triangles p[k] and q[k] ((P, 3, 3) corners) meet: no axis parts them by
-    more than `gap` metres."""
+    more than `gap` metres. Most pairs are parted by one triangle's plane: only the others are
+    tried on every axis."""
+    meet = np.zeros(len(p), dtype=bool)
+    rest = np.flatnonzero(~(_plane_parts(p, q, gap) | _plane_parts(q, p, gap)))
+    if len(rest):
+        meet[rest] = _no_axis_parts(p[rest], q[rest], gap)
+    return meet
+
+
+def _plane_parts(p: np.ndarray, q: np.ndarray, gap: float) -> np.ndarray:
+    """(P,) whether the plane of triangle p[k] parts it from q[k] by more than `gap` (the
+    first two of the separating-axis test's axes, as `_no_axis_parts` measures them)."""
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 1])
+    length = np.linalg.norm(n, axis=1)
+    n = n / np.maximum(length, 1e-300)[:, None]
+    pp, qq = np.einsum("pk,pvk->pv", n, p), np.einsum("pk,pvk->pv", n, q)
+    apart = np.maximum(pp.min(axis=1) - qq.max(axis=1), qq.min(axis=1) - pp.max(axis=1))
+    return (apart > gap) & (length >= 1e-300)
+
+
+def _no_axis_parts(p: np.ndarray, q: np.ndarray, gap: float) -> np.ndarray:
+    """(P,) whether no axis of the separating-axis test parts triangles p[k] and q[k] by more
+    than `gap` metres."""
     ep, eq = np.roll(p, -1, axis=1) - p, np.roll(q, -1, axis=1) - q
     n_p, n_q = np.cross(ep[:, 0], ep[:, 1]), np.cross(eq[:, 0], eq[:, 1])
     axes = np.concatenate([n_p[:, None], n_q[:, None],

@@ -7,6 +7,12 @@ run with `blas_threads()` BLAS threads: 1 unless the environment variable `SITRE
 says otherwise (a count, or ``all`` for the library's own choice). Batch workers get one BLAS
 thread each through their environment (`worker_environment`), since they run side by side.
 
+libigl's loops (normals, winding numbers, distances) start threads of their own on every call
+unless told otherwise, and on a busy machine each call then waits for its threads to be
+scheduled; libigl reads its count (`IGL_NUM_THREADS`) once, when it first runs, so importing
+this module (as `solver.mesh` does, below every use of libigl) sets it to `blas_threads()` unless
+the environment already says.
+
 A fit gives the same surface with one thread or several (tested to 1e-12).
 """
 
@@ -21,7 +27,8 @@ ENV = "SITRELAX_THREADS"
 DEFAULT_THREADS = 1
 # what a worker process's BLAS and OpenMP read at start-up
 _WORKER_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-                     "BLIS_NUM_THREADS", "VECLIB_MAXIMUM_THREADS")
+                     "BLIS_NUM_THREADS", "VECLIB_MAXIMUM_THREADS", "IGL_NUM_THREADS")
+IGL_ENV = "IGL_NUM_THREADS"  # libigl's own count, read once per process
 
 F = TypeVar("F", bound=Callable)
 
@@ -123,3 +130,17 @@ def worker_environment(threads: int = 1) -> dict[str, str]:
     """
     value = str(int(threads))
     return {**{name: value for name in _WORKER_VARIABLES}, ENV: value}
+
+
+def _set_library_threads() -> None:
+    """libigl's thread count from `blas_threads()`, unless the environment sets it (or the
+    count is ``all``, or bad: the fit says so when it runs)."""
+    try:
+        count = blas_threads()
+    except ThreadsError:
+        return
+    if count is not None:
+        os.environ.setdefault(IGL_ENV, str(count))
+
+
+_set_library_threads()

@@ -204,11 +204,20 @@ class Design:
     def scenario(self) -> Scenario:
         return self._parse(self.scenario_data())
 
-    def fit(self, progress: Callable[[int, float, float], None] | None = None) -> FitOutcome:
+    def fit(self, progress: Callable[[int, float, float], None] | None = None, *,
+            warm: bool = False, cancel: Callable[[], bool] | None = None) -> FitOutcome:
+        """Fits the session's scene. `warm`: refit from the last fit's result when the control
+        mesh has the same vertices and quads (a cold fit otherwise); `cancel`: polled between
+        iterations, ends the fit early with the best surface so far."""
         start = time.perf_counter()
         scenario = self.scenario()
         people = [self.place(p) for p in self.people]
-        result, persons, settles = fit_scene(scenario, people, progress)
+        last = self.last.result if warm and self.last is not None else None
+        if last is not None and (last.control.shape != self.vertices.shape or
+                                 not np.array_equal(last.faces, self.faces)):
+            last = None  # another control mesh: nothing to start from
+        result, persons, settles = fit_scene(scenario, people, progress, warm=last,
+                                             cancel=cancel)
         self.last = FitOutcome(result, people, persons, [m.pressure_kpa for m in settles],
                                time.perf_counter() - start)
         return self.last

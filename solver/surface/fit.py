@@ -44,12 +44,18 @@ the energy with every body point at its nearest vertex of the new surface, plus 
 demands the new surface leaves unmet) and folds no neighbouring level-s quads further apart than
 FOLD_GUARD_DEG (or than the iterate before it); otherwise it is tried again half as long (a
 backtracking line search along the programme's solution), up to MAX_HALVINGS times, after which
-the fit has converged. So the judged energies of
+the fit has converged. The programme knows nothing of folds and ridges, so in a warm refit
+(which starts against the guards) a step refused for one is first tried again as long with the
+control vertices that shape the offending quads held still (up to FREEZES times). So the judged energies of
 the accepted iterates never rise (a rising tau can only lower them), and a surface that starts
 without folds ends without them. The loop stops once tau has reached tau_max and the energy has
 not improved by `tolerance` (relative) in PATIENCE iterations, or after `max_iterations`. The
 result is the last accepted iterate whose limit surface does not cross itself (checked once at
 the end, and by bisection over the accepted iterates if it does).
+
+A warm refit (`fit_surface`'s `warm`: a person moved, a control vertex was edited) starts from
+the last result at tau_max with what still holds of its set-up, and stops once settled; a
+`cancel` callable ends any fit early with its last accepted iterate.
 """
 
 from __future__ import annotations
@@ -82,7 +88,9 @@ TAU_RAMP = 5  # iterations over which tau rises from 0 to tau_max
 PATIENCE = 5  # iterations without improvement before the loop stops
 SLACK_WEIGHT = 1e3  # cost per m^2 of a non-penetration row left unmet (soft constraints)
 DENSE_UP_TO = 150  # control vertices up to which the Hessian is built dense
-PROXIMAL = 0.01  # weight of the pull to the current control mesh (per coordinate)
+PROXIMAL = 0.001  # weight of the pull to the current control mesh (per coordinate): enough
+                  # to damp the alternation between pairing and solving; a stronger one slows
+                  # the loop's tail (each step goes that much less of the way)
 FOLD_GUARD_DEG = 50.0  # degrees between neighbouring level-s quads a step may not exceed
                        # (the guarantee's limit is 60 on the limit surface; a margin for it)
 DEPTH_TOLERANCE = 1e-3  # metres beyond the margin an iterate is not yet judged for: the rows hold
@@ -93,6 +101,10 @@ REPAIR_ITERATIONS = 10  # iterations each such round may take
 REPAIR_SAFETY = 2e-3  # metres inside the margin those rows hold the samples to
 SAG_ALLOWANCE = 0.01  # metres a triangle may sink deeper between its corners than at them
 MAX_HALVINGS = 4  # a rejected step is retried half as long this often
+FREEZES = 2  # times a warm refit's step that folds or ridges too far is retried with the
+             # control vertices that shape the offending quads held still (a cold fit's steps
+             # are not: held vertices next to moving ones leave kinks that a thin solid's
+             # offset folds over)
 FLOOR_REACH = 2.0  # steps: a surface vertex this near the floor gets a floor row (it moves at
                    # most one step per iteration, so none gets under unseen)
 
@@ -152,6 +164,7 @@ class FitResult:
     qp_statuses: list[str] = field(default_factory=list)
     subdivision: Subdivision | None = None
     limit: np.ndarray | None = None  # (ns, 3) the level-s vertices' limit points
+    state: "FitState | None" = field(default=None, repr=False, compare=False)
 
     def limit_surface(self, creases=()) -> np.ndarray:
         """(ns, 3) metres: the limit points of the level-s vertices (what `surface.*` holds), as
@@ -163,6 +176,90 @@ class FitResult:
         if self.subdivision is None:
             raise ValueError("Expected a FitResult that carries its subdivision, got none")
         return limit_of_level(self.subdivision, self.surface, list(creases) or None)
+
+
+class _Skin:
+    """A body's closed skin (vertices (V, 3) m, triangles (T, 3)) where `stack` (a slice)
+    says which of the fit's stacked body vertices are its own, with its winding-number and
+    closest-point structures (libigl's), built when first asked for. A skin that has only been
+    moved (every vertex by the same vector) since keeps them: queries are moved back by
+    `offset`, the vector it moved by since they were built."""
+
+    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, stack: slice):
+        self.vertices = np.asarray(vertices, dtype=np.float64)
+        self.triangles = np.asarray(triangles, dtype=np.int64)
+        self.stack = stack
+        self.offset = np.zeros(3)
+        self._built = self.vertices  # the positions the structures are built on
+        self._winding = self._closest = None
+
+    def moved(self, vertices: np.ndarray, triangles: np.ndarray, stack: slice) -> "_Skin":
+        """This skin at `vertices`: its structures kept when the vertices are these moved by
+        one vector (and the triangles the same), else a new skin."""
+        vertices = np.asarray(vertices, dtype=np.float64)
+        if vertices.shape == self.vertices.shape and np.array_equal(triangles, self.triangles):
+            shift = vertices[0] - self._built[0]
+            if np.allclose(vertices - shift, self._built, rtol=0.0, atol=1e-12):
+                skin = _Skin.__new__(_Skin)
+                skin.__dict__.update(self.__dict__, vertices=vertices, stack=stack,
+                                     offset=shift)
+                return skin
+        return _Skin(vertices, triangles, stack)
+
+    def winding(self, points: np.ndarray) -> np.ndarray:
+        """(k,) the skin's winding number at points (k, 3)."""
+        import igl
+
+        if self._winding is None:
+            self._winding = igl.FastWindingNumberBVH()
+            self._winding.init(self._built, self.triangles)
+        return self._winding.winding_number(points - self.offset)
+
+    def closest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Squared distances (k,), triangles (k,) and closest points (k, 3) on the skin of
+        points (k, 3)."""
+        import igl
+
+        if self._closest is None:
+            self._closest = igl.AABB()
+            self._closest.init(self._built, self.triangles)
+        dist2, face, at = self._closest.squared_distance(self._built, self.triangles,
+                                                          points - self.offset)
+        return dist2, face, at + self.offset
+
+
+@dataclass(frozen=True, eq=False)
+class FitState:
+    """What a fit leaves for a warm refit of the same control mesh (`fit_surface`'s `warm`):
+    the subdivision's key (control vertices, level, creases), the start, the limit map, the
+    surface vertices that carried rows and the programme set up for them (so that OSQP is seldom
+    set up again) and the bodies with their search structures (reused while the bodies only
+    move)."""
+
+    key: tuple
+    start: np.ndarray  # (n0, 3) the control vertices that fit started from (its `control`)
+    limit: sp.csr_matrix | None
+    member: np.ndarray  # (ns,) bool
+    floor_member: np.ndarray  # (ns,) bool
+    points: np.ndarray  # (P, 3)
+    normals: np.ndarray  # (P, 3)
+    trees: tuple  # (body_tree, body_tree3, exit_tree), as `_search_trees` builds them
+    tree_offset: np.ndarray  # (3,) how far the points moved since the trees were built
+    skins: list  # the fit's `_Skin`s
+    programme: Programme | None  # the fit's programme while it has no rows on dense samples
+    neighbours: np.ndarray  # `_Fit.neighbours`
+    quad_maps: tuple  # `_Fit.quad_maps`
+
+
+def _search_trees(points: np.ndarray, normals: np.ndarray) -> tuple:
+    """The body vertices' search trees: (position, FACING_SCALE x normal), positions,
+    (position, EXIT_SCALE x normal)."""
+    return (cKDTree(np.concatenate([points, FACING_SCALE * normals], axis=1)), cKDTree(points),
+            cKDTree(np.concatenate([points, EXIT_SCALE * normals], axis=1)))
+
+
+def _state_key(n0: int, params: "FitParams") -> tuple:
+    return n0, params.level, tuple(map(tuple, params.creases))
 
 
 def control_laplacian(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
@@ -199,12 +296,13 @@ class _Fit:
     programme: Programme
     sampled_ids: np.ndarray  # the surface vertices that may carry non-penetration rows
     neighbours: np.ndarray  # (E, 2) level-s quads sharing an edge that is no crease
-    skins: list  # (vertices (V, 3), triangles (T, 3)) of every body with a closed skin
+    quad_maps: tuple  # level-s vertices -> their quads' diagonals (2 Fs, ns) and the gaps
+                      # between the centres of neighbouring quads (E, ns)
+    skins: list  # `_Skin` of every body with a closed skin
+    tree_offset: np.ndarray  # (3,) the bodies' move since their trees were built: the trees
+                             # are queried this much back
     limit: sp.csr_matrix | None = None  # (ns, n0) control vertices -> limit points of level s
     extra: "ExtraRows | None" = None  # rows on dense samples found too deep (`deep_samples`)
-    skins: list  # (vertices (V, 3), triangles (T, 3)) of every body with a closed skin
-    limit: sp.csr_matrix | None = None  # (ns, n0) control vertices -> limit points of level s
-    extra: "ExtraRows | None" = None  # rows on dense samples found too deep (`repair_rows`)
 
     @property
     def n0(self) -> int:
@@ -257,9 +355,15 @@ def _stack(targets: Sequence[SupportedBody]):
     return points, normals, rho, owner
 
 
-def _check_reach(surface0: np.ndarray, targets: Sequence[SupportedBody], points: np.ndarray,
-                 owner: np.ndarray, important: np.ndarray) -> None:
-    near, _ = cKDTree(surface0).query(points[important])
+def _check_bodies(surface0: np.ndarray, surface_normals: np.ndarray,
+                  targets: Sequence[SupportedBody], points: np.ndarray, normals: np.ndarray,
+                  rho: np.ndarray, owner: np.ndarray, important: np.ndarray) -> None:
+    """A FitError when a body has nothing to support or lies beyond REACH of the start surface
+    `surface0` (ns, 3), or when the control mesh's faces point away from the bodies: the skin
+    to be supported faces the surface, so its normals run against the surface's normals
+    (`surface_normals`, (ns, 3)) where they meet (at the nearest surface vertex); if on the
+    importance-weighted balance they run along them, the faces are reversed."""
+    near, vertex = cKDTree(surface0).query(points[important])
     for k, t in enumerate(targets):
         mine = owner[important] == k
         if not mine.any():
@@ -269,18 +373,7 @@ def _check_reach(surface0: np.ndarray, targets: Sequence[SupportedBody], points:
             raise FitError(f"{t.label} is entirely outside the surface's reach: its nearest "
                            f"supported point is {near[mine].min():.2f} m from the surface "
                            f"(reach {REACH} m); move the person or the surface")
-
-
-def _check_facing(surface0: np.ndarray, quads: np.ndarray, points: np.ndarray,
-                  normals: np.ndarray, rho: np.ndarray, important: np.ndarray) -> None:
-    """A FitError when the control mesh's faces point away from the bodies: the skin to be
-    supported faces the surface, so its normals run against the surface's normals where they
-    meet; if on the importance-weighted balance they run along them, the faces are reversed."""
-    from solver.mesh import SurfaceMesh
-
-    mesh = SurfaceMesh.from_quads(surface0, quads)
-    _, _, _, face, _ = mesh.closest(points[important])
-    along = np.einsum("ij,ij->i", normals[important], mesh.face_normals[face])
+    along = np.einsum("ij,ij->i", normals[important], surface_normals[vertex])
     share = float(rho[important] @ (along > 0) / rho[important].sum())
     if share > 0.5:
         raise FitError(f"The control mesh's faces point away from the bodies: "
@@ -289,8 +382,9 @@ def _check_facing(surface0: np.ndarray, quads: np.ndarray, points: np.ndarray,
 
 
 def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedBody],
-            params: FitParams) -> _Fit:
-    """Checks the inputs and builds what stays fixed over the fit (see `_Fit`)."""
+            params: FitParams, state: FitState | None = None) -> _Fit:
+    """Checks the inputs and builds what stays fixed over the fit (see `_Fit`), reusing what
+    `state` (a fit of the same control mesh) built where it still holds."""
     v0 = np.asarray(control, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     n0 = len(v0)
@@ -303,8 +397,9 @@ def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedB
     lap = control_laplacian(v0, faces)
     points, normals, rho, owner = _stack(targets)
     important = np.flatnonzero(rho > 1e-3)
-    _check_reach(sub.matrix @ v0, targets, points, owner, important)
-    _check_facing(sub.matrix @ v0, sub.faces, points, normals, rho, important)
+    surface0 = sub.matrix @ v0
+    _check_bodies(surface0, sub.normals(surface0), targets, points, normals, rho, owner,
+                  important)
     fixed = np.full(n0, params.anchor / n0)
     fixed[list(params.fixed)] += params.gamma
     smooth = (params.sigma / n0) * (lap.T @ lap)
@@ -318,22 +413,67 @@ def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedB
     # non-penetration rows on the surface vertices that are vertex points of the level before
     # (every other vertex each way, about 2 cm apart on a seat): a quarter of the rows
     sampled = np.arange(sub.steps[-1].matrix.shape[1] if sub.steps else sub.matrix.shape[0])
+    same = state is not None and state.key == _state_key(n0, params)
+    if same:  # the same control quads (`_warm_state`), level and creases
+        neighbours, quad_maps = state.neighbours, state.quad_maps
+    else:
+        neighbours = neighbour_faces(sub.faces, sub.steps[-1].creases if sub.steps else
+                                     (np.asarray(params.creases).reshape(-1, 2)
+                                      if params.creases else None))
+        quad_maps = _quad_maps(sub, neighbours)
+    trees = None
+    if state is not None and state.points.shape == points.shape and \
+            np.allclose(state.normals, normals, rtol=0.0, atol=1e-9):
+        shift = points[0] - state.points[0]
+        if np.allclose(points - shift, state.points, rtol=0.0, atol=1e-12):
+            # the bodies only moved (or not at all): their trees hold, queried moved back
+            trees, offset = state.trees, state.tree_offset + shift
+    if trees is None:
+        trees, offset = _search_trees(points, normals), np.zeros(3)
+    if same and state.programme is not None and \
+            state.programme.slack_weight == SLACK_WEIGHT / people:
+        programme = state.programme  # its set-up holds while its rows do
+    else:
+        programme = Programme(sub.matrix, lap, n0, SLACK_WEIGHT / people)
+    skins, at = [], 0
+    for t in targets:
+        stack = slice(at, at + len(t.vertices))
+        at = stack.stop
+        if t.triangles is None:
+            continue
+        old = state.skins[len(skins)] if state is not None and \
+            len(skins) < len(state.skins) else None
+        skins.append(old.moved(t.vertices, t.triangles, stack) if old is not None else
+                     _Skin(t.vertices, t.triangles, stack))
     return _Fit(v0, faces, params, sub, lap, points, normals, points[important],
-                rho[important], cKDTree(np.concatenate([points, FACING_SCALE * normals], axis=1)),
-                cKDTree(points), cKDTree(np.concatenate([points, EXIT_SCALE * normals], axis=1)),
+                rho[important], *trees,
                 fixed, smooth, diagonal.toarray() if dense else diagonal, proximal, dense,
-                Programme(sub.matrix, lap, n0, SLACK_WEIGHT / people), sampled,
-                neighbour_faces(sub.faces, sub.steps[-1].creases if sub.steps else
-                                (np.asarray(params.creases).reshape(-1, 2)
-                                 if params.creases else None)),
-                [(t.vertices, t.triangles) for t in targets if t.triangles is not None])
+                programme, sampled, neighbours, quad_maps,
+                skins, offset, state.limit if same else None)
 
 
-def initial_rows(fit: _Fit) -> np.ndarray:
-    """(ns,) bool: the sampled surface vertices a body could reach from the start, where rows
-    begin, so that the set (and OSQP's set-up) seldom changes as the surface moves."""
+def _quad_maps(sub: Subdivision, neighbours: np.ndarray) -> tuple:
+    """The linear maps from the level-s vertices to their quads' diagonals, v2 - v0 over
+    v3 - v1 (2 Fs, ns), and to the gaps between the centres of neighbouring quads (E, ns)."""
+    quads = sub.faces
+    count, ns = len(quads), sub.matrix.shape[0]
+    rows = np.arange(count)
+    diagonals = sp.csr_matrix(
+        (np.tile([1.0, -1.0, 1.0, -1.0], count),
+         (np.repeat(np.concatenate([rows, count + rows]).reshape(2, -1).T, 2, axis=1).ravel(),
+          quads[:, [2, 0, 3, 1]].ravel())), shape=(2 * count, ns))
+    centres = sp.csr_matrix((np.full(4 * count, 0.25), (np.repeat(rows, 4), quads.ravel())),
+                            shape=(count, ns))
+    gaps = centres[neighbours[:, 1]] - centres[neighbours[:, 0]]
+    return diagonals, gaps.tocsr()
+
+
+def initial_rows(fit: _Fit, v: np.ndarray) -> np.ndarray:
+    """(ns,) bool: the sampled surface vertices a body could reach from control vertices v
+    (n0, 3), where the fit starts, where rows begin, so that the set (and OSQP's set-up) seldom
+    changes as the surface moves."""
     member = np.zeros(fit.sub.matrix.shape[0], dtype=bool)
-    reach, _ = fit.body_tree3.query((fit.sub.matrix @ fit.v0)[fit.sampled_ids],
+    reach, _ = fit.body_tree3.query((fit.sub.matrix @ v)[fit.sampled_ids] - fit.tree_offset,
                                     distance_upper_bound=REACH)
     member[fit.sampled_ids[np.isfinite(reach)]] = True
     return member
@@ -343,7 +483,7 @@ def pair(fit: _Fit, surf: np.ndarray) -> Pairing:
     """Each important body point pulls its closest surface vertex. Body points farther than the
     pull range do not pull (yet): the surface grows towards the bodies from where the designer
     put it, instead of reaching across the scene."""
-    surf_tree = cKDTree(surf)
+    surf_tree = cKDTree(surf, balanced_tree=False, compact_nodes=False)  # built each time
     gap, nearest = surf_tree.query(fit.b_imp, distance_upper_bound=fit.params.pull_range)
     reached = np.isfinite(gap)
     if not reached.all():  # the energy still counts them, at their nearest surface vertex
@@ -394,19 +534,24 @@ def _nearest_skin(fit: _Fit, sv: np.ndarray, sn: np.ndarray, skin: np.ndarray | 
     the body vertices the rows held the vertices to before (-1 for none), kept for the
     vertices now inside a body (so the demand on them does not jump as the surface moves)."""
     points, normals = fit.points, fit.normals
-    # closest body vertex facing the surface (a vertex whose search finds nothing within reach
-    # is far from every body: no row)
-    _, near_s = fit.body_tree.query(np.concatenate([sv, -FACING_SCALE * sn], axis=1),
+    gap, nearest = fit.body_tree3.query(sv - fit.tree_offset, distance_upper_bound=INSIDE_REACH)
+    # closest body vertex facing the surface, sought only where a skin vertex lies within
+    # CONSTRAINT_RADIUS: the one it finds lies no nearer than that, so elsewhere (or where the
+    # search finds nothing within reach) the surface vertex is far from every body: no row
+    near_s = np.zeros(len(sv), dtype=np.int64)
+    dist = np.full(len(sv), np.inf)
+    reach = np.flatnonzero(gap <= CONSTRAINT_RADIUS)
+    _, facing = fit.body_tree.query(np.concatenate([sv[reach] - fit.tree_offset,
+                                                    -FACING_SCALE * sn[reach]], axis=1),
                                     distance_upper_bound=FACING_REACH)
-    far = near_s == len(points)
-    near_s[far] = 0
-    dist = np.where(far, np.inf, np.linalg.norm(points[near_s] - sv, axis=1))
+    found = facing < len(points)
+    near_s[reach[found]] = facing[found]
+    dist[reach[found]] = np.linalg.norm(points[facing[found]] - sv[reach[found]], axis=1)
     # a surface vertex inside a body (behind its nearest skin vertex) is always constrained,
     # however far the skin it faces: it must get out (no body part is so thick that a point
     # inside it lies farther than INSIDE_REACH from its skin); it leaves through the skin it
     # was held to before it went in or, new to the rows, through the skin facing against the
     # surface's normal
-    _, nearest = fit.body_tree3.query(sv, distance_upper_bound=INSIDE_REACH)
     outside = nearest == len(points)
     nearest[outside] = 0
     inside = ~outside & (np.einsum("ij,ij->i", sv - points[nearest], normals[nearest]) < 0)
@@ -415,8 +560,8 @@ def _nearest_skin(fit: _Fit, sv: np.ndarray, sn: np.ndarray, skin: np.ndarray | 
         near_s[kept] = skin[kept]
     new = inside & ~kept
     if new.any():
-        _, near_s[new] = fit.exit_tree.query(np.concatenate([sv[new], -EXIT_SCALE * sn[new]],
-                                                            axis=1))
+        _, near_s[new] = fit.exit_tree.query(np.concatenate([sv[new] - fit.tree_offset,
+                                                             -EXIT_SCALE * sn[new]], axis=1))
     # how deep: behind the tangent plane of the nearest skin vertex (smooth as the surface
     # slides along the skin, where the distance to the nearest vertex would jump by a facet)
     behind = -np.einsum("ij,ij->i", sv - points[nearest], normals[nearest])
@@ -512,8 +657,6 @@ def deep_samples(fit: _Fit, v: np.ndarray) -> ExtraRows | None:
     deepest of each triangle that a body's winding number puts inside it, held in front of the
     plane of the skin triangle nearest to it. None where there is no such place (or no closed
     skin to look in)."""
-    import igl
-
     from solver.mesh import face_normals, quad_triangles
     from solver.surface.guarantees import barycentric_weights
 
@@ -526,7 +669,8 @@ def deep_samples(fit: _Fit, v: np.ndarray) -> ExtraRows | None:
     # only triangles with a corner inside a body, deeper than `allowed` less a centimetre
     # (behind its nearest skin vertex's plane), can hold a sample deeper than `allowed`
     # between their corners (a facet's sag is far less); the exact tests look at those
-    gap, nearest = fit.body_tree3.query(limit, distance_upper_bound=INSIDE_REACH)
+    gap, nearest = fit.body_tree3.query(limit - fit.tree_offset,
+                                        distance_upper_bound=INSIDE_REACH)
     near = np.isfinite(gap)
     nearest[~near] = 0
     behind = -np.einsum("ij,ij->i", limit - fit.points[nearest], fit.normals[nearest])
@@ -535,15 +679,24 @@ def deep_samples(fit: _Fit, v: np.ndarray) -> ExtraRows | None:
     if not len(candidates):
         return None
     points = np.einsum("sk,fkd->fsd", weights, limit[triangles[candidates]]).reshape(-1, 3)
+    # a sample within `allowed` of a skin vertex lies no deeper than that in its body: only
+    # the others need the exact (and costlier) tests of that body
+    within = fit.body_tree3.query_ball_point(points - fit.tree_offset, allowed)
+    counts = np.fromiter(map(len, within), dtype=np.int64, count=len(points))
+    sample = np.repeat(np.arange(len(points)), counts)
+    vertex = np.concatenate(within).astype(np.int64) if counts.sum() else sample
     found: dict[int, tuple[float, int, np.ndarray, np.ndarray]] = {}
-    for body_v, body_t in fit.skins:
+    for skin in fit.skins:
+        body_v, body_t = skin.vertices, skin.triangles
         lo, hi = body_v.min(axis=0), body_v.max(axis=0)
-        near = np.flatnonzero(np.all((points >= lo) & (points <= hi), axis=1))
+        shallow = np.zeros(len(points), dtype=bool)
+        shallow[sample[(vertex >= skin.stack.start) & (vertex < skin.stack.stop)]] = True
+        near = np.flatnonzero(np.all((points >= lo) & (points <= hi), axis=1) & ~shallow)
         if len(near):
-            near = near[igl.fast_winding_number(body_v, body_t, points[near]) > 0.5]
+            near = near[skin.winding(points[near]) > 0.5]
         if not len(near):
             continue
-        dist2, face, closest = igl.point_mesh_squared_distance(points[near], body_v, body_t)
+        dist2, face, closest = skin.closest(points[near])
         depth = np.sqrt(dist2)
         deep = depth > allowed
         normals = face_normals(body_v, body_t[face[deep]])
@@ -570,8 +723,10 @@ def add_extra_rows(fit: _Fit, extra: ExtraRows) -> None:
                           np.concatenate([fit.extra.normals, extra.normals]),
                           np.concatenate([fit.extra.demanded, extra.demanded]))
     fit.extra = extra
-    fit.programme = Programme(sp.vstack([fit.sub.matrix, extra.points]).tocsr(), fit.lap,
-                              fit.n0, fit.programme.slack_weight)
+    programme = Programme(sp.vstack([fit.sub.matrix, extra.points]).tocsr(), fit.lap,
+                          fit.n0, fit.programme.slack_weight)
+    programme.setups = fit.programme.setups  # the fit counts them all
+    fit.programme = programme
 
 
 def _with_extra(fit: _Fit, v: np.ndarray, rows: Rows) -> Rows:
@@ -642,21 +797,46 @@ def assess(fit: _Fit, v: np.ndarray, member: np.ndarray,
 
 def _bends(fit: _Fit, surf: np.ndarray) -> tuple[float, float]:
     """The largest angle (degrees) between neighbouring level-s quads of surface `surf`
-    (ns, 3), creases left out, and the tightest radius (m) of its ridges: where it bends away
-    from the bodies (each quad's centre lies behind its neighbour's plane), the distance
-    between the two quads' centres over the angle between them (inf without a ridge)."""
+    (ns, 3), creases left out, and the tightest radius (m) of its ridges (inf without a ridge):
+    the extremes of `_bend_pairs`."""
     if not len(fit.neighbours):
         return 0.0, np.inf
-    quads = fit.sub.faces
-    n = quad_normals(surf, quads)
+    angle, radius = _bend_pairs(fit, surf)
+    return float(np.degrees(angle.max())), float(radius.min())
+
+
+def _bend_pairs(fit: _Fit, surf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per pair of neighbouring level-s quads (`fit.neighbours`) of surface `surf` (ns, 3):
+    the angle (radians) between them and the radius (m) of the ridge they
+    make where the surface bends away from the bodies (each quad's centre lies behind its
+    neighbour's plane), the distance between their centres over that angle (inf where they
+    make no ridge). The quads' normals (`quad_normals`: the cross product of their diagonals)
+    and centres' gaps come from `fit.quad_maps`."""
+    diagonals, centre_map = fit.quad_maps
+    both = diagonals @ surf
+    n = np.cross(both[:len(both) // 2], both[len(both) // 2:])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
     a, b = fit.neighbours[:, 0], fit.neighbours[:, 1]
     angle = np.arccos(np.clip(np.einsum("ij,ij->i", n[a], n[b]), -1.0, 1.0))
-    centres = surf[quads].mean(axis=1)
-    gap = centres[b] - centres[a]
+    gap = centre_map @ surf
     ridge = (np.einsum("ij,ij->i", gap, n[a]) < 0) & (np.einsum("ij,ij->i", gap, n[b]) > 0) & \
         (angle > 1e-6)
-    radius = np.linalg.norm(gap[ridge], axis=1) / angle[ridge]
-    return float(np.degrees(angle.max())), float(radius.min()) if len(radius) else np.inf
+    radius = np.full(len(angle), np.inf)
+    radius[ridge] = np.linalg.norm(gap[ridge], axis=1) / angle[ridge]
+    return angle, radius
+
+
+def _bent_controls(fit: _Fit, it: Iterate, candidate: Iterate) -> np.ndarray:
+    """(n0,) bool: the control vertices that shape the level-s quads where `candidate` folds
+    or ridges past what `acceptable` allows after `it`."""
+    angle, radius = _bend_pairs(fit, candidate.surf)
+    bad = (np.degrees(angle) > max(FOLD_GUARD_DEG, it.max_fold)) | \
+        (radius < min(fit.params.min_ridge_radius, it.min_ridge))
+    quads = np.unique(fit.neighbours[bad].ravel())
+    corners = np.unique(fit.sub.faces[quads].ravel())
+    shaping = np.zeros(fit.n0, dtype=bool)
+    shaping[fit.sub.matrix[corners].indices] = True
+    return shaping
 
 
 def terms_of(fit: _Fit, it: Iterate, tau: float) -> dict:
@@ -737,11 +917,20 @@ def uncrossed(fit: _Fit, accepted: Sequence[np.ndarray]) -> tuple[int, int]:
 @with_limited_threads  # small products: one BLAS thread (SITRELAX_THREADS), see solver.threads
 def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedBody],
                 params: FitParams = FitParams(),
-                progress: Callable[[int, float, float], None] | None = None) -> FitResult:
+                progress: Callable[[int, float, float], None] | None = None, *,
+                warm: FitResult | None = None, cancel: Callable[[], bool] | None = None
+                ) -> FitResult:
     """Fits the control mesh to the bodies (see the module docstring): each iteration proposes
     a step (pair, assemble, constrain, solve) and accepts it only if it lowers the judged
     energy and folds no further, or tries again half as long; the result is the
     last accepted iterate whose surface does not cross itself.
+
+    A warm refit (`warm`, the result of an earlier fit of the same control mesh, after a person
+    moved or a control vertex was edited) starts from that result's control vertices (each
+    moved as far as the designer moved it in `control` since) at tau_max, reuses what still holds (the limit map, the rows, the bodies' search trees when
+    they did not move) and stops as soon as the surface is settled: once an accepted step
+    lowers the judged energy by less than `tolerance` (relative). The energy is the cold fit's
+    own: the pulls still hold the control vertices to `control`, the designer's start.
 
     Parameters
     ----------
@@ -757,6 +946,11 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
         rule and per-iteration step (metres).
     progress : callable, optional
         Called after every accepted iteration as ``progress(iteration, energy, tau)``.
+    warm : FitResult, optional
+        An earlier fit of a control mesh with the same vertex count and quads to start from.
+    cancel : callable, optional
+        Polled between iterations; when it returns True the fit ends early with the last
+        accepted iterate (the best so far) and a `stop_reason` that begins with "cancelled".
 
     Returns
     -------
@@ -772,20 +966,33 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
     FitError
         If there is no body, a fixed vertex index is out of range, a body has nothing to
         support or lies beyond `REACH` of the surface, the control mesh faces away from the
-        bodies, or the quadratic programme fails.
+        bodies, `warm` is a fit of another control mesh, or the quadratic programme fails.
     MeshError
         If the control mesh cannot be subdivided (bad faces, non-manifold edges, creases off
         its edges).
     """
     start = time.perf_counter()
-    fit = prepare(control, faces, targets, params)
-    member = initial_rows(fit)
-    floor_member = np.zeros_like(member)
-    run = _Descent([assess(fit, fit.v0.copy(), member, floor_member)])
+    state = _warm_state(warm, control, faces)
+    fit = prepare(control, faces, targets, params, state)
+    v_start = fit.v0
+    if warm is not None:  # a designer's edit of the start moves the fitted mesh as much
+        v_start = warm.control + (fit.v0 - state.start if state is not None else 0.0)
+    if state is not None and len(state.member) == fit.sub.matrix.shape[0]:
+        # the rows of the last fit (those that come near join as before): OSQP's set-up stays
+        member, floor_member = state.member.copy(), state.floor_member.copy()
+    else:
+        member = initial_rows(fit, v_start)
+        floor_member = np.zeros_like(member)
+    setups = fit.programme.setups  # a reused programme counts its earlier set-ups
+    run = _Descent([assess(fit, v_start.copy(), member, floor_member)])
     stop, iteration = descend(fit, run, member, floor_member, 1, params.max_iterations,
-                              progress)
+                              progress, tau=None if warm is None else params.tau_max,
+                              settle=warm is not None, cancel=cancel,
+                              freeze=warm is not None)
     repairs = []
     for _ in range(REPAIR_ROUNDS):
+        if stop.startswith("cancelled"):
+            break
         extra = deep_samples(fit, run.accepted[-1].v)
         if extra is None:
             break
@@ -794,7 +1001,10 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
                                  run.accepted[-1].rows.skin)])
         repair_stop, iteration = descend(fit, again, member, floor_member, iteration + 1,
                                          iteration + REPAIR_ITERATIONS, progress,
-                                         tau=params.tau_max)
+                                         tau=params.tau_max, settle=True, cancel=cancel,
+                                         freeze=warm is not None)
+        if repair_stop.startswith("cancelled"):
+            stop = repair_stop
         repairs.append({"rows": len(extra.demanded), "energies": again.energies,
                         "stop_reason": repair_stop})
         run.extend(again)
@@ -806,15 +1016,36 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
         stop += (f"; the surface crossed itself ({crossings} triangle pairs) after accepted "
                  f"iterate {keep}, which is kept")
     result = run.accepted[keep]
-    terms = terms_of(fit, result, params.tau_max if repairs else
+    terms = terms_of(fit, result, params.tau_max if repairs or warm is not None else
                      params.tau_max * min(1.0, max(keep - 1, 0) / TAU_RAMP))
-    terms.update(best_iteration=keep, qp_setups=fit.programme.setups,
+    terms.update(best_iteration=keep, qp_setups=fit.programme.setups - setups,
                  rejected_steps=dict(run.rejected), repairs=repairs,
                  largest_row_residual_m=run.residuals[keep - 1] if keep else 0.0)
     return FitResult(result.v, fit.faces, result.surf, fit.sub.faces, iteration, stop,
                      run.energies[:len(run.energies) - sum(len(r["energies"]) for r in repairs)],
                      terms, time.perf_counter() - start, run.statuses, fit.sub,
-                     limit_points(fit, result.v))
+                     limit_points(fit, result.v),
+                     FitState(_state_key(fit.n0, params), fit.v0, fit.limit, member,
+                              floor_member,
+                              fit.points, fit.normals,
+                              (fit.body_tree, fit.body_tree3, fit.exit_tree), fit.tree_offset,
+                              fit.skins, fit.programme if fit.extra is None else None,
+                              fit.neighbours, fit.quad_maps))
+
+
+def _warm_state(warm: FitResult | None, control: np.ndarray, faces: np.ndarray
+                ) -> FitState | None:
+    """The state a warm refit reuses; a FitError when `warm` fitted another control mesh."""
+    if warm is None:
+        return None
+    control, faces = np.asarray(control), np.asarray(faces)
+    if warm.control.shape != control.shape or warm.faces.shape != faces.shape or \
+            not np.array_equal(warm.faces, faces):
+        raise FitError(f"Expected a warm start from a fit of the same control mesh "
+                       f"({len(control)} vertices, {len(faces)} quads), got one of "
+                       f"{len(warm.control)} vertices and {len(warm.faces)} quads "
+                       "(or other quads)")
+    return warm.state
 
 
 @dataclass(eq=False)
@@ -838,29 +1069,49 @@ class _Descent:
 
 
 def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarray,
-            first: int, last: int, progress=None, tau: float | None = None
-            ) -> tuple[str, int]:
+            first: int, last: int, progress=None, tau: float | None = None,
+            settle: bool = False, cancel: Callable[[], bool] | None = None,
+            freeze: bool = False) -> tuple[str, int]:
     """Iterations `first`..`last` from the run's last iterate: each proposes a step and
     accepts it (`acceptable`) or tries it half as long; tau ramps over the first TAU_RAMP
-    iterations unless given. Returns why it stopped and the last iteration."""
+    iterations unless given. With `settle`, it stops once an accepted step lowers the energy
+    by less than the tolerance (relative); `cancel` is polled before each iteration; with
+    `freeze`, a step refused for a fold or a ridge is first tried again with the control
+    vertices that shape the offending quads held still. Returns why it stopped and the last
+    iteration."""
     params = fit.params
     it = run.accepted[-1]
     iteration = first - 1
     for iteration in range(first, last + 1):
+        if cancel is not None and cancel():
+            return (f"cancelled after {iteration - first} iteration(s); the last accepted "
+                    f"iterate is kept"), iteration - 1
         t = params.tau_max * min(1.0, (iteration - 1) / TAU_RAMP) if tau is None else tau
         target, status, residual = propose(fit, it, params.step,
                                            assemble(fit, it.pairing, it.surf_n, t))
-        for halving in range(MAX_HALVINGS + 1):
-            v = it.v + 0.5 ** halving * (target - it.v)
+        moving = np.ones((fit.n0, 1))
+        halving = freezes = 0
+        while halving <= MAX_HALVINGS:
+            v = it.v + 0.5 ** halving * moving * (target - it.v)
             candidate = assess(fit, v, member, floor_member, it.rows.skin)
             why = acceptable(fit, it, candidate, t)
             if why is None:
                 break
             run.rejected[why] += 1
+            if freeze and why != "energy" and freezes < FREEZES:
+                # the programme knows no fold or ridge: the step is tried again, as long, with
+                # the control vertices that shape the offending quads held where they are
+                frozen = _bent_controls(fit, it, candidate) & (moving[:, 0] > 0)
+                if frozen.any() and not frozen.all():
+                    moving[frozen] = 0.0
+                    freezes += 1
+                    continue
+            halving += 1
         else:
             return (f"converged: no step along the programme's solution (down to "
                     f"1/{2 ** MAX_HALVINGS} of it) lowers the energy without folding (energy "
                     f"{it.energy(t):.6g})"), iteration
+        before = it.energy(t)
         it = candidate
         run.accepted.append(it)
         run.energies.append(it.energy(t))
@@ -868,6 +1119,9 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
         run.residuals.append(residual)
         if progress is not None:
             progress(iteration, run.energies[-1], t)
+        if settle and run.energies[-1] > before * (1 - params.tolerance):
+            return (f"settled: the last step lowered the energy by less than "
+                    f"{100 * params.tolerance:g} % ({run.energies[-1]:.6g})"), iteration
         if tau is None and converged(run.energies, params.tolerance) or \
                 tau is not None and len(run.energies) > PATIENCE and \
                 run.energies[-1] > run.energies[-1 - PATIENCE] * (1 - params.tolerance):

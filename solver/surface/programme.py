@@ -8,6 +8,7 @@ import scipy.sparse as sp
 
 
 EPS_ABS, EPS_REL = 1e-5, 1e-4  # OSQP tolerances (metres for the constraints)
+LOOSE_STEPS = 2.0  # trust-region steps below a point a row that is not wanted holds it (> sqrt 3)
 
 
 class ProgrammeError(ValueError):
@@ -94,13 +95,18 @@ class Programme:
         p_values[self.p_is_x] = np.asarray(p_x[self.p_xr, self.p_xc]).ravel()
         a_values = np.where(self.a_plane, self.a_s * normals[self.a_row, self.a_axis], 1.0)
         q_full = np.concatenate([q, np.zeros(r)])
+        now = _normals_dot(normals, self.s_rows @ x0.reshape(3, -1).T)
+        # a row not wanted now gets a bound the trust region keeps it clear of (a surface point
+        # moves at most sqrt(3) step along a unit normal) instead of -inf: OSQP then sees the
+        # same kind of constraint every time, and an update refactors its matrix only once
+        lower = np.where(np.isfinite(lower), lower, now - LOOSE_STEPS * step)
         low = np.concatenate([lower, x0 - step, np.zeros(r)])
         high = np.concatenate([np.full(r, np.inf), x0 + step, np.full(r, np.inf)])
         if fresh:
             self._set_up(p_values, q_full, a_values, low, high)
         else:
             self.solver.update(Px=p_values, q=q_full, Ax=a_values, l=low, u=high)
-        slack0 = np.maximum(0.0, lower - _normals_dot(normals, self.s_rows @ x0.reshape(3, -1).T))
+        slack0 = np.maximum(0.0, lower - now)
         self.solver.warm_start(x=np.concatenate([x0, slack0]))
         res = self.solver.solve(raise_error=False)
         status = str(res.info.status)

@@ -66,3 +66,24 @@ def test_a_fit_gives_the_same_surface_with_one_thread_or_all(monkeypatch):
     assert one.iterations == every.iterations
     np.testing.assert_allclose(one.surface, every.surface, rtol=0, atol=1e-12)
     np.testing.assert_allclose(one.control, every.control, rtol=0, atol=1e-12)
+
+
+def test_libigl_gets_the_count_before_it_first_runs():
+    """libigl reads IGL_NUM_THREADS once: importing the mesh layer sets it to the solver's
+    count (one by default; `all` leaves libigl its own), unless the environment already has
+    it."""
+    import os
+    import subprocess
+    import sys
+
+    code = "import os, solver.mesh; print(os.environ.get('IGL_NUM_THREADS'))"
+    base = {k: v for k, v in os.environ.items() if k not in ("IGL_NUM_THREADS", ENV)}
+    runs = {"": "1", "3": "3", "all": "None"}
+    for value, expected in runs.items():
+        out = subprocess.run([sys.executable, "-c", code], env={**base, ENV: value},
+                             capture_output=True, text=True, check=True).stdout.split()[-1]
+        assert out == expected, (value, out)
+    kept = subprocess.run([sys.executable, "-c", code],
+                          env={**base, "IGL_NUM_THREADS": "2"}, capture_output=True, text=True,
+                          check=True).stdout.split()[-1]
+    assert kept == "2"

@@ -1,0 +1,99 @@
+"""Warm refits (a person moved, a control vertex edited) and cancelled fits, on the seated
+example: a warm refit settles where a cold fit of the new scene does, in fewer iterations."""
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from solver.scene.placement import place_person, place_scene
+from solver.scene.run import fit_scene
+from solver.scene.scenario import load_scenario
+from solver.surface.fit import FitError, fit_surface
+from solver.surface.subdivision import grid_mesh
+
+SCENARIOS = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios"
+FIGURES = ("coverage", "contact_coverage", "max_penetration_m")
+
+
+@pytest.fixture(scope="module")
+def seated():
+    """single_seated fitted cold, and its person moved 2 cm forward (along +Z, the way the
+    person faces) and placed again."""
+    scenario, people = place_scene(load_scenario(SCENARIOS / "single_seated.toml"))
+    first, _, _ = fit_scene(scenario, people)
+    spec = scenario.persons[0]
+    moved = replace(spec, position=tuple(np.asarray(spec.position) + [0.0, 0.0, 0.02]))
+    return scenario, first, [place_person(moved, None, 0)]
+
+
+@pytest.fixture(scope="module")
+def refits(seated):
+    """The moved scene fitted cold and warm (from the first fit): (result, figures) each."""
+    scenario, first, people = seated
+    cold, cold_figures, _ = fit_scene(scenario, people)
+    warm, warm_figures, _ = fit_scene(scenario, people, warm=first)
+    return (cold, cold_figures[0]), (warm, warm_figures[0])
+
+
+def test_a_warm_refit_after_a_move_matches_a_cold_fit_in_fewer_iterations(seated, refits):
+    (cold, cold_figures), (warm, warm_figures) = refits
+    margin = seated[0].surface.params.margin
+    assert warm.stop_reason.startswith("settled"), warm.stop_reason
+    assert warm.iterations < cold.iterations
+    assert warm_figures["coverage"] >= cold_figures["coverage"] - 0.01
+    assert warm_figures["contact_coverage"] >= cold_figures["contact_coverage"] - 0.03
+    # within the softness the fit allows (both cut the body less deeply than the margin)
+    assert warm_figures["max_penetration_m"] <= max(cold_figures["max_penetration_m"], margin)
+    assert warm.energies[-1] <= cold.energies[-1] * 1.05
+    e = np.asarray(warm.energies)
+    assert np.all(e[1:] <= e[:-1])  # judged at tau_max throughout: never rises
+    assert warm.energy_terms["tau"] == pytest.approx(cold.energy_terms["tau"])
+
+
+def test_a_warm_refit_of_an_unchanged_scene_stops_at_once(seated):
+    """Nothing moved: the first step lowers the energy by less than the tolerance."""
+    scenario, first, _ = seated
+    _, people = place_scene(scenario)
+    again = fit_surface(scenario.surface.vertices, scenario.surface.faces, people,
+                        scenario.surface.params, warm=first)
+    assert again.iterations <= 2, again.stop_reason
+    assert again.energies[-1] <= first.energies[-1] * 1.01
+
+
+def test_an_edited_control_vertex_moves_the_warm_start_as_much(seated):
+    """A corner far from the person moved 3 cm up in the designer's mesh starts (and, nothing
+    pulling it elsewhere, ends) 3 cm above where the first fit left it, not where it was."""
+    scenario, first, people = seated
+    start = scenario.surface.vertices.copy()
+    start[0] += [0.0, 0.03, 0.0]
+    result = fit_surface(start, scenario.surface.faces, people, scenario.surface.params,
+                         warm=first)
+    assert np.linalg.norm(result.control[0] - (first.control[0] + [0.0, 0.03, 0.0])) < 0.005
+
+
+def test_cancel_ends_the_fit_with_the_last_accepted_iterate(seated):
+    scenario, _, people = seated
+    polls = []
+
+    def cancel():
+        polls.append(1)
+        return len(polls) > 2  # two iterations run, the third is cancelled
+
+    result = fit_surface(scenario.surface.vertices, scenario.surface.faces, people,
+                         scenario.surface.params, cancel=cancel)
+    assert result.stop_reason.startswith("cancelled"), result.stop_reason
+    assert result.iterations == 2 and len(result.energies) == 2
+    assert not result.energy_terms["repairs"]  # no round of rows after a cancel
+    start = fit_surface(scenario.surface.vertices, scenario.surface.faces, people,
+                        scenario.surface.params, cancel=lambda: True)
+    assert start.iterations == 0 and start.stop_reason.startswith("cancelled")
+    np.testing.assert_array_equal(start.control, scenario.surface.vertices)
+
+
+def test_a_warm_start_from_another_control_mesh_is_refused(seated):
+    scenario, first, people = seated
+    grid_v, grid_f = grid_mesh((0.5, 0.6), (4, 3), 0.42)
+    with pytest.raises(FitError, match="same control mesh"):
+        fit_surface(grid_v, grid_f, people, scenario.surface.params, warm=first)
