@@ -17,8 +17,9 @@ from typing import Sequence
 
 import numpy as np
 
-from .raster import (BAD_COLOR, COLORBAR_WIDTH, Axes, Canvas, Projection, RasterError, draw_colorbar,
-                     draw_frame, fit_projection, rasterize, text_height, viridis, wrap)
+from .raster import (BAD_COLOR, COLORBAR_WIDTH, Axes, Canvas, Projection, RasterError,
+                     draw_colorbar, draw_frame, fit_projection, rasterize, text_height, viridis,
+                     wrap)
 from .views import VIEWS  # noqa: F401 (solver.io.render.VIEWS, as before)
 
 SKIN = (0.86, 0.72, 0.62)
