@@ -213,6 +213,8 @@ def _batch_setup():
     """24 fits (single_seated at 24 values of sigma), and two local clusters, of 2 workers and
     of 1, started and warmed (each worker's child process up, its imports and the body assets
     loaded) before any timing: what is timed is the jobs, not the start-up of either."""
+    import atexit
+
     from distributed import Client
 
     from solver.scene.batch import expand_jobs, local_cluster, warm_workers
@@ -226,6 +228,7 @@ def _batch_setup():
             if warm_workers(client) != workers:
                 raise RuntimeError(f"batch bench: not every one of {workers} workers started")
         clusters[workers] = cluster
+        atexit.register(cluster.close)  # when the benchmarks are done
     return jobs, clusters
 
 
