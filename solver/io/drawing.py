@@ -384,7 +384,7 @@ _ELEVATION_TITLES = {"front": "front (from +z)", "side": "side (from +x)",
 
 
 def draw_elevation(canvas, box, vertices: np.ndarray, faces: np.ndarray, view: str,
-                   floor: float = 0.0, title_size: float = 9) -> dict:
+                   floor: float = 0.0, title_size: float = 9, loops=None) -> dict:
     """Draws a surface alone, square-on, with its overall dimensions: shaded on both sides
     (its underside darker, so that a fold, an overhang or a curtain shows), its border as a
     line, the floor as a line in the front and side views, and dimension lines in millimetres:
@@ -402,6 +402,8 @@ def draw_elevation(canvas, box, vertices: np.ndarray, faces: np.ndarray, view: s
         "front", "side" or "top" (`ELEVATIONS`).
     floor : float
         The floor's height y, metres (heights are given above it).
+    loops : list of (K + 1,) int, optional
+        The surface's `boundary_loops`, when the caller draws several views.
 
     Returns
     -------
@@ -435,7 +437,7 @@ def draw_elevation(canvas, box, vertices: np.ndarray, faces: np.ndarray, view: s
     proj = draw_meshes(canvas, frame.box, [MeshView(mm, faces, SURFACE,
                                                     back_color=(0.72, 0.62, 0.55))],
                        direction, bounds=((xlim[0], ylim[0]), (xlim[1], ylim[1])))
-    for loop in boundary_loops(faces):
+    for loop in boundary_loops(faces) if loops is None else loops:
         canvas.line(proj.plane(flat[loop]), (0.25, 0.25, 0.25), 0.7)
     if upward == "height_mm":
         canvas.line(proj.plane(np.array([[x0 - gap, low], [x1 + gap, low]])), FLOOR_COLOR, 1.0)

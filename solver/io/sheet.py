@@ -21,7 +21,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .drawing import DrawingError, Section, draw_elevation, draw_section
+from .drawing import DrawingError, Section, boundary_loops, draw_elevation, draw_section
 from .render import Panel, draw_meshes
 
 PANEL_INCHES = (5.0, 3.7)  # width and height of one panel
@@ -96,8 +96,9 @@ def render_sheet(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarra
         x, y = left + (k % columns) * 1.25 * cw, top * 100 + (k // columns) * 1.35 * ch
         return x, y, x + cw, y + ch
 
+    loops = boundary_loops(faces)  # one border for the three views
     for k, view in enumerate(("front", "side", "top")):
-        draw_elevation(canvas, cell(k), vertices, faces, view, floor)
+        draw_elevation(canvas, cell(k), vertices, faces, view, floor, loops=loops)
     for k, sec in enumerate(sections):
         draw_section(canvas, cell(columns + k), sec)
     for k, panel in enumerate(pressure):
