@@ -344,8 +344,11 @@ def draw_frame(canvas: Canvas, axes: Axes, xlabel: str = "", ylabel: str = "",
     """The axes' frame, ticks with their values on the left and bottom, and the labels."""
     left, top, right, bottom = axes.box
     canvas.rectangle(axes.box, outline=(0, 0, 0), width=0.8)
-    for k, (lim, label) in enumerate(((axes.xlim, xlabel), (axes.ylim, ylabel))):
-        ticks = nice_ticks(*lim, most=7 if k == 0 else 8)
+    shown = []  # the y ticks' values, whose width places the y label
+    for k, lim in enumerate((axes.xlim, axes.ylim)):
+        # as many ticks as leave room for their values (about 40 px across, 30 up)
+        room = (right - left) / 40 if k == 0 else (bottom - top) / 30
+        ticks = nice_ticks(*lim, most=int(np.clip(room, 4, 7 if k == 0 else 8)))
         step = ticks[1] - ticks[0] if len(ticks) > 1 else 1.0
         for value in ticks:
             text = tick_label(value, step)
@@ -357,13 +360,13 @@ def draw_frame(canvas: Canvas, axes: Axes, xlabel: str = "", ylabel: str = "",
                 y = axes.pixels(axes.xlim[0], value)[1]
                 canvas.line([(left - 4, y), (left, y)])
                 canvas.text((left - 6, y), text, tick_size, "rm")
+                shown.append(text)
     if xlabel:
         canvas.text(((left + right) / 2, bottom + 8 + points(tick_size) + 4), xlabel,
                     label_size, "ma")
     if ylabel:
-        width = max((_font(points(tick_size), False).getlength(
-            tick_label(v, 1.0 if len(t) < 2 else t[1] - t[0]))
-            for t in [nice_ticks(*axes.ylim)] for v in t), default=0)
+        width = max((_font(points(tick_size), False).getlength(text) for text in shown),
+                    default=0)
         canvas.text((left - 10 - width - points(label_size) * 0.7, (top + bottom) / 2),
                     ylabel, label_size, rotate=True)
 
