@@ -9,15 +9,24 @@ its offsets times the product of the weights its states get from the parameters 
 The body is in metres, Y up, facing +Z, standing with its feet on y = 0 and its pelvis over the
 origin. Its rig's joints sit at the centres of the joint cubes of the shaped mesh, so they follow
 the shape. Mass is the enclosed volume times `BODY_DENSITY`.
+
+The packed assets are unpacked once and kept, one array a file, in a cache folder
+(`asset_cache_dir`: `SITRELAX_CACHE`, else `~/.cache/sitrelax`; `SITRELAX_CACHE=off` keeps
+none), from which later runs map them.
 """
 
 from __future__ import annotations
 
+import hashlib
 import io
 import lzma
+import os
+import shutil
+import tempfile
 from dataclasses import dataclass, field, fields
 from functools import cached_property, lru_cache
 from importlib import resources
+from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
@@ -142,8 +151,7 @@ class BodyShape:
 @lru_cache(maxsize=1)
 def _assets() -> dict:
     blob = (resources.files("solver") / "data" / "makehuman_body.npz.xz").read_bytes()
-    with np.load(io.BytesIO(lzma.decompress(blob))) as data:
-        assets = {k: data[k] for k in data.files}
+    assets = _cached_assets(blob)
     names = [str(n) for n in assets["target_names"]]
     # each target's states: "height/female-young-averagemuscle-minweight-maxheight" ->
     # female, young, averagemuscle, minweight, maxheight ("universal" is no state)
@@ -151,6 +159,58 @@ def _assets() -> dict:
         [s for s in n.rsplit("/", 1)[-1].split("-") if s != "universal"] for n in names
     ]
     return assets
+
+
+CACHE_ENV = "SITRELAX_CACHE"  # where the unpacked assets are kept ("off": nowhere)
+
+
+def asset_cache_dir() -> Path | None:
+    """The folder that keeps the body assets unpacked: `SITRELAX_CACHE`, else
+    `$XDG_CACHE_HOME/sitrelax` (`~/.cache/sitrelax`); None when `SITRELAX_CACHE` is "off"."""
+    value = os.environ.get(CACHE_ENV, "").strip()
+    if value.lower() == "off":
+        return None
+    if value:
+        return Path(value)
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "sitrelax"
+
+
+def _cached_assets(blob: bytes) -> dict:
+    """The arrays of the packed assets (`blob`, an xz-compressed .npz). Unpacking takes about
+    half a second, so the arrays are also kept unpacked, one .npy each, in a folder of
+    `asset_cache_dir` named by the package's hash; later runs map them from there (only the
+    pages a body's active targets use are read). A cache that cannot be written or read is
+    passed by: the arrays are unpacked in memory as before."""
+    root = asset_cache_dir()
+    folder = None if root is None else \
+        root / f"body-{hashlib.sha256(blob).hexdigest()[:16]}"
+    if folder is not None:
+        try:
+            names = (folder / "names.txt").read_text().split()
+            return {k: np.load(folder / f"{k}.npy", mmap_mode="r") for k in names}
+        except (OSError, ValueError):
+            pass
+    with np.load(io.BytesIO(lzma.decompress(blob))) as data:
+        assets = {k: data[k] for k in data.files}
+    if folder is not None:
+        _write_cache(folder, assets)
+    return assets
+
+
+def _write_cache(folder: Path, assets: dict) -> None:
+    """The arrays as .npy files in a temporary folder renamed into place whole (a reader sees
+    all of them or none); any failure leaves no cache."""
+    tmp = None
+    try:
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
+        for key, value in assets.items():
+            np.save(tmp / f"{key}.npy", value, allow_pickle=False)
+        (tmp / "names.txt").write_text("\n".join(assets))
+        os.replace(tmp, folder)
+    except (OSError, ValueError):
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)  # another process's cache won the race
 
 
 def _mean_rows(points: np.ndarray, index: np.ndarray, ptr: np.ndarray) -> np.ndarray:

@@ -50,7 +50,6 @@ from typing import Protocol
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from capture import WorldPose
@@ -415,6 +414,8 @@ def relax(problem: RelaxProblem, rounds: int = 3, max_evaluations: int = 15, *,
         parameters at their limit, and with a gate every pose tried and the figures before and
         after.
     """
+    from scipy.optimize import least_squares  # loaded when a pose is relaxed
+
     if rounds < 1 or max_evaluations < 1:
         raise RelaxError(f"Expected at least one round and one evaluation per round, got "
                          f"rounds={rounds}, max_evaluations={max_evaluations}")

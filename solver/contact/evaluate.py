@@ -335,7 +335,7 @@ class SupportGate:
 
 @with_limited_threads  # small products: one BLAS thread (SITRELAX_THREADS), see solver.threads
 def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float, foam: Foam,
-                    floor: Foam | None = FLOOR) -> tuple[dict, PressureMap]:
+                    floor: Foam | None = FLOOR, winding=None) -> tuple[dict, PressureMap]:
     """Coverage, penetration and the settle of one body on one surface (and the floor).
 
     Parameters
@@ -353,6 +353,9 @@ def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float, 
         The surface's foam (stiffness in Pa per metre, thickness, friction).
     floor : Foam or None, default FLOOR
         The floor's (the plane y = 0), or None for no floor.
+    winding : optional
+        The body's `body_winding`, when the caller evaluates it on several surfaces (built
+        here when None).
 
     Returns
     -------
@@ -380,7 +383,7 @@ def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float, 
                          "and mass")
     vertices, triangles = person.vertices, person.triangles
     near = surface.closest(vertices)
-    winding = body_winding(vertices, triangles)
+    winding = body_winding(vertices, triangles) if winding is None else winding
     support = support_figures(surface, vertices, person.importance, triangles, margin, foam,
                               near, winding)
     dist, signed, over, face, closest = near

@@ -318,35 +318,58 @@ SECTION_WIDTHS = {"SURFACE": 2.0, "BODY": 1.0, "SOLID": 0.8}  # line widths, poi
 FLOOR_COLOR = (0.3, 0.6, 0.3)
 
 
-def draw_section(ax, sec: Section) -> None:
-    """Draws one section into a matplotlib axes: millimetres along the section and above the
-    floor, the floor as a line, equal aspect, titled with the surface's length and top.
+def _data_box(canvas_box, xlim, ylim):
+    """The part of a pixel box that shows xlim x ylim at one scale both ways, centred (the
+    box shrinks to the data's shape, as a drawing with equal aspect does)."""
+    from solver.io.raster import Axes
+
+    left, top, right, bottom = canvas_box
+    dx, dy = max(xlim[1] - xlim[0], 1e-9), max(ylim[1] - ylim[0], 1e-9)
+    scale = min((right - left) / dx, (bottom - top) / dy)
+    cx, cy = (left + right) / 2, (top + bottom) / 2
+    return Axes((cx - dx * scale / 2, cy - dy * scale / 2, cx + dx * scale / 2,
+                 cy + dy * scale / 2), tuple(xlim), tuple(ylim))
+
+
+def draw_section(canvas, box, sec: Section, title_size: float = 9) -> None:
+    """Draws one section into a box of a canvas (`solver.io.raster.Canvas`; box: left, top,
+    right, bottom pixels, the title written above it): millimetres along the section and above
+    the floor, the floor as a line, one scale both ways, ticks and labels, titled with the
+    surface's length and top.
 
     Parameters
     ----------
-    ax : matplotlib Axes
+    canvas : solver.io.raster.Canvas
+    box : (4,) float, pixels (room for the ticks and labels is kept inside it).
     sec : Section
     """
+    from solver.io.raster import draw_frame
     from solver.io.render import SKIN, SURFACE
 
     colors = {"SURFACE": SURFACE, "BODY": tuple(0.8 * c for c in SKIN),
               "SOLID": (0.4, 0.4, 0.4)}
-    for layer, lines in sec.curves.items():
-        width = SECTION_WIDTHS.get(layer, 1.0)
-        for line in lines:
-            ax.plot(line[:, 0] * 1000, line[:, 1] * 1000, color=colors.get(layer, (0, 0, 0)),
-                    lw=width)
-    box = sec.extent()
+    lines = [(layer, line * 1000) for layer, group in sec.curves.items() for line in group]
+    extent = sec.extent()
+    pts = [line for _, line in lines]
+    if extent is not None:
+        pts.append(np.zeros((1, 2)))  # the floor's line is part of the drawing
+    pts = np.concatenate(pts) if pts else np.zeros((1, 2))
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    margin = 0.05 * np.maximum(hi - lo, 1.0)  # as a plot's automatic limits leave
+    left, top, right, bottom = box
+    axes = _data_box((left + 60, top, right - 10, bottom - 34),
+                     (lo[0] - margin[0], hi[0] + margin[0]), (lo[1] - margin[1],
+                                                             hi[1] + margin[1]))
+    for layer, line in lines:
+        canvas.line(axes.pixels(line[:, 0], line[:, 1]), colors.get(layer, (0, 0, 0)),
+                    SECTION_WIDTHS.get(layer, 1.0))
     label = sec.name
-    if box is not None:
-        ax.axhline(0.0, color=FLOOR_COLOR, lw=0.8)
-        label += (f": {1000 * (box[1][0] - box[0][0]):.0f} mm long, top "
-                  f"{1000 * box[1][1]:.0f} mm")
-    ax.set_title(label, fontsize=9)
-    ax.set_aspect("equal")
-    ax.set_xlabel("mm along the section", fontsize=8)
-    ax.set_ylabel("mm above the floor", fontsize=8)
-    ax.tick_params(labelsize=7)
+    if extent is not None:
+        canvas.line(axes.pixels(np.array(axes.xlim), [0.0, 0.0]), FLOOR_COLOR, 0.8)
+        label += (f": {1000 * (extent[1][0] - extent[0][0]):.0f} mm long, top "
+                  f"{1000 * extent[1][1]:.0f} mm")
+    draw_frame(canvas, axes, "mm along the section", "mm above the floor")
+    canvas.text(((left + right) / 2, axes.box[1] - 6), label, title_size, "md")
 
 
 # square-on views of a surface: direction towards the camera, and what the picture's
@@ -360,16 +383,18 @@ _ELEVATION_TITLES = {"front": "front (from +z)", "side": "side (from +x)",
                      "top": "top (plan)"}
 
 
-def draw_elevation(ax, vertices: np.ndarray, faces: np.ndarray, view: str,
-                   floor: float = 0.0) -> dict:
+def draw_elevation(canvas, box, vertices: np.ndarray, faces: np.ndarray, view: str,
+                   floor: float = 0.0, title_size: float = 9, loops=None) -> dict:
     """Draws a surface alone, square-on, with its overall dimensions: shaded on both sides
     (its underside darker, so that a fold, an overhang or a curtain shows), its border as a
     line, the floor as a line in the front and side views, and dimension lines in millimetres:
-    the width and height (front), the depth and height (side), the width and depth (top).
+    the width and height (front), the depth and height (side), the width and depth (top). The
+    title goes above the drawing; the texts written are the title, then the two dimensions.
 
     Parameters
     ----------
-    ax : matplotlib Axes
+    canvas : solver.io.raster.Canvas
+    box : (left, top, right, bottom) pixels.
     vertices : (N, 3) float
         Metres, Y up.
     faces : (F, 4) or (F, 3) int
@@ -377,6 +402,8 @@ def draw_elevation(ax, vertices: np.ndarray, faces: np.ndarray, view: str,
         "front", "side" or "top" (`ELEVATIONS`).
     floor : float
         The floor's height y, metres (heights are given above it).
+    loops : list of (K + 1,) int, optional
+        The surface's `boundary_loops`, when the caller draws several views.
 
     Returns
     -------
@@ -394,44 +421,47 @@ def draw_elevation(ax, vertices: np.ndarray, faces: np.ndarray, view: str,
         raise DrawingError(f"Expected a view from {sorted(ELEVATIONS)}, got {view!r}")
     direction, across, upward = ELEVATIONS[view]
     mm = np.asarray(vertices, dtype=np.float64) * 1000.0
-    draw_meshes(ax, [MeshView(mm, faces, SURFACE, back_color=(0.72, 0.62, 0.55))], direction)
     right, up, _ = camera_axes(direction)
     flat = np.stack([mm @ right, mm @ up], axis=1)
-    for loop in boundary_loops(faces):
-        ax.plot(flat[loop, 0], flat[loop, 1], color="0.25", lw=0.7)
     dims = overall_dimensions(np.asarray(vertices) - [0.0, floor, 0.0])
     (x0, y0), (x1, y1) = flat.min(axis=0), flat.max(axis=0)
     span = max(x1 - x0, y1 - y0, 1.0)
     gap = 0.08 * span
     low = floor * 1000.0 if upward == "height_mm" else y0
+    xlim = (x0 - 1.6 * gap, x1 + 2.6 * gap)
+    ylim = (min(y0, low) - 2.4 * gap, y1 + 0.8 * gap)
+    frame = _data_box(box, xlim, ylim)
+    canvas.text(((box[0] + box[2]) / 2, frame.box[1] - 6),
+                f"{_ELEVATION_TITLES[view]}: {across[:-3]} {dims[across]:.0f}, "
+                f"{upward[:-3]} {dims[upward]:.0f} mm", title_size, "md")
+    proj = draw_meshes(canvas, frame.box, [MeshView(mm, faces, SURFACE,
+                                                    back_color=(0.72, 0.62, 0.55))],
+                       direction, bounds=((xlim[0], ylim[0]), (xlim[1], ylim[1])))
+    for loop in boundary_loops(faces) if loops is None else loops:
+        canvas.line(proj.plane(flat[loop]), (0.25, 0.25, 0.25), 0.7)
     if upward == "height_mm":
-        ax.plot([x0 - gap, x1 + gap], [low, low], color=FLOOR_COLOR, lw=1.0)
-    _png_dimension(ax, (x0, y0 - gap), (x1, y0 - gap), f"{dims[across]:.0f}", below=True)
-    _png_dimension(ax, (x1 + gap, low), (x1 + gap, y1), f"{dims[upward]:.0f}", below=False)
-    ax.set_xlim(x0 - 1.6 * gap, x1 + 2.6 * gap)
-    ax.set_ylim(min(y0, low) - 2.4 * gap, y1 + 0.8 * gap)
-    ax.set_title(f"{_ELEVATION_TITLES[view]}: {across[:-3]} {dims[across]:.0f}, "
-                 f"{upward[:-3]} {dims[upward]:.0f} mm", fontsize=9)
+        canvas.line(proj.plane(np.array([[x0 - gap, low], [x1 + gap, low]])), FLOOR_COLOR, 1.0)
+    _png_dimension(canvas, proj.plane(np.array([[x0, y0 - gap], [x1, y0 - gap]])),
+                   f"{dims[across]:.0f}", below=True)
+    _png_dimension(canvas, proj.plane(np.array([[x1 + gap, low], [x1 + gap, y1]])),
+                   f"{dims[upward]:.0f}", below=False)
     return dims
 
 
-def _png_dimension(ax, p1, p2, text: str, below: bool) -> None:
-    """A dimension line with arrows at both ends from p1 to p2 (picture coordinates) and its
-    text: under a horizontal one (`below`), beside a vertical one."""
-    ax.annotate("", xy=p1, xytext=p2, arrowprops={"arrowstyle": "<|-|>", "lw": 0.8,
-                                                   "color": "0.15", "shrinkA": 0, "shrinkB": 0})
-    middle = ((p1[0] + p2[0]) / 2, (p1[1] + p2[1]) / 2)
+def _png_dimension(canvas, ends: np.ndarray, text: str, below: bool) -> None:
+    """A dimension line with arrows at both ends (pixels, (2, 2)) and its text: under a
+    horizontal one (`below`), beside a vertical one."""
+    canvas.arrow(ends[0], ends[1])
+    middle = ends.mean(axis=0)
     if below:
-        ax.annotate(text, middle, xytext=(0, -3), textcoords="offset points", ha="center",
-                    va="top", fontsize=8)
+        canvas.text((middle[0], middle[1] + 4), text, 8, "ma")
     else:
-        ax.annotate(text, middle, xytext=(3, 0), textcoords="offset points", ha="left",
-                    va="center", fontsize=8, rotation=90)
+        canvas.text((middle[0] + 10, middle[1]), text, 8, rotate=True)
 
 
 def render_sections(path: str | os.PathLike, sections: list[Section], *, columns: int = 2,
                     title: str | None = None) -> Path:
-    """A PNG of sections (headless matplotlib), millimetres, floor at 0, one panel each.
+    """A PNG of sections, millimetres, floor at 0, one panel each (500 x 360 pixels).
 
     Parameters
     ----------
@@ -445,31 +475,17 @@ def render_sections(path: str | os.PathLike, sections: list[Section], *, columns
     pathlib.Path
         The picture written (atomically).
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from solver.io.raster import Canvas
 
     if not sections:
         raise DrawingError("Expected at least one section to draw, got none")
     columns = min(columns, len(sections))
     rows = -(-len(sections) // columns)
-    fig = Figure(figsize=(5 * columns, 3.6 * rows + 0.4), dpi=100)
-    FigureCanvasAgg(fig)
-    for k, sec in enumerate(sections):
-        draw_section(fig.add_subplot(rows, columns, k + 1), sec)
+    top = 40 if title else 0
+    canvas = Canvas.blank(500 * columns, 360 * rows + 40)
     if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    return save_png(fig, path)
-
-
-def save_png(fig, path: str | os.PathLike) -> Path:
-    """Writes a matplotlib figure as PNG atomically (white background); returns the path."""
-    import io
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", facecolor="white")
-    write_atomic(Path(path), buf.getvalue())
-    return Path(path)
+        canvas.text((250 * columns, 12), title, 12, "ma")
+    for k, sec in enumerate(sections):
+        x, y = 500 * (k % columns), top + 360 * (k // columns)
+        draw_section(canvas, (x + 10, y + 40, x + 490, y + 350), sec)
+    return canvas.save(path)

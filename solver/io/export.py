@@ -9,8 +9,8 @@ view). GLB is always metres and Y up, as glTF 2.0 defines it.
 
 from __future__ import annotations
 
-import io
 import os
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -60,20 +60,21 @@ def frame_note(unit: str = "m", up: str = "y") -> str:
 def obj_text(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None,
              comment: str | None = None) -> str:
     """Wavefront OBJ text; faces (F, 3) or (F, 4), 0-based, are written as they are."""
-    buf = io.StringIO()
-    if comment:
-        for line in comment.splitlines():
-            buf.write(f"# {line}\n")
-    np.savetxt(buf, vertices, fmt="v %.6f %.6f %.6f")
+    parts = [f"# {line}\n" for line in (comment or "").splitlines()]
+    # one format string a block, applied to the flattened array: the formatting runs in C
+    parts.append(_rows("v %.6f %.6f %.6f\n", np.asarray(vertices, dtype=np.float64)))
+    one = np.asarray(faces, dtype=np.int64) + 1
     if normals is not None:
-        np.savetxt(buf, normals, fmt="vn %.5f %.5f %.5f")
-        one = np.asarray(faces) + 1
-        pairs = np.repeat(one, 2, axis=1)
-        fmt = "f" + " %d//%d" * one.shape[1]
-        np.savetxt(buf, pairs, fmt=fmt)
+        parts.append(_rows("vn %.5f %.5f %.5f\n", np.asarray(normals, dtype=np.float64)))
+        parts.append(_rows("f" + " %d//%d" * one.shape[1] + "\n", np.repeat(one, 2, axis=1)))
     else:
-        np.savetxt(buf, np.asarray(faces) + 1, fmt="f" + " %d" * np.asarray(faces).shape[1])
-    return buf.getvalue()
+        parts.append(_rows("f" + " %d" * one.shape[1] + "\n", one))
+    return "".join(parts)
+
+
+def _rows(line: str, values: np.ndarray) -> str:
+    """`line` % row for every row of a 2-D array, joined."""
+    return (line * len(values)) % tuple(values.ravel().tolist())
 
 
 def write_mesh(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray, *,
@@ -81,8 +82,9 @@ def write_mesh(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray,
                comment: str | None = None, unit: str = "m", up: str = "y") -> Path:
     """Writes a mesh atomically; the format follows the suffix (.obj, .ply or .glb).
 
-    OBJ keeps the faces as given (quads stay quads) and writes `normals` and `comment`; PLY and
-    GLB go through trimesh, quads split into triangles, and carry `vertex_colors`.
+    OBJ keeps the faces as given (quads stay quads) and writes `normals` and `comment`; PLY
+    (binary) and GLB (`ply_bytes`, `glb_bytes`) split quads into triangles and carry
+    `vertex_colors`.
 
     Parameters
     ----------
@@ -139,26 +141,90 @@ def write_mesh(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray,
         text = obj_text(vertices, faces, normals, f"{comment}\n{note}" if comment else note)
         write_atomic(path, text.encode())
         return path
-    import trimesh
-
-    tris = faces if faces.shape[1] == 3 else quad_triangles(faces)
+    tris = np.ascontiguousarray(faces if faces.shape[1] == 3 else quad_triangles(faces))
     colors = None
     if vertex_colors is not None:
-        colors = (np.clip(np.asarray(vertex_colors, dtype=float), 0, 1) * 255).astype(np.uint8)
-    mesh = trimesh.Trimesh(vertices, tris, vertex_colors=colors, process=False)
+        colors = np.asarray(vertex_colors, dtype=float)
+        if colors.shape not in ((len(vertices), 3), (len(vertices), 4)):
+            raise ExportError(f"Expected vertex colours ({len(vertices)}, 3|4), got "
+                              f"{colors.shape}")
+        colors = _rgba8(colors)
     if suffix == ".ply":
-        data = _ply_comment(mesh.export(file_type="ply"), note)
+        data = ply_bytes(vertices, tris, colors, note)
     else:  # glTF's asset carries the statement in its extras
-        data = mesh.export(file_type="glb", tree_postprocessor=lambda tree: tree["asset"].update(
-            extras={"sitrelax": note}))
+        data = glb_bytes(vertices, tris, colors, {"sitrelax": note})
     write_atomic(path, data)
     return path
 
 
-def _ply_comment(data: bytes, note: str) -> bytes:
-    """A PLY file's bytes with a `comment` line after its `format` line."""
-    head, sep, rest = data.partition(b"\n")  # "ply"
-    fmt, sep2, body = rest.partition(b"\n")
-    if head.strip() != b"ply" or not fmt.startswith(b"format") or not sep2:
-        raise AssertionError("trimesh wrote no PLY header")
-    return head + sep + fmt + sep2 + f"comment {note}\n".encode() + body
+def _rgba8(colors: np.ndarray) -> np.ndarray:
+    """(V, 4) uint8 of colours in [0, 1] (clipped), opaque where no alpha is given."""
+    rgba = np.full((len(colors), 4), 255, dtype=np.uint8)
+    rgba[:, :colors.shape[1]] = (np.clip(colors, 0, 1) * 255).astype(np.uint8)
+    return rgba
+
+
+def ply_bytes(vertices: np.ndarray, triangles: np.ndarray, colors: np.ndarray | None = None,
+              comment: str | None = None) -> bytes:
+    """A binary little-endian PLY of triangles: float32 x, y, z (and uint8 red, green, blue,
+    alpha when `colors` (V, 4) uint8 is given), faces as a uchar count and int32 indices."""
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    if colors is not None:
+        fields += [(c, "u1") for c in ("red", "green", "blue", "alpha")]
+    vert = np.empty(len(vertices), dtype=fields)
+    for k, axis in enumerate("xyz"):
+        vert[axis] = vertices[:, k]
+    if colors is not None:
+        for k, c in enumerate(("red", "green", "blue", "alpha")):
+            vert[c] = colors[:, k]
+    face = np.empty(len(triangles), dtype=[("n", "u1"), ("i", "<i4", (3,))])
+    face["n"] = 3
+    face["i"] = triangles
+    names = {"<f4": "float", "u1": "uchar"}
+    head = ["ply", "format binary_little_endian 1.0"]
+    head += [f"comment {comment}"] if comment else []
+    head += [f"element vertex {len(vert)}"]
+    head += [f"property {names[t]} {n}" for n, t in fields]
+    head += [f"element face {len(face)}", "property list uchar int vertex_indices",
+             "end_header"]
+    return "\n".join(head).encode() + b"\n" + vert.tobytes() + face.tobytes()
+
+
+def glb_bytes(vertices: np.ndarray, triangles: np.ndarray, colors: np.ndarray | None = None,
+              extras: dict | None = None) -> bytes:
+    """A binary glTF 2.0 (GLB) of one triangle mesh: float32 positions, uint32 indices and,
+    with `colors` (V, 4) uint8, normalised COLOR_0; `extras` go in the asset."""
+    import json
+
+    index = np.ascontiguousarray(triangles, dtype="<u4").ravel()
+    position = np.ascontiguousarray(vertices, dtype="<f4")
+    blobs = [index.tobytes(), position.tobytes()]
+    accessors = [
+        {"bufferView": 0, "componentType": 5125, "count": int(index.size), "type": "SCALAR",
+         "min": [int(index.min(initial=0))], "max": [int(index.max(initial=0))]},
+        {"bufferView": 1, "componentType": 5126, "count": len(position), "type": "VEC3",
+         "min": position.min(axis=0).tolist(), "max": position.max(axis=0).tolist()}]
+    attributes = {"POSITION": 1}
+    if colors is not None:
+        blobs.append(np.ascontiguousarray(colors, dtype=np.uint8).tobytes())
+        accessors.append({"bufferView": 2, "componentType": 5121, "normalized": True,
+                          "count": len(colors), "type": "VEC4"})
+        attributes["COLOR_0"] = 2
+    views, offset = [], 0
+    for k, blob in enumerate(blobs):
+        views.append({"buffer": 0, "byteOffset": offset, "byteLength": len(blob),
+                      "target": 34963 if k == 0 else 34962})  # element or vertex array
+        offset += len(blob) + (-len(blob) % 4)  # every view starts 4-byte aligned
+    binary = b"".join(blob + b"\0" * (-len(blob) % 4) for blob in blobs)
+    gltf = {"asset": {"version": "2.0", "generator": "sitrelax",
+                      **({"extras": extras} if extras else {})},
+            "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+            "meshes": [{"primitives": [{"attributes": attributes, "indices": 0, "mode": 4}]}],
+            "accessors": accessors, "bufferViews": views,
+            "buffers": [{"byteLength": len(binary)}]}
+    text = json.dumps(gltf, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)  # the JSON chunk is padded with spaces
+    total = 12 + 8 + len(text) + 8 + len(binary)
+    return b"".join([struct.pack("<4sII", b"glTF", 2, total),
+                     struct.pack("<I4s", len(text), b"JSON"), text,
+                     struct.pack("<I4s", len(binary), b"BIN\0"), binary])

@@ -1,20 +1,25 @@
-"""Headless PNG pictures of meshes (no display, no GPU): matplotlib's Agg canvas.
+"""Headless PNG pictures of meshes and pressure maps (no display, no GPU, no matplotlib):
+`solver.io.raster`'s z-buffer on numpy, text and PNG through Pillow.
 
-Meshes are projected orthographically, faces turned away from the camera are culled, and the
-rest are drawn far to near (painter's algorithm) with flat Lambert shading. That suffices for
-bodies and smooth surfaces seen from outside, which is all the pictures show.
+Meshes are projected orthographically and faces turned away from the camera are culled (or
+drawn in a back colour). Each face is shaded flat by the Lambert term of its normal, while its
+colour blends between its vertices' when the colour is given per vertex (a pressure field reads
+smoothly across the skin). That suffices for bodies and smooth surfaces seen from outside,
+which is all the pictures show.
 """
 
 from __future__ import annotations
 
 import os
-import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
+from .raster import (BAD_COLOR, COLORBAR_WIDTH, Axes, Canvas, Projection, RasterError,
+                     draw_colorbar, draw_frame, fit_projection, rasterize, text_height, viridis,
+                     wrap)
 from .views import VIEWS  # noqa: F401 (solver.io.render.VIEWS, as before)
 
 SKIN = (0.86, 0.72, 0.62)
@@ -48,30 +53,25 @@ def camera_axes(view: str | Sequence[float]) -> tuple[np.ndarray, np.ndarray, np
     return right, np.cross(back, right), back
 
 
-def draw_meshes(ax, meshes: Sequence[MeshView], view: str | Sequence[float] = "three-quarter",
-                light: Sequence[float] = (0.4, 0.8, 0.6)) -> None:
-    """Draws meshes into a matplotlib axes, orthographic and flat-shaded (see the module
-    docstring), the axes fitted to them, equal aspect, no frame.
+def mesh_triangles(meshes: Sequence[MeshView], right: np.ndarray, up: np.ndarray,
+                   back: np.ndarray, light: Sequence[float] = (0.4, 0.8, 0.6)):
+    """The triangles a camera sees of meshes, shaded (see the module docstring).
 
-    Parameters
-    ----------
-    ax : matplotlib Axes
-    meshes : sequence of MeshView
-    view : str or (3,) float
-        A name from `VIEWS`, or a direction from the scene towards the camera (any length).
-        The picture's x is the camera's right, its y the camera's up (`camera_axes`).
-    light : (3,) float
-        Direction of the light (any length).
+    Returns
+    -------
+    plane : (T, 3, 2) float, corners in the picture plane (right, up), scene units.
+    depth : (T, 3) float, towards the camera.
+    colors : (T, 3, 3) float, each corner's RGB: its vertex's colour (or the face's), times the
+        face's Lambert shade.
     """
-    from matplotlib.collections import PolyCollection
-
-    right, up, back = camera_axes(view)
     light = np.asarray(light, dtype=float)
-    light /= np.linalg.norm(light)
-    polys, colors, depths = [], [], []
+    light = light / np.linalg.norm(light)
+    planes, depths, colors = [np.zeros((0, 3, 2))], [np.zeros((0, 3))], [np.zeros((0, 3, 3))]
     for mesh in meshes:
         v = np.asarray(mesh.vertices, dtype=float)
-        f = np.asarray(mesh.faces)
+        f = np.asarray(mesh.faces, dtype=np.int64)
+        if not len(f):
+            continue
         corners = v[f]  # (F, k, 3)
         normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
         if f.shape[1] == 4:
@@ -80,31 +80,74 @@ def draw_meshes(ax, meshes: Sequence[MeshView], view: str | Sequence[float] = "t
         facing = normal @ back > 0
         col = np.asarray(mesh.color, dtype=float)
         if col.ndim == 1:
-            col = np.broadcast_to(col, (len(f), 3))
+            corner_col = np.broadcast_to(col[:3], f.shape + (3,))
         elif len(col) == len(v) and len(v) != len(f):
-            col = col[f].mean(axis=1)
-        shade = 0.35 + 0.65 * np.clip(np.abs(normal @ light), 0, 1)
+            corner_col = col[f][..., :3]  # per vertex: blended across the face
+        else:
+            corner_col = np.broadcast_to(col[:, None, :3], f.shape + (3,))
         if mesh.back_color is not None:
-            col = np.where(facing[:, None], col, np.asarray(mesh.back_color, dtype=float))
+            corner_col = np.where(facing[:, None, None], corner_col,
+                                  np.asarray(mesh.back_color, dtype=float)[:3])
             facing = np.ones(len(f), dtype=bool)
+        shade = 0.35 + 0.65 * np.clip(np.abs(normal @ light), 0, 1)
         keep = np.flatnonzero(facing)
-        xy = np.stack([corners @ right, corners @ up], axis=-1)[keep]
-        polys.extend(xy)
-        colors.append(np.clip(col[keep] * shade[keep, None], 0, 1))
-        depths.append((corners @ back).mean(axis=1)[keep])
-    order = np.argsort(np.concatenate(depths)) if depths else np.zeros(0, dtype=int)
-    colors_all = np.concatenate(colors)[order] if colors else np.zeros((0, 3))
-    polys = [polys[k] for k in order]
-    ax.add_collection(PolyCollection(polys, facecolors=colors_all, edgecolors="none",
-                                     antialiased=False))
-    if polys:
-        pts = np.concatenate(polys)
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
-        pad = 0.05 * (hi - lo).max()
-        ax.set_xlim(lo[0] - pad, hi[0] + pad)
-        ax.set_ylim(lo[1] - pad, hi[1] + pad)
-    ax.set_aspect("equal")
-    ax.axis("off")
+        split = [[0, 1, 2]] if f.shape[1] == 3 else [[0, 1, 2], [0, 2, 3]]
+        for idx in split:
+            tri = corners[keep][:, idx]
+            planes.append(np.stack([tri @ right, tri @ up], axis=-1))
+            depths.append(tri @ back)
+            colors.append(np.clip(corner_col[keep][:, idx] * shade[keep, None, None], 0, 1))
+    return np.concatenate(planes), np.concatenate(depths), np.concatenate(colors)
+
+
+def draw_meshes(canvas: Canvas, box: Sequence[float], meshes: Sequence[MeshView],
+                view: str | Sequence[float] = "three-quarter",
+                light: Sequence[float] = (0.4, 0.8, 0.6), bounds=None,
+                supersample: int = 1) -> Projection | None:
+    """Draws meshes into a box of a canvas, orthographic and shaded (see the module docstring),
+    fitted to the box with one scale both ways.
+
+    Parameters
+    ----------
+    canvas : `solver.io.raster.Canvas`
+    box : (left, top, right, bottom) pixels.
+    meshes : sequence of MeshView
+    view : str or (3,) float
+        A name from `VIEWS`, or a direction from the scene towards the camera (any length).
+        The picture's x is the camera's right, its y the camera's up (`camera_axes`).
+    light : (3,) float
+        Direction of the light (any length).
+    bounds : ((2,), (2,)) float, optional
+        The picture-plane box (right, up) to show exactly; by default the visible faces' with
+        5 % around.
+    supersample : int
+        Drawn this many times larger each way, then averaged down (smoother edges).
+
+    Returns
+    -------
+    The `Projection` from the scene to the canvas's pixels, or None when nothing is seen and
+    no bounds are given.
+    """
+    right, up, back = camera_axes(view)
+    plane, depth, colors = mesh_triangles(meshes, right, up, back, light)
+    if bounds is None:
+        if not len(plane):
+            return None
+        flat = plane.reshape(-1, 2)
+        bounds, pad = (flat.min(axis=0), flat.max(axis=0)), 0.05
+    else:
+        pad = 0.0
+    left, top, right_px, bottom = (int(round(v)) for v in box)
+    width, height = max(right_px - left, 1), max(bottom - top, 1)
+    s = max(1, int(supersample))
+    big = fit_projection(right, up, back, bounds[0], bounds[1], width * s, height * s, pad)
+    rgb, covered = rasterize(big.plane(plane), depth, colors, width * s, height * s)
+    if s > 1:  # the mean of each s x s block
+        blocks = rgb.reshape(height, s, width, s, 3)
+        rgb = sum(blocks[:, a, :, b] for a in range(s) for b in range(s)) / (s * s)
+    canvas.paste(rgb, left, top)
+    return Projection(right, up, back, big.scale / s,
+                      (left + big.offset[0] / s, top + big.offset[1] / s))
 
 
 @dataclass
@@ -120,47 +163,58 @@ def render_panels(path: str | os.PathLike, panels: Sequence[Panel], *, columns: 
                   panel_size: tuple[int, int] = (400, 500), title: str | None = None,
                   light: Sequence[float] = (0.4, 0.8, 0.6),
                   colorbar: tuple[str, float, float] | None = None) -> Path:
-    """Renders a grid of panels into one PNG and returns its path."""
-    import matplotlib
+    """Renders a grid of panels into one PNG (each `panel_size` pixels, half an inch more for
+    the title) and returns its path.
 
-    matplotlib.use("Agg")
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
+    Parameters
+    ----------
+    path : the PNG to write (atomically).
+    panels : the panels, row by row.
+    columns : panels per row.
+    panel_size : (2,) int, width and height of a panel, pixels.
+    title : a title over the picture.
+    light : (3,) float, direction of the light.
+    colorbar : (label, low, high), optional: a viridis colour bar on the right, the scale the
+        caller coloured by.
+    """
+    if not panels:
+        raise RasterError("Expected at least one panel to draw, got none")
     rows = -(-len(panels) // columns)
-    fig = Figure(figsize=(panel_size[0] * columns / 100, panel_size[1] * rows / 100 + 0.5),
-                 dpi=100)
-    FigureCanvasAgg(fig)
-    for k, panel in enumerate(panels):
-        ax = fig.add_subplot(rows, columns, k + 1)
-        draw_meshes(ax, panel.meshes, panel.view, light)
-        if panel.title:  # wrapped to the axes' width (about 11 px of panel a character)
-            ax.set_title(textwrap.fill(panel.title, max(20, panel_size[0] // 11)), fontsize=10)
+    width, height = panel_size[0] * columns, panel_size[1] * rows + 50
+    canvas = Canvas.blank(width, height)
+    _mesh_grid(canvas, panels, columns, (0, 50, width, height), light, title, colorbar)
+    return canvas.save(path)
+
+
+def _mesh_grid(canvas: Canvas, panels: Sequence[Panel], columns: int, area, light, title,
+               colorbar, title_size: float = 10) -> None:
+    """Panels in a grid filling `area` (left, top, right, bottom), the colour bar on its
+    right, the title over it all."""
+    left, top, right, bottom = area
     if title:
-        fig.suptitle(title, fontsize=12)
+        canvas.text(((left + right) / 2, 12), title, 12, "ma")
     if colorbar is not None:
-        draw_colorbar(fig, fig.axes, colorbar)
-    path = Path(path)
-    fig.savefig(path, facecolor="white")
-    return path
-
-
-def draw_colorbar(fig, axes, colorbar: tuple[str, float, float]) -> None:
-    """A viridis colour bar (label, low, high) beside the matplotlib axes."""
-    from matplotlib import cm
-    from matplotlib.colors import Normalize
-
-    label, low, high = colorbar
-    sm = cm.ScalarMappable(norm=Normalize(low, high), cmap="viridis")
-    fig.colorbar(sm, ax=axes, fraction=0.03, pad=0.01, label=label)
+        label, low, high = colorbar
+        right -= COLORBAR_WIDTH
+        span = bottom - top
+        draw_colorbar(canvas, (right + 12, top + 0.12 * span, right + 30, bottom - 0.12 * span),
+                      low, high, label)
+    rows = -(-len(panels) // columns)
+    cw, ch = (right - left) / columns, (bottom - top) / rows
+    for k, panel in enumerate(panels):
+        x0, y0 = left + (k % columns) * cw, top + (k // columns) * ch
+        y = y0 + 0.02 * ch
+        if panel.title:
+            text = wrap(panel.title, cw * 0.9, title_size)
+            canvas.text((x0 + cw / 2, y), text, title_size, "ma")
+            y += text_height(text, title_size) + 6
+        draw_meshes(canvas, (x0 + 0.04 * cw, y, x0 + 0.96 * cw, y0 + 0.96 * ch), panel.meshes,
+                    panel.view, light)
 
 
 def field_colors(values: np.ndarray, low: float = 0.0, high: float = 1.0) -> np.ndarray:
     """(N, 3) viridis RGB of values scaled from [low, high]."""
-    from matplotlib import colormaps
-
-    t = np.clip((np.asarray(values, dtype=float) - low) / max(high - low, 1e-300), 0, 1)
-    return colormaps["viridis"](t)[:, :3]
+    return viridis(np.asarray(values, dtype=float).ravel(), low, high)
 
 
 def render_png(path: str | os.PathLike, meshes: Sequence[MeshView], *,
@@ -169,7 +223,7 @@ def render_png(path: str | os.PathLike, meshes: Sequence[MeshView], *,
                colorbar: tuple[str, float, float] | None = None) -> Path:
     """Renders meshes to a PNG file and returns its path.
 
-    Orthographic, back faces culled, flat Lambert shading (see the module docstring).
+    Orthographic, back faces culled, Lambert shading (see the module docstring).
 
     Parameters
     ----------
@@ -193,23 +247,11 @@ def render_png(path: str | os.PathLike, meshes: Sequence[MeshView], *,
     pathlib.Path
         The path written.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(size[0] / 100, size[1] / 100), dpi=100)
-    FigureCanvasAgg(fig)
-    ax = fig.add_axes([0.02, 0.02, 0.96, 0.9 if title else 0.96])
-    draw_meshes(ax, meshes, view, light)
-    if title:
-        fig.suptitle(title, fontsize=12)
-    if colorbar is not None:
-        draw_colorbar(fig, [ax], colorbar)
-    path = Path(path)
-    fig.savefig(path, facecolor="white")
-    return path
+    canvas = Canvas.blank(*size)
+    top = 40 if title else 0
+    _mesh_grid(canvas, [Panel(meshes, view)], 1, (0, top, size[0], size[1]), light, title,
+               colorbar)
+    return canvas.save(path)
 
 
 @dataclass
@@ -238,31 +280,45 @@ def _map_title(m) -> str:
     return text
 
 
-def _draw_map(ax, m, norm, span: tuple[float, float]) -> None:
+def _draw_map(canvas: Canvas, area, m, high: float, span: tuple[float, float]) -> None:
+    """One map in the pixel box `area`: its cells at one centimetre scale shared by all
+    panels (`span`, cm: rows, columns), row 0 at the top, ticks in cm, labels."""
     p = np.asarray(m.pressure_kpa, dtype=float)
-    ax.set_facecolor("white")
     if p.size:
         rows, cols = np.asarray(m.row_edges_m) * 100, np.asarray(m.column_edges_m) * 100
-        cmap = _map_cmap()
-        ax.pcolormesh(cols, rows, np.ma.masked_less_equal(p, 0.0), cmap=cmap, norm=norm,
-                      edgecolors="none", antialiased=False)
-        ax.add_patch(_rectangle(cols, rows))
         mid_c, mid_r = (cols[0] + cols[-1]) / 2, (rows[0] + rows[-1]) / 2
     else:
         mid_c = mid_r = 0.0
-        ax.text(0.5, 0.5, "no contact", ha="center", va="center", transform=ax.transAxes,
-                color="0.5")
-    ax.set_xlim(mid_c - span[1] / 2, mid_c + span[1] / 2)
-    ax.set_ylim(mid_r + span[0] / 2, mid_r - span[0] / 2)  # row 0 at the top
-    ax.set_aspect("equal")
-    if getattr(m, "draped", False):
-        ax.set_xlabel("across the mat, cm", fontsize=8)
-        ax.set_ylabel("along the mat, cm", fontsize=8)
+    left, top, right, bottom = area
+    # the frame keeps the maps' shape: as large as fits, centred
+    scale = min((right - left) / span[1], (bottom - top) / span[0])
+    w, h = span[1] * scale, span[0] * scale
+    cx, cy = (left + right) / 2, (top + bottom) / 2
+    axes = Axes((cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2),
+                (mid_c - span[1] / 2, mid_c + span[1] / 2),
+                (mid_r - span[0] / 2, mid_r + span[0] / 2), y_down=True)
+    if p.size:
+        x0, y0 = (int(round(v)) for v in axes.box[:2])
+        x1, y1 = (int(round(v)) for v in axes.box[2:])
+        xs = axes.xlim[0] + (np.arange(x0, x1) + 0.5 - axes.box[0]) / scale
+        ys = axes.ylim[0] + (np.arange(y0, y1) + 0.5 - axes.box[1]) / scale
+        ci = np.searchsorted(cols, xs, side="right") - 1
+        ri = np.searchsorted(rows, ys, side="right") - 1
+        inside = (ri[:, None] >= 0) & (ri[:, None] < p.shape[0]) & (ci[None] >= 0) & \
+            (ci[None] < p.shape[1])
+        cell = p[np.clip(ri, 0, p.shape[0] - 1)][:, np.clip(ci, 0, p.shape[1] - 1)]
+        rgb = np.where((cell > 0)[..., None], viridis(cell, 0.0, high), BAD_COLOR)
+        canvas.paste(np.where(inside[..., None], rgb, 1.0), x0, y0)
+        corners = axes.pixels(cols[[0, -1]], rows[[0, -1]])
+        canvas.rectangle((*corners[0], *corners[1]), outline=(0.6, 0.6, 0.6), width=0.8)
     else:
-        ax.set_xlabel(f"{_axis_name(getattr(m, 'column_axis', None), 'column')}, cm",
-                      fontsize=8)
-        ax.set_ylabel(f"{_axis_name(getattr(m, 'row_axis', None), 'row')}, cm", fontsize=8)
-    ax.tick_params(labelsize=7)
+        canvas.text((cx, cy), "no contact", 10, "mm", color=(0.5, 0.5, 0.5))
+    if getattr(m, "draped", False):
+        xlabel, ylabel = "across the mat, cm", "along the mat, cm"
+    else:
+        xlabel = f"{_axis_name(getattr(m, 'column_axis', None), 'column')}, cm"
+        ylabel = f"{_axis_name(getattr(m, 'row_axis', None), 'row')}, cm"
+    draw_frame(canvas, axes, xlabel, ylabel)
 
 
 def _axis_name(axis, fallback: str) -> str:
@@ -274,19 +330,6 @@ def _axis_name(axis, fallback: str) -> str:
     if abs(a[k]) < 0.99 * np.linalg.norm(a):
         return f"{fallback} axis"
     return ("" if a[k] > 0 else "-") + "xyz"[k]
-
-
-def _map_cmap():
-    from matplotlib import colormaps
-
-    return colormaps["viridis"].with_extremes(bad=(0.93, 0.93, 0.93))  # unloaded: bare grey
-
-
-def _rectangle(cols: np.ndarray, rows: np.ndarray):
-    from matplotlib.patches import Rectangle
-
-    return Rectangle((cols[0], rows[0]), cols[-1] - cols[0], rows[-1] - rows[0], fill=False,
-                     edgecolor="0.6", linewidth=0.8)
 
 
 def render_pressure_maps(path: str | os.PathLike, maps: Sequence, *, columns: int = 3,
@@ -319,16 +362,9 @@ def render_pressure_maps(path: str | os.PathLike, maps: Sequence, *, columns: in
     pathlib.Path
         The path written.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.colors import Normalize
-    from matplotlib.figure import Figure
-
     maps = list(maps)
     if not maps:
-        raise ValueError("Expected at least one pressure map, got none")
+        raise RasterError("Expected at least one pressure map, got none")
     columns = max(1, min(columns, len(maps)))
     rows = -(-len(maps) // columns)
     span = [1e-2, 1e-2]
@@ -338,26 +374,30 @@ def render_pressure_maps(path: str | os.PathLike, maps: Sequence, *, columns: in
             span[1] = max(span[1], float(np.ptp(m.column_edges_m)) * 100)
     if panel_size is None:
         panel_size = (380, int(np.clip(300 * span[0] / span[1] + 110, 260, 560)))
-    width, height = panel_size[0] * columns / 100 + 1.0, panel_size[1] * rows / 100 + \
-        (0.5 if title else 0.1)
-    fig = Figure(figsize=(width, height), dpi=100, layout="constrained")
-    FigureCanvasAgg(fig)
-    axes = [fig.add_subplot(rows, columns, k + 1) for k in range(len(maps))]
-    from matplotlib import cm
-
-    for ax, m in zip(axes, maps):
-        peak = float(np.max(m.pressure_kpa)) if np.size(m.pressure_kpa) else 0.0
-        norm = Normalize(0.0, high_kpa if high_kpa is not None else max(peak, 1e-3))
-        _draw_map(ax, m, norm, (span[0], span[1]))
-        ax.set_title(_map_title(m), fontsize=10)
-        if high_kpa is None:
-            fig.colorbar(cm.ScalarMappable(norm=norm, cmap=_map_cmap()), ax=ax, fraction=0.05,
-                         pad=0.02, shrink=0.8, label="kPa")
+    top = 50 if title else 10
+    width, height = panel_size[0] * columns + 100, panel_size[1] * rows + top
+    canvas = Canvas.blank(width, height)
     if title:
-        fig.suptitle(title, fontsize=12)
-    if high_kpa is not None:
-        fig.colorbar(cm.ScalarMappable(norm=Normalize(0.0, high_kpa), cmap=_map_cmap()),
-                     ax=axes, fraction=0.04, pad=0.02, label="pressure, kPa")
-    path = Path(path)
-    fig.savefig(path, facecolor="white")
-    return path
+        canvas.text((width / 2, 12), title, 12, "ma")
+    shared = high_kpa is not None
+    cw = (width - (COLORBAR_WIDTH if shared else 0)) / columns
+    for k, m in enumerate(maps):
+        x0, y0 = (k % columns) * cw, top + (k // columns) * panel_size[1]
+        peak = float(np.max(m.pressure_kpa)) if np.size(m.pressure_kpa) else 0.0
+        high = high_kpa if shared else max(peak, 1e-3)
+        heading = _map_title(m)
+        canvas.text((x0 + cw / 2, y0 + 6), heading, 10, "ma")
+        y_top = y0 + 12 + text_height(heading, 10)
+        x_right = x0 + cw - (0 if shared else 85)
+        _draw_map(canvas, (x0 + 62, y_top, x_right - 8, y0 + panel_size[1] - 42), m, high,
+                  (span[0], span[1]))
+        if not shared:
+            mid = (y_top + y0 + panel_size[1] - 42) / 2
+            half = 0.4 * (y0 + panel_size[1] - 42 - y_top)
+            draw_colorbar(canvas, (x_right, mid - half, x_right + 16, mid + half), 0.0, high,
+                          "kPa")
+    if shared:
+        draw_colorbar(canvas, (width - COLORBAR_WIDTH + 12, top + 0.1 * (height - top),
+                               width - COLORBAR_WIDTH + 30, height - 0.1 * (height - top)),
+                      0.0, high_kpa, "pressure, kPa")
+    return canvas.save(path)

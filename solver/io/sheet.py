@@ -21,8 +21,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .drawing import DrawingError, Section, draw_elevation, draw_section, save_png
-from .render import Panel, draw_colorbar, draw_meshes
+from .drawing import DrawingError, Section, boundary_loops, draw_elevation, draw_section
+from .render import Panel, draw_meshes
 
 PANEL_INCHES = (5.0, 3.7)  # width and height of one panel
 LINE_INCHES = 0.2  # one line of the heading
@@ -68,43 +68,49 @@ def render_sheet(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarra
     DrawingError
         If `columns` is under 3.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from .raster import COLORBAR_WIDTH, Canvas, draw_colorbar, text_height, wrap
 
     if columns < 3:
         raise DrawingError(f"Expected at least 3 columns (front, side, top), got {columns}")
     rows = 1 + -(-(len(sections) + len(pressure)) // columns)
-    width = PANEL_INCHES[0] * columns
-    chars = int(width * 100 / 7)  # about 7 px a character at 9 points
+    width = round(PANEL_INCHES[0] * columns * 100)
+    chars = int(width / 7)  # about 7 px a character at 9 points
     heading = [textwrap.fill(title, chars)] + [textwrap.fill(n, chars) for n in notes]
     red = [textwrap.fill(p, chars) for p in problems]
     lines = sum(t.count("\n") + 1 for t in heading + red) + 1  # the title takes two
     top = 0.15 + LINE_INCHES * lines + 0.45  # and the panels' titles under the heading
-    height = PANEL_INCHES[1] * rows + top
-    fig = Figure(figsize=(width, height), dpi=100)
-    FigureCanvasAgg(fig)
-    grid = fig.add_gridspec(rows, columns, top=1 - top / height, bottom=0.55 / height,
-                            left=0.04, right=0.94, hspace=0.35, wspace=0.25)
-    y = 1 - 0.15 / height
+    height = round((PANEL_INCHES[1] * rows + top) * 100)
+    canvas = Canvas.blank(width, height)
+    y = 15.0
     for k, text in enumerate(heading + red):
-        color = "firebrick" if k >= len(heading) else "black"
-        fig.text(0.02, y, text, ha="left", va="top", fontsize=12 if k == 0 else 9,
-                 color=color, weight="bold" if k == 0 else "normal")
-        y -= LINE_INCHES * (text.count("\n") + 1 + (k == 0)) / height
+        color = (0.7, 0.13, 0.13) if k >= len(heading) else (0, 0, 0)
+        canvas.text((0.02 * width, y), text, 12 if k == 0 else 9, color=color, bold=k == 0)
+        y += LINE_INCHES * 100 * (text.count("\n") + 1 + (k == 0))
+    # the grid of panels: 4 % of the width on the left, 6 % on the right, 55 px at the bottom,
+    # a quarter of a panel between columns and a third between rows
+    left, right, bottom = 0.04 * width, 0.94 * width, height - 55
+    cw = (right - left) / (columns + 0.25 * (columns - 1))
+    ch = (bottom - top * 100) / (rows + 0.35 * (rows - 1))
+
+    def cell(k: int) -> tuple:
+        x, y = left + (k % columns) * 1.25 * cw, top * 100 + (k // columns) * 1.35 * ch
+        return x, y, x + cw, y + ch
+
+    loops = boundary_loops(faces)  # one border for the three views
     for k, view in enumerate(("front", "side", "top")):
-        draw_elevation(fig.add_subplot(grid[0, k]), vertices, faces, view, floor)
-    cells = [grid[1 + k // columns, k % columns] for k in range(len(sections) + len(pressure))]
-    for cell, sec in zip(cells, sections):
-        draw_section(fig.add_subplot(cell), sec)
-    for cell, panel in zip(cells[len(sections):], pressure):
-        ax = fig.add_subplot(cell)
-        draw_meshes(ax, panel.meshes, panel.view)
+        draw_elevation(canvas, cell(k), vertices, faces, view, floor, loops=loops)
+    for k, sec in enumerate(sections):
+        draw_section(canvas, cell(columns + k), sec)
+    for k, panel in enumerate(pressure):
+        x0, y0, x1, y1 = cell(columns + len(sections) + k)
         if panel.title:
-            ax.set_title(textwrap.fill(panel.title, int(PANEL_INCHES[0] * 100 / 7)),
-                         fontsize=9)
+            text = wrap(panel.title, cw, 9)
+            canvas.text(((x0 + x1) / 2, y0 - 6 - text_height(text, 9)), text, 9, "ma")
+        draw_meshes(canvas, (x0, y0, x1 - (COLORBAR_WIDTH if colorbar else 0), y1),
+                    panel.meshes, panel.view)
         if colorbar is not None:  # each panel its own bar, all on the same scale
-            draw_colorbar(fig, [ax], colorbar)
-    return save_png(fig, path)
+            label, low, high = colorbar
+            bar = x1 - COLORBAR_WIDTH + 12
+            draw_colorbar(canvas, (bar, y0 + 0.1 * ch, bar + 16, y1 - 0.1 * ch), low, high,
+                          label)
+    return canvas.save(path)

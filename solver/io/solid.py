@@ -149,13 +149,14 @@ def boundary_edges(faces: np.ndarray) -> np.ndarray:
     """
     faces = np.asarray(faces, dtype=np.int64)
     edges = np.stack([faces, np.roll(faces, -1, axis=1)], axis=-1).reshape(-1, 2)
-    key = np.sort(edges, axis=1)
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.ravel()
+    # an edge as one integer (a sort of integers, not of rows): either way, and as run
+    n = int(edges.max(initial=0)) + 1
+    _, inverse, counts = np.unique(edges.min(axis=1) * n + edges.max(axis=1),
+                                   return_inverse=True, return_counts=True)
     if counts.max(initial=0) > 2:
         raise SolidError(f"Expected a manifold surface, got an edge shared by "
                          f"{int(counts.max())} faces")
-    _, directed = np.unique(edges, axis=0, return_counts=True)
+    _, directed = np.unique(edges[:, 0] * n + edges[:, 1], return_counts=True)
     if directed.max(initial=0) > 1:
         raise SolidError("Expected consistently oriented faces, got an edge run the same "
                          "way by two faces")

@@ -262,10 +262,19 @@ def _serve_jobs() -> None:
     """The child's loop: a job a line on stdin, its row a line on stdout."""
     out = os.fdopen(os.dup(1), "w")
     os.dup2(2, 1)  # whatever the job prints goes to stderr, not into the answers
-    # what a job uses, imported before the first job's clock starts
+    # what a job uses, loaded before the first job's clock starts: the modules (the lazy ones
+    # too) and the body assets, which every job's first body would otherwise decompress
+    import igl  # noqa: F401
+    import scipy.optimize  # noqa: F401 (the settle's fallback)
+
     import solver.io.export  # noqa: F401
     import solver.io.render  # noqa: F401
+    import solver.scene.cad  # noqa: F401
     import solver.scene.run  # noqa: F401
+    import solver.scene.sheet  # noqa: F401
+    from solver.body.model import make_body
+
+    make_body()
 
     out.write("ready\n")
     out.flush()
@@ -279,14 +288,48 @@ def _serve_jobs() -> None:
 _runners = threading.local()
 
 
+def _runner() -> _Runner:
+    """This worker's child process, started when there is none (or it ended)."""
+    runner = getattr(_runners, "runner", None)
+    if runner is None or runner.proc.poll() is not None:
+        runner = _runners.runner = _Runner()
+    return runner
+
+
+def start_runner() -> bool:
+    """Starts the worker's child process (its imports and the body assets loaded) before any
+    job is given to it; whether it is ready. Run on each worker by `warm_workers`."""
+    return _runner().ready
+
+
+def warm_workers(client) -> int:
+    """Starts every worker's child process, all at once, and waits until they are ready, so
+    that the jobs that follow pay no start-up. Returns how many workers are ready."""
+    workers = list(client.scheduler_info()["workers"])
+    futures = [client.submit(start_runner, key=f"sitrelax-warm-{k}", workers=[w],
+                             allow_other_workers=False, pure=False)
+               for k, w in enumerate(workers)]
+    return sum(bool(f.result()) for f in futures)
+
+
+def local_cluster(workers: int = 2):
+    """A local Dask cluster for batches: `workers` processes of one thread each, on the
+    loopback interface, without the workers' statistical profiler (a stack sample every 10 ms,
+    for the dashboard, costs a batch a few per cent of its time)."""
+    import dask
+    from distributed import LocalCluster
+
+    with dask.config.set({"distributed.worker.profile.enabled": False}):
+        return LocalCluster(n_workers=max(1, int(workers)), threads_per_worker=1,
+                            processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0")
+
+
 def run_job(job: Job, db: str | None, out_root: str,
             time_limit: float = DEFAULT_JOB_TIME_LIMIT) -> dict:
     """Runs one job on a worker, in its child process, for at most `time_limit` seconds;
     returns its summary row (a failure or a timeout is a row too)."""
     start = time.perf_counter()
-    runner = getattr(_runners, "runner", None)
-    if runner is None or runner.proc.poll() is not None:
-        runner = _runners.runner = _Runner()
+    runner = _runner()
     got = runner.run(job, db, out_root, time_limit) if runner.ready else "it did not start"
     if isinstance(got, dict):
         return got
@@ -320,7 +363,7 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *,
     """Runs the jobs not finished before, each for at most `time_limit` seconds (then it is
     stopped and counted as failed and as timed out); writes summary.csv and summary.json;
     stores the finished jobs' scenarios and results in the library (when `db` and `store`)."""
-    from distributed import Client, LocalCluster, as_completed
+    from distributed import Client, as_completed
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -339,14 +382,7 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *,
     cluster = None
     if todo:
         if scheduler is None:
-            import dask
-
-            # the workers' statistical profiler (a stack sample every 10 ms, for the dashboard)
-            # costs a batch a few per cent of its time: our workers go without it
-            with dask.config.set({"distributed.worker.profile.enabled": False}):
-                cluster = LocalCluster(n_workers=max(1, int(workers)), threads_per_worker=1,
-                                       processes=True, host="127.0.0.1",
-                                       dashboard_address="127.0.0.1:0")
+            cluster = local_cluster(workers)
             client = Client(cluster)
         else:
             client = Client(scheduler)

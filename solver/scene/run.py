@@ -14,8 +14,8 @@ import numpy as np
 from capture.files import write_atomic
 
 from solver.mesh import SurfaceMesh
-from solver.contact.evaluate import (FLOOR, SUPPORT_FIGURES, SupportGate, cut_vertices,
-                                     evaluate_person, flat_seat_height, flat_surface,
+from solver.contact.evaluate import (FLOOR, SUPPORT_FIGURES, SupportGate, body_winding,
+                                     cut_vertices, evaluate_person, flat_seat_height, flat_surface,
                                      support_inside)
 from solver.contact.evaluate import PressureMap, contact_footprint, surface_pressure
 from solver.contact.mat import PressureGrid, pressure_grid, write_pressure_csv
@@ -55,10 +55,11 @@ def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.n
     margin, (foam, floor) = scenario.surface.params.margin, foams(scenario.evaluation)
     rows, maps = [], []
     for k, p in enumerate(people):
-        figures, pm = evaluate_person(mesh, p, margin, foam, floor)
+        winding = body_winding(p.vertices, p.triangles)  # one for both surfaces
+        figures, pm = evaluate_person(mesh, p, margin, foam, floor, winding)
         height = flat_seat_height(mesh, p)
         flat, _ = evaluate_person(flat_surface(height, p.vertices.mean(axis=0)), p, margin,
-                                  foam, floor)
+                                  foam, floor, winding)
         flat["height_m"] = height
         others = [(q.vertices, q.triangles) for j, q in enumerate(people) if j != k]
         rows.append({"name": p.label, "body": p.spec.body.as_dict(),

@@ -48,16 +48,32 @@ class BSplineSurface:
                 (float(self.knots_v[d - 1]), float(self.knots_v[-d])))
 
     def evaluate(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """(..., 3) points at parameters u, v (arrays of one shape), by scipy's B-splines."""
-        from scipy.interpolate import BSpline
-
-        full_u = np.concatenate([[self.knots_u[0] - 1], self.knots_u, [self.knots_u[-1] + 1]])
-        full_v = np.concatenate([[self.knots_v[0] - 1], self.knots_v, [self.knots_v[-1] + 1]])
+        """(..., 3) points at parameters u, v (arrays of one shape, inside `domain`)."""
         u, v = np.broadcast_arrays(np.asarray(u, float), np.asarray(v, float))
-        bu = BSpline.design_matrix(u.ravel(), full_u, self.degree).toarray()
-        bv = BSpline.design_matrix(v.ravel(), full_v, self.degree).toarray()
+        bu = uniform_cubic_basis(u.ravel(), self.knots_u)
+        bv = uniform_cubic_basis(v.ravel(), self.knots_v)
         pts = np.einsum("ki,ijc,kj->kc", bu, self.points, bv)
         return pts.reshape(u.shape + (3,))
+
+
+def uniform_cubic_basis(t: np.ndarray, knots: np.ndarray) -> np.ndarray:
+    """(K, N) the cubic B-spline basis functions of N control points on unit-spaced knots (N + 2
+    of them, Rhino's convention) at parameters t (K,) in [knots[2], knots[-3]]: on span m
+    (between knots m + 2 and m + 3) at local s in [0, 1], functions m..m+3 are
+    (1 - s)^3 / 6, (3 s^3 - 6 s^2 + 4) / 6, (-3 s^3 + 3 s^2 + 3 s + 1) / 6 and s^3 / 6; the
+    last span is closed on the right."""
+    knots = np.asarray(knots, dtype=float)
+    count = len(knots) - 2
+    if count < 4 or not np.allclose(np.diff(knots), 1.0):
+        raise MeshError(f"Expected at least 6 unit-spaced knots, got {knots.tolist()}")
+    x = np.asarray(t, dtype=float) - knots[2]
+    span = np.clip(np.floor(x), 0, count - 4).astype(np.int64)
+    s = x - span
+    weights = np.stack([(1 - s) ** 3, 3 * s**3 - 6 * s**2 + 4, -3 * s**3 + 3 * s**2 + 3 * s + 1,
+                        s**3], axis=1) / 6
+    basis = np.zeros((len(x), count))
+    np.put_along_axis(basis, span[:, None] + np.arange(4), weights, axis=1)
+    return basis
 
 
 def grid_layout(n: int, faces, creases=None) -> np.ndarray | None:

@@ -168,3 +168,27 @@ def test_a_dask_scheduler_with_two_workers_and_one_killed(tmp_path):
             if proc.poll() is None:
                 os.killpg(proc.pid, signal.SIGTERM)
                 proc.wait(20)
+
+
+@pytest.mark.slow
+def test_warm_workers_start_each_job_process_once_and_answer_as_a_fresh_batch(tmp_path):
+    """Two warmed workers, then a batch on them: every worker was ready, and the jobs' answers
+    are those of a batch on a fresh cluster of one worker."""
+    from distributed import Client
+
+    from solver.scene.batch import local_cluster, warm_workers
+
+    jobs = expand_jobs([EXAMPLES / "single_seated.toml"], grid={"sigma": [0.002, 0.02]})
+    cluster = local_cluster(2)
+    try:
+        with Client(cluster) as client:
+            assert warm_workers(client) == 2
+        warm = run_batch(jobs, tmp_path / "warm", scheduler=cluster.scheduler_address)
+    finally:
+        cluster.close()
+    fresh = run_batch(jobs, tmp_path / "fresh", workers=1)
+    numbers = ("coverage_min", "max_penetration_m", "iterations")
+    for w, f in zip(warm["jobs"], fresh["jobs"], strict=True):
+        assert (w["job"], w["status"]) == (f["job"], f["status"]) == (w["job"], "ok")
+        assert {k: w[k] for k in numbers} == pytest.approx({k: f[k] for k in numbers},
+                                                          rel=1e-9)

@@ -106,3 +106,17 @@ def test_subdivided_grid_is_the_fine_mesh_layout(level):
     sub = subdivision(len(v), f, level)
     walked = grid_layout(sub.matrix.shape[0], sub.faces)
     assert np.array_equal(subdivided_grid(grid_layout(len(v), f), sub, f), walked)
+
+
+def test_the_uniform_cubic_basis_is_scipys_design_matrix():
+    """On Rhino's unit-spaced knots (scipy's with one more knot each end), anywhere in the
+    domain, its ends included."""
+    from scipy.interpolate import BSpline
+
+    from solver.surface.nurbs import uniform_cubic_basis
+
+    knots = np.arange(-2.0, 9.0)  # 9 control points
+    t = np.concatenate([[0.0, 6.0, 3.0], np.random.default_rng(1).uniform(0, 6, 200)])
+    full = np.concatenate([[knots[0] - 1], knots, [knots[-1] + 1]])
+    expected = BSpline.design_matrix(t, full, 3).toarray()
+    np.testing.assert_allclose(uniform_cubic_basis(t, knots), expected, atol=1e-14)
