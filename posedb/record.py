@@ -375,6 +375,14 @@ class TakeRecorder:
         finally:
             self._held.close()
 
+    def abandon(self) -> None:
+        """Closes the journal and releases its lock without storing it, as a recorder that
+        died would leave it: `recover` stores it (with its marks) later."""
+        try:
+            self.writer.close()
+        finally:
+            self._held.close()
+
     def discard(self) -> None:
         """Drops a journal that can never become a take (no frame of the protocol in it)."""
         try:

@@ -68,9 +68,7 @@ def test_marked_poses_are_stored_with_the_take_in_one_commit(db):
 def test_marks_survive_a_recorder_that_dies_before_its_commit(db):
     rec = TakeRecorder(db, "crashed", str(recording(CMU)), f"file:{CAPTURE}")
     _play(rec, {5: dict(name="kept", tags=["sit"])})
-    # what a killed process leaves: the journal written, its lock released by the system
-    rec.writer.close()
-    rec._held.close()
+    rec.abandon()  # what a killed process leaves: the journal written, its lock released
     assert [m["name"] for _, m in raw_marks(rec.journal)] == ["kept"]
     assert [r.running for r in recordings(db)] == [False]
     assert [r["status"] for r in recover(db)] == ["recovered"]
