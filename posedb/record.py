@@ -349,7 +349,8 @@ class TakeRecorder:
         The mark is written to the journal at once (and forced to disk): it becomes a pose of
         the take, carrying the take's tags and `tags`, when the take is stored. An empty name
         becomes "<take>-fNNNNN" (its frame). Names, tags and supports are checked now, a name
-        against the library's poses and the marks before. Returns the mark as stored.
+        against the library's poses and the marks before. Returns the mark as stored, with
+        its `received_at`.
         """
         if not np.isfinite(received_at):
             raise LibraryError(f"Expected the receive time of a frame, got {received_at!r}")
@@ -362,6 +363,7 @@ class TakeRecorder:
                 "supports": list(support_regions(supports)), "notes": str(notes)}
         self.writer.write(MARK, float(received_at), json.dumps(mark).encode("utf-8"))
         self.writer.sync()
+        mark["received_at"] = float(received_at)
         self.marks.append(mark)
         return mark
 

@@ -1,0 +1,350 @@
+"""The studio's Record and Library views: their handlers driven against a viser server on
+loopback (no browser) with a temporary library, and, under the slow mark, both views in a real
+headless browser (Debian's chromium), mounted in a tab group per client as the studio mounts
+its views."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from capture import read_bvh, skeleton_fk
+from capture.recordings import resolve_path
+from posedb import PoseLibrary
+from posedb.record import journal_dir
+from studio.context import StudioContext
+from studio.skeleton_draw import pose_positions, skeleton_thumbnail
+
+from tests.studio.test_studio import ARTIFACTS, CHROMIUM, DRIVER, _browser, _wait
+
+ROOT = Path(__file__).resolve().parents[2]
+AXIS = "axis_neuron_standing_yxz.bvh"
+
+
+def _server():
+    import viser
+
+    with contextlib.redirect_stdout(io.StringIO()):  # its banner
+        return viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+
+
+def _stop(server) -> None:
+    with contextlib.redirect_stdout(io.StringIO()):
+        server.stop()
+
+
+@pytest.fixture
+def library(tmp_path) -> Path:
+    path = tmp_path / "poses.h5"
+    lib = PoseLibrary(path, create=True)
+    take = lib.import_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"), name="high_sit",
+                          tags=["sit"])
+    lib.add_pose(take.id, 10, "early", tags=["test"])
+    return path
+
+
+def test_record_view_records_a_replay_and_stores_the_marked_poses(library, tmp_path):
+    from studio.record import RecordView
+
+    server = _server()
+    context = StudioContext(db=str(library), out=tmp_path, limit=1 << 20)
+    view = RecordView(server, server.gui.add_tab_group().add_tab("Record"), context)
+    try:
+        assert view.choice.value == f"practice: replay {AXIS}"
+        view._guarded(view.do_mark)  # before a connection: a clear problem, not a crash
+        assert "Connect to a source first" in view.status.content
+        view._guarded(view.do_connect)
+        assert view.status.content.startswith("Connected to tcp://127.0.0.1:")
+        _wait(lambda: view._bones is not None, 10, "the live skeleton")
+        view._guarded(view.do_mark)
+        assert "Start a take first" in view.status.content
+        view.take_name.value, view.take_tags.value = "live", "session"
+        view._guarded(view.do_start)
+        assert "Recording take **live**" in view.status.content
+        _wait(lambda: view.stream.frames_in_take > 60, 10, "frames of the take")
+        view.pose_name.value, view.pose_tags.value = "reach", "stand, arms"
+        view.parts["feet"].value = True
+        view._guarded(view.do_mark)
+        time.sleep(0.3)
+        view.pose_name.value = "reach"  # the same name again: refused, nothing marked
+        view._guarded(view.do_mark)
+        assert "already" in view.status.content
+        view.pose_name.value, view.pose_tags.value = "", "stand"
+        view._guarded(view.do_mark)
+        _wait(lambda: "2 marked" in view.readout.content, 5, "the readout")
+        assert "fps" in view.readout.content and "dropped 0" in view.readout.content
+        view._guarded(view.do_stop)
+        assert "Stored take **live**" in view.status.content, view.status.content
+        assert view.take_name.value == "live-2"
+    finally:
+        view.close()
+        _stop(server)
+    lib = PoseLibrary(library)
+    take = lib.take("live")
+    assert take.kind == "stream" and take.tags == ("session",)
+    poses = {p.name: p for p in lib.find_poses(take="live")}
+    assert len(poses) == 2 and poses["reach"].tags == ("arms", "session", "stand")
+    assert poses["reach"].supports == ("pelvis", "thighs", "feet")
+    (unnamed,) = set(poses) - {"reach"}
+    assert unnamed == f"live-f{poses[unnamed].frame:05d}"
+    assert poses[unnamed].frame > poses["reach"].frame
+    # the first pose is the frame that was on screen: its receive time is the mark's
+    data = lib.take_data("live")
+    assert data.received_at[poses["reach"].frame] == pytest.approx(view.marked[0]["received_at"],
+                                                                    abs=1e-6)
+    # and the take holds what the replay sent, frame for frame (the bundled recording)
+    axis = read_bvh(resolve_path(f"bundled:{AXIS}"), unit=None)
+    want = axis.motion.channels[data.frame_indices % axis.motion.num_frames]
+    np.testing.assert_array_equal(data.channels, want.astype(np.float32))
+    assert not list(journal_dir(library).glob("*.raw"))
+
+
+def test_record_view_refuses_what_it_cannot_do(tmp_path):
+    from studio.record import URL_CHOICE, RecordView
+
+    server = _server()
+    view = RecordView(server, server.gui.add_tab_group().add_tab("Record"),
+                      StudioContext(db=None, out=tmp_path, limit=1 << 20))
+    try:
+        view.choice.value = URL_CHOICE
+        view.url.value = "ftp://nowhere"
+        view._guarded(view.do_connect)
+        assert "Expected a source URL" in view.status.content and view.stream is None
+        view.choice.value = f"practice: replay {AXIS}"
+        view._guarded(view.do_connect)
+        view._guarded(view.do_start)
+        assert "needs a pose library" in view.status.content
+    finally:
+        view.close()
+        _stop(server)
+
+
+def test_library_view_scrubs_accepts_a_hold_and_edits(library, tmp_path):
+    from studio.library_view import LibraryView
+
+    server = _server()
+    context = StudioContext(db=str(library), out=tmp_path, limit=1 << 20)
+    view = LibraryView(server, server.gui.add_tab_group().add_tab("Library"), context)
+    try:
+        assert view.found.content == "1 take(s), 1 pose(s)"
+        assert len(view._thumbs) == 2  # one pose, one take
+        view.take.value = "high_sit"
+        view._guarded(lambda: view.load_take("high_sit"))
+        # the holds are those `db suggest` finds; the timeline starts on the first
+        from posedb.suggest import suggest_poses
+
+        rows = suggest_poses(PoseLibrary(library), "high_sit")
+        assert [h.frame for h in view.holds] == [r["frame"] for r in rows] == [39]
+        assert view.frame.value == 39
+        # scrubbing draws the take's skeleton at that frame
+        view.frame.value = 60
+        view._show_frame()
+        bvh = read_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"))
+        want = skeleton_fk(bvh.skeleton, bvh.motion.channels[60]).positions
+        np.testing.assert_allclose(view._joints.points, want, atol=2e-3)  # mm: a drawing
+        view.new_tags.value = "high"
+        view._guarded(view.do_accept_hold)
+        assert "Added pose **high_sit-f00039** at frame 39" in view.status.content
+        view.search_text.value = "high and sit"
+        view._guarded(view.do_search)
+        assert view.pose.options == ("high_sit-f00039",)
+        view.pose.value = "high_sit-f00039"
+        view.rename_to.value = "perch"
+        view._guarded(view.do_rename)
+        view.edit_tags.value = "favourite"
+        view._guarded(lambda: view.do_tag(remove=False))
+        view.pose.value, view.rename_to.value = "perch", "a/b"
+        view._guarded(view.do_rename)
+        assert "without '/'" in view.status.content
+        view.pose.value = "early"
+        view._guarded(view.do_delete)
+    finally:
+        view.close()
+        _stop(server)
+    lib = PoseLibrary(library)
+    assert [p.name for p in lib.poses()] == ["perch"]
+    perch = lib.pose("perch")
+    assert perch.frame == 39 and perch.tags == ("favourite", "high", "sit")
+
+
+def test_a_thumbnail_is_the_skeleton_seen_from_the_front():
+    bvh = read_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"))
+    positions = skeleton_fk(bvh.skeleton, bvh.motion.channels[39]).positions
+    img = skeleton_thumbnail(positions, bvh.skeleton.parents)
+    assert img.shape == (112, 112, 3) and img.dtype == np.uint8
+    inked = (img < 200).any(axis=2)
+    rows, cols = np.flatnonzero(inked.any(axis=1)), np.flatnonzero(inked.any(axis=0))
+    # the figure fills the square within its 8 % margin, the tall way
+    assert rows[-1] - rows[0] >= 0.8 * 112 and rows[0] <= 0.08 * 112 + 3
+    # image rows are world Y, downwards: the body turned upside down is the picture flipped
+    flipped = skeleton_thumbnail(positions * [1.0, -1.0, 1.0], bvh.skeleton.parents)
+    ink, ink_flipped = inked.sum(axis=1), (flipped < 200).any(axis=2).sum(axis=1)
+    assert np.corrcoef(ink, ink_flipped[::-1])[0, 1] > 0.9
+    assert np.corrcoef(ink, ink_flipped)[0, 1] < 0.5
+    with pytest.raises(ValueError, match="finite joint positions"):
+        skeleton_thumbnail(np.full((3, 3), np.nan), np.array([-1, 0, 1]))
+
+
+def test_a_pose_is_drawn_from_its_own_rotations(library):
+    lib = PoseLibrary(library)
+    _, skeleton, rot, root = lib.pose_data("early")
+    data = lib.take_data("high_sit")
+    want = skeleton_fk(data.skeleton, data.motion().channels[10]).positions
+    np.testing.assert_allclose(pose_positions(skeleton, rot, root), want, atol=1e-4)
+
+
+def _mount(server, context, views):
+    """Mounts the views in a tab group for every client that connects, as the studio does."""
+    mounted = []
+
+    @server.on_client_connect
+    def _(client) -> None:
+        group = client.gui.add_tab_group()
+        made = {label: cls(client, group.add_tab(label), context) for label, cls in views}
+        mounted.append(made)
+
+    return mounted
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not (CHROMIUM and DRIVER) and not os.environ.get("CI"),
+                    reason="needs Debian's chromium and chromium-driver")
+def test_record_and_library_views_in_a_browser(library, tmp_path):
+    """Record a replayed stream while marking two poses (the button and the key M), find them
+    in the Library view with their tags, scrub a take and accept a suggested hold."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.keys import Keys
+
+    from studio.library_view import LibraryView
+    from studio.record import RecordView
+
+    shots = Path(os.environ.get("SITRELAX_SHOTS", tmp_path / "shots"))
+    shots.mkdir(parents=True, exist_ok=True)
+    server = _server()
+    server.scene.set_up_direction("+y")
+    server.initial_camera.position = (1.6, 1.4, 2.6)
+    server.initial_camera.look_at = (0.0, 0.8, 0.0)
+    server.scene.add_grid("/floor", width=4.0, height=4.0, plane="xz")
+    context = StudioContext(db=str(library), out=tmp_path, limit=1 << 20)
+    mounted = _mount(server, context, (("Record", RecordView), ("Library", LibraryView)))
+    driver = _browser()
+    step = iter(range(1, 100))
+
+    def shot(name: str) -> None:
+        time.sleep(1.0)
+        driver.save_screenshot(str(shots / f"{next(step):02d}-{name}.png"))
+
+    def button(label):
+        found = driver.find_elements(By.XPATH, f"//button[normalize-space(.)='{label}']")
+        visible = [b for b in found if b.is_displayed()]
+        return visible[0] if visible else None
+
+    def field(label):
+        """The text input of a labelled viser field that is on screen."""
+        for el in driver.find_elements(By.XPATH, f"//label[normalize-space(.)='{label}']"):
+            if el.is_displayed():
+                target = el.get_attribute("for")
+                if target:
+                    return driver.find_element(By.ID, target)
+        raise AssertionError(f"no field labelled {label!r} on screen")
+
+    def type_into(label, text):
+        box = field(label)
+        box.click()
+        box.send_keys(Keys.CONTROL, "a")
+        box.send_keys(Keys.BACKSPACE)
+        box.send_keys(text)
+        box.send_keys(Keys.ENTER)
+        time.sleep(0.3)
+
+    def page() -> str:
+        return driver.find_element(By.TAG_NAME, "body").text
+
+    try:
+        driver.get(f"http://127.0.0.1:{server.get_port()}")
+        _wait(lambda: button("Connect"), 90, "the Record view")
+        for close in driver.find_elements(By.CSS_SELECTOR,
+                                          "button.mantine-Notification-closeButton"):
+            close.click()  # the note that WebGL runs in software
+        record = mounted[0]["Record"]
+        shot("record-start")
+        button("Connect").click()
+        _wait(lambda: record._bones is not None, 20, "the live skeleton")
+        _wait(lambda: "fps" in page(), 20, "the frame rate on the page")
+        shot("record-connected")
+        type_into("Take name", "browser-take")
+        type_into("Take tags", "session")
+        button("Start take").click()
+        _wait(lambda: record.stream.recorder is not None, 20, "the take to start")
+        _wait(lambda: record.stream.frames_in_take > 100, 20, "frames of the take")
+        type_into("Pose name", "wave")
+        type_into("Pose tags", "stand arms")
+        button("Mark pose (M)").click()
+        _wait(lambda: len(record.marked) == 1, 20, "the first mark (button)")
+        time.sleep(1.0)
+        type_into("Pose name", "second")
+        type_into("Pose tags", "stand")
+        driver.find_element(By.TAG_NAME, "canvas").click()  # the key, away from any field
+        driver.find_element(By.TAG_NAME, "body").send_keys("m")
+        _wait(lambda: len(record.marked) == 2, 20, "the second mark (key M)")
+        _wait(lambda: "2 marked" in page(), 20, "the marks in the readout")
+        shot("record-marked")
+        button("Stop take").click()
+        _wait(lambda: "Stored take" in page(), 30, "the take to be stored")
+        shot("record-stored")
+        ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        driver.save_screenshot(str(ARTIFACTS / "studio-record.png"))
+
+        driver.find_element(By.XPATH, "//button[normalize-space(.)='Library']").click()
+        _wait(lambda: button("Search"), 20, "the Library view")
+        button("Refresh").click()
+        type_into("Tags", "session and stand")
+        button("Search").click()
+        library_view = mounted[0]["Library"]
+        _wait(lambda: "2 pose(s) match" in page(), 20, "the marked poses found")
+        text = page()
+        assert "wave: browser-take" in text and "arms session stand" in text
+        assert "second: browser-take" in text
+        shot("library-found")
+        # the timeline: the CMU take, its suggested hold accepted as a tagged pose
+        library_view.take.value = "high_sit"
+        _wait(lambda: library_view.data is not None
+              and library_view.data.take.name == "high_sit", 20, "the take on the timeline")
+        _wait(lambda: "suggested hold" in page(), 20, "the holds on the page")
+        library_view.frame.value = 20  # scrub
+        _wait(lambda: abs(float(library_view._joints.points[:, 1].max())
+                          - _top(library, 20)) < 1e-4, 10, "the skeleton at frame 20")
+        shot("library-scrubbed")
+        button("Go to hold").click()
+        _wait(lambda: library_view.frame.value == 39, 10, "the hold's frame")
+        type_into("Pose tags", "high")
+        button("Accept hold as pose").click()
+        _wait(lambda: "Added pose" in page(), 20, "the hold accepted")
+        type_into("Tags", "high")
+        button("Search").click()
+        _wait(lambda: "high_sit-f00039" in page(), 20, "the new pose listed")
+        shot("library-accepted")
+        driver.save_screenshot(str(ARTIFACTS / "studio-library.png"))
+    finally:
+        driver.quit()
+        for made in mounted:
+            for view in made.values():
+                view.close()
+        _stop(server)
+    lib = PoseLibrary(library)
+    wave, second = lib.pose("wave"), lib.pose("second")
+    assert wave.tags == ("arms", "session", "stand") and second.tags == ("session", "stand")
+    assert lib.take(wave.take).name == "browser-take" and second.frame > wave.frame
+    accepted = lib.pose("high_sit-f00039")
+    assert accepted.frame == 39 and accepted.tags == ("high", "sit")
+
+
+def _top(library: Path, frame: int) -> float:
+    data = PoseLibrary(library).take_data("high_sit")
+    return float(skeleton_fk(data.skeleton, data.motion().channels[frame]).positions[:, 1].max())
