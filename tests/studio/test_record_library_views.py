@@ -147,7 +147,8 @@ def test_library_view_scrubs_accepts_a_hold_and_edits(library, tmp_path):
         view._show_frame()
         bvh = read_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"))
         want = skeleton_fk(bvh.skeleton, bvh.motion.channels[60]).positions
-        np.testing.assert_allclose(view._joints.points, want, atol=2e-3)  # mm: a drawing
+        # viser keeps (and sends) points as float16: 1 mm steps at a metre
+        np.testing.assert_allclose(view._joints.points, want, atol=2e-3)
         view.new_tags.value = "high"
         view._guarded(view.do_accept_hold)
         assert "Added pose **high_sit-f00039** at frame 39" in view.status.content
@@ -218,6 +219,7 @@ def _mount(server, context, views):
 def test_record_and_library_views_in_a_browser(library, tmp_path):
     """Record a replayed stream while marking two poses (the button and the key M), find them
     in the Library view with their tags, scrub a take and accept a suggested hold."""
+    from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.by import By
     from selenium.webdriver.common.keys import Keys
 
@@ -248,10 +250,9 @@ def test_record_and_library_views_in_a_browser(library, tmp_path):
     def field(label):
         """The text input of a labelled viser field that is on screen."""
         for el in driver.find_elements(By.XPATH, f"//label[normalize-space(.)='{label}']"):
-            if el.is_displayed():
-                target = el.get_attribute("for")
-                if target:
-                    return driver.find_element(By.ID, target)
+            if el.is_displayed():  # the input sits in the label's row
+                return el.find_element(
+                    By.XPATH, "./ancestor::div[contains(@class, 'mantine-Flex-root')][1]//input")
         raise AssertionError(f"no field labelled {label!r} on screen")
 
     def type_into(label, text):
@@ -290,8 +291,8 @@ def test_record_and_library_views_in_a_browser(library, tmp_path):
         time.sleep(1.0)
         type_into("Pose name", "second")
         type_into("Pose tags", "stand")
-        driver.find_element(By.TAG_NAME, "canvas").click()  # the key, away from any field
-        driver.find_element(By.TAG_NAME, "body").send_keys("m")
+        driver.execute_script("document.activeElement.blur()")  # the key, in no field
+        ActionChains(driver).send_keys("m").perform()
         _wait(lambda: len(record.marked) == 2, 20, "the second mark (key M)")
         _wait(lambda: "2 marked" in page(), 20, "the marks in the readout")
         shot("record-marked")
@@ -301,7 +302,7 @@ def test_record_and_library_views_in_a_browser(library, tmp_path):
         ARTIFACTS.mkdir(parents=True, exist_ok=True)
         driver.save_screenshot(str(ARTIFACTS / "studio-record.png"))
 
-        driver.find_element(By.XPATH, "//button[normalize-space(.)='Library']").click()
+        driver.find_element(By.XPATH, "//*[@role='tab'][normalize-space(.)='Library']").click()
         _wait(lambda: button("Search"), 20, "the Library view")
         button("Refresh").click()
         type_into("Tags", "session and stand")
@@ -319,7 +320,7 @@ def test_record_and_library_views_in_a_browser(library, tmp_path):
         _wait(lambda: "suggested hold" in page(), 20, "the holds on the page")
         library_view.frame.value = 20  # scrub
         _wait(lambda: abs(float(library_view._joints.points[:, 1].max())
-                          - _top(library, 20)) < 1e-4, 10, "the skeleton at frame 20")
+                          - _top(library, 20)) < 2e-3, 10, "the skeleton at frame 20")
         shot("library-scrubbed")
         button("Go to hold").click()
         _wait(lambda: library_view.frame.value == 39, 10, "the hold's frame")
