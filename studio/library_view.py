@@ -13,6 +13,7 @@ under `/library` in the scene (Y up, metres).
 from __future__ import annotations
 
 import contextlib
+import html
 import threading
 import traceback
 
@@ -26,21 +27,38 @@ from posedb.suggest import HeldPosture, take_holds
 
 from .context import StudioContext
 from .record import split_words
-from .skeleton_draw import (BONE_COLOR, JOINT_COLOR, bone_segments, pose_positions,
-                            skeleton_thumbnail)
+from .skeleton_draw import (BONE_COLOR, JOINT_COLOR, bone_segments, png_base64,
+                            pose_positions, skeleton_thumbnail)
 
-MAX_THUMBNAILS = 24  # pose pictures shown at once (the first matches of a search)
-_THUMBS: dict[tuple, np.ndarray] = {}  # (library file, "pose"/"take", id, frame) -> picture
+MAX_THUMBNAILS = 24  # pictures of poses (and of takes) shown at once: a search's first
+_THUMBS: dict[tuple, str] = {}  # (library file, "pose"/"take", id, frame) -> base64 PNG
 _MAX_CACHED = 4096
 NONE = "(none)"
 
 
-def _cached(key: tuple, make) -> np.ndarray:
+def _cached(key: tuple, make) -> str:
+    """The base64 PNG of a thumbnail, rendered by `make()` once."""
     if key not in _THUMBS:
         if len(_THUMBS) >= _MAX_CACHED:
             _THUMBS.clear()
-        _THUMBS[key] = make()
+        _THUMBS[key] = png_base64(make())
     return _THUMBS[key]
+
+
+def gallery_html(items: list[tuple[str, str, str]], more: int = 0) -> str:
+    """Thumbnails three to a row, each with its title and a line under it. items : (base64
+    PNG, title, line); the texts are escaped (names are the library's users' words)."""
+    cells = "".join(
+        '<figure style="margin:0;width:31%;text-align:center">'
+        f'<img src="data:image/png;base64,{png}" alt="{html.escape(title)}" '
+        'style="width:100%;border:1px solid #ddd;border-radius:4px">'
+        '<figcaption style="font-size:0.72em;line-height:1.25;overflow-wrap:anywhere">'
+        f'<b>{html.escape(title)}</b><br>{html.escape(line)}</figcaption></figure>'
+        for png, title, line in items)
+    tail = (f'<p style="font-size:0.75em">... and {more} more (narrow the search)</p>'
+            if more else "")
+    return f'<div style="display:flex;flex-wrap:wrap;gap:4px">{cells}</div>{tail}'
+
 
 
 def hold_label(h: HeldPosture, frame_time: float) -> str:
@@ -61,33 +79,37 @@ class LibraryView:
         self.holds: list[HeldPosture] = []
         self.expr = ""
         self._lock = threading.RLock()
-        self._thumbs: list = []
         self._bones = self._joints = None
+        self._centre = np.zeros(3)  # subtracted from the take's positions: it plays at the origin
+        # the view's nodes hang under one frame, which the studio can hide with its tab
+        self.root = client.scene.add_frame(self.prefix, show_axes=False)
         gui = self.gui = client.gui
         with tab:
             gui.add_markdown("**Library**: takes and poses of the pose library")
+            self.status = gui.add_markdown("")
             with gui.add_folder("Search"):
                 self.search_text = gui.add_text("Tags", initial_value="",
                                                 hint="a tag expression: sit and not floor")
                 self.search = gui.add_button("Search")
                 self.refresh = gui.add_button("Refresh")
                 self.found = gui.add_markdown("")
+                self.pose_gallery = gui.add_html("")
+                self.take_gallery = gui.add_html("")
             with gui.add_folder("Take") as self.take_folder:
-                self.take = gui.add_dropdown("Take", [NONE])
-                self.take_info = gui.add_markdown("")
+                self.take = gui.add_dropdown("Take", [NONE], order=1.0)
+                self.take_info = gui.add_markdown("", order=2.0)
                 self.frame = gui.add_slider("Frame", min=0, max=1, step=1, initial_value=0,
-                                            order=10.0)
-                self.hold = gui.add_dropdown("Suggested hold", [NONE], order=11.0)
-                self.go_hold = gui.add_button("Go to hold", order=12.0)
-                self.new_pose = gui.add_text("Pose name", initial_value="", order=13.0,
+                                            order=3.0)
+                self.hold = gui.add_dropdown("Suggested hold", [NONE], order=4.0)
+                self.go_hold = gui.add_button("Go to hold", order=5.0)
+                self.new_pose = gui.add_text("Pose name", initial_value="", order=6.0,
                                              hint="empty: TAKE-fNNNNN")
-                self.new_tags = gui.add_text("Pose tags", initial_value="", order=14.0)
+                self.new_tags = gui.add_text("Pose tags", initial_value="", order=7.0)
                 self.new_support = gui.add_text("Supported", initial_value=DEFAULT_SUPPORT,
-                                                order=15.0, hint="regions or a use: chair, "
+                                                order=8.0, hint="regions or a use: chair, "
                                                 "pelvis thighs, ...")
-                self.accept = gui.add_button("Accept hold as pose", order=16.0)
-                self.save_frame = gui.add_button("Save this frame as pose", order=17.0)
-                self.take_picture = None
+                self.accept = gui.add_button("Accept hold as pose", order=9.0)
+                self.save_frame = gui.add_button("Save this frame as pose", order=10.0)
             with gui.add_folder("Pose"):
                 self.pose = gui.add_dropdown("Pose", [NONE])
                 self.pose_info = gui.add_markdown("")
@@ -97,11 +119,6 @@ class LibraryView:
                 self.add_tags = gui.add_button("Add tags")
                 self.remove_tags = gui.add_button("Remove tags")
                 self.delete = gui.add_button("Delete pose")
-            self.status = gui.add_markdown("")
-            with gui.add_folder("Poses found") as self.pose_pictures:
-                pass
-            with gui.add_folder("Takes found") as self.take_pictures:
-                pass
         actions = ((self.search, self.do_search), (self.refresh, self.do_refresh),
                    (self.go_hold, self.do_go_hold), (self.accept, self.do_accept_hold),
                    (self.save_frame, self.do_save_frame), (self.rename, self.do_rename),
@@ -171,27 +188,16 @@ class LibraryView:
         self._set_options(self.pose, [p.name for p in poses])
         # every take stays on the timeline's list; the search picks the pictures
         self._set_options(self.take, [t.name for t in lib.takes()], keep=True)
-        for handle in self._thumbs:
-            handle.remove()
-        self._thumbs = []
         key = str(lib.target)
-        with self.pose_pictures:
-            for p in poses[:MAX_THUMBNAILS]:
-                picture = _cached((key, "pose", p.id, p.frame), lambda p=p: self._pose_picture(p))
-                self._thumbs.append(self.gui.add_image(
-                    picture, label=f"{p.name}: {take_names[p.take]} #{p.frame}, "
-                                   f"{' '.join(p.tags) or 'no tags'}", format="png"))
-            if len(poses) > MAX_THUMBNAILS:
-                self._thumbs.append(self.gui.add_markdown(
-                    f"... and {len(poses) - MAX_THUMBNAILS} more (narrow the search)"))
-        with self.take_pictures:
-            for t in takes[:MAX_THUMBNAILS]:
-                middle = t.frames // 2
-                picture = _cached((key, "take", t.id, middle),
-                                  lambda t=t, k=middle: self._take_picture(t.id, k))
-                self._thumbs.append(self.gui.add_image(
-                    picture, label=f"{t.name}: {t.frames} frames, {t.duration:.1f} s, "
-                                   f"{' '.join(t.tags) or 'no tags'}", format="png"))
+        self.pose_gallery.content = gallery_html(
+            [(_cached((key, "pose", p.id, p.frame), lambda p=p: self._pose_picture(p)), p.name,
+              f"{take_names[p.take]} #{p.frame}: {' '.join(p.tags) or 'no tags'}")
+             for p in poses[:MAX_THUMBNAILS]], max(0, len(poses) - MAX_THUMBNAILS))
+        self.take_gallery.content = gallery_html(
+            [(_cached((key, "take", t.id, t.frames // 2),
+                      lambda t=t: self._take_picture(t.id, t.frames // 2)), t.name,
+              f"take, {t.duration:.1f} s: {' '.join(t.tags) or 'no tags'}")
+             for t in takes[:MAX_THUMBNAILS]], max(0, len(takes) - MAX_THUMBNAILS))
 
     def _set_options(self, dropdown, names: list[str], keep: bool = False) -> None:
         options = names or [NONE]
@@ -223,6 +229,8 @@ class LibraryView:
         info = lib.take(name)
         self.data = lib.take_data(info.id)
         self.holds = take_holds(self.data)
+        mean = np.asarray(self.data.root_positions, dtype=np.float64).mean(axis=0)
+        self._centre = np.array([mean[0], 0.0, mean[2]])  # about the origin, on the floor
         if self.take.value != info.name:
             self.take.value = info.name  # (its update calls here again: nothing changes)
         marks = tuple((h.frame, f"{h.frame}") for h in self.holds)
@@ -232,7 +240,7 @@ class LibraryView:
             self.frame = self.gui.add_slider("Frame", min=0, max=last, step=1,
                                              initial_value=self.holds[0].frame
                                              if self.holds else 0, marks=marks or None,
-                                             order=10.0)
+                                             order=3.0)
         self._wire_frame()
         labels = [hold_label(h, info.frame_time) for h in self.holds]
         self._set_options(self.hold, labels)
@@ -248,7 +256,7 @@ class LibraryView:
             return
         k = int(self.frame.value)
         positions = skeleton_fk(self.data.skeleton, self.data.motion().channels[k]).positions
-        self._draw(positions, self.data.skeleton.parents)
+        self._draw(positions - self._centre, self.data.skeleton.parents)
 
     def _draw(self, positions: np.ndarray, parents: np.ndarray) -> None:
         segments = bone_segments(positions, parents)
@@ -258,7 +266,7 @@ class LibraryView:
                                                   BONE_COLOR, thickness=0.012)
             self._joints = scene.add_point_cloud(f"{self.prefix}/joints",
                                                  positions.astype(np.float32), JOINT_COLOR,
-                                                 point_size=0.025)
+                                                 point_size=0.02)
         else:
             self._bones.points = segments
             self._joints.points = positions.astype(np.float32)
@@ -311,7 +319,7 @@ class LibraryView:
         self.pose_info.content = (f"**{info.name}**: frame {info.frame} of {take.name}; tags "
                                   f"{' '.join(info.tags) or '-'}; supported "
                                   f"{', '.join(info.supports)}")
-        self._draw(pose_positions(skeleton, rot, root), skeleton.parents)
+        self._draw(pose_positions(skeleton, rot, root * [0.0, 1.0, 0.0]), skeleton.parents)
 
     def do_rename(self) -> None:
         old, new = self._pose_name(), self.rename_to.value.strip()

@@ -182,9 +182,12 @@ class RecordView:
         self._bones = None
         self._joints = None
         self._readout_stop = threading.Event()
+        # the view's nodes hang under one frame, which the studio can hide with its tab
+        self.root = client.scene.add_frame(self.prefix, show_axes=False)
         gui = client.gui
         with tab:
             gui.add_markdown("**Record**: a live stream into the pose library")
+            self.status = gui.add_markdown("")
             with gui.add_folder("Source"):
                 choices = [URL_CHOICE] + [REPLAY_PREFIX + r for r in bundled_recordings()]
                 self.choice = gui.add_dropdown("Source", choices, initial_value=choices[1]
@@ -214,7 +217,6 @@ class RecordView:
                                                   initial_value=r in support)
                               for r in BODY_REGIONS}
                 self.mark_button = gui.add_button(f"Mark pose ({MARK_KEY})")
-            self.status = gui.add_markdown("")
         # the key works anywhere on the page (viser's command palette hotkeys)
         self.mark_key = gui.add_command("Mark pose", description="mark the pose on screen in "
                                         "the take recording", hotkey=MARK_KEY)
@@ -334,7 +336,7 @@ class RecordView:
                                                   BONE_COLOR, thickness=0.012)
             self._joints = scene.add_point_cloud(f"{self.prefix}/joints",
                                                  positions.astype(np.float32), JOINT_COLOR,
-                                                 point_size=0.025)
+                                                 point_size=0.02)
         else:
             self._bones.points = segments
             self._joints.points = positions.astype(np.float32)

@@ -8,6 +8,9 @@ the studio's camera does.
 
 from __future__ import annotations
 
+import base64
+import io
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -81,3 +84,12 @@ def _stamp(img: np.ndarray, points: np.ndarray, radius: int, color) -> None:
             x, y = base[:, 0] + dx, base[:, 1] + dy
             ok = (x >= 0) & (x < size) & (y >= 0) & (y < size)
             img[y[ok], x[ok]] = color
+
+
+def png_base64(img: np.ndarray) -> str:
+    """A picture (H, W, 3) uint8 as base64 PNG text (for an inline `data:` URL)."""
+    from matplotlib.image import imsave
+
+    buffer = io.BytesIO()
+    imsave(buffer, img, format="png")
+    return base64.b64encode(buffer.getvalue()).decode("ascii")
