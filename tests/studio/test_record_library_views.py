@@ -282,6 +282,11 @@ def test_record_and_library_views_in_a_browser(library, tmp_path):
         box.send_keys(Keys.ENTER)
         time.sleep(0.3)
 
+    def to_top(title: str) -> None:
+        """Scrolls the panel back to a view's title (its status line under it)."""
+        heading = driver.find_element(By.XPATH, f"//*[contains(text(), '{title}')]")
+        driver.execute_script("arguments[0].scrollIntoView({block: 'start'})", heading)
+
     def page() -> str:
         return driver.find_element(By.TAG_NAME, "body").text
 
@@ -313,12 +318,13 @@ def test_record_and_library_views_in_a_browser(library, tmp_path):
         ActionChains(driver).send_keys("m").perform()
         _wait(lambda: len(record.marked) == 2, 20, "the second mark (key M)")
         _wait(lambda: "2 marked" in page(), 20, "the marks in the readout")
+        to_top("a live stream into the pose library")
         shot("record-marked")
+        ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        driver.save_screenshot(str(ARTIFACTS / "studio-record.png"))
         click("Stop take")
         _wait(lambda: "Stored take" in page(), 30, "the take to be stored")
         shot("record-stored")
-        ARTIFACTS.mkdir(parents=True, exist_ok=True)
-        driver.save_screenshot(str(ARTIFACTS / "studio-record.png"))
 
         driver.find_element(By.XPATH, "//*[@role='tab'][normalize-space(.)='Library']").click()
         record.root.visible = False  # viser tells the server no tab switch: the studio hides
@@ -332,12 +338,18 @@ def test_record_and_library_views_in_a_browser(library, tmp_path):
         assert "wave" in text and "second" in text and "arms session stand" in text
         assert text.count("browser-take #") == 2
         shot("library-found")
-        # the timeline: the CMU take, its suggested hold accepted as a tagged pose
-        library_view.take.value = "high_sit"
+        # the timeline: the CMU take (first on the list), on its suggested hold; scrubbed back
+        # with the slider's keys, then its hold accepted as a tagged pose
         _wait(lambda: library_view.data is not None
               and library_view.data.take.name == "high_sit", 20, "the take on the timeline")
-        _wait(lambda: "suggested hold" in page(), 20, "the holds on the page")
-        library_view.frame.value = 20  # scrub
+        _wait(lambda: "1 suggested hold(s)" in page(), 20, "the holds on the page")
+        thumb = driver.find_element(By.XPATH, "//label[normalize-space(.)='Frame']/ancestor::"
+                                    "div[contains(@class, 'mantine-Flex-root')][1]"
+                                    "//*[@role='slider']")
+        driver.execute_script("arguments[0].scrollIntoView({block: 'center'})", thumb)
+        assert thumb.get_attribute("aria-valuenow") == "39"
+        thumb.send_keys(*[Keys.ARROW_LEFT] * 19)
+        _wait(lambda: library_view.frame.value == 20, 20, "the timeline at frame 20")
         _wait(lambda: abs(float(library_view._joints.points[:, 1].max())
                           - _top(library, 20)) < 2e-3, 10, "the skeleton at frame 20")
         shot("library-scrubbed")
@@ -346,9 +358,19 @@ def test_record_and_library_views_in_a_browser(library, tmp_path):
         type_into("Pose tags", "high")
         click("Accept hold as pose")
         _wait(lambda: "Added pose" in page(), 20, "the hold accepted")
-        type_into("Tags", "high")
+        type_into("Tags", "high or session")
         click("Search")
-        _wait(lambda: "high_sit-f00039" in page(), 20, "the new pose listed")
+        _wait(lambda: "3 pose(s) match" in page(), 20, "the new pose listed")
+        assert "high_sit-f00039" in page()
+        # the new pose picked from the list is drawn, its tags and regions shown
+        picker = field("Pose")
+        driver.execute_script("arguments[0].scrollIntoView({block: 'center'})", picker)
+        picker.click()
+        option = _wait(lambda: [o for o in driver.find_elements(By.XPATH, "//*[@role='option']")
+                                if o.text.strip() == "high_sit-f00039"], 10, "the pose list")
+        option[0].click()
+        _wait(lambda: "frame 39 of high_sit; tags high sit" in page(), 20, "the pose's details")
+        to_top("takes and poses of the pose library")
         shot("library-accepted")
         driver.save_screenshot(str(ARTIFACTS / "studio-library.png"))
     finally:
