@@ -390,3 +390,53 @@ def test_record_and_library_views_in_a_browser(library, tmp_path):
 def _top(library: Path, frame: int) -> float:
     data = PoseLibrary(library).take_data("high_sit")
     return float(skeleton_fk(data.skeleton, data.motion().channels[frame]).positions[:, 1].max())
+
+
+_RECORDING_STUDIO = """
+import sys, time, contextlib, io
+import viser
+from studio.context import StudioContext
+from studio.record import RecordView
+with contextlib.redirect_stdout(io.StringIO()):
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+view = RecordView(server, server.gui.add_tab_group().add_tab("Record"),
+                  StudioContext(db=sys.argv[1], out=".", limit=1))
+view.do_connect()
+view.take_name.value = "killed"
+view.do_start()
+while view.stream.frames_in_take < 250:
+    time.sleep(0.05)
+view.pose_name.value, view.pose_tags.value = "held", "sit"
+view.do_mark()
+print(view.stream.frames_in_take, flush=True)
+time.sleep(60)
+"""
+
+
+@pytest.mark.slow
+def test_a_studio_killed_while_recording_leaves_its_take_and_marks_to_recover(library):
+    import signal
+    import subprocess
+    import sys
+
+    from posedb.record import recordings, recover
+
+    child = subprocess.Popen([sys.executable, "-c", _RECORDING_STUDIO, str(library)],
+                             stdout=subprocess.PIPE, text=True, cwd=ROOT,
+                             env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        frames_at_mark = int(child.stdout.readline())
+        time.sleep(1.5)
+        child.send_signal(signal.SIGKILL)
+        child.wait(10)
+    finally:
+        child.kill()
+    assert [t.name for t in PoseLibrary(library).takes()] == ["high_sit"]  # untouched
+    assert [(r.take, r.running) for r in recordings(library)] == [("killed", False)]
+    assert [r["status"] for r in recover(library)] == ["recovered"]
+    lib = PoseLibrary(library)
+    take = lib.take("killed")
+    # everything up to the mark and the second after it, less at most the last half second
+    assert take.frames >= frames_at_mark + 125
+    held = lib.pose("held")
+    assert held.take == take.id and held.tags == ("sit",) and held.frame < frames_at_mark
