@@ -27,8 +27,7 @@ from posedb.suggest import HeldPosture, take_holds
 
 from .context import StudioContext
 from .record import split_words
-from .skeleton_draw import (BONE_COLOR, JOINT_COLOR, bone_segments, png_base64,
-                            pose_positions, skeleton_thumbnail)
+from .skeleton_draw import SceneFigure, png_base64, pose_world, posed_body, skeleton_thumbnail
 
 MAX_THUMBNAILS = 24  # pictures of poses (and of takes) shown at once: a search's first
 _THUMBS: dict[tuple, str] = {}  # (library file, "pose"/"take", id, frame) -> base64 PNG
@@ -79,14 +78,16 @@ class LibraryView:
         self.holds: list[HeldPosture] = []
         self.expr = ""
         self._lock = threading.RLock()
-        self._bones = self._joints = None
         self._centre = np.zeros(3)  # subtracted from the take's positions: it plays at the origin
         # the view's nodes hang under one frame, which the studio can hide with its tab
         self.root = client.scene.add_frame(self.prefix, show_axes=False)
+        self.figure = SceneFigure(client.scene, self.prefix)
         gui = self.gui = client.gui
         with tab:
             gui.add_markdown("**Library**: takes and poses of the pose library")
             self.status = gui.add_markdown("")
+            self.with_body = gui.add_checkbox("Show the body", initial_value=True,
+                                              hint="the average body posed by the skeleton")
             with gui.add_folder("Search"):
                 self.search_text = gui.add_text("Tags", initial_value="",
                                                 hint="a tag expression: sit and not floor")
@@ -129,6 +130,7 @@ class LibraryView:
             button.on_click(lambda _e, action=action: self._guarded(action))
         self.take.on_update(lambda _e: self._guarded(self._take_chosen))
         self.pose.on_update(lambda _e: self._guarded(self._pose_chosen))
+        self.with_body.on_update(lambda _e: self._guarded(self._show_frame))
         self._wire_frame()
         self._guarded(self.do_refresh)
 
@@ -210,7 +212,7 @@ class LibraryView:
 
     def _pose_picture(self, p) -> np.ndarray:
         _, skeleton, rot, root = self._library().pose_data(p.id)
-        return skeleton_thumbnail(pose_positions(skeleton, rot, root), skeleton.parents)
+        return skeleton_thumbnail(pose_world(skeleton, rot, root).positions, skeleton.parents)
 
     def _take_picture(self, take_id: str, frame: int) -> np.ndarray:
         data = self._library().take_data(take_id, frame, frame + 1)
@@ -255,21 +257,17 @@ class LibraryView:
         if self.data is None:
             return
         k = int(self.frame.value)
-        positions = skeleton_fk(self.data.skeleton, self.data.motion().channels[k]).positions
-        self._draw(positions - self._centre, self.data.skeleton.parents)
+        world = skeleton_fk(self.data.skeleton, self.data.motion().channels[k])
+        self._draw(self.data.skeleton, world, self._centre)
 
-    def _draw(self, positions: np.ndarray, parents: np.ndarray) -> None:
-        segments = bone_segments(positions, parents)
-        scene = self.client.scene
-        if self._bones is None:
-            self._bones = scene.add_line_segments(f"{self.prefix}/bones", segments,
-                                                  BONE_COLOR, thickness=0.012)
-            self._joints = scene.add_point_cloud(f"{self.prefix}/joints",
-                                                 positions.astype(np.float32), JOINT_COLOR,
-                                                 point_size=0.02)
+    def _draw(self, skeleton, world, centre: np.ndarray) -> None:
+        """The skeleton (and, when asked, the body) in `world`, moved by -`centre` (3,) m."""
+        self.figure.show(world.positions - centre, skeleton.parents)
+        if self.with_body.value:
+            vertices, triangles = posed_body(skeleton, world)
+            self.figure.show_body(vertices - centre.astype(np.float32), triangles)
         else:
-            self._bones.points = segments
-            self._joints.points = positions.astype(np.float32)
+            self.figure.show_body(None)
 
     def _selected_hold(self) -> HeldPosture:
         labels = [hold_label(h, self.data.take.frame_time) for h in self.holds] \
@@ -319,7 +317,7 @@ class LibraryView:
         self.pose_info.content = (f"**{info.name}**: frame {info.frame} of {take.name}; tags "
                                   f"{' '.join(info.tags) or '-'}; supported "
                                   f"{', '.join(info.supports)}")
-        self._draw(pose_positions(skeleton, rot, root * [0.0, 1.0, 0.0]), skeleton.parents)
+        self._draw(skeleton, pose_world(skeleton, rot, root), root * [1.0, 0.0, 1.0])
 
     def do_rename(self) -> None:
         old, new = self._pose_name(), self.rename_to.value.strip()

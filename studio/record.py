@@ -31,9 +31,10 @@ from posedb.record import TakeRecorder
 from posedb.regions import BODY_REGIONS, DEFAULT_SUPPORT, support_regions
 
 from .context import StudioContext
-from .skeleton_draw import BONE_COLOR, JOINT_COLOR, bone_segments
+from .skeleton_draw import SceneFigure, posed_body
 
 DRAW_HZ = 30.0  # skeleton updates sent to the browser per second, at most
+BODY_HZ = 5.0  # body updates per second, at most (posing and skinning take about 30 ms)
 READOUT_EVERY = 0.5  # s between updates of the frame rate, drops and latency line
 READ_TIMEOUT = 0.02  # s a read of the stream waits for bytes
 URL_CHOICE = "stream URL"
@@ -51,8 +52,8 @@ class LiveStream:
     positions, the listener's counters, and the take being recorded, if any.
 
     source_url : a stream URL (see `capture.sources`); skeleton : the paired BVH header (path
-    or ``bundled:NAME``). `on_frame(positions (J, 3) m, received_at)` is called from the
-    reading thread at most `draw_hz` times a second; `on_error(message)` when the stream
+    or ``bundled:NAME``). `on_frame(world, received_at)` (the frame's `WorldPose`, (J,)) is
+    called from the reading thread at most `draw_hz` times a second; `on_error(message)` when the stream
     stops on a problem (the connection is closed then).
     """
 
@@ -93,10 +94,10 @@ class LiveStream:
                     next_draw = now + self._period
                     last = frames[-1]
                     channels = self.source.channels(last)
-                    positions = skeleton_fk(self.skeleton, channels).positions
+                    world = skeleton_fk(self.skeleton, channels)
                     self.shown_at = last.received_at
                     if self._on_frame is not None:
-                        self._on_frame(positions, last.received_at)
+                        self._on_frame(world, last.received_at)
         except UnknownProtocolError as exc:
             self._fail(str(exc), discard=True)
         except Exception as exc:  # noqa: BLE001 (the view shows it; the studio stays up)
@@ -179,11 +180,12 @@ class RecordView:
         self.last_take = None
         self.marked: list[dict] = []
         self._lock = threading.RLock()
-        self._bones = None
-        self._joints = None
         self._readout_stop = threading.Event()
+        self._body_wanted = threading.Event()  # a frame waits for the body's thread
+        self._latest = None  # (skeleton, world) of the frame last drawn
         # the view's nodes hang under one frame, which the studio can hide with its tab
         self.root = client.scene.add_frame(self.prefix, show_axes=False)
+        self.figure = SceneFigure(client.scene, self.prefix)
         gui = client.gui
         with tab:
             gui.add_markdown("**Record**: a live stream into the pose library")
@@ -198,6 +200,9 @@ class RecordView:
                 self.header = gui.add_text("Skeleton", initial_value="bundled:"
                                            "axis_neuron_standing_yxz.bvh",
                                            hint="the BVH header paired with the stream")
+                self.with_body = gui.add_checkbox(
+                    "Show the body", initial_value=False,
+                    hint=f"the average body posed by the skeleton, {BODY_HZ:.0f} times a second")
                 self.connect = gui.add_button("Connect")
                 self.disconnect = gui.add_button("Disconnect")
                 self.readout = gui.add_markdown("Not connected.")
@@ -229,6 +234,9 @@ class RecordView:
         self._readout_thread = threading.Thread(target=self._readout_loop, daemon=True,
                                                 name="record-readout")
         self._readout_thread.start()
+        self._body_thread = threading.Thread(target=self._body_loop, daemon=True,
+                                             name="record-body")
+        self._body_thread.start()
 
     # actions -------------------------------------------------------------------------------
     def _guarded(self, action) -> None:
@@ -324,22 +332,30 @@ class RecordView:
         self.take_name.value = _next_name(take.name)
 
     # drawing -------------------------------------------------------------------------------
-    def _draw(self, positions: np.ndarray, received_at: float) -> None:
-        """Called from the stream's thread, throttled to DRAW_HZ."""
+    def _draw(self, world, received_at: float) -> None:
+        """Called from the stream's thread, throttled to DRAW_HZ; the body is posed in a
+        thread of its own, so that its 30 ms never delay the stream's reads."""
         stream = self.stream
         if stream is None:
             return
-        segments = bone_segments(positions, stream.skeleton.parents)
-        scene = self.client.scene
-        if self._bones is None:
-            self._bones = scene.add_line_segments(f"{self.prefix}/bones", segments,
-                                                  BONE_COLOR, thickness=0.012)
-            self._joints = scene.add_point_cloud(f"{self.prefix}/joints",
-                                                 positions.astype(np.float32), JOINT_COLOR,
-                                                 point_size=0.02)
-        else:
-            self._bones.points = segments
-            self._joints.points = positions.astype(np.float32)
+        self.figure.show(world.positions, stream.skeleton.parents)
+        self._latest = (stream.skeleton, world)
+        self._body_wanted.set()
+
+    def _body_loop(self) -> None:
+        while not self._readout_stop.is_set():
+            if not self._body_wanted.wait(0.5):
+                continue
+            self._body_wanted.clear()
+            try:
+                if self.with_body.value and self._latest is not None:
+                    self.figure.show_body(*posed_body(*self._latest))
+                else:
+                    self.figure.show_body(None)
+            except Exception as exc:  # noqa: BLE001 (a skeleton no body fits: said, not fatal)
+                self.with_body.value = False
+                self._status(f"**Problem:** the body cannot follow this skeleton: {exc}")
+            self._readout_stop.wait(1.0 / BODY_HZ)
 
     def _lost(self, message: str) -> None:
         self._status(f"**Problem:** the stream stopped: {message}")
@@ -356,6 +372,7 @@ class RecordView:
 
     def close(self) -> None:
         self._readout_stop.set()
+        self._body_wanted.set()
         with self._lock:
             self.do_disconnect(quiet=True)
 

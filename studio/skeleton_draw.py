@@ -1,5 +1,6 @@
-"""Skeletons as the studio's Record and Library views draw them: bone segments for the 3D scene
-and small thumbnails rendered on the server (a numpy raster, no display needed).
+"""Skeletons as the studio's Record and Library views draw them: bone segments for the 3D scene,
+small thumbnails rendered on the server (a numpy raster, no display needed), and the average body
+posed by a skeleton (the solver's retargeting and skinning, as `sitrelax fit` poses people).
 
 Positions are world joint positions in metres, Y up, a body in rest pose facing +Z (the
 project's frame). A thumbnail looks at the body from the front and a little to its right, as
@@ -14,26 +15,49 @@ import io
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from capture import Skeleton
+from capture import Skeleton, WorldPose
 from capture.skeleton import forward_kinematics
+from solver.io.render import SKIN
 
 THUMBNAIL_SIZE = 112  # pixels, square
 BONE_COLOR = (40, 110, 220)
+BODY_COLOR = tuple(int(round(255 * c)) for c in SKIN)  # the pictures' skin
 JOINT_COLOR = (30, 30, 38)
 _VIEW = Rotation.from_euler("y", -30.0, degrees=True)  # the thumbnail's turn about Y
 
 
-def pose_positions(skeleton: Skeleton, local_rotations: np.ndarray,
-                   root_position: np.ndarray) -> np.ndarray:
-    """World joint positions (J, 3) m of a library pose: its own rotations (J, 4) xyzw, the
-    skeleton's offsets, and the root at `root_position` (3,) m."""
+def pose_world(skeleton: Skeleton, local_rotations: np.ndarray,
+               root_position: np.ndarray) -> WorldPose:
+    """World joint frames (J,) of a library pose: its own rotations (J, 4) xyzw, the skeleton's
+    offsets, and the root at `root_position` (3,) m."""
     rot = np.asarray(local_rotations, dtype=np.float64)
     if rot.shape != (skeleton.num_joints, 4):
         raise ValueError(f"Expected rotations ({skeleton.num_joints}, 4), got {rot.shape}")
     translations = skeleton.offsets_m.copy()
     translations[0] = np.asarray(root_position, dtype=np.float64)
     return forward_kinematics(skeleton.parents, Rotation.from_quat(rot).as_matrix(),
-                              translations, skeleton.levels).positions
+                              translations, skeleton.levels)
+
+
+def posed_body(skeleton: Skeleton, world: WorldPose) -> tuple[np.ndarray, np.ndarray]:
+    """The average body in a skeleton's posture, its pelvis (the rig's root) on the skeleton's
+    root joint: vertices (V, 3) float32 m and triangles (F, 3). About 30 ms.
+
+    world : the skeleton's world frames of one posture, (J,) or (1, J).
+    """
+    from solver.body.model import make_body
+    from solver.body.poses import CapturedPose, pose_body
+    from solver.body.skinning import skin
+
+    if world.positions.ndim == 2:
+        world = WorldPose(world.positions[None], world.rotmats[None])
+    body = make_body()
+    motion = pose_body(CapturedPose(skeleton, world, "the studio's skeleton"), body,
+                       lowest=None)
+    pose = motion.frame(0)
+    vertices, _ = skin(body, pose, normals=False)
+    vertices += world.positions[0, 0] - pose.positions[0]
+    return vertices.astype(np.float32), body.triangles
 
 
 def bone_segments(positions: np.ndarray, parents: np.ndarray) -> np.ndarray:
@@ -93,3 +117,39 @@ def png_base64(img: np.ndarray) -> str:
     buffer = io.BytesIO()
     imsave(buffer, img, format="png")
     return base64.b64encode(buffer.getvalue()).decode("ascii")
+
+
+class SceneFigure:
+    """A skeleton (and optionally a body) a view draws in its part of the scene (`prefix`),
+    made on first use and then only moved: each update sends the new points, not new nodes."""
+
+    def __init__(self, scene, prefix: str):
+        self.scene, self.prefix = scene, prefix
+        self.bones = self.joints = self.body = None
+
+    def show(self, positions: np.ndarray, parents: np.ndarray) -> None:
+        """Draws the skeleton at `positions` (J, 3) m."""
+        segments = bone_segments(positions, parents)
+        points = np.asarray(positions, dtype=np.float32)
+        if self.bones is None:
+            self.bones = self.scene.add_line_segments(f"{self.prefix}/bones", segments,
+                                                      BONE_COLOR, thickness=0.012)
+            self.joints = self.scene.add_point_cloud(f"{self.prefix}/joints", points,
+                                                     JOINT_COLOR, point_size=0.02)
+        else:
+            self.bones.points = segments
+            self.joints.points = points
+
+    def show_body(self, vertices: np.ndarray | None, triangles: np.ndarray | None = None
+                  ) -> None:
+        """Draws the body's skin (V, 3) m over triangles (F, 3); None hides it."""
+        if vertices is None:
+            if self.body is not None:
+                self.body.visible = False
+            return
+        if self.body is None:
+            self.body = self.scene.add_mesh_simple(f"{self.prefix}/body", vertices, triangles,
+                                                   color=BODY_COLOR, opacity=0.55)
+        else:
+            self.body.vertices = vertices
+            self.body.visible = True

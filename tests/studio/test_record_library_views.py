@@ -19,7 +19,7 @@ from capture.recordings import resolve_path
 from posedb import PoseLibrary
 from posedb.record import journal_dir
 from studio.context import StudioContext
-from studio.skeleton_draw import pose_positions, skeleton_thumbnail
+from studio.skeleton_draw import pose_world, skeleton_thumbnail
 
 from tests.studio.test_studio import ARTIFACTS, CHROMIUM, DRIVER, _browser, _wait
 
@@ -61,7 +61,11 @@ def test_record_view_records_a_replay_and_stores_the_marked_poses(library, tmp_p
         assert "Connect to a source first" in view.status.content
         view._guarded(view.do_connect)
         assert view.status.content.startswith("Connected to tcp://127.0.0.1:")
-        _wait(lambda: view._bones is not None, 10, "the live skeleton")
+        _wait(lambda: view.figure.bones is not None, 10, "the live skeleton")
+        view.with_body.value = True
+        _wait(lambda: view.figure.body is not None, 20, "the live body")
+        # posed from a frame drawn a moment before the skeleton now shown: a looser fit
+        _assert_body_around_skeleton(view.figure, within=0.5)
         view._guarded(view.do_mark)
         assert "Start a take first" in view.status.content
         view.take_name.value, view.take_tags.value = "live", "session"
@@ -152,7 +156,10 @@ def test_library_view_scrubs_accepts_a_hold_and_edits(library, tmp_path):
         want = skeleton_fk(bvh.skeleton, bvh.motion.channels[60]).positions
         # viser keeps (and sends) points as float16: 1 mm steps at a metre
         centre = bvh.skeleton.root_positions(bvh.motion.channels).mean(axis=0) * [1, 0, 1]
-        np.testing.assert_allclose(view._joints.points, want - centre, atol=2e-3)
+        np.testing.assert_allclose(view.figure.joints.points, want - centre, atol=2e-3)
+        _assert_body_around_skeleton(view.figure)
+        view.with_body.value = False
+        assert not view.figure.body.visible
         view.new_tags.value = "high"
         view._guarded(view.do_accept_hold)
         assert "Added pose **high_sit-f00039** at frame 39" in view.status.content
@@ -176,6 +183,19 @@ def test_library_view_scrubs_accepts_a_hold_and_edits(library, tmp_path):
     assert [p.name for p in lib.poses()] == ["perch"]
     perch = lib.pose("perch")
     assert perch.frame == 39 and perch.tags == ("favourite", "high", "sit")
+
+
+def _assert_body_around_skeleton(figure, within: float = 0.25) -> None:
+    """The posed body (all its 13,380 vertices) wraps the skeleton drawn with it: the boxes'
+    low corners and their far sides across (x, z) agree within `within` m, and the skin rises
+    above the top joint (the skull over the head joint; the average body is not the
+    subject's size)."""
+    skin = np.asarray(figure.body.vertices, dtype=np.float64)
+    joints = np.asarray(figure.joints.points, dtype=np.float64)
+    assert skin.shape == (13380, 3) and np.isfinite(skin).all()
+    assert np.abs(skin.min(axis=0) - joints.min(axis=0)).max() < within
+    assert np.abs(skin.max(axis=0) - joints.max(axis=0))[[0, 2]].max() < within
+    assert skin[:, 1].max() > joints[:, 1].max()
 
 
 def test_a_thumbnail_is_the_skeleton_seen_from_the_front():
@@ -209,7 +229,7 @@ def test_a_pose_is_drawn_from_its_own_rotations(library):
     _, skeleton, rot, root = lib.pose_data("early")
     data = lib.take_data("high_sit")
     want = skeleton_fk(data.skeleton, data.motion().channels[10]).positions
-    np.testing.assert_allclose(pose_positions(skeleton, rot, root), want, atol=1e-4)
+    np.testing.assert_allclose(pose_world(skeleton, rot, root).positions, want, atol=1e-4)
 
 
 def _mount(server, context, views):
@@ -299,9 +319,12 @@ def test_record_and_library_views_in_a_browser(library, tmp_path):
         record = mounted[0]["Record"]
         shot("record-start")
         click("Connect")
-        _wait(lambda: record._bones is not None, 20, "the live skeleton")
+        _wait(lambda: record.figure.bones is not None, 20, "the live skeleton")
         _wait(lambda: "fps" in page(), 20, "the frame rate on the page")
         shot("record-connected")
+        body_box = field("Show the body")
+        driver.execute_script("arguments[0].click()", body_box)  # mantine hides the input
+        _wait(lambda: record.figure.body is not None, 30, "the live body")
         type_into("Take name", "browser-take")
         type_into("Take tags", "session")
         click("Start take")
@@ -350,7 +373,7 @@ def test_record_and_library_views_in_a_browser(library, tmp_path):
         assert thumb.get_attribute("aria-valuenow") == "39"
         thumb.send_keys(*[Keys.ARROW_LEFT] * 19)
         _wait(lambda: library_view.frame.value == 20, 20, "the timeline at frame 20")
-        _wait(lambda: abs(float(library_view._joints.points[:, 1].max())
+        _wait(lambda: abs(float(library_view.figure.joints.points[:, 1].max())
                           - _top(library, 20)) < 2e-3, 10, "the skeleton at frame 20")
         shot("library-scrubbed")
         click("Go to hold")
