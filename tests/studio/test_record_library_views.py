@@ -312,7 +312,7 @@ def test_record_and_library_views_in_a_browser(library, tmp_path):
 
     try:
         driver.get(f"http://127.0.0.1:{server.get_port()}")
-        _wait(lambda: button("Connect"), 90, "the Record view")
+        _wait(lambda: mounted and button("Connect"), 90, "the Record view")
         for close in driver.find_elements(By.CSS_SELECTOR,
                                           "button.mantine-Notification-closeButton"):
             close.click()  # the note that WebGL runs in software
