@@ -198,6 +198,23 @@ def _assert_body_around_skeleton(figure, within: float = 0.25) -> None:
     assert skin[:, 1].max() > joints[:, 1].max()
 
 
+def test_library_view_without_a_library_says_so(tmp_path):
+    from studio.library_view import LibraryView
+
+    server = _server()
+    view = LibraryView(server, server.gui.add_tab_group().add_tab("Library"),
+                       StudioContext(db=None, out=tmp_path, limit=1 << 20))
+    try:
+        assert "start the studio with --db" in view.status.content
+        view._guarded(view.do_accept_hold)
+        assert "Choose a take with a suggested hold first" in view.status.content
+        view._guarded(view.do_search)
+        assert "No pose library" in view.status.content
+    finally:
+        view.close()
+        _stop(server)
+
+
 def test_a_thumbnail_is_the_skeleton_seen_from_the_front():
     bvh = read_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"))
     positions = skeleton_fk(bvh.skeleton, bvh.motion.channels[39]).positions
@@ -332,6 +349,8 @@ def test_record_and_library_views_in_a_browser(library, tmp_path):
         _wait(lambda: record.stream.frames_in_take > 100, 20, "frames of the take")
         type_into("Pose name", "wave")
         type_into("Pose tags", "stand arms")
+        time.sleep(1.0)
+        assert record.marked == []  # the m typed in "arms" is text, not the key
         click("Mark pose (M)")
         _wait(lambda: len(record.marked) == 1, 20, "the first mark (button)")
         time.sleep(1.0)
