@@ -321,6 +321,7 @@ class RecordView:
 
     def do_stop(self) -> None:
         stream = self._need_stream()
+        self._status("Storing the take (waiting for the library if another writer holds it)...")
         with self.context.library_lock:
             take = stream.stop_take()
         self.last_take = take

@@ -416,10 +416,10 @@ def test_record_and_library_views_in_a_browser(library, tmp_path):
         shot("library-accepted")
         driver.save_screenshot(str(ARTIFACTS / "studio-library.png"))
     finally:
-        driver.quit()
         for made in mounted:
             for view in made.values():
                 view.close()
+        driver.quit()
         _stop(server)
     lib = PoseLibrary(library)
     wave, second = lib.pose("wave"), lib.pose("second")
