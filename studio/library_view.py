@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import html
+import os
 import threading
 import traceback
 
@@ -29,6 +30,7 @@ from .context import StudioContext
 from .record import split_words
 from .skeleton_draw import SceneFigure, png_base64, pose_world, posed_body, skeleton_thumbnail
 
+POLL_EVERY = 2.0  # s between looks at the library file: a change elsewhere is listed
 MAX_THUMBNAILS = 24  # pictures of poses (and of takes) shown at once: a search's first
 _THUMBS: dict[tuple, str] = {}  # (library file, "pose"/"take", id, frame) -> base64 PNG
 _MAX_CACHED = 4096
@@ -132,7 +134,11 @@ class LibraryView:
         self.pose.on_update(lambda _e: self._guarded(self._pose_chosen))
         self.with_body.on_update(lambda _e: self._guarded(self._show_frame))
         self._wire_frame()
+        self._seen = None  # the library file's identity when last read
+        self._closing = threading.Event()
         self._guarded(self.do_refresh)
+        self._poller = threading.Thread(target=self._poll, daemon=True, name="library-poll")
+        self._poller.start()
 
     # plumbing ------------------------------------------------------------------------------
     def _guarded(self, action) -> None:
@@ -171,15 +177,40 @@ class LibraryView:
         if self.context.db is None:
             self._status("No pose library: start the studio with --db to see one.")
             return
+        self._seen = self._stamp()
         self.lib = PoseLibrary(self.context.db)
         self._list()
+
+    def _stamp(self) -> tuple | None:
+        """The library file's identity and version: a change replaces the file."""
+        try:
+            st = os.stat(self.context.db)
+        except (OSError, TypeError):
+            return None
+        return st.st_ino, st.st_mtime_ns, st.st_size
+
+    def _poll(self) -> None:
+        """Lists again what a recording, another tab or another process changed, keeping
+        what is chosen."""
+        while not self._closing.wait(POLL_EVERY):
+            stamp = self._stamp()
+            if stamp is None or stamp == self._seen:
+                continue
+            with self._lock:
+                try:
+                    self._seen = stamp
+                    self.lib = PoseLibrary(self.context.db)
+                    self._list(keep=True)
+                except Exception:  # noqa: BLE001 (a file mid-change: the next look sees it)
+                    self._seen = None
 
     def do_search(self) -> None:
         self.expr = self.search_text.value.strip()
         self._library()
         self._list()
 
-    def _list(self) -> None:
+    def _list(self, keep: bool = False) -> None:
+        """Lists the matches; `keep`: the pose chosen stays chosen if it still matches."""
         lib = self._library()
         expr = self.expr or None
         poses = lib.find_poses(expr)
@@ -187,7 +218,7 @@ class LibraryView:
         take_names = {t.id: t.name for t in lib.takes()}
         self.found.content = (f"{len(takes)} take(s), {len(poses)} pose(s)"
                               + (f" match `{self.expr}`" if self.expr else ""))
-        self._set_options(self.pose, [p.name for p in poses])
+        self._set_options(self.pose, [p.name for p in poses], keep=keep)
         # every take stays on the timeline's list; the search picks the pictures
         self._set_options(self.take, [t.name for t in lib.takes()], keep=True)
         key = str(lib.target)
@@ -347,4 +378,5 @@ class LibraryView:
         self._status(f"Deleted pose {name}.")
 
     def close(self) -> None:
-        """Nothing runs in the background of this view."""
+        """Stops looking at the library file."""
+        self._closing.set()

@@ -176,11 +176,17 @@ def test_library_view_scrubs_accepts_a_hold_and_edits(library, tmp_path):
         assert "without '/'" in view.status.content
         view.pose.value = "early"
         view._guarded(view.do_delete)
+        # a change made elsewhere (another tab, a command) is listed within a few seconds,
+        # the pose chosen staying chosen
+        view.pose.value = "perch"
+        PoseLibrary(library).add_pose("high_sit", 5, "outside", tags=["high", "sit"])
+        _wait(lambda: "outside" in view.pose.options, 10, "the change made elsewhere")
+        assert view.pose.value == "perch"
     finally:
         view.close()
         _stop(server)
     lib = PoseLibrary(library)
-    assert [p.name for p in lib.poses()] == ["perch"]
+    assert [p.name for p in lib.poses()] == ["perch", "outside"]
     perch = lib.pose("perch")
     assert perch.frame == 39 and perch.tags == ("favourite", "high", "sit")
 
