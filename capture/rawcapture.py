@@ -13,8 +13,10 @@ even after the writer was killed:
     records      repeated  kind u8, t f64 (seconds since time_origin), length u32, bytes
 
 Record kinds: 0 data (one read from a stream, or one datagram), 1 connected, 2 disconnected
-(the bytes of an event record hold a UTF-8 note). A record cut short at the end of the file (a
-writer killed mid-write) is ignored and reported as `truncated`.
+(the bytes of an event record hold a UTF-8 note), 3 mark (a moment the recording program marked,
+its bytes a UTF-8 JSON object of that program's; its time is the receive time of the frame
+marked). A record cut short at the end of the file (a writer killed mid-write) is ignored and
+reported as `truncated`.
 """
 
 from __future__ import annotations
@@ -24,13 +26,14 @@ import json
 import os
 import re
 import struct
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
 
 MAGIC = b"SITRAW\x00\x01"
-DATA, CONNECTED, DISCONNECTED = 0, 1, 2
-KIND_NAMES = {DATA: "data", CONNECTED: "connected", DISCONNECTED: "disconnected"}
+DATA, CONNECTED, DISCONNECTED, MARK = 0, 1, 2, 3
+KIND_NAMES = {DATA: "data", CONNECTED: "connected", DISCONNECTED: "disconnected", MARK: "mark"}
 _RECORD = struct.Struct("<BdI")
 _MAX_RECORD = 64 * 1024 * 1024
 
@@ -81,7 +84,7 @@ class RawCaptureWriter:
     """Appends records to a new raw capture file (an existing file is never overwritten).
 
     Records are written straight through to the operating system, so a killed process loses
-    at most the record being written.
+    at most the record being written. Several threads may write (a stream's reader and a mark).
     """
 
     def __init__(self, path: str | os.PathLike, *, source: str, transport: str = "stream",
@@ -110,12 +113,15 @@ class RawCaptureWriter:
         except FileExistsError:
             raise RawCaptureError(f"Refusing to overwrite existing capture {self.path}") from None
         self._fh.write(MAGIC + struct.pack("<I", len(blob)) + blob)
+        self._lock = threading.Lock()
 
     def write(self, kind: int, t_abs: float, data: bytes = b"") -> None:
         """Appends one record; `t_abs` is a Unix time, stored relative to the time origin."""
         if kind not in KIND_NAMES:
             raise RawCaptureError(f"Expected a record kind in {sorted(KIND_NAMES)}, got {kind}")
-        self._fh.write(_RECORD.pack(kind, t_abs - self.time_origin, len(data)) + bytes(data))
+        record = _RECORD.pack(kind, t_abs - self.time_origin, len(data)) + bytes(data)
+        with self._lock:  # one record's bytes never interleave with another's
+            self._fh.write(record)
 
     def fileno(self) -> int:
         return self._fh.fileno()
@@ -203,6 +209,26 @@ def iter_raw_capture(path: str | os.PathLike) -> tuple[dict, RawRecords]:
         fh.close()
         raise
     return header, RawRecords(fh, path)
+
+
+def raw_marks(path: str | os.PathLike) -> list[tuple[float, dict]]:
+    """The mark records of a raw capture: (Unix time, the mark's JSON object), in file order.
+    A mark whose bytes are not a JSON object is a damaged capture."""
+    header, records = iter_raw_capture(path)
+    origin = float(header.get("time_origin", 0.0))
+    out = []
+    for r in records:
+        if r.kind != MARK:
+            continue
+        try:
+            mark = json.loads(r.data.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError):
+            mark = None
+        if not isinstance(mark, dict):
+            raise RawCaptureError(f"{path}: expected a mark record holding a JSON object, got "
+                                  f"{r.data[:40]!r}")
+        out.append((origin + r.t, mark))
+    return out
 
 
 def read_raw_capture(path: str | os.PathLike) -> RawCapture:

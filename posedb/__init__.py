@@ -16,7 +16,7 @@ import types
 _EXPORTS = {
     "posedb.library": ("DuplicateNameError", "Editor", "LockedError", "PoseInfo", "PoseLibrary",
                        "TakeData", "TakeInfo"),
-    "posedb.record": ("record", "recordings", "recover"),
+    "posedb.record": ("TakeRecorder", "record", "recordings", "recover"),
     "posedb.regions": ("BODY_REGIONS", "DEFAULT_SUPPORT", "SUPPORT_USES", "SupportNameError",
                        "support_regions"),
     "posedb.schema": ("SCHEMA_VERSION", "LibraryError", "NotFoundError", "SchemaError"),

@@ -166,6 +166,16 @@ def _find_pose(table: PoseTable, ref: str, path: Path) -> int:
     return row
 
 
+def checked_name(name: str, kind: str = "pose") -> str:
+    """A take's or pose's name as stored (stripped); raises LibraryError for an empty one, one
+    with '/', tabs or line breaks, or one over 200 characters."""
+    name = str(name).strip()
+    if not name or any(c in name for c in "\n\r\t/") or len(name) > 200:
+        raise LibraryError(f"Expected a {kind} name without '/', tabs or line breaks, got "
+                           f"{name!r}")
+    return name
+
+
 def skeleton_key(sk: Skeleton) -> str:
     """A content hash naming a distinct skeleton (names, hierarchy, offsets, channels, unit)."""
     h = hashlib.sha1()
@@ -465,10 +475,7 @@ class Editor:
     # -- names ----------------------------------------------------------------------------
 
     def _check_name(self, name: str, kind: str) -> str:
-        name = str(name).strip()
-        if not name or any(c in name for c in "\n\r\t/") or len(name) > 200:
-            raise LibraryError(f"Expected a {kind} name without '/', tabs or line breaks, got "
-                               f"{name!r}")
+        name = checked_name(name, kind)
         if kind == "take" and any(t.name == name for t in self.takes.values()):
             raise DuplicateNameError(f"A take named {name!r} already exists in {self.lib.path}")
         if kind == "pose" and self.table.row_of(name) is not None:
@@ -664,6 +671,13 @@ class Editor:
         if notes is not None:
             self.table.set_notes(row, notes)
         self._table_dirty = True
+
+    def set_take(self, ref: str, *, notes: str | None = None) -> None:
+        """Changes a take's notes."""
+        take = self._take(ref)
+        if notes is not None:
+            self.f["takes"][take.id].attrs["notes"] = str(notes)
+            self.takes[take.id] = replace(take, notes=str(notes))
 
     def delete_pose(self, ref: str) -> None:
         self.table.drop([self._pose_row(ref)])

@@ -13,10 +13,16 @@ frame until the take is stored and the journal removed; `recover` takes the same
 stores a journal, so the two never both store one. The final commit waits for other writers of
 the library like any change; should it still fail, the journal stays and the error says which
 command stores it.
+
+Poses can be marked while a take records (`TakeRecorder.mark`): each mark is a record of the
+journal itself (kind "mark", at the receive time of the frame marked), so it survives what the
+frames survive, and becomes a pose of the take in the same commit that stores the take.
 """
 
 from __future__ import annotations
 
+import contextlib
+import json
 import os
 import re
 import time
@@ -29,14 +35,16 @@ import numpy as np
 
 from capture import parse_bvh, read_bvh, resolve_path
 from capture.monitor import StreamMonitor, sender_timing
-from capture.rawcapture import (RawCaptureError, RawCaptureWriter, iter_raw_capture,
-                                skeleton_header_text)
+from capture.rawcapture import (MARK, RawCaptureError, RawCaptureWriter, iter_raw_capture,
+                                raw_marks, skeleton_header_text)
 from capture.sources import RawFileTransport, Source, UnknownProtocolError, open_transport
 from capture.stream_layout import StreamLayout
 
-from .library import DuplicateNameError, PoseLibrary, TakeInfo
+from .library import DuplicateNameError, Editor, PoseLibrary, TakeInfo, checked_name
 from .locking import LockedError, exclusive, try_exclusive
+from .regions import DEFAULT_SUPPORT, support_regions
 from .schema import LibraryError, NotFoundError
+from .tags import normalise_tags
 
 _SYNC_EVERY = 0.5  # seconds between fsyncs of the journal
 _COMMON_RATES = (24, 25, 30, 48, 50, 60, 90, 96, 100, 120, 125, 200, 240, 250)
@@ -150,6 +158,7 @@ def import_journal(lib: PoseLibrary, path: Path) -> TakeInfo | None:
     indices = np.array([f.frame_index if f.frame_index is not None else k
                         for k, f in enumerate(frames)], dtype=np.int64)
     received = np.array([f.received_at for f in frames], dtype=np.float64)
+    marks = raw_marks(path)
     stats = source.stats()
     notes = meta.get("notes", "")
     summary = (f"recorded from {header.get('source', '?')}: {len(frames)} frames, "
@@ -167,10 +176,49 @@ def import_journal(lib: PoseLibrary, path: Path) -> TakeInfo | None:
                 recorded_at=header.get("started_at"), origin="stream", frame_indices=indices,
                 received_at=received,
             )
+            _add_marked_poses(ed, tid, received, marks)
     except _AlreadyStored as done:
         tid = done.take_id
     path.unlink()
     return lib.take(tid)
+
+
+def marked_frame(received_at: np.ndarray, t: float) -> int:
+    """The take frame a mark at receive time `t` names: the last frame received by then (the
+    one shown when the mark was made), or the first if none was.
+
+    received_at : (T,) Unix s, non-decreasing (the take's receive times).
+    """
+    return max(0, int(np.searchsorted(received_at, t, side="right")) - 1)
+
+
+def _free_name(ed: Editor, name: str) -> str:
+    """`name`, or `name-2`, `name-3`... when a pose holds it already (a mark is never lost to
+    a name taken after it was made; the take's notes say what was renamed)."""
+    if ed.table.row_of(name) is None:
+        return name
+    k = 2
+    while ed.table.row_of(f"{name}-{k}") is not None:
+        k += 1
+    return f"{name}-{k}"
+
+
+def _add_marked_poses(ed: Editor, take_id: str, received_at: np.ndarray,
+                      marks: list[tuple[float, dict]]) -> None:
+    """The journal's marks as poses of the new take (inside the commit that stores it)."""
+    take = ed.takes[take_id]
+    renamed = []
+    for t, mark in marks:
+        frame = marked_frame(received_at, t)
+        wanted = str(mark.get("name") or f"{take.name}-f{frame:05d}")
+        name = _free_name(ed, wanted)
+        if name != wanted:
+            renamed.append(f"the pose marked {wanted!r} is {name!r} (the name was taken)")
+        ed.add_pose(take_id, frame, name, tags=tuple(take.tags) + tuple(mark.get("tags", ())),
+                    supports=mark.get("supports") or DEFAULT_SUPPORT,
+                    notes=str(mark.get("notes", "")))
+    if renamed:
+        ed.set_take(take_id, notes="\n".join([take.notes, *renamed]))
 
 
 def _recover_one(lib: PoseLibrary, rec: Recording) -> dict:
@@ -214,6 +262,138 @@ def _store_journal(lib: PoseLibrary, journal: Path, take: str) -> TakeInfo | Non
         ) from exc
 
 
+class TakeRecorder:
+    """One take being recorded: its journal (its lock held from the start until the take is
+    stored), the poses marked meanwhile, and the final commit.
+
+    Whoever reads the stream gives the journal to its `Source` (``raw=recorder.writer``) and
+    calls `tick()` after each read (the journal is forced to disk every half second);
+    `finish()` stores the take, with its marked poses, in one commit. `record` drives one
+    from a source URL; the studio drives one from the stream it shows. A recorder that is
+    dropped without `finish()` (a crash) leaves its journal for `recover`.
+
+    Parameters
+    ----------
+    library : the pose library's path (made if missing).
+    take : the new take's name; refused at once when a take or a recording holds it.
+    skeleton : the BVH header paired with the stream (path or ``bundled:NAME``).
+    source_url : where the stream comes from (stored with the take).
+    datagram : whether the transport delivers datagrams (UDP) rather than a byte stream.
+    """
+
+    def __init__(self, library: str | os.PathLike, take: str, skeleton: str, source_url: str,
+                 *, datagram: bool = False, subject: str = "", tags: Iterable[str] = (),
+                 notes: str = "", unit: str | float = "auto",
+                 on_event: Callable[[str], None] | None = None,
+                 lock_timeout: float | None | str = "default"):
+        def waiting(seconds: float) -> None:
+            if on_event is not None and (int(seconds) == 1 or int(seconds) % 5 == 0):
+                on_event(f"waiting {seconds:.0f} s for another writer of {library} to finish")
+
+        self.library = PoseLibrary(library, create=True, lock_timeout=lock_timeout,
+                                   on_wait=waiting)
+        self.take = checked_name(take, "take")
+        self._check_free(library)
+        tags = normalise_tags(tags)
+        header_path = resolve_path(skeleton)
+        header = read_bvh(header_path, unit=unit)
+        if header.skeleton.unit_m is None:
+            raise LibraryError(f"{header_path}: the skeleton's length unit is unknown; pass "
+                               "--unit")
+        self.skeleton = header.skeleton
+        self.layout = StreamLayout(header.skeleton)
+        folder = journal_dir(library)
+        folder.mkdir(exist_ok=True)
+        self.journal = folder / _journal_name(self.take)
+        meta = {"name": self.take, "subject": subject, "tags": list(tags), "notes": notes,
+                "recording_id": uuid.uuid4().hex, "unit_m": header.skeleton.unit_m,
+                "frame_time": header.motion.frame_time, "pid": os.getpid()}
+        self._held = contextlib.ExitStack()
+        # held until the take is stored: tells `recover` this journal is alive
+        self._held.enter_context(exclusive(self.journal, timeout=10.0, what="The journal"))
+        try:
+            self.writer = RawCaptureWriter(
+                self.journal, source=source_url, time_origin=time.time(),
+                transport="datagram" if datagram else "stream",
+                skeleton_bvh=skeleton_header_text(header_path.read_text(errors="replace")),
+                extra={"take": meta})
+        except BaseException:
+            self._held.close()
+            raise
+        self.marks: list[dict] = []
+        self._next_sync = time.monotonic() + _SYNC_EVERY
+
+    def _check_free(self, library) -> None:
+        try:
+            self.library.take(self.take)
+        except NotFoundError:
+            pass
+        else:
+            raise DuplicateNameError(f"A take named {self.take!r} already exists in "
+                                     f"{self.library.path}")
+        if any(r.take == self.take for r in recordings(library)):
+            raise DuplicateNameError(f"A recording of take {self.take!r} is already running or "
+                                     "waiting for `sitrelax db recover`")
+
+    def tick(self) -> None:
+        """Forces the journal to disk when half a second has passed since the last time."""
+        now = time.monotonic()
+        if now >= self._next_sync:
+            self.writer.sync()
+            self._next_sync = now + _SYNC_EVERY
+
+    def mark(self, received_at: float, *, name: str = "", tags: Iterable[str] = (),
+             supports: Iterable[str] | str = DEFAULT_SUPPORT, notes: str = "") -> dict:
+        """Marks the frame received at `received_at` (Unix s; the frame on screen) as a pose.
+
+        The mark is written to the journal at once (and forced to disk): it becomes a pose of
+        the take, carrying the take's tags and `tags`, when the take is stored. An empty name
+        becomes "<take>-fNNNNN" (its frame). Names, tags and supports are checked now, a name
+        against the library's poses and the marks before. Returns the mark as stored, with
+        its `received_at`.
+        """
+        if not np.isfinite(received_at):
+            raise LibraryError(f"Expected the receive time of a frame, got {received_at!r}")
+        name = checked_name(name, "pose") if str(name).strip() else ""
+        if name and (name in self.library.search_poses()
+                     or any(m["name"] == name for m in self.marks)):
+            raise DuplicateNameError(f"A pose named {name!r} already exists in "
+                                     f"{self.library.path} or was marked already")
+        mark = {"name": name, "tags": list(normalise_tags(tags)),
+                "supports": list(support_regions(supports)), "notes": str(notes)}
+        self.writer.write(MARK, float(received_at), json.dumps(mark).encode("utf-8"))
+        self.writer.sync()
+        mark["received_at"] = float(received_at)
+        self.marks.append(mark)
+        return mark
+
+    def finish(self) -> TakeInfo | None:
+        """Closes the journal and stores it as the take with its marked poses, in one commit
+        (None when no frame came); on failure the journal stays and the error says how to
+        store it. The journal's lock is released either way."""
+        try:
+            self.writer.close()
+            return _store_journal(self.library, self.journal, self.take)
+        finally:
+            self._held.close()
+
+    def abandon(self) -> None:
+        """Closes the journal and releases its lock without storing it, as a recorder that
+        died would leave it: `recover` stores it (with its marks) later."""
+        try:
+            self.writer.close()
+        finally:
+            self._held.close()
+
+    def discard(self) -> None:
+        """Drops a journal that can never become a take (no frame of the protocol in it)."""
+        try:
+            self.writer.close()
+            self.journal.unlink(missing_ok=True)
+        finally:
+            self._held.close()
+
+
 def record(source_url: str, library: str | os.PathLike, take: str, skeleton: str, *,
            duration: float | None = None, frames: int | None = None, subject: str = "",
            tags: Iterable[str] = (), notes: str = "", unit: str | float = "auto",
@@ -227,62 +407,33 @@ def record(source_url: str, library: str | os.PathLike, take: str, skeleton: str
     `stop()` returns true. The final commit waits up to `lock_timeout` s for other writers
     (reported through `on_event`).
     """
-    from .tags import normalise_tags
-
-    def waiting(seconds: float) -> None:
-        if on_event is not None and (int(seconds) == 1 or int(seconds) % 5 == 0):
-            on_event(f"waiting {seconds:.0f} s for another writer of {library} to finish")
-
-    lib = PoseLibrary(library, create=True, lock_timeout=lock_timeout, on_wait=waiting)
-    try:
-        lib.take(take)
-    except NotFoundError:
-        pass
-    else:
-        raise DuplicateNameError(f"A take named {take!r} already exists in {lib.path}")
-    if any(r.take == take for r in recordings(library)):
-        raise DuplicateNameError(f"A recording of take {take!r} is already running or waiting "
-                                 "for `sitrelax db recover`")
-    tags = normalise_tags(tags)
-    header_path = resolve_path(skeleton)
-    header = read_bvh(header_path, unit=unit)
-    if header.skeleton.unit_m is None:
-        raise LibraryError(f"{header_path}: the skeleton's length unit is unknown; pass --unit")
-    layout = StreamLayout(header.skeleton)
     transport = open_transport(source_url)
-    folder = journal_dir(library)
-    folder.mkdir(exist_ok=True)
-    journal = folder / _journal_name(take)
-    meta = {"name": take, "subject": subject, "tags": list(tags), "notes": notes,
-            "recording_id": uuid.uuid4().hex, "unit_m": header.skeleton.unit_m,
-            "frame_time": header.motion.frame_time, "pid": os.getpid()}
-    # held until the take is stored: tells `recover` this journal is alive
-    with exclusive(journal, timeout=10.0, what="The journal"):
-        writer = RawCaptureWriter(journal, source=source_url, time_origin=time.time(),
-                                  transport="datagram" if transport.datagram else "stream",
-                                  skeleton_bvh=skeleton_header_text(
-                                      header_path.read_text(errors="replace")),
-                                  extra={"take": meta})
-        try:
-            summary = _receive(Source(transport, layout, fmt=fmt, raw=writer,
-                                      on_event=on_event), writer, duration, frames,
-                               on_progress, stop)
-        except UnknownProtocolError:
-            journal.unlink()  # nothing of it can become a take
-            raise
-        # the source closed the journal; now it becomes a take
-        stored = _store_journal(lib, journal, take)
+    try:
+        recorder = TakeRecorder(library, take, skeleton, source_url,
+                                datagram=transport.datagram, subject=subject, tags=tags,
+                                notes=notes, unit=unit, on_event=on_event,
+                                lock_timeout=lock_timeout)
+    except BaseException:
+        transport.close()
+        raise
+    try:
+        summary = _receive(Source(transport, recorder.layout, fmt=fmt, raw=recorder.writer,
+                                  on_event=on_event), recorder, duration, frames,
+                           on_progress, stop)
+    except UnknownProtocolError:
+        recorder.discard()  # nothing of it can become a take
+        raise
+    stored = recorder.finish()
     summary["take"] = None if stored is None else stored.as_dict()
-    summary["library"] = str(lib.path)
+    summary["library"] = str(recorder.library.path)
     return summary
 
 
-def _receive(source: Source, writer: RawCaptureWriter, duration, frames, on_progress,
+def _receive(source: Source, recorder: TakeRecorder, duration, frames, on_progress,
              stop) -> dict:
     """Reads `source` into its journal until a limit, `stop()` or its end; the summary."""
     monitor = StreamMonitor()
     start = time.monotonic()
-    next_sync = start + _SYNC_EVERY
     next_report = start + 1.0
     with source as src:
         while not src.exhausted:
@@ -291,10 +442,8 @@ def _receive(source: Source, writer: RawCaptureWriter, duration, frames, on_prog
                 break
             got = src.read(0.1 if left is None else max(0.0, min(0.1, left)))
             monitor.add(got)
+            recorder.tick()
             now = time.monotonic()
-            if now >= next_sync:
-                writer.sync()
-                next_sync = now + _SYNC_EVERY
             if on_progress is not None and now >= next_report:
                 next_report += 1.0
                 on_progress(monitor.summary(src.stats()))

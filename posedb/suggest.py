@@ -117,6 +117,15 @@ def held_postures(skeleton: Skeleton, channels: np.ndarray, frame_time: float,
     return out
 
 
+def take_holds(data, **options) -> list[HeldPosture]:
+    """The held postures of a library take's arrays (`posedb.library.TakeData`), its skeleton's
+    profile deciding the major joints; `options` as `held_postures` takes them."""
+    from capture import identify_profile
+
+    return held_postures(data.skeleton, data.motion().channels, data.take.frame_time,
+                         identify_profile(data.skeleton.names), **options)
+
+
 def suggest_poses(library, take: str, *, accept: bool = False, tags=(),
                   supports=DEFAULT_SUPPORT, max_speed: float = DEFAULT_MAX_SPEED,
                   min_duration: float = DEFAULT_MIN_DURATION,
@@ -125,13 +134,9 @@ def suggest_poses(library, take: str, *, accept: bool = False, tags=(),
     each becomes a pose "<take>-fNNNNN" carrying the take's tags and `tags`, all in one commit
     (its entry gains `name`, the name later commands take, `pose`, the id, and `tags`).
     """
-    from capture import identify_profile
-
     info = library.take(take)
-    data = library.take_data(info.id)
-    held = held_postures(data.skeleton, data.motion().channels, info.frame_time,
-                         identify_profile(data.skeleton.names), max_speed=max_speed,
-                         min_duration=min_duration, min_bottom_duration=min_bottom_duration)
+    held = take_holds(library.take_data(info.id), max_speed=max_speed,
+                      min_duration=min_duration, min_bottom_duration=min_bottom_duration)
     rows = [h.as_dict() for h in held]
     if accept and rows:
         inherited = tuple(info.tags) + tuple(tags)
