@@ -163,18 +163,17 @@ class Design:
 
     def undo(self) -> None:
         """Back to the state before the last step (fit and relaxed bodies included)."""
-        if not self._undo:
-            raise DesignError("Nothing to undo")
-        self._redo.append(self._state())
-        self._restore(self._undo.pop())
-        self._group = None
+        self._step(self._undo, self._redo, "undo")
 
     def redo(self) -> None:
         """The step undone last, again."""
-        if not self._redo:
-            raise DesignError("Nothing to redo")
-        self._undo.append(self._state())
-        self._restore(self._redo.pop())
+        self._step(self._redo, self._undo, "redo")
+
+    def _step(self, source: list, target: list, what: str) -> None:
+        if not source:
+            raise DesignError(f"Nothing to {what}")
+        target.append(self._state())
+        self._restore(source.pop())
         self._group = None
 
     @property
@@ -221,9 +220,10 @@ class Design:
         if p.shape != (len(js), 3) or not np.all(np.isfinite(p)):
             raise DesignError(f"Expected a finite [x, y, z] for each of control vertices {js}, "
                               f"got {np.asarray(positions).tolist()!r}")
+        moved = self.vertices.copy()  # the history holds the old array; a fit reads either
+        moved[js] = p
         with self.edit(group):
-            self.vertices = self.vertices.copy()  # the history holds the old array
-            self.vertices[js] = p
+            self.vertices = moved
 
     def set_fixed(self, j: int | Iterable[int], fixed: bool) -> None:
         """Fixes (or frees) control vertex `j`, or each of several: one step."""
@@ -267,14 +267,14 @@ class Design:
         return list(range(n, len(v)))
 
     def face_of(self, vertices: Iterable[int]) -> int:
-        """The control quad whose corners include all the given vertices (the first)."""
+        """The one control quad whose corners include all the given vertices."""
         js = {int(j) for j in vertices}
-        if not js:
-            raise DesignError("Pick a face's corners first")
-        for k, quad in enumerate(self.faces.tolist()):
-            if js <= set(quad):
-                return k
-        raise DesignError(f"Expected corners of one control face, got vertices {sorted(js)}")
+        found = [k for k, quad in enumerate(self.faces.tolist()) if js and js <= set(quad)]
+        if len(found) != 1:
+            raise DesignError(f"Expected corners of exactly one control face (three or four of "
+                              f"them pick one), got vertices {sorted(js)}, corners of "
+                              f"{len(found)} faces")
+        return found[0]
 
     def _vertex(self, j: int) -> None:
         if not 0 <= j < len(self.vertices):

@@ -1,0 +1,53 @@
+"""A browser tab without a browser: a websocket client speaking viser's protocol to the
+studio's viser server (it reports a camera, which is when viser counts a client as connected,
+and reads whatever the server sends), so the studio builds that tab's views as for a page."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import msgspec
+import viser
+from viser import _messages
+from websockets.sync.client import connect
+
+CAMERA = dict(wxyz=(1.0, 0.0, 0.0, 0.0), position=(0.0, 0.5, 2.0), fov=1.0, near=0.01,
+              far=100.0, image_height=900, image_width=1400, look_at=(0.0, 0.4, 0.0),
+              up_direction=(0.0, 1.0, 0.0))
+
+
+class Tab:
+    """One connected tab of `studio` (a `studio.web.Studio`); `view` its Design view."""
+
+    def __init__(self, studio, camera: dict | None = None, timeout: float = 20.0):
+        before = set(studio.views)
+        self.socket = connect(f"ws://127.0.0.1:{studio.server.get_port()}",
+                              subprotocols=[f"viser-v{viser.__version__}"], max_size=None)
+        self.received = 0
+        self._closed = threading.Event()
+        threading.Thread(target=self._drain, daemon=True).start()
+        self.send(_messages.ViewerCameraMessage(**{**CAMERA, **(camera or {})}))
+        deadline = time.monotonic() + timeout
+        while not set(studio.views) - before:
+            if time.monotonic() > deadline:
+                raise AssertionError("the studio built no views for the tab")
+            time.sleep(0.02)
+        (self.client_id,) = set(studio.views) - before
+        self.view = studio.view(self.client_id)
+
+    def send(self, message) -> None:
+        self.socket.send(msgspec.msgpack.encode(message.as_serializable_dict()))
+
+    def _drain(self) -> None:
+        while not self._closed.is_set():
+            try:
+                self.received += len(self.socket.recv(timeout=0.5))
+            except TimeoutError:
+                continue
+            except Exception:  # noqa: BLE001 (the socket closed)
+                return
+
+    def close(self) -> None:
+        self._closed.set()
+        self.socket.close()
