@@ -446,9 +446,7 @@ class Design:
         outcome = self.relaxed.get(k)
         if outcome is None:
             raise DesignError(f"Relax {self.people[k]['name']} first")
-        if not outcome.result.accepted:
-            raise DesignError(f"The relaxation kept {self.people[k]['name']}'s captured pose: "
-                              "there is no new pose to save")
+        # as `sitrelax relax --save` does: a relaxation that kept the captured pose stores it
         return save_relaxed(self.db, [(outcome.placed, outcome.result)], "studio")[0]
 
     def save_toml(self, path: str | os.PathLike) -> Path:

@@ -161,6 +161,8 @@ class Refitter:
             self.busy = True
             try:
                 self.session.fit(generation)
+            except Exception as exc:  # noqa: BLE001 (the worker lives on; the tabs are told)
+                self.session.problem(exc)
             finally:
                 self.busy = False
                 self._last_seconds = time.perf_counter() - self._last_start
@@ -212,6 +214,14 @@ class Session:
             for view in list(self.views):
                 view.fitted(source)
         return True
+
+    def problem(self, exc: Exception) -> None:
+        """A refit failed (a person out of reach, ...): every view says so."""
+        kind = "Problem" if isinstance(exc, (ValueError, OSError, KeyError)) else \
+            f"Internal error ({type(exc).__name__})"
+        for view in list(self.views):
+            view.progress.content = ""
+            view._status(f"**{kind}** in the refit: {exc}")
 
     def close(self) -> None:
         self.refitter.close()
@@ -580,8 +590,10 @@ class DesignView:
         k = self.selected_person()
         with self.context.library_lock:
             saved = self.design.save_relaxed(k)
+        kept = "" if self.design.relaxed[k].result.accepted else \
+            " (the relaxation kept the captured pose)"
         self._status(f"Saved {self.design.people[k]['name']}'s relaxed pose as "
-                     f"{saved['name']!r} ({saved['id']}) in {self.design.db}.")
+                     f"{saved['name']!r} ({saved['id']}) in {self.design.db}{kept}.")
 
     # the control mesh -------------------------------------------------------------------
     def pick(self, indices, add: bool = False) -> None:

@@ -8,13 +8,30 @@ import threading
 import time
 
 import msgspec
+import numpy as np
 import viser
 from viser import _messages
 from websockets.sync.client import connect
 
-CAMERA = dict(wxyz=(1.0, 0.0, 0.0, 0.0), position=(0.0, 0.5, 2.0), fov=1.0, near=0.01,
-              far=100.0, image_height=900, image_width=1400, look_at=(0.0, 0.4, 0.0),
-              up_direction=(0.0, 1.0, 0.0))
+
+
+def looking(position, target) -> tuple[float, float, float, float]:
+    """viser's camera (w, x, y, z) at `position` looking at `target`, Y up (OpenCV axes: x
+    right, y down the image, z ahead)."""
+    from scipy.spatial.transform import Rotation
+
+    ahead = np.asarray(target, dtype=float) - position
+    ahead /= np.linalg.norm(ahead)
+    right = np.cross(ahead, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    x, y, z, w = Rotation.from_matrix(np.stack([right, np.cross(ahead, right), ahead],
+                                               axis=1)).as_quat()
+    return (w, x, y, z)
+
+
+CAMERA = dict(wxyz=looking((0.0, 1.8, 1.2), (0.0, 0.45, 0.0)), position=(0.0, 1.8, 1.2),
+              fov=1.0, near=0.01, far=100.0, image_height=900, image_width=1400,
+              look_at=(0.0, 0.45, 0.0), up_direction=(0.0, 1.0, 0.0))
 
 
 class Tab:

@@ -215,20 +215,25 @@ def test_the_support_checkboxes_are_the_body_regions(library, tmp_path):
 
     from studio.web import Studio
 
+    from tests.studio.tabs import Tab
+
     studio = Studio(db=str(library), port=0, out=str(tmp_path))
+    tab = Tab(studio)
     try:
-        assert list(studio.parts) == list(BODY_REGIONS)
-        assert {r for r, box in studio.parts.items() if box.value} == {"pelvis", "thighs"}
-        studio.add_person(HIGH_SIT)
-        studio.design.update_person(0, support="chair")
-        studio._show_person()
-        assert {r for r, box in studio.parts.items() if box.value} == {
+        view = tab.view
+        assert list(view.parts) == list(BODY_REGIONS)
+        assert {r for r, box in view.parts.items() if box.value} == {"pelvis", "thighs"}
+        view.add_person(HIGH_SIT)
+        view.design.update_person(0, support="chair")
+        view._show_person()
+        assert {r for r, box in view.parts.items() if box.value} == {
             "upper_back", "lower_back", "pelvis", "thighs"}
-        studio.parts["upper_back"].value = False
-        studio.parts["calves"].value = True
-        studio._apply_person()
-        assert studio.design.people[0]["support"] == ["lower_back", "pelvis", "thighs", "calves"]
-        assert studio.design.scenario().persons[0].support == (
+        view.parts["upper_back"].value = False
+        view.parts["calves"].value = True
+        view._apply_person()
+        assert view.design.people[0]["support"] == ["lower_back", "pelvis", "thighs", "calves"]
+        assert view.design.scenario().persons[0].support == (
             "lower_back", "pelvis", "thighs", "calves")
     finally:
+        tab.close()
         studio.stop()
