@@ -19,6 +19,7 @@ selection and status line, all drawing every edit).
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 import traceback
@@ -247,6 +248,7 @@ class DesignView:
         self._relaxed: dict[int, object] = {}
         self._surface = None
         self._fitted_net = None
+        self._drawn_fit = None  # the fit outcome the surface drawn is of
         self._gizmo = None
         self._gizmo_start: tuple[np.ndarray, np.ndarray] | None = None
         with tab:
@@ -529,21 +531,36 @@ class DesignView:
         return last.pressure
 
     def _draw_people(self, pressure=None) -> None:
-        for handle in self._people:
-            handle.remove()
-        self._people, self._bodies = [], []
+        """Each person's gizmo where the person is, and its body (coloured by `pressure` when
+        given); a body already drawn as it should be is not sent again (a body is 13k
+        vertices, and a slow browser would fall behind)."""
+        people = self.design.people
+        while len(self._people) > len(people):
+            self._people.pop().remove()
+            self._bodies.pop()
         opacity = BODY_MODES[self.bodies.value]
         peak = 1.0
         if pressure is not None:
             peak = max((float(p.max()) for p in pressure), default=1.0) or 1.0
-        for k, person in enumerate(self.design.people):
+        for k, person in enumerate(people):
+            if k == len(self._people):
+                gizmo = self.scene.add_transform_controls(
+                    f"{self.prefix}/people/p{k}", scale=0.35,
+                    position=tuple(person["position"]),
+                    wxyz=tuple(quat_wxyz(person["rotation_deg"])))
+                gizmo.on_update(lambda e, k=k, gizmo=gizmo: self._guarded(
+                    lambda: self._moved(k, gizmo, e.phase)))
+                self._people.append(gizmo)
+                self._bodies.append((None, None))
+            gizmo = self._people[k]
+            gizmo.position = tuple(person["position"])
+            gizmo.wxyz = tuple(quat_wxyz(person["rotation_deg"]))
             origin = dict(person, position=[0.0, 0.0, 0.0], rotation_deg=[0.0, 0.0, 0.0])
+            shade = None if pressure is None else (id(pressure[k]), peak)
+            key = (json.dumps(origin, sort_keys=True), shade, opacity)
+            if self._bodies[k][1] == key:
+                continue
             local = self.design.place(origin)
-            gizmo = self.scene.add_transform_controls(
-                f"{self.prefix}/people/p{k}", scale=0.35, position=tuple(person["position"]),
-                wxyz=tuple(quat_wxyz(person["rotation_deg"])))
-            gizmo.on_update(lambda e, k=k, gizmo=gizmo: self._guarded(
-                lambda: self._moved(k, gizmo, e.phase)))
             name = f"{self.prefix}/people/p{k}/body"
             if pressure is not None:
                 body = self._colored_mesh(name, local.vertices, local.body.triangles,
@@ -552,8 +569,7 @@ class DesignView:
                 body = self.scene.add_mesh_simple(name, local.vertices, local.body.triangles,
                                                   color=_rgb(SKIN), opacity=opacity)
             body.visible = opacity > 0
-            self._people.append(gizmo)
-            self._bodies.append(body)
+            self._bodies[k] = (body, key)
 
     def _colored_mesh(self, name: str, vertices, triangles, colors, opacity: float):
         import trimesh
@@ -601,8 +617,8 @@ class DesignView:
         js = [int(j) for j in indices]
         for j in js:
             if not 0 <= j < len(self.design.vertices):
-                raise DesignError(f"Expected control vertices in 0..{len(self.design.vertices) - 1}"
-                                  f", got {j}")
+                last = len(self.design.vertices) - 1
+                raise DesignError(f"Expected control vertices in 0..{last}, got {j}")
         if add:
             chosen = list(self.selection)
             for j in js:
@@ -723,7 +739,7 @@ class DesignView:
                            FIXED_COLOR if j in self.design.fixed else FREE_COLOR
                            for j in range(len(v))], dtype=np.uint8)
         self.scene.add_point_cloud(f"{self.prefix}/control/vertices", v, colors,
-                                   point_size=0.018, point_shape="circle")
+                                   point_size=0.013, point_shape="circle")
         if self.selection:
             self._set(self.centroid, tuple(float(c) for c in v[self.selection].mean(axis=0)))
         if keep_gizmo:
@@ -829,6 +845,9 @@ class DesignView:
         if outcome is None:
             self._clear_surface()
             return
+        if self._surface is not None and self._drawn_fit is outcome:
+            return
+        self._drawn_fit = outcome
         r = outcome.result
         self._surface = self.scene.add_mesh_simple(
             f"{self.prefix}/surface", r.surface, quad_triangles(r.surface_faces),
@@ -866,7 +885,7 @@ class DesignView:
         name = check_name(self.name.value)
         self._status("Exporting...")
         data, report = self.design.export_zip(name)
-        self.client.send_file_download(f"{name}.zip", data)
+        self.client.send_file_download(f"{name}.zip", data, save_immediately=True)
         self.exported = data
         self._status(f"Exported {len(report['files'])} files as {name}.zip ({len(data)} bytes, "
                      "downloaded).")
