@@ -803,7 +803,7 @@ class DesignView:
         self.selection = [j for j in self.selection if j < len(self.design.vertices)]
         self.redraw()
         self._edited()
-        self._status(f"{what}.")
+        self._status(f"{what}." + (f"\n\n{self._figures()}" if self.design.last else ""))
 
     # fitting ------------------------------------------------------------------------------
     def run_fit(self) -> None:
@@ -830,15 +830,19 @@ class DesignView:
         self._draw_people(self._pressure())
         self._draw_relaxed()
         r = outcome.result
+        self._status(f"**Fitted** (fit {self.session.fits}) in {r.iterations} iterations, "
+                     f"{outcome.seconds:.2f} s ({r.stop_reason.split(':')[0]}).\n\n"
+                     f"{self._figures()}")
+        self._show_warnings()
+
+    def _figures(self) -> str:
+        """The last fit's figures per person, as a markdown table."""
         rows = "\n".join(
             f"| {p['name'].split(' (')[0]} | {p['coverage']:.2f} | "
             f"{peak_text(p)} / {peak_text(p['flat'])} | "
-            f"{1000 * p['max_penetration_m']:.0f} |" for p in outcome.persons)
-        self._status(f"**Fitted** (fit {self.session.fits}) in {r.iterations} iterations, "
-                     f"{outcome.seconds:.2f} s ({r.stop_reason.split(':')[0]}).\n\n"
-                     "| person | coverage | peak kPa (flat) | into skin mm |\n|---|---|---|---|\n"
-                     f"{rows}")
-        self._show_warnings()
+            f"{1000 * p['max_penetration_m']:.0f} |" for p in self.design.last.persons)
+        return ("| person | coverage | peak kPa (flat) | into skin mm |\n|---|---|---|---|\n"
+                f"{rows}")
 
     def _draw_surface(self) -> None:
         outcome = self.design.last

@@ -1,5 +1,5 @@
-"""The studio's Design view driven over viser's own protocol (tabs without a browser, see
-tests/studio/tabs.py): one session per tab, picking by clicks and boxes, typed placements,
+"""The studio's Design view driven over viser's own protocol (tabs without a browser,
+`studio.headless`): one session per tab, picking by clicks and boxes, typed placements,
 undo and redo, creases and splits, warnings before and after a fit, refits while dragging, the
 relaxed pose saved to the library and the export as one zip."""
 
@@ -18,7 +18,7 @@ from posedb import PoseLibrary
 from studio.design_view import project, ray_pick
 from studio.web import VIEWS, Studio
 
-from tests.studio.tabs import CAMERA, Tab
+from studio.headless import CAMERA, HeadlessTab as Tab
 
 HIGH_SIT = "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"
 STANDING = "bvh:bundled:axis_neuron_standing_yxz.bvh#frame=39"

@@ -121,7 +121,7 @@ def test_the_support_checkboxes_are_the_body_regions(library, tmp_path):
 
     from studio.web import Studio
 
-    from tests.studio.tabs import Tab
+    from studio.headless import HeadlessTab as Tab
 
     studio = Studio(db=str(library), port=0, out=str(tmp_path))
     tab = Tab(studio)

@@ -217,12 +217,16 @@ def test_the_design_view_end_to_end_in_a_browser(library, tmp_path):
         page.press("Redo")
         _wait(lambda: design.creases == {edge} and design.last is not None, PATIENCE,
               "the redo")
-        redone = page.shot("redone")
-        # the surface is on the screen: hiding it alone changes many pixels, blue ones
+        page.shot("redone")
+        # the surface is on the screen: with the bodies hidden (the Bodies menu), hiding the
+        # surface alone changes many pixels, blue ones
+        view.bodies.value = "hidden"
+        shown = _rgb(page.shot("bodies-hidden").read_bytes())
         view._surface.visible = False
         hidden = _rgb(page.shot("surface-hidden").read_bytes())
         view._surface.visible = True
-        shown = _rgb(redone.read_bytes())
+        view.bodies.value = "ghost"
+        page.shot("bodies-ghosted")
         changed = np.abs(shown - hidden).max(axis=2) > 0.08
         assert changed.sum() > 3000, f"hiding the surface changed only {changed.sum()} pixels"
         r, g, b = shown[changed].mean(axis=0)

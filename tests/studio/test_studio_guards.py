@@ -11,7 +11,7 @@ import pytest
 
 from studio.web import Studio
 
-from tests.studio.tabs import Tab
+from studio.headless import HeadlessTab as Tab
 
 
 @pytest.fixture(scope="module")

@@ -1,6 +1,8 @@
-"""A browser tab without a browser: a websocket client speaking viser's protocol to the
-studio's viser server (it reports a camera, which is when viser counts a client as connected,
-and reads whatever the server sends), so the studio builds that tab's views as for a page."""
+"""A browser tab without a browser (`HeadlessTab`): a websocket client speaking viser's protocol
+to the studio's viser server, so the studio builds that tab's views as for a page. It reports a
+camera (when viser counts a client as connected), sends what a page sends (clicks, gizmo drags)
+and reads whatever the server sends, noting when a scene node's message last arrived. The
+tests and the `studio_refit` benchmark drive the studio with it."""
 
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ import time
 import msgspec
 import numpy as np
 import viser
+import zstandard
 from viser import _messages
 from websockets.sync.client import connect
 
@@ -34,21 +37,37 @@ CAMERA = dict(wxyz=looking((0.0, 1.8, 1.2), (0.0, 0.45, 0.0)), position=(0.0, 1.
               look_at=(0.0, 0.45, 0.0), up_direction=(0.0, 1.0, 0.0))
 
 
-class Tab:
-    """One connected tab of `studio` (a `studio.web.Studio`); `view` its Design view."""
+def _node_names(frame: bytes) -> list[str]:
+    """The scene node names of the messages in one of viser's frames (a zstd-compressed msgpack
+    window of messages after two little-endian uint64 sizes, then the raw arrays)."""
+    size, packed = int.from_bytes(frame[:8], "little"), int.from_bytes(frame[8:16], "little")
+    inner = zstandard.ZstdDecompressor().decompress(frame[16:16 + packed],
+                                                     max_output_size=size)
+    messages = msgspec.msgpack.decode(inner)["messages"]
+    return [m["name"] for m in messages if isinstance(m.get("name"), str)]
 
-    def __init__(self, studio, camera: dict | None = None, timeout: float = 20.0):
+
+class HeadlessTab:
+    """One connected tab of `studio` (a `studio.web.Studio`); `view` its Design view.
+    `watch` names scene nodes (e.g. "/design/surface") whose messages' arrival times are kept
+    in `arrived` (name -> time.perf_counter())."""
+
+    def __init__(self, studio, camera: dict | None = None, timeout: float = 20.0,
+                 watch: tuple[str, ...] = ()):
         before = set(studio.views)
         self.socket = connect(f"ws://127.0.0.1:{studio.server.get_port()}",
                               subprotocols=[f"viser-v{viser.__version__}"], max_size=None)
         self.received = 0
+        self.arrived: dict[str, float] = {}
+        self._watch = set(watch)
         self._closed = threading.Event()
         threading.Thread(target=self._drain, daemon=True).start()
         self.send(_messages.ViewerCameraMessage(**{**CAMERA, **(camera or {})}))
         deadline = time.monotonic() + timeout
         while not set(studio.views) - before:
             if time.monotonic() > deadline:
-                raise AssertionError("the studio built no views for the tab")
+                self.close()
+                raise TimeoutError(f"the studio built no views for the tab in {timeout} s")
             time.sleep(0.02)
         (self.client_id,) = set(studio.views) - before
         self.view = studio.view(self.client_id)
@@ -59,11 +78,16 @@ class Tab:
     def _drain(self) -> None:
         while not self._closed.is_set():
             try:
-                self.received += len(self.socket.recv(timeout=0.5))
+                frame = self.socket.recv(timeout=0.5)
             except TimeoutError:
                 continue
             except Exception:  # noqa: BLE001 (the socket closed)
                 return
+            self.received += len(frame)
+            if self._watch and isinstance(frame, bytes):
+                now = time.perf_counter()
+                for name in self._watch & set(_node_names(frame)):
+                    self.arrived[name] = now
 
     def close(self) -> None:
         self._closed.set()
