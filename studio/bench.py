@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import atexit
 import json
 import os
 import subprocess
 import sys
+import threading
 import time
 import tomllib
 import urllib.request
@@ -73,7 +73,9 @@ def _refit_setup():
         tab.close()
         studio.stop()
 
-    atexit.register(stop)
+    # before the interpreter's thread pools shut down (plain atexit runs after them, when
+    # viser could no longer run the tab's disconnect)
+    threading._register_atexit(stop)
     return {"studio": studio, "tab": tab, "view": view, "position": list(person["position"]),
             "step": 0}
 

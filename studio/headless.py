@@ -54,6 +54,7 @@ class HeadlessTab:
 
     def __init__(self, studio, camera: dict | None = None, timeout: float = 20.0,
                  watch: tuple[str, ...] = ()):
+        self.studio = studio
         before = set(studio.views)
         self.socket = connect(f"ws://127.0.0.1:{studio.server.get_port()}",
                               subprotocols=[f"viser-v{viser.__version__}"], max_size=None)
@@ -89,6 +90,12 @@ class HeadlessTab:
                 for name in self._watch & set(_node_names(frame)):
                     self.arrived[name] = now
 
-    def close(self) -> None:
+    def close(self, timeout: float = 10.0) -> None:
+        """Closes the connection and waits (up to `timeout` s) for the studio to close the
+        tab's views."""
         self._closed.set()
         self.socket.close()
+        deadline = time.monotonic() + timeout
+        while getattr(self, "client_id", None) in self.studio.views and \
+                time.monotonic() < deadline:
+            time.sleep(0.02)
