@@ -562,20 +562,20 @@ class DesignView:
                 continue
             local = self.design.place(origin)
             name = f"{self.prefix}/people/p{k}/body"
-            if pressure is not None:
+            if pressure is not None and opacity == 1.0:
                 body = self._colored_mesh(name, local.vertices, local.body.triangles,
-                                          pressure_on_skin(pressure[k], peak), opacity)
-            else:
+                                          pressure_on_skin(pressure[k], peak))
+            else:  # a ghost is one see-through colour (viser draws coloured meshes opaque)
                 body = self.scene.add_mesh_simple(name, local.vertices, local.body.triangles,
                                                   color=_rgb(SKIN), opacity=opacity)
             body.visible = opacity > 0
             self._bodies[k] = (body, key)
 
-    def _colored_mesh(self, name: str, vertices, triangles, colors, opacity: float):
+    def _colored_mesh(self, name: str, vertices, triangles, colors):
         import trimesh
 
         mesh = trimesh.Trimesh(vertices, triangles, process=False)
-        rgba = np.concatenate([np.asarray(colors), np.full((len(colors), 1), opacity)], axis=1)
+        rgba = np.concatenate([np.asarray(colors), np.ones((len(colors), 1))], axis=1)
         mesh.visual.vertex_colors = (rgba * 255).astype(np.uint8)
         return self.scene.add_mesh_trimesh(name, mesh)
 

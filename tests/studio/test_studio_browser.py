@@ -57,6 +57,9 @@ def _browser(downloads: Path | None = None):
                 "--enable-unsafe-swiftshader", "--disable-gpu-sandbox"):
         options.add_argument(arg)
     driver = webdriver.Chrome(service=Service(DRIVER), options=options)
+    # a software-rendered page on busy cores can take its time to answer a screenshot
+    driver.set_page_load_timeout(PATIENCE)
+    driver.set_script_timeout(PATIENCE)
     if downloads is not None:
         driver.execute_cdp_cmd("Page.setDownloadBehavior",
                                {"behavior": "allow", "downloadPath": str(downloads)})
@@ -126,6 +129,14 @@ class Page:
         self.step += 1
         time.sleep(1.0)  # what the server sent is drawn
         path = self.shots / f"{self.name}-{self.step:02d}-{what}.png"
+        from selenium.common.exceptions import TimeoutException
+
+        for _ in range(6):
+            try:
+                self.driver.save_screenshot(str(path))
+                return path
+            except TimeoutException:  # the renderer was busy drawing: a slow page, no failure
+                time.sleep(10.0)
         self.driver.save_screenshot(str(path))
         return path
 
@@ -227,6 +238,7 @@ def test_the_design_view_end_to_end_in_a_browser(library, tmp_path):
         view._surface.visible = True
         view.bodies.value = "ghost"
         page.shot("bodies-ghosted")
+        view.bodies.value = "shown"
         changed = np.abs(shown - hidden).max(axis=2) > 0.08
         assert changed.sum() > 3000, f"hiding the surface changed only {changed.sum()} pixels"
         r, g, b = shown[changed].mean(axis=0)
