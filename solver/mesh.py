@@ -340,3 +340,88 @@ def _no_axis_parts(p: np.ndarray, q: np.ndarray, gap: float) -> np.ndarray:
     apart = np.maximum(pp.min(axis=2) - qq.max(axis=2), qq.min(axis=2) - pp.max(axis=2))
     apart[length[..., 0] < 1e-300] = -np.inf  # parallel edges give no axis
     return ~(apart > gap).any(axis=1)
+
+
+class MeshSplitError(ValueError):
+    """A quad that cannot be split (out of range, an edge shared by more than two quads)."""
+
+
+def split_quad(vertices: np.ndarray, quads: np.ndarray, face: int,
+               creases=()) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int]]]:
+    """Splits one quad of a quad mesh into four and keeps the mesh all quads.
+
+    A quad halved across two opposite edges leaves its neighbours a vertex in the middle of an
+    edge, which no quad can take; so the cut runs on through the strip of quads either way (a
+    loop cut, as a modeller makes one): each quad of the face's row and column is halved, the
+    face itself (and any quad both cuts cross) quartered. New vertices sit at the middle of the
+    edges they split and at the centre of the quartered quads, so the control net keeps its
+    shape; existing vertices keep their indices, the new ones follow them.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float, metres.
+    quads : (F, 4) int, counter-clockwise; a quad's new quads keep its orientation.
+    face : the quad to split, 0..F-1.
+    creases : control edges (i, j) kept sharp; a split one becomes its two halves.
+
+    Returns
+    -------
+    vertices : (n + k, 3) float; quads : (F', 4) int; creases : list of (i, j).
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    q = np.asarray(quads, dtype=np.int64)
+    if q.ndim != 2 or q.shape[1] != 4:
+        raise MeshSplitError(f"Expected (F, 4) quads, got shape {q.shape}")
+    if not 0 <= face < len(q):
+        raise MeshSplitError(f"Expected a face in 0..{len(q) - 1}, got {face}")
+    sides: dict[tuple[int, int], list[tuple[int, int]]] = {}
+    for g, quad in enumerate(q.tolist()):
+        for i in range(4):
+            a, b = quad[i], quad[(i + 1) % 4]
+            sides.setdefault((min(a, b), max(a, b)), []).append((g, i))
+    for edge, users in sides.items():
+        if len(users) > 2:
+            raise MeshSplitError(f"Expected every edge on at most two quads, edge {list(edge)} "
+                                 f"is on {len(users)}")
+
+    def key(g: int, i: int) -> tuple[int, int]:
+        a, b = q[g, i], q[g, (i + 1) % 4]
+        return (int(min(a, b)), int(max(a, b)))
+
+    cut: set[tuple[int, int]] = set()
+    for first in (0, 1, 2, 3):  # both ways along both strips through the face
+        g, i = face, first
+        while key(g, i) not in cut:
+            cut.add(key(g, i))
+            across = [(h, j) for h, j in sides[key(g, i)] if h != g]
+            if not across:
+                break
+            h, j = across[0]
+            g, i = h, (j + 2) % 4
+    middle = {edge: len(v) + k for k, edge in enumerate(sorted(cut))}
+    new = [v, np.array([(v[a] + v[b]) / 2 for a, b in sorted(cut)]).reshape(-1, 3)]
+    count = len(v) + len(cut)
+    out = []
+    for g, quad in enumerate(q.tolist()):
+        split = [key(g, i) in cut for i in range(4)]
+        if not any(split):
+            out.append(quad)
+            continue
+        if all(split):
+            mid = [middle[key(g, i)] for i in range(4)]
+            new.append(v[quad].mean(axis=0)[None])
+            c, count = count, count + 1
+            out += [[quad[0], mid[0], c, mid[3]], [mid[0], quad[1], mid[1], c],
+                    [c, mid[1], quad[2], mid[2]], [mid[3], c, mid[2], quad[3]]]
+            continue
+        # a strip passes once: two opposite edges cut; turn the quad so they are 0-1 and 2-3
+        r = split.index(True)
+        assert split[(r + 2) % 4] and not split[(r + 1) % 4], "a strip crosses opposite edges"
+        a, b, c_, d = (quad[(r + k) % 4] for k in range(4))
+        m0, m2 = middle[key(g, r)], middle[key(g, (r + 2) % 4)]
+        out += [[a, m0, m2, d], [m0, b, c_, m2]]
+    halves = []
+    for i, j in creases:
+        edge = (min(i, j), max(i, j))
+        halves += [(i, middle[edge]), (middle[edge], j)] if edge in middle else [(i, j)]
+    return np.concatenate(new), np.array(out, dtype=np.int64), halves

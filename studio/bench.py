@@ -6,6 +6,8 @@ import json
 import os
 import subprocess
 import sys
+import threading
+import time
 import tomllib
 import urllib.request
 from pathlib import Path
@@ -71,6 +73,57 @@ def _fit_command(arg) -> None:
             raise RuntimeError("fit_command: no report.json written")
 
 
+def _refit_setup():
+    """A studio on loopback with one headless tab (`studio.headless`), single_seated's start and
+    person in its Design view, refitting while dragging."""
+    from .headless import HeadlessTab
+    from .web import Studio
+
+    data = tomllib.loads(_example_path("single_seated").read_text())
+    grid, person = data["surface"]["grid"], data["person"][0]
+    studio = Studio(port=0, out=os.devnull)
+    tab = HeadlessTab(studio, watch=("/design/surface",))
+    view = tab.view
+    view.design.new_grid(grid["size"], grid["resolution"], grid["height"])
+    view.add_person(person["pose"], **{k: person[k] for k in ("position", "facing", "support")})
+    view.live.value = True
+
+    def stop() -> None:  # the tab first, so the server sees it leave before it stops
+        tab.close()
+        studio.stop()
+
+    # before the interpreter's thread pools shut down (plain atexit runs after them, when
+    # viser could no longer run the tab's disconnect)
+    threading._register_atexit(stop)
+    return {"studio": studio, "tab": tab, "view": view, "position": list(person["position"]),
+            "step": 0}
+
+
+def _refit_drag(arg) -> None:
+    """One gizmo update of the person (1 cm along x, back and forth) sent as the page sends it,
+    until the tab has received the refitted surface."""
+    from viser import _messages
+
+    tab, view = arg["tab"], arg["view"]
+    arg["step"] += 1
+    x, y, z = arg["position"]
+    position = (x + 0.01 * (arg["step"] % 2), y, z)
+    fits = view.fits
+    start = time.perf_counter()
+    tab.send(_messages.TransformControlsUpdateMessage(
+        f"{view.prefix}/people/p0", (1.0, 0.0, 0.0, 0.0), position, str(tab.client_id)))
+    deadline = start + 120.0
+    while view.fits == fits or tab.arrived.get("/design/surface", 0.0) < start:
+        if time.perf_counter() > deadline:
+            raise RuntimeError(f"studio_refit: no refitted surface after 120 s "
+                               f"({view.status_text[:200]})")
+        time.sleep(0.002)
+
+
+def _refit_in_process(arg) -> None:
+    arg["view"].design.fit()
+
+
 def cases() -> list[BenchCase]:
     return [
         BenchCase("cli_start", "`sitrelax --help` in a fresh interpreter (start-up, every "
@@ -81,6 +134,11 @@ def cases() -> list[BenchCase]:
                   _fit_command_setup, _fit_command, repeats=5),
         BenchCase("fit_command_no_pictures", "the same with `--no-pictures`",
                   lambda: _fit_command_setup(pictures=False), _fit_command, repeats=5),
+        BenchCase("studio_refit", "a person's gizmo moved in a studio tab (over viser's "
+                  "websocket, headless) until the tab has the refitted surface: single_seated, "
+                  "refit while dragging", _refit_setup, _refit_drag, _refit_in_process,
+                  "the same session's fit in-process (Design.fit)", repeats=7,
+                  baseline_repeats=5),
         BenchCase("api_fit", "POST /api/fit of single_seated to a running `sitrelax serve` "
                   "(pose, fit, evaluate, JSON both ways)", _api_setup, _api_fit,
                   _in_process_fit, "the same fit and evaluation in-process", repeats=7,

@@ -13,13 +13,16 @@ from typing import Protocol
 @dataclass
 class StudioContext:
     """Shared by the views of every tab: the pose library's path (None: none opened), the folder
-    exports and saved scenarios go to, the upload limit in bytes, and one lock that serialises
-    the library writes of all tabs (each write is one commit of the library's own editing)."""
+    exports and saved scenarios go to, the upload limit in bytes, one lock that serialises
+    the library writes of all tabs (each write is one commit of the library's own editing), and
+    the named design sessions that tabs joining by name share (name -> the Design view's
+    session)."""
 
     db: str | None
     out: Path
     limit: int
     library_lock: threading.RLock = field(default_factory=threading.RLock)
+    designs: dict = field(default_factory=dict)
 
 
 class View(Protocol):

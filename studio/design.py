@@ -6,31 +6,47 @@ The session is plain data (scenario person tables, a control mesh, parameters) t
 runs, so everything the studio does is what `sitrelax fit` would do with the same scenario
 file. Posed people are cached by their table, so moving one person re-poses
 that person only.
+
+Every edit is one step of the session's history (`undo`, `redo`): the people, the control mesh,
+the fixed vertices, the creases, the parameters, and the fit and relaxed bodies that went with
+them. Edits made inside one `edit(group)` block, or one after another in the same group (a
+drag's many moves), are one step.
 """
 
 from __future__ import annotations
 
+import contextlib
 import copy
+import io
 import json
 import os
+import tempfile
 import time
 import tomllib
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterable
 
 import numpy as np
 
 from capture.files import write_atomic
+from solver.mesh import split_quad
 from solver.scene import schema
+from solver.scene.quality import design_misses
 from solver.surface.fit import FitResult
-from solver.scene.run import fit_scene, relax_person, relax_text, run_fit
+from solver.scene.run import (SURFACE_FORMATS, fit_scene, relax_person, relax_text, run_fit,
+                              save_relaxed)
 from solver.scene.scenario import Scenario, parse_scenario, read_control_mesh, scenario_toml
-from solver.scene.placement import PlacedPerson, place_person
+from solver.scene.placement import PlacedPerson, place_person, scene_posture
 
 PARAMETERS = ("level", "sigma", "tau_max", "margin")  # the ones the studio's panel sets
 MAX_PEOPLE = 8
 MAX_CONTROL_VERTICES = 2000
+MAX_HISTORY = 200  # undo steps kept
+# a seated capture: what a new person sits in until the designer picks another pose
+DEFAULT_POSE = "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"
+SEAT_REGIONS = frozenset({"pelvis", "thighs"})  # a person supported on these sits on the surface
 
 
 class DesignError(ValueError):
@@ -73,6 +89,11 @@ class RelaxOutcome:
     after: dict
     seconds: float
     summary: str = ""  # what the relaxation accepted and why (`relax_text`)
+    placed: PlacedPerson | None = None  # the person as posed for it
+    result: object = None  # the solver's `RelaxResult` (what `save_relaxed` stores)
+
+
+_STATE = ("people", "vertices", "faces", "fixed", "creases", "params", "last", "relaxed")
 
 
 class Design:
@@ -81,11 +102,83 @@ class Design:
         self.people: list[dict] = []
         self.params = {name: schema.default(schema.Surface, name) for name in PARAMETERS}
         self.fixed: set[int] = set()
+        self.creases: set[tuple[int, int]] = set()  # control edges (i < j) kept sharp
         self.vertices = np.zeros((0, 3))
         self.faces = np.zeros((0, 4), dtype=np.int64)
         self.last: FitOutcome | None = None
+        self.relaxed: dict[int, RelaxOutcome] = {}  # person -> its relaxed body
         self._placed: dict[str, PlacedPerson] = {}
+        self._undo: list[dict] = []
+        self._redo: list[dict] = []
+        self._group: str | None = None  # the group of the last step (its edits coalesce)
+        self._depth = 0
         self.new_grid(**schema.Grid().model_dump())  # the scenario's default start
+        self._undo.clear()  # the start is no step
+
+    # history ----------------------------------------------------------------------------
+    def _state(self) -> dict:
+        return {"people": copy.deepcopy(self.people), "vertices": self.vertices.copy(),
+                "faces": self.faces.copy(), "fixed": set(self.fixed),
+                "creases": set(self.creases), "params": dict(self.params),
+                "last": self.last, "relaxed": dict(self.relaxed)}
+
+    def _restore(self, state: dict) -> None:
+        for name in _STATE:
+            setattr(self, name, state[name])
+
+    @contextlib.contextmanager
+    def edit(self, group: str | None = None):
+        """One step of the history around the edits made inside (nested edits join it). A
+        step of the same `group` as the step before joins that one (None: never joins). If an
+        edit inside fails, the session is left as it was before the block."""
+        if self._depth:
+            self._depth += 1
+            try:
+                yield
+            finally:
+                self._depth -= 1
+            return
+        before = self._state()
+        self._depth = 1
+        try:
+            yield
+        except BaseException:
+            self._restore(before)
+            raise
+        finally:
+            self._depth = 0
+        if group is None or group != self._group:
+            self._undo.append(before)
+            del self._undo[:-MAX_HISTORY]
+        self._group = group
+        self._redo.clear()
+
+    def end_group(self) -> None:
+        """The next edit starts a step of its own (a drag ended)."""
+        self._group = None
+
+    def undo(self) -> None:
+        """Back to the state before the last step (fit and relaxed bodies included)."""
+        self._step(self._undo, self._redo, "undo")
+
+    def redo(self) -> None:
+        """The step undone last, again."""
+        self._step(self._redo, self._undo, "redo")
+
+    def _step(self, source: list, target: list, what: str) -> None:
+        if not source:
+            raise DesignError(f"Nothing to {what}")
+        target.append(self._state())
+        self._restore(source.pop())
+        self._group = None
+
+    @property
+    def can_undo(self) -> bool:
+        return bool(self._undo)
+
+    @property
+    def can_redo(self) -> bool:
+        return bool(self._redo)
 
     # the control mesh -------------------------------------------------------------------
     def new_grid(self, size, resolution, height: float) -> None:
@@ -93,11 +186,13 @@ class Design:
                                      "height": height}},
                 "person": [{"pose": "db:any"}]}
         scenario = parse_scenario(data, "grid")  # the scenario's own checks
-        self._set_mesh(scenario.surface.vertices, scenario.surface.faces)
+        with self.edit():
+            self._set_mesh(scenario.surface.vertices, scenario.surface.faces)
 
     def load_control_mesh(self, path: str | os.PathLike) -> None:
         v, f = read_control_mesh(Path(path), str(path))
-        self._set_mesh(v, f)
+        with self.edit():
+            self._set_mesh(v, f)
 
     def _set_mesh(self, vertices: np.ndarray, faces: np.ndarray) -> None:
         if len(vertices) > MAX_CONTROL_VERTICES:
@@ -106,19 +201,76 @@ class Design:
         self.vertices = np.asarray(vertices, dtype=np.float64).copy()
         self.faces = np.asarray(faces, dtype=np.int64).copy()
         self.fixed = set()
+        self.creases = set()
         self.last = None
 
-    def move_vertex(self, j: int, position) -> None:
-        self._vertex(j)
-        p = np.asarray(position, dtype=np.float64)
-        if p.shape != (3,) or not np.all(np.isfinite(p)):
-            raise DesignError(f"Expected a finite [x, y, z] for control vertex {j}, got "
-                              f"{position!r}")
-        self.vertices[j] = p
+    def move_vertex(self, j: int, position, group: str | None = None) -> None:
+        self.move_vertices([j], np.asarray(position, dtype=np.float64)[None], group)
 
-    def set_fixed(self, j: int, fixed: bool) -> None:
+    def move_vertices(self, indices: Iterable[int], positions, group: str | None = None) -> None:
+        """Puts control vertices `indices` at `positions` ((k, 3) metres): one step."""
+        js = [int(j) for j in indices]
+        for j in js:
+            self._vertex(j)
+        p = np.asarray(positions, dtype=np.float64)
+        if p.shape != (len(js), 3) or not np.all(np.isfinite(p)):
+            raise DesignError(f"Expected a finite [x, y, z] for each of control vertices {js}, "
+                              f"got {np.asarray(positions).tolist()!r}")
+        moved = self.vertices.copy()  # the history holds the old array; a fit reads either
+        moved[js] = p
+        with self.edit(group):
+            self.vertices = moved
+
+    def set_fixed(self, j: int | Iterable[int], fixed: bool) -> None:
+        """Fixes (or frees) control vertex `j`, or each of several: one step."""
+        js = [int(j)] if np.isscalar(j) else [int(i) for i in j]
+        for i in js:
+            self._vertex(i)
+        with self.edit():
+            self.fixed = (self.fixed | set(js)) if fixed else (self.fixed - set(js))
+
+    def control_edges(self) -> np.ndarray:
+        """(E, 2) int: the control mesh's edges, each once, smaller index first."""
+        f = self.faces
+        edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 3]], f[:, [3, 0]]])
+        return np.unique(np.sort(edges, axis=1), axis=0)
+
+    def set_crease(self, i: int, j: int, sharp: bool = True) -> None:
+        """Makes the control edge between vertices i and j a crease (or smooth again)."""
+        self._vertex(i)
         self._vertex(j)
-        (self.fixed.add if fixed else self.fixed.discard)(j)
+        edge = (min(int(i), int(j)), max(int(i), int(j)))
+        if not (self.control_edges() == edge).all(axis=1).any():
+            raise DesignError(f"Expected two vertices sharing a control edge for a crease, got "
+                              f"{i} and {j}")
+        with self.edit():
+            self.creases = (self.creases | {edge}) if sharp else (self.creases - {edge})
+
+    def split_face(self, face: int) -> list[int]:
+        """Splits control quad `face` into four (its row and column halved, `split_quad`, so
+        the mesh stays all quads); returns the new vertices' indices."""
+        if not 0 <= face < len(self.faces):
+            raise DesignError(f"Expected a control face in 0..{len(self.faces) - 1}, got {face}")
+        v, f, creases = split_quad(self.vertices, self.faces, face, sorted(self.creases))
+        if len(v) > MAX_CONTROL_VERTICES:
+            raise DesignError(f"A studio control mesh has at most {MAX_CONTROL_VERTICES} "
+                              f"vertices (a fit stays interactive), the split makes {len(v)}")
+        n = len(self.vertices)
+        with self.edit():
+            self.vertices, self.faces = v, f
+            self.creases = {(min(a, b), max(a, b)) for a, b in creases}
+            self.last = None  # its control mesh is another's now
+        return list(range(n, len(v)))
+
+    def face_of(self, vertices: Iterable[int]) -> int:
+        """The one control quad whose corners include all the given vertices."""
+        js = {int(j) for j in vertices}
+        found = [k for k, quad in enumerate(self.faces.tolist()) if js and js <= set(quad)]
+        if len(found) != 1:
+            raise DesignError(f"Expected corners of exactly one control face (three or four of "
+                              f"them pick one), got vertices {sorted(js)}, corners of "
+                              f"{len(found)} faces")
+        return found[0]
 
     def _vertex(self, j: int) -> None:
         if not 0 <= j < len(self.vertices):
@@ -129,9 +281,8 @@ class Design:
         """Makes the last fit's control mesh the start of the next (fixed vertices kept)."""
         if self.last is None:
             raise DesignError("Nothing fitted yet: press Fit first")
-        fixed = set(self.fixed)
-        self.vertices = self.last.result.control.copy()
-        self.fixed = fixed
+        with self.edit():
+            self.vertices = self.last.result.control.copy()
 
     def set_parameter(self, name: str, value: float) -> None:
         if name not in PARAMETERS:
@@ -140,7 +291,8 @@ class Design:
             value = int(value)  # sliders send whole numbers as floats
         trial = dict(self.params, **{name: value})
         self._parse(self._data(params=trial, people=[{"pose": "db:any"}]))
-        self.params = trial
+        with self.edit(f"parameter {name}"):
+            self.params = trial
 
     # the people -------------------------------------------------------------------------
     def add_person(self, pose: str, **fields) -> int:
@@ -149,19 +301,25 @@ class Design:
         person = {"name": f"person {len(self.people) + 1}", "pose": pose,
                   **schema.person_defaults(), **fields}
         self._check_person(person)
-        self.people.append(person)
+        with self.edit():
+            self.people = self.people + [person]
         return len(self.people) - 1
 
-    def update_person(self, k: int, **fields) -> None:
+    def update_person(self, k: int, group: str | None = None, **fields) -> None:
         person = dict(self._person(k), **fields)
         # a move or a turn only needs the fields checked; a new pose or body is made now
         self._check_person(person, make=bool({"pose", "body"} & set(fields)))
-        self.people[k] = person
+        with self.edit(group):
+            self.people = [person if i == k else p for i, p in enumerate(self.people)]
+            # its relaxed body was relaxed where it was, as it was
+            self.relaxed = {i: r for i, r in self.relaxed.items() if i != k}
 
     def remove_person(self, k: int) -> None:
         self._person(k)
-        del self.people[k]
-        self.last = None
+        with self.edit():
+            self.people = [p for i, p in enumerate(self.people) if i != k]
+            self.relaxed = {i - (i > k): r for i, r in self.relaxed.items() if i != k}
+            self.last = None
 
     def _person(self, k: int) -> dict:
         if not 0 <= k < len(self.people):
@@ -189,6 +347,8 @@ class Design:
                    **(params or self.params)}
         if self.fixed:
             surface["fixed"] = sorted(self.fixed)
+        if self.creases:
+            surface["creases"] = [list(c) for c in sorted(self.creases)]
         return {"surface": surface,
                 "person": copy.deepcopy(people if people is not None else self.people)}
 
@@ -205,11 +365,20 @@ class Design:
         return self._parse(self.scenario_data())
 
     def fit(self, progress: Callable[[int, float, float], None] | None = None, *,
-            warm: bool = False, cancel: Callable[[], bool] | None = None) -> FitOutcome:
-        """Fits the session's scene. `warm`: refit from the last fit's result when the control
-        mesh has the same vertices and quads (a cold fit otherwise); `cancel`: polled between
-        iterations, ends the fit early with the best surface so far."""
+            warm: bool = False, cancel: Callable[[], bool] | None = None) -> FitOutcome | None:
+        """Fits the session as it is now (`fit_scene`) and keeps the outcome as `last`.
+
+        Parameters
+        ----------
+        progress : optional callback (iteration, energy, tau) after each accepted iteration.
+        warm : refit from the last fit's result when the control mesh has the same vertices
+            and quads (a cold fit otherwise).
+        cancel : optional callable, asked between iterations: True stops the fit, which then
+            returns None and leaves `last` as it was (a newer edit outdated it).
+        """
         start = time.perf_counter()
+        if cancel is not None and cancel():
+            return None
         scenario = self.scenario()
         people = [self.place(p) for p in self.people]
         last = self.last.result if warm and self.last is not None else None
@@ -218,9 +387,32 @@ class Design:
             last = None  # another control mesh: nothing to start from
         result, persons, settles = fit_scene(scenario, people, progress, warm=last,
                                              cancel=cancel)
+        if result.stop_reason.startswith("cancelled") or (cancel is not None and cancel()):
+            return None
         self.last = FitOutcome(result, people, persons, [m.pressure_kpa for m in settles],
                                time.perf_counter() - start)
+        self.relaxed = {}  # relaxed onto the surface before
         return self.last
+
+    def pose_warnings(self) -> list[str]:
+        """Why a person cannot sit on the surface, before any fit: a pose the posture
+        classifier (`solver.body.posture`) reads as standing, supported as on a seat."""
+        from posedb.regions import support_regions
+
+        warnings = []
+        for person in self.people:
+            if SEAT_REGIONS & set(support_regions(person["support"])) and \
+                    scene_posture(self.place(person)) == "standing":
+                warnings.append(f"{person['name']} stands ({person['pose']}): a standing pose "
+                                f"cannot sit on the surface; pick a seated one")
+        return warnings
+
+    def result_warnings(self) -> list[str]:
+        """What the last fit misses of the bars (`solver.scene.quality.design_misses`)."""
+        if self.last is None:
+            return []
+        margin = self.params["margin"]
+        return [m for p in self.last.persons for m in design_misses(p, margin)]
 
     def relax(self, k: int) -> RelaxOutcome:
         self._person(k)
@@ -230,8 +422,24 @@ class Design:
         person = self.place(self.people[k])
         res, before, after, _ = relax_person(self.scenario(), person, self.last.result.surface,
                                              self.last.result.surface_faces)
-        return RelaxOutcome(k, res.vertices, person.body.triangles, before, after,
-                            time.perf_counter() - start, relax_text(res))
+        outcome = RelaxOutcome(k, res.vertices, person.body.triangles, before, after,
+                               time.perf_counter() - start, relax_text(res), person, res)
+        with self.edit():
+            self.relaxed = {**self.relaxed, k: outcome}
+        return outcome
+
+    def save_relaxed(self, k: int) -> dict:
+        """Stores person k's relaxed pose in the library, one commit (`save_relaxed`): a
+        one-frame take of origin "relaxed" and a pose "<origin>-relaxed"; returns its id and
+        name."""
+        if self.db is None:
+            raise DesignError("Saving a pose needs a library: start the studio with --db")
+        self._person(k)
+        outcome = self.relaxed.get(k)
+        if outcome is None:
+            raise DesignError(f"Relax {self.people[k]['name']} first")
+        # as `sitrelax relax --save` does: a relaxation that kept the captured pose stores it
+        return save_relaxed(self.db, [(outcome.placed, outcome.result)], "studio")[0]
 
     def save_toml(self, path: str | os.PathLike) -> Path:
         path = Path(path)
@@ -261,11 +469,27 @@ class Design:
         return name
 
     def export(self, out_dir: str | os.PathLike,
-               progress: Callable[[str], None] | None = None) -> dict:
-        """Fits and writes everything as `sitrelax fit` does (surface, control mesh, bodies,
-        pictures, report.json, and the scenario as scenario.toml)."""
+               progress: Callable[[str], None] | None = None,
+               formats: tuple[str, ...] = SURFACE_FORMATS) -> dict:
+        """Fits and writes everything as `sitrelax fit` does (surface in `formats`, control
+        mesh, bodies, pictures, report.json, and the scenario as scenario.toml)."""
         out = Path(out_dir)
-        report = run_fit(self.scenario(), out, db=self.db, progress=progress)
+        report = run_fit(self.scenario(), out, db=self.db, progress=progress, formats=formats)
         self.save_toml(out / "scenario.toml")
         return report
+
+    def export_zip(self, name: str, progress: Callable[[str], None] | None = None,
+                   formats: tuple[str, ...] = SURFACE_FORMATS) -> tuple[bytes, dict]:
+        """`export` into a temporary folder, packed as one zip (its files under `name`/):
+        the zip's bytes and the report. Nothing is left on disk."""
+        name = check_name(name)
+        with tempfile.TemporaryDirectory() as tmp:
+            folder = Path(tmp) / name
+            report = self.export(folder, progress, formats)
+            buffer = io.BytesIO()
+            with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as pack:
+                for path in sorted(folder.rglob("*")):
+                    if path.is_file():
+                        pack.write(path, f"{name}/{path.relative_to(folder).as_posix()}")
+        return buffer.getvalue(), report
 

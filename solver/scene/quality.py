@@ -11,6 +11,10 @@ the floor, no body point deeper than the margin (plus 1 mm) on a dense sampling.
     seated             a person seated upright carries >= 60 % of the weight on the pelvis and
                        thighs and < 10 % on the calves (`solver.body.posture`)
 
+A design in progress is held to two more (`design_misses`): no point of the person's skin cut
+deeper than the margin, and a peak pressure at most 0.6 of the same person's on a flat seat
+(what a shaped surface is for).
+
 Shares are of the body's weight m g, over every support, the floor included.
 """
 
@@ -23,6 +27,8 @@ CONTACT_COVERAGE_MIN = 0.8
 SEATED_LOAD_MIN = 0.6  # share of m g on the pelvis and thighs
 SEATED_CALVES_MAX = 0.1  # share of m g on the calves
 SEATED_POSTURES = ("seated",)
+CUT_TOLERANCE_M = 1e-3  # a cut deeper than the margin by more than this misses the bar
+PEAK_OF_FLAT_MAX = 0.6  # a design's peak pressure over the flat seat's
 
 
 def person_loads(person: dict) -> dict:
@@ -70,7 +76,7 @@ def surface_misses(guarantees: dict) -> list[str]:
         misses.append(f"dips {1000 * (g['floor_m'] - g['min_height_m']):.0f} mm under the "
                       f"floor")
     deepest, margin = g["max_penetration_dense_m"], g["margin_m"]
-    if deepest > margin + 1e-3:
+    if deepest > margin + CUT_TOLERANCE_M:
         misses.append(f"cuts {1000 * deepest:.0f} mm into a body (margin {1000 * margin:.0f} "
                       f"mm)")
     return misses
@@ -103,4 +109,22 @@ def person_misses(person: dict) -> list[str]:
         if loads["calves_share"] >= SEATED_CALVES_MAX:
             misses.append(f"{name}: {100 * loads['calves_share']:.0f} % of the weight on the "
                           f"calves (bar under {100 * SEATED_CALVES_MAX:.0f} %)")
+    return misses
+
+
+def design_misses(person: dict, margin: float) -> list[str]:
+    """`person_misses` and, for a design in progress, a cut deeper than the `margin` (metres)
+    and a peak pressure over PEAK_OF_FLAT_MAX of the flat seat's (its report row's `flat`),
+    one line each, naming the person."""
+    name = person["name"].split(" (")[0]
+    misses = person_misses(person)
+    deepest = person["max_penetration_m"]
+    if deepest > margin + CUT_TOLERANCE_M:
+        misses.append(f"{name}: the surface cuts {1000 * deepest:.0f} mm into the skin (margin "
+                      f"{1000 * margin:.0f} mm)")
+    peak, flat = person.get("peak_pressure_kpa"), (person.get("flat") or {}).get(
+        "peak_pressure_kpa")
+    if peak is not None and flat and peak > PEAK_OF_FLAT_MAX * flat:
+        misses.append(f"{name}: peak pressure {peak:.1f} kPa, {peak / flat:.2f} of the flat "
+                      f"seat's {flat:.1f} (bar {PEAK_OF_FLAT_MAX})")
     return misses

@@ -612,7 +612,8 @@ def save_relaxed(db: str | os.PathLike, relaxed: list, surface: str) -> list[dic
                 origin = lib.pose(ref[3:])
                 source, base, tags = origin.id, origin.name, origin.tags
             else:
-                source, base, tags = ref, Path(ref.split("#")[0]).stem, ()
+                # "bvh:bundled:NAME.bvh#frame=N" or "bvh:PATH.bvh#...": the file's stem
+                source, base, tags = ref, Path(ref.split("#")[0].split(":")[-1]).stem, ()
             name, k = f"{base}-relaxed", 2
             while name in taken:
                 name, k = f"{base}-relaxed-{k}", k + 1

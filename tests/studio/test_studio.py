@@ -1,11 +1,8 @@
-"""`sitrelax studio`: the design session, and the studio driven in a real headless browser
-(Debian's chromium and chromedriver, started here; nothing is downloaded)."""
+"""`sitrelax studio`: the design session, and the studio's server (the browser drives it in
+test_studio_browser.py)."""
 
 from __future__ import annotations
 
-import os
-import shutil
-import time
 import tomllib
 from pathlib import Path
 
@@ -18,9 +15,6 @@ from studio.design import Design, DesignError
 
 from tests.conftest import listening_addresses
 
-ROOT = Path(__file__).resolve().parents[2]
-ARTIFACTS = Path(os.environ.get("SITRELAX_ARTIFACTS", ROOT / "test-artifacts"))
-CHROMIUM, DRIVER = shutil.which("chromium"), shutil.which("chromedriver")
 HIGH_SIT = "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"
 
 
@@ -83,94 +77,6 @@ def test_fixed_vertices_hold_and_moved_ones_start_where_put(library):
     assert free.max() > 0.02  # the others did move
 
 
-def _browser():
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    options = webdriver.ChromeOptions()
-    options.binary_location = CHROMIUM
-    for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage",
-                "--window-size=1400,900", "--use-angle=swiftshader",
-                "--enable-unsafe-swiftshader", "--disable-gpu-sandbox"):
-        options.add_argument(arg)
-    return webdriver.Chrome(service=Service(DRIVER), options=options)
-
-
-def _wait(predicate, timeout: float, what: str):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.2)
-    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-
-
-def _rgb(png: bytes) -> np.ndarray:
-    import io
-
-    from matplotlib.image import imread
-
-    return imread(io.BytesIO(png), format="png")[..., :3]
-
-
-# a browser, the studio and a fit, end to end (half a minute on two loaded cores): under the slow
-# mark; the default run keeps the studio serving its client on loopback and the design session
-@pytest.mark.slow
-@pytest.mark.skipif(not (CHROMIUM and DRIVER) and not os.environ.get("CI"),
-                    reason="needs Debian's chromium and chromium-driver (apt-get install "
-                           "chromium chromium-driver)")
-def test_the_studio_in_a_browser_adds_a_person_fits_and_shows_the_surface(library, tmp_path):
-    from selenium.webdriver.common.by import By
-
-    from studio.web import Studio
-
-    assert CHROMIUM and DRIVER, "CI installs chromium and chromium-driver (see .ci/run)"
-    studio = Studio(db=str(library), port=0, out=str(tmp_path / "out"))
-    driver = _browser()
-    try:
-        driver.get(f"http://127.0.0.1:{studio.port}")
-
-        def button(label):
-            found = driver.find_elements(By.XPATH, f"//button[normalize-space(.)='{label}']")
-            return found[0] if found else None
-
-        _wait(lambda: button("Add person"), 90, "the studio's controls")
-        time.sleep(2.0)
-        before = driver.get_screenshot_as_png()
-        ARTIFACTS.mkdir(parents=True, exist_ok=True)
-        (ARTIFACTS / "studio-before-fit.png").write_bytes(before)
-        button("Add person").click()
-        _wait(lambda: len(studio.design.people) == 1, 30, "the person to join the scene")
-        assert studio.design.people[0]["pose"] == "db:perch"  # from the library
-        button("Fit").click()
-        _wait(lambda: studio.fits == 1, 60, "the fit")
-        _wait(lambda: "Fitted" in driver.find_element(By.TAG_NAME, "body").text, 30,
-              "the fit's figures on the page")
-        notes = driver.find_elements(By.CSS_SELECTOR, "button.mantine-Notification-closeButton")
-        for close in notes:
-            close.click()  # the note that WebGL runs in software
-        time.sleep(3.0)  # the surface and the coloured body reach the browser and render
-        after = driver.get_screenshot_as_png()
-        ARTIFACTS.mkdir(parents=True, exist_ok=True)
-        (ARTIFACTS / "studio-after-fit.png").write_bytes(after)
-        page = driver.find_element(By.TAG_NAME, "body").text
-        assert "coverage" in page
-        # the surface is on the screen: hiding it alone changes many pixels, and what it
-        # covered was its own blue
-        studio._surface.visible = False
-        time.sleep(2.0)
-        hidden = _rgb(driver.get_screenshot_as_png())
-        shown = _rgb(after)
-        changed = np.abs(shown - hidden).max(axis=2) > 0.08
-        assert changed.sum() > 3000, f"hiding the surface changed only {changed.sum()} pixels"
-        r, g, b = shown[changed].mean(axis=0)
-        assert b > r + 0.05 and b > 0.4, f"the surface's pixels are not its blue: {r, g, b}"
-    finally:
-        driver.quit()
-        studio.stop()
-
-
 def test_the_studio_listens_on_loopback_only_by_default(library, tmp_path):
     import http.client
     import json
@@ -215,20 +121,25 @@ def test_the_support_checkboxes_are_the_body_regions(library, tmp_path):
 
     from studio.web import Studio
 
+    from studio.headless import HeadlessTab as Tab
+
     studio = Studio(db=str(library), port=0, out=str(tmp_path))
+    tab = Tab(studio)
     try:
-        assert list(studio.parts) == list(BODY_REGIONS)
-        assert {r for r, box in studio.parts.items() if box.value} == {"pelvis", "thighs"}
-        studio.add_person(HIGH_SIT)
-        studio.design.update_person(0, support="chair")
-        studio._show_person()
-        assert {r for r, box in studio.parts.items() if box.value} == {
+        view = tab.view
+        assert list(view.parts) == list(BODY_REGIONS)
+        assert {r for r, box in view.parts.items() if box.value} == {"pelvis", "thighs"}
+        view.add_person(HIGH_SIT)
+        view.design.update_person(0, support="chair")
+        view._show_person()
+        assert {r for r, box in view.parts.items() if box.value} == {
             "upper_back", "lower_back", "pelvis", "thighs"}
-        studio.parts["upper_back"].value = False
-        studio.parts["calves"].value = True
-        studio._apply_person()
-        assert studio.design.people[0]["support"] == ["lower_back", "pelvis", "thighs", "calves"]
-        assert studio.design.scenario().persons[0].support == (
+        view.parts["upper_back"].value = False
+        view.parts["calves"].value = True
+        view._apply_person()
+        assert view.design.people[0]["support"] == ["lower_back", "pelvis", "thighs", "calves"]
+        assert view.design.scenario().persons[0].support == (
             "lower_back", "pelvis", "thighs", "calves")
     finally:
+        tab.close()
         studio.stop()

@@ -11,14 +11,23 @@ import pytest
 
 from studio.web import Studio
 
+from studio.headless import HeadlessTab as Tab
+
 
 @pytest.fixture(scope="module")
 def studio(tmp_path_factory):
     out = tmp_path_factory.mktemp("studio") / "not" / "yet"
     server = Studio(port=0, out=str(out))
-    server.add_person("bvh:bundled:cmu_75_18_high_sit.bvh#frame=39")
     yield server
     server.stop()
+
+
+@pytest.fixture(scope="module")
+def tab(studio):
+    tab = Tab(studio)
+    tab.view.add_person("bvh:bundled:cmu_75_18_high_sit.bvh#frame=39")
+    yield tab
+    tab.close()
 
 
 def _upgrade(port: int, origin: str | None, host: str = "127.0.0.1") -> str:
@@ -45,36 +54,38 @@ def test_the_websocket_refuses_foreign_origins_and_hosts(studio):
 
 @pytest.mark.parametrize("name", ["../../escaped", "/etc/cron.d/x", "a/b", "..", ".hidden",
                                   "x" * 200])
-def test_a_name_is_never_a_path(studio, name):
-    studio.name.value = name
-    for action in (studio._save_toml, studio._export):
-        studio._guarded(action)
-        assert "Expected a name" in studio.status_text
+def test_a_name_is_never_a_path(studio, tab, name):
+    view = tab.view
+    view.name.value = name
+    for action in (view._save_toml, view._export):
+        view._guarded(action)
+        assert "Expected a name" in view.status_text
     assert not studio.out.exists() or all(
         p.resolve().is_relative_to(studio.out.resolve()) for p in studio.out.rglob("*"))
     assert not (studio.out.parent.parent / "escaped.toml").exists()
 
 
-def test_save_toml_makes_the_out_folder(studio):
-    studio.name.value = "first design"
-    studio._guarded(studio._save_toml)
-    assert (studio.out / "first design.toml").is_file(), studio.status_text
+def test_save_toml_makes_the_out_folder(studio, tab):
+    tab.view.name.value = "first design"
+    tab.view._guarded(tab.view._save_toml)
+    assert (studio.out / "first design.toml").is_file(), tab.view.status_text
 
 
-def test_an_upload_over_the_limit_is_dropped_as_it_arrives(studio):
+def test_an_upload_over_the_limit_is_dropped_as_it_arrives(studio, tab):
     from viser import _messages
 
-    handlers = studio.server._websock_server._incoming_handlers
-    uuid = studio.upload._impl.uuid
-    states = studio.server.gui._current_file_upload_states
+    client = studio.server.get_clients()[tab.client_id]  # the tab's own GUI takes its uploads
+    handlers = client._websock_connection._incoming_handlers
+    uuid = tab.view.upload._impl.uuid
+    states = client.gui._current_file_upload_states
 
     def send(message) -> None:
         for handler in list(handlers[type(message)]):
-            handler(0, message)
+            handler(tab.client_id, message)
 
     # declared over the limit: refused before a byte is kept
     send(_messages.FileTransferStartUpload(uuid, "t1", "big.obj", "", 256, 128 * 2 ** 20))
-    assert "t1" not in states and "big.obj" in studio.status_text
+    assert "t1" not in states and "big.obj" in studio.problem_text
     # declared small, sent large: dropped once the bytes pass the limit
     send(_messages.FileTransferStartUpload(uuid, "t2", "liar.obj", "", 64, 4 * 2 ** 20))
     part = b"v 0 0 0\n" * (2 ** 16)  # 512 KiB
@@ -83,4 +94,4 @@ def test_an_upload_over_the_limit_is_dropped_as_it_arrives(studio):
         if "t2" not in states:
             break
     assert "t2" not in states and k * len(part) <= studio.limit
-    assert "dropped" in studio.status_text
+    assert "dropped" in studio.problem_text

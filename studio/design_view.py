@@ -1,0 +1,952 @@
+"""The studio's Design view: one tab's design session (`Design`) drawn and edited with viser.
+
+The scene is Y up, in metres, under `/design`. Each person hangs under a transform gizmo
+(dragging moves and turns the body) and has a typed position (x, y, z m) and rotation (degrees,
+intrinsic "xyz"). Control vertices are picked by clicking on them (shift-click adds or removes
+one, shift-drag a box adds those inside it) or by typing their indices; one gizmo at the
+selection's centroid moves all of them, and the selection can be fixed, freed, typed to a new
+centroid, creased along the control edges it spans, or split (the quad its corners pick).
+
+While "Refit while dragging" is on, every drag or typed move asks the session's worker thread
+for a fit (`Refitter`): the newest edit cancels a fit still running for an older one, and fits
+start no faster than they finish, so the machine keeps up; each fit's iterations are shown as
+they come and its surface as soon as it is done. Everything goes through `Design` (the same
+solver and library calls as the command line).
+
+A tab has its own session; tabs that join the same session name share one (each with its own
+selection and status line, all drawing every edit).
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+import traceback
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from posedb.regions import support_regions
+from solver.body.model import BODY_REGIONS, SHAPE_KEYS, BodyShape
+from solver.contact.evaluate import peak_text
+from solver.io.render import SKIN, SURFACE
+from solver.mesh import quad_triangles
+from solver.scene import schema
+from solver.scene.run import pressure_on_skin
+
+from .context import StudioContext
+from .design import DEFAULT_POSE, Design, DesignError, check_name
+
+CONTROL_COLOR = (40, 40, 48)
+FIXED_COLOR = (220, 50, 40)
+FREE_COLOR = (40, 110, 220)
+SELECTED_COLOR = (250, 190, 20)
+CREASE_COLOR = (200, 30, 160)
+FITTED_NET_COLOR = (30, 150, 90)
+RELAXED_COLOR = (150, 200, 150)
+PICK_ANGLE = 0.03  # radians off a click's ray within which a control vertex is hit
+BODY_MODES = {"shown": 1.0, "ghost": 0.25, "hidden": 0.0}  # opacity of the bodies
+QUIET_S = 0.03  # a refit waits this long for the drag's next event before it starts
+
+
+def _rgb(color) -> tuple[int, int, int]:
+    return tuple(int(round(255 * c)) for c in color)
+
+
+def quat_wxyz(rotation_deg) -> np.ndarray:
+    """viser's (w, x, y, z) of a person's `rotation_deg` (intrinsic "xyz", degrees)."""
+    x, y, z, w = Rotation.from_euler("xyz", rotation_deg, degrees=True).as_quat()
+    return np.array([w, x, y, z])
+
+
+def euler_deg(wxyz) -> list[float]:
+    """A person's `rotation_deg` (intrinsic "xyz", degrees, 3 decimals) of viser's (w, x, y, z)."""
+    w, x, y, z = (float(c) for c in wxyz)
+    return [round(float(a), 3) for a in Rotation.from_quat([x, y, z, w]).as_euler(
+        "xyz", degrees=True)]
+
+
+def project(points: np.ndarray, position, wxyz, fov: float, aspect: float
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Where points land on a viser camera's image.
+
+    Parameters
+    ----------
+    points : (N, 3) float, metres.
+    position, wxyz : the camera's position and orientation (viser's: OpenCV axes, +z looking,
+        +y down the image).
+    fov : vertical field of view, radians; aspect : width over height.
+
+    Returns
+    -------
+    uv : (N, 2) float, image coordinates in [0, 1] from the top left (OpenCV's, as viser's
+    pointer events give them); front : (N,) bool, the points in front of the camera.
+    """
+    w, x, y, z = (float(c) for c in wxyz)
+    local = (np.asarray(points, dtype=np.float64) - np.asarray(position)) @ \
+        Rotation.from_quat([x, y, z, w]).as_matrix()
+    depth = local[:, 2]
+    front = depth > 1e-6
+    safe = np.where(front, depth, 1.0)
+    half = np.tan(fov / 2.0)
+    u = (local[:, 0] / safe / (half * aspect) + 1.0) / 2.0
+    v = (local[:, 1] / safe / half + 1.0) / 2.0
+    return np.stack([u, v], axis=1), front
+
+
+def ray_pick(points: np.ndarray, origin, direction, angle: float = PICK_ANGLE) -> int | None:
+    """The point seen closest to a ray (smallest angle off it, within `angle` radians, in front
+    of its origin), or None. points : (N, 3) metres."""
+    d = np.asarray(direction, dtype=np.float64)
+    d = d / np.linalg.norm(d)
+    rel = np.asarray(points, dtype=np.float64) - np.asarray(origin)
+    along = rel @ d
+    off = np.linalg.norm(rel - along[:, None] * d, axis=1)
+    ang = np.where(along > 1e-6, np.arctan2(off, np.maximum(along, 1e-6)), np.inf)
+    if not len(ang) or ang.min() > angle:
+        return None
+    return int(np.argmin(ang))
+
+
+class Refitter:
+    """Fits a session on a worker thread: `request` after an edit; the newest request wins (a
+    fit still running for an older one is cancelled between its iterations) and fits start no
+    more often than the last one took, so a drag never queues fits the machine cannot keep up
+    with."""
+
+    def __init__(self, session: "Session"):
+        self.session = session
+        self.generation = 0  # bumped by every edit a fit must follow
+        self._wanted: int | None = None
+        self._cond = threading.Condition()
+        self._closed = False
+        self._last_start = 0.0
+        self._last_seconds = 0.0
+        self.busy = False
+        self._thread = threading.Thread(target=self._run, daemon=True, name="sitrelax-refit")
+        self._thread.start()
+
+    def bump(self) -> int:
+        """A newer edit: cancels the fit running now; returns the new generation."""
+        with self._cond:
+            self.generation += 1
+            return self.generation
+
+    def request(self) -> None:
+        with self._cond:
+            self.generation += 1
+            self._wanted = self.generation
+            self._cond.notify()
+
+    def outdated(self, generation: int) -> bool:
+        return self._closed or self.generation != generation
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while self._wanted is None and not self._closed:
+                    self._cond.wait()
+                if self._closed:
+                    return
+            # wait out the drag's burst and the last fit's own length (what the machine keeps up
+            # with), then fit the newest edit
+            pause = max(QUIET_S, self._last_start + self._last_seconds - time.perf_counter())
+            time.sleep(pause)
+            with self._cond:
+                generation, self._wanted = self._wanted, None
+            if generation is None or self.outdated(generation):
+                continue
+            self._last_start = time.perf_counter()
+            self.busy = True
+            try:
+                self.session.fit(generation)
+            except Exception as exc:  # noqa: BLE001 (the worker lives on; the tabs are told)
+                self.session.problem(exc)
+            finally:
+                self.busy = False
+                self._last_seconds = time.perf_counter() - self._last_start
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify()
+
+
+class Session:
+    """One design session and the views (tabs) showing it: a lock for its edits, the worker
+    that refits it, and the count of fits drawn."""
+
+    def __init__(self, db: str | None, name: str = ""):
+        self.design = Design(db)
+        self.name = name
+        self.lock = threading.RLock()
+        self.views: list["DesignView"] = []
+        self.fits = 0
+        self.refitter = Refitter(self)
+
+    def changed(self, source: "DesignView | None" = None) -> None:
+        """Every other view of the session draws the session anew (the source drew its own)."""
+        for view in list(self.views):
+            if view is not source:
+                view.redraw()
+
+    def fit(self, generation: int | None = None, source: "DesignView | None" = None) -> bool:
+        """Fits the session now (a newer edit cancels it: `generation` outdated) and draws the
+        outcome in every view; False when cancelled."""
+        if generation is None:
+            generation = self.refitter.bump()
+        for view in list(self.views):
+            view.fitting(None, None)
+
+        def progress(iteration: int, energy: float, tau: float) -> None:
+            for view in list(self.views):
+                view.fitting(iteration, energy)
+
+        outcome = self.design.fit(progress, warm=True,
+                                  cancel=lambda: self.refitter.outdated(generation))
+        if outcome is None or outcome.result.stop_reason.startswith("cancelled"):
+            return False
+        with self.lock:
+            if self.refitter.outdated(generation):
+                return False
+            self.fits += 1
+            for view in list(self.views):
+                view.fitted(source)
+        return True
+
+    def problem(self, exc: Exception) -> None:
+        """A refit failed (a person out of reach, ...): every view says so."""
+        kind = "Problem" if isinstance(exc, (ValueError, OSError, KeyError)) else \
+            f"Internal error ({type(exc).__name__})"
+        for view in list(self.views):
+            view.progress.content = ""
+            view._status(f"**{kind}** in the refit: {exc}")
+
+    def close(self) -> None:
+        self.refitter.close()
+
+
+class DesignView:
+    """The Design tab of one browser tab (`studio.context.View`)."""
+
+    prefix = "/design"
+
+    def __init__(self, client, tab, context: StudioContext):
+        self.client = client
+        self.scene = client.scene
+        self.context = context
+        self.out = Path(context.out)
+        self.session = Session(context.db)
+        self.session.views.append(self)
+        self.selection: list[int] = []
+        self.status_text = ""
+        self._syncing = False  # the view is setting its own inputs: not an edit
+        self._people: list = []  # per person: its gizmo
+        self._bodies: list = []
+        self._relaxed: dict[int, object] = {}
+        self._surface = None
+        self._fitted_net = None
+        self._drawn_fit = None  # the fit outcome the surface drawn is of
+        self._gizmo = None
+        self._gizmo_start: tuple[np.ndarray, np.ndarray] | None = None
+        with tab:
+            self._build_gui()
+        self._wire()
+        self.scene.on_click()(lambda e: self._guarded(lambda: self._clicked(e, add=False)))
+        self.scene.on_click(modifier="shift")(
+            lambda e: self._guarded(lambda: self._clicked(e, add=True)))
+        self.scene.on_rect_select(modifier="shift")(
+            lambda e: self._guarded(lambda: self._boxed(e)))
+        self.redraw()
+        self._status("Add people (a seated pose is chosen), then press **Fit**, or drag with "
+                     "**Refit while dragging** on.")
+
+    @property
+    def design(self) -> Design:
+        return self.session.design
+
+    @property
+    def fits(self) -> int:
+        return self.session.fits
+
+    # GUI ----------------------------------------------------------------------------------
+    def _build_gui(self) -> None:
+        gui = self.client.gui
+        with gui.add_folder("Run"):
+            self.fit = gui.add_button("Fit")
+            self.live = gui.add_checkbox("Refit while dragging", initial_value=True)
+            self.undo = gui.add_button("Undo", disabled=True)
+            self.redo = gui.add_button("Redo", disabled=True)
+            self.status = gui.add_markdown("")
+            self.warnings = gui.add_markdown("")
+            self.progress = gui.add_markdown("")
+        with gui.add_folder("People"):
+            self.tags = gui.add_text("Tags", initial_value="",
+                                     hint="a tag expression, e.g. sit and not high")
+            self.search = gui.add_button("Search library")
+            options = self._pose_options("")
+            self.pose = gui.add_dropdown("Pose", options, initial_value=self._default(options))
+            self.frame = gui.add_number("Frame (recordings)", initial_value=39, min=0, step=1)
+            self.add = gui.add_button("Add person")
+            self.selected = gui.add_dropdown("Selected", ["(none)"])
+            self.position = gui.add_vector3("Position (m)", initial_value=(0.0, 0.0, 0.0),
+                                            step=0.01)
+            self.rotation = gui.add_vector3("Rotation (deg)", initial_value=(0.0, 0.0, 0.0),
+                                            step=1.0)
+            self.shape = {key: gui.add_slider(key.capitalize(), min=0.0, max=1.0, step=0.05,
+                                              initial_value=getattr(BodyShape(), key))
+                          for key in SHAPE_KEYS}
+            support = support_regions(schema.default(schema.Person, "support"))
+            self.parts = {region: gui.add_checkbox(f"Support {region.replace('_', ' ')}",
+                                                   initial_value=region in support)
+                          for region in BODY_REGIONS}
+            self.apply = gui.add_button("Apply shape and support")
+            self.relax = gui.add_button("Relax selected person")
+            self.save_pose = gui.add_button("Save relaxed pose to library")
+            self.remove = gui.add_button("Remove person")
+            self.bodies = gui.add_dropdown("Bodies", tuple(BODY_MODES), initial_value="shown")
+        grid, params = schema.Grid(), self.design.params  # the schema's defaults
+        with gui.add_folder("Control mesh"):
+            self.picked = gui.add_text("Picked vertices", initial_value="",
+                                       hint="click a vertex (shift: add, shift-drag: box) or "
+                                            "type indices")
+            self.centroid = gui.add_vector3("Picked at (m)", initial_value=(0.0, 0.0, 0.0),
+                                            step=0.01)
+            self.fix = gui.add_button("Fix picked")
+            self.free = gui.add_button("Free picked")
+            self.crease = gui.add_button("Crease picked edges")
+            self.smooth = gui.add_button("Smooth picked edges")
+            self.split = gui.add_button("Split picked face")
+            self.clear = gui.add_button("Clear picks")
+            self.grid_size = gui.add_vector2("Grid size (m)", initial_value=tuple(grid.size),
+                                             min=(0.05, 0.05), max=(10.0, 10.0), step=0.05)
+            self.grid_res = gui.add_vector2("Grid faces", initial_value=tuple(grid.resolution),
+                                            min=(1, 1), max=(40, 40), step=1)
+            self.grid_height = gui.add_number("Grid height (m)", initial_value=grid.height,
+                                              min=-5.0, max=5.0, step=0.01)
+            self.new_grid = gui.add_button("New grid")
+            self.upload = gui.add_upload_button("Load control mesh (OBJ)", mime_type=".obj")
+            self.level = gui.add_slider("Level", min=1, max=3, step=1,
+                                        initial_value=params["level"])
+            self.sigma = gui.add_number("Sigma", initial_value=params["sigma"], min=0.0,
+                                        max=100.0, step=0.001)
+            self.tau = gui.add_slider("Tau max", min=0.0, max=1.0, step=0.05,
+                                      initial_value=params["tau_max"])
+            self.margin = gui.add_slider("Margin (m)", min=0.0, max=0.1, step=0.005,
+                                         initial_value=params["margin"])
+            self.adopt = gui.add_button("Start from the fitted mesh")
+        with gui.add_folder("Session and files"):
+            self.join_name = gui.add_text("Session", initial_value="",
+                                          hint="empty: this tab's own; a name: shared by the "
+                                               "tabs that join it")
+            self.join = gui.add_button("Join session")
+            self.name = gui.add_text("Name", initial_value="studio-design")
+            self.save_db = gui.add_button("Save to library")
+            self.save_toml = gui.add_button("Save TOML")
+            self.export = gui.add_button("Export (zip)")
+
+    def _wire(self) -> None:
+        actions = [
+            (self.search, lambda: self._set_options(self._pose_options(self.tags.value))),
+            (self.add, self._add_person), (self.apply, self._apply_person),
+            (self.remove, self._remove_person), (self.relax, self._relax),
+            (self.save_pose, self._save_pose), (self.new_grid, self._new_grid),
+            (self.adopt, self._adopt), (self.fit, self.run_fit), (self.undo, self._undo),
+            (self.redo, self._redo), (self.fix, lambda: self._fix(True)),
+            (self.free, lambda: self._fix(False)), (self.crease, lambda: self._crease(True)),
+            (self.smooth, lambda: self._crease(False)), (self.split, self._split),
+            (self.clear, lambda: self.pick([])), (self.join, self._join),
+            (self.save_db, self._save_db), (self.save_toml, self._save_toml),
+            (self.export, self._export),
+        ]
+        for button, action in actions:
+            button.on_click(lambda _event, action=action: self._guarded(action))
+        inputs = [(self.selected, self._show_person), (self.position, self._typed_person),
+                  (self.rotation, self._typed_person), (self.picked, self._typed_picks),
+                  (self.centroid, self._typed_centroid), (self.bodies, self._draw_bodies_mode)]
+        for handle, action in inputs:
+            handle.on_update(lambda _e, action=action: None if self._syncing else
+                             self._guarded(action))
+        for name, handle in (("level", self.level), ("sigma", self.sigma),
+                             ("tau_max", self.tau), ("margin", self.margin)):
+            handle.on_update(lambda _e, name=name, handle=handle: None if self._syncing else
+                             self._guarded(lambda: self._set_parameter(name, handle.value)))
+        self.upload.on_upload(lambda _e: self._guarded(self._load_mesh))
+
+    def _guarded(self, action) -> None:
+        """Runs one action at a time in the session; a problem becomes the status line."""
+        with self.session.lock:
+            try:
+                action()
+            except (ValueError, OSError, KeyError) as exc:
+                self._status(f"**Problem:** {exc}")
+            except Exception as exc:  # noqa: BLE001 (the studio stays up; the trace is shown)
+                self._status(f"**Internal error:** {type(exc).__name__}: {exc}\n\n```\n"
+                             f"{traceback.format_exc(limit=3)}\n```")
+
+    def _status(self, text: str) -> None:
+        self.status_text = text
+        self.status.content = text
+
+    def _set(self, handle, value) -> None:
+        """Shows a value in an input without taking it as an edit."""
+        self._syncing = True
+        try:
+            handle.value = value
+        finally:
+            self._syncing = False
+
+    def _edited(self, refit: bool = False) -> None:
+        """After an edit: the other views of the session redraw, the history buttons follow,
+        and (refit, with live refitting on) the worker fits the new state."""
+        self.session.changed(self)
+        self._history_buttons()
+        self._show_warnings()
+        if refit and self.live.value and self.design.people:
+            self.session.refitter.request()
+        else:
+            self.session.refitter.bump()  # a fit of the old state is no use now
+
+    def _history_buttons(self) -> None:
+        self.undo.disabled = not self.design.can_undo
+        self.redo.disabled = not self.design.can_redo
+
+    # people ---------------------------------------------------------------------------------
+    def _pose_options(self, expr: str) -> list[str]:
+        from capture.recordings import bundled_recordings
+
+        names: list[str] = []
+        if self.design.db is not None:
+            from posedb import PoseLibrary
+
+            names = PoseLibrary(self.design.db).search_poses(expr.strip() or None)
+        return names + [f"recording: {r}" for r in bundled_recordings()] or ["(none)"]
+
+    @staticmethod
+    def _default(options: list[str]) -> str:
+        """The seated recording `DEFAULT_POSE` names (frame 39 is the frame field's start)."""
+        seated = "recording: " + DEFAULT_POSE.split(":", 2)[2].split("#")[0]
+        return seated if seated in options else options[0]
+
+    def _set_options(self, options: list[str]) -> None:
+        self.pose.options = options
+        self.pose.value = options[0]
+        found = sum(not o.startswith("recording: ") for o in options)
+        self._status(f"{found} library pose(s) match.")
+
+    def _pose_spec(self) -> str:
+        choice = self.pose.value
+        if choice.startswith("recording: "):
+            return f"bvh:bundled:{choice[len('recording: '):]}#frame={int(self.frame.value)}"
+        return f"db:{choice}"
+
+    def add_person(self, pose: str, **fields) -> int:
+        """Adds a person (what the Add button does with the chosen pose)."""
+        k = self.design.add_person(pose, **fields)
+        self.redraw()
+        self._set(self.selected, self._labels()[k])
+        self._show_person()
+        self._edited()
+        self._status(f"Added {self.design.people[k]['name']} ({pose}).")
+        return k
+
+    def _add_person(self) -> None:
+        self.add_person(self._pose_spec())
+
+    def _labels(self) -> list[str]:
+        return [f"{k + 1}: {p['name']} ({p['pose']})" for k, p in enumerate(self.design.people)]
+
+    def selected_person(self) -> int:
+        labels = self._labels()
+        if self.selected.value not in labels:
+            raise DesignError("Select a person first")
+        return labels.index(self.selected.value)
+
+    def _show_person(self) -> None:
+        if self.selected.value not in self._labels():
+            return
+        p = self.design.people[self.selected_person()]
+        body = p.get("body", {})
+        for key, slider in self.shape.items():
+            self._set(slider, float(body.get(key, getattr(BodyShape(), key))))
+        support = support_regions(p["support"])  # a use or coarse part as its regions
+        for region, box in self.parts.items():
+            self._set(box, region in support)
+        self._set(self.position, tuple(float(c) for c in p["position"]))
+        self._set(self.rotation, tuple(float(c) for c in p["rotation_deg"]))
+
+    def _apply_person(self) -> None:
+        k = self.selected_person()
+        support = [part for part, box in self.parts.items() if box.value]
+        body = {key: float(s.value) for key, s in self.shape.items()}
+        self.design.update_person(k, body=body, support=support)
+        self.redraw()
+        self._edited()
+        self._status(f"{self.design.people[k]['name']}: shape and support set.")
+
+    def _typed_person(self) -> None:
+        k = self.selected_person()
+        position = [round(float(c), 4) for c in self.position.value]
+        rotation = [round(float(c), 3) for c in self.rotation.value]
+        self.design.update_person(k, position=position, rotation_deg=rotation)
+        gizmo = self._people[k]
+        gizmo.position, gizmo.wxyz = tuple(position), tuple(quat_wxyz(rotation))
+        self._draw_relaxed()
+        self._edited(refit=True)
+        self._status(f"{self.design.people[k]['name']} at {position} m, turned {rotation} deg.")
+
+    def _remove_person(self) -> None:
+        k = self.selected_person()
+        name = self.design.people[k]["name"]
+        self.design.remove_person(k)
+        self.redraw()
+        self._edited()
+        self._status(f"Removed {name}.")
+
+    def _moved(self, k: int, gizmo, phase: str) -> None:
+        if k >= len(self.design.people):
+            return
+        if phase == "start":
+            self.design.end_group()
+        position = [round(float(c), 4) for c in gizmo.position]
+        self.design.update_person(k, group=f"move person {k}", position=position,
+                                  rotation_deg=euler_deg(gizmo.wxyz))
+        if phase == "end":
+            self.design.end_group()
+        if self.selected.value in self._labels() and self.selected_person() == k:
+            self._set(self.position, tuple(position))
+            self._set(self.rotation, tuple(self.design.people[k]["rotation_deg"]))
+        self._draw_relaxed()
+        self._edited(refit=True)
+
+    def _draw_bodies_mode(self) -> None:
+        self._draw_people(self._pressure())
+
+    def _pressure(self):
+        last = self.design.last
+        if last is None or len(last.pressure) != len(self.design.people):
+            return None
+        return last.pressure
+
+    def _draw_people(self, pressure=None) -> None:
+        """Each person's gizmo where the person is, and its body (coloured by `pressure` when
+        given); a body already drawn as it should be is not sent again (a body is 13k
+        vertices, and a slow browser would fall behind)."""
+        people = self.design.people
+        while len(self._people) > len(people):
+            self._people.pop().remove()
+            self._bodies.pop()
+        opacity = BODY_MODES[self.bodies.value]
+        peak = 1.0
+        if pressure is not None:
+            peak = max((float(p.max()) for p in pressure), default=1.0) or 1.0
+        for k, person in enumerate(people):
+            if k == len(self._people):
+                gizmo = self.scene.add_transform_controls(
+                    f"{self.prefix}/people/p{k}", scale=0.35,
+                    position=tuple(person["position"]),
+                    wxyz=tuple(quat_wxyz(person["rotation_deg"])))
+                gizmo.on_update(lambda e, k=k, gizmo=gizmo: self._guarded(
+                    lambda: self._moved(k, gizmo, e.phase)))
+                self._people.append(gizmo)
+                self._bodies.append((None, None))
+            gizmo = self._people[k]
+            gizmo.position = tuple(person["position"])
+            gizmo.wxyz = tuple(quat_wxyz(person["rotation_deg"]))
+            origin = dict(person, position=[0.0, 0.0, 0.0], rotation_deg=[0.0, 0.0, 0.0])
+            shade = None if pressure is None else (id(pressure[k]), peak)
+            key = (json.dumps(origin, sort_keys=True), shade, opacity)
+            if self._bodies[k][1] == key:
+                continue
+            local = self.design.place(origin)
+            name = f"{self.prefix}/people/p{k}/body"
+            if pressure is not None and opacity == 1.0:
+                body = self._colored_mesh(name, local.vertices, local.body.triangles,
+                                          pressure_on_skin(pressure[k], peak))
+            else:  # a ghost is one see-through colour (viser draws coloured meshes opaque)
+                body = self.scene.add_mesh_simple(name, local.vertices, local.body.triangles,
+                                                  color=_rgb(SKIN), opacity=opacity)
+            body.visible = opacity > 0
+            self._bodies[k] = (body, key)
+
+    def _colored_mesh(self, name: str, vertices, triangles, colors):
+        import trimesh
+
+        mesh = trimesh.Trimesh(vertices, triangles, process=False)
+        rgba = np.concatenate([np.asarray(colors), np.ones((len(colors), 1))], axis=1)
+        mesh.visual.vertex_colors = (rgba * 255).astype(np.uint8)
+        return self.scene.add_mesh_trimesh(name, mesh)
+
+    def _relax(self) -> None:
+        k = self.selected_person()
+        res = self.design.relax(k)
+        self._draw_relaxed()
+        self._edited()
+        self._status(f"Relaxed {self.design.people[k]['name']} in {res.seconds:.2f} s: mean "
+                     f"support distance {100 * res.before['mean_support_distance_m']:.1f} -> "
+                     f"{100 * res.after['mean_support_distance_m']:.1f} cm (green); "
+                     f"{res.summary}.")
+
+    def _draw_relaxed(self) -> None:
+        for k in list(self._relaxed):
+            if k not in self.design.relaxed:
+                self._relaxed.pop(k)[0].remove()
+        for k, res in self.design.relaxed.items():
+            if k in self._relaxed and self._relaxed[k][1] is res:
+                continue
+            if k in self._relaxed:
+                self._relaxed.pop(k)[0].remove()
+            handle = self.scene.add_mesh_simple(f"{self.prefix}/relaxed/p{k}", res.vertices,
+                                                res.faces, color=RELAXED_COLOR, opacity=0.8)
+            self._relaxed[k] = (handle, res)
+
+    def _save_pose(self) -> None:
+        k = self.selected_person()
+        with self.context.library_lock:
+            saved = self.design.save_relaxed(k)
+        kept = "" if self.design.relaxed[k].result.accepted else \
+            " (the relaxation kept the captured pose)"
+        self._status(f"Saved {self.design.people[k]['name']}'s relaxed pose as "
+                     f"{saved['name']!r} ({saved['id']}) in {self.design.db}{kept}.")
+
+    # the control mesh -------------------------------------------------------------------
+    def pick(self, indices, add: bool = False) -> None:
+        """Picks control vertices (add: toggles them in the picks instead)."""
+        js = [int(j) for j in indices]
+        for j in js:
+            if not 0 <= j < len(self.design.vertices):
+                last = len(self.design.vertices) - 1
+                raise DesignError(f"Expected control vertices in 0..{last}, got {j}")
+        if add:
+            chosen = list(self.selection)
+            for j in js:
+                if j in chosen:
+                    chosen.remove(j)
+                else:
+                    chosen.append(j)
+            js = chosen
+        self.selection = list(dict.fromkeys(js))
+        self._set(self.picked, " ".join(str(j) for j in self.selection))
+        self._draw_control()
+
+    def _typed_picks(self) -> None:
+        text = self.picked.value.replace(",", " ").split()
+        try:
+            js = [int(t) for t in text]
+        except ValueError:
+            raise DesignError(f"Expected vertex indices separated by spaces, got "
+                              f"{self.picked.value[:80]!r}") from None
+        self.pick(js)
+
+    def _clicked(self, event, add: bool) -> None:
+        j = ray_pick(self.design.vertices, event.ray_origin, event.ray_direction)
+        if j is None:
+            if not add:
+                self.pick([])
+            return
+        self.pick([j], add=add)
+        self._status(f"Picked control vertex {j}" + (f" ({len(self.selection)} picked)."
+                                                    if len(self.selection) > 1 else "."))
+
+    def _boxed(self, event) -> None:
+        camera = event.client.camera
+        uv, front = project(self.design.vertices, camera.position, camera.wxyz, camera.fov,
+                            camera.aspect)
+        lo, hi = np.asarray(event.screen_min), np.asarray(event.screen_max)
+        inside = front & np.all((uv >= lo) & (uv <= hi), axis=1)
+        fresh = [int(j) for j in np.flatnonzero(inside) if j not in self.selection]
+        self.pick(self.selection + fresh)
+        self._status(f"Box picked {len(fresh)} more vertices ({len(self.selection)} picked).")
+
+    def _picked(self) -> list[int]:
+        if not self.selection:
+            raise DesignError("Pick control vertices first (click them, or type their indices)")
+        return self.selection
+
+    def _fix(self, fixed: bool) -> None:
+        js = self._picked()
+        self.design.set_fixed(js, fixed)
+        self._draw_control()
+        self._edited()
+        self._status(f"{'Fixed' if fixed else 'Freed'} {len(js)} control vertices.")
+
+    def _crease(self, sharp: bool) -> None:
+        picked = set(self._picked())
+        edges = [tuple(e) for e in self.design.control_edges().tolist()
+                 if e[0] in picked and e[1] in picked]
+        if not edges:
+            raise DesignError("Pick two vertices that share a control edge (or more) for a "
+                              "crease")
+        with self.design.edit():
+            for i, j in edges:
+                self.design.set_crease(i, j, sharp)
+        self._draw_control()
+        self._edited()
+        self._status(f"{'Creased' if sharp else 'Smoothed'} {len(edges)} control edge(s).")
+
+    def _split(self) -> None:
+        face = self.design.face_of(self._picked())
+        new = self.design.split_face(face)
+        self.selection = []
+        self._clear_surface()
+        self.pick([])
+        self._edited()
+        self._status(f"Split control face {face}: {len(new)} new vertices, "
+                     f"{len(self.design.faces)} faces now.")
+
+    def _typed_centroid(self) -> None:
+        js = self._picked()
+        v = self.design.vertices[js]
+        target = np.asarray(self.centroid.value, dtype=np.float64)
+        self.design.move_vertices(js, v + (target - v.mean(axis=0)))
+        self._draw_control()
+        self._edited(refit=True)
+        self._status(f"Moved {len(js)} vertices' centroid to {np.round(target, 4).tolist()} m.")
+
+    def _gizmo_moved(self, gizmo, phase: str) -> None:
+        if not self.selection:
+            return
+        if phase == "start" or self._gizmo_start is None:
+            self.design.end_group()
+            js = list(self.selection)
+            self._gizmo_start = (self.design.vertices[js].copy(),
+                                 np.asarray(gizmo.position, dtype=np.float64).copy())
+        start, at = self._gizmo_start
+        if len(start) != len(self.selection):
+            return
+        delta = np.asarray(gizmo.position, dtype=np.float64) - at
+        self.design.move_vertices(self.selection, start + delta, group="drag vertices")
+        if phase == "end":
+            self.design.end_group()
+            self._gizmo_start = None
+        self._draw_control(keep_gizmo=True)
+        self._edited(refit=True)
+
+    def _draw_control(self, keep_gizmo: bool = False) -> None:
+        v = self.design.vertices
+        edges = self.design.control_edges()
+        self.scene.add_line_segments(f"{self.prefix}/control/edges", v[edges], CONTROL_COLOR,
+                                     thickness=2.0, thickness_units="screen")
+        creases = np.array(sorted(self.design.creases), dtype=np.int64).reshape(-1, 2)
+        if len(creases):
+            self.scene.add_line_segments(f"{self.prefix}/control/creases", v[creases],
+                                         CREASE_COLOR, thickness=6.0, thickness_units="screen")
+        else:
+            self.scene.remove_by_name(f"{self.prefix}/control/creases")
+        colors = np.array([SELECTED_COLOR if j in self.selection else
+                           FIXED_COLOR if j in self.design.fixed else FREE_COLOR
+                           for j in range(len(v))], dtype=np.uint8)
+        self.scene.add_point_cloud(f"{self.prefix}/control/vertices", v, colors,
+                                   point_size=0.013, point_shape="circle")
+        if self.selection:
+            self._set(self.centroid, tuple(float(c) for c in v[self.selection].mean(axis=0)))
+        if keep_gizmo:
+            return
+        if self._gizmo is not None:
+            self._gizmo.remove()
+            self._gizmo = None
+        self._gizmo_start = None
+        if self.selection:
+            self._gizmo = self.scene.add_transform_controls(
+                f"{self.prefix}/control/handle", scale=0.12, disable_rotations=True,
+                position=tuple(v[self.selection].mean(axis=0)), depth_test=False)
+            gizmo = self._gizmo
+            gizmo.on_update(lambda e: self._guarded(lambda: self._gizmo_moved(gizmo, e.phase)))
+
+    def _new_grid(self) -> None:
+        size = tuple(float(c) for c in self.grid_size.value)
+        res = tuple(int(round(c)) for c in self.grid_res.value)
+        self.design.new_grid(size, res, float(self.grid_height.value))
+        self.selection = []
+        self.redraw()
+        self._edited()
+        self._status(f"New {res[0]} x {res[1]} grid, {size[0]:g} x {size[1]:g} m.")
+
+    def _load_mesh(self) -> None:
+        import tempfile
+
+        upload = self.upload.value
+        if len(upload.content) > self.context.limit:
+            raise DesignError(f"{upload.name} is {len(upload.content)} bytes; the studio takes "
+                              f"control meshes up to {self.context.limit} bytes")
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / Path(upload.name).name
+            path.write_bytes(upload.content)
+            self.design.load_control_mesh(path)
+        self.selection = []
+        self.redraw()
+        self._edited()
+        self._status(f"Loaded {upload.name}: {len(self.design.vertices)} control vertices.")
+
+    def _set_parameter(self, name: str, value) -> None:
+        self.design.set_parameter(name, value)
+        self._edited()
+
+    def _adopt(self) -> None:
+        self.design.adopt_fit()
+        self.redraw()
+        self._edited()
+        self._status("The fitted control mesh is the start now.")
+
+    # history --------------------------------------------------------------------------------
+    def _undo(self) -> None:
+        self.design.undo()
+        self._after_history("Undone")
+
+    def _redo(self) -> None:
+        self.design.redo()
+        self._after_history("Redone")
+
+    def _after_history(self, what: str) -> None:
+        self.selection = [j for j in self.selection if j < len(self.design.vertices)]
+        self.redraw()
+        self._edited()
+        self._status(f"{what}." + (f"\n\n{self._figures()}" if self.design.last else ""))
+
+    # fitting ------------------------------------------------------------------------------
+    def run_fit(self) -> None:
+        """Fits the session now and draws it (the Fit button)."""
+        self._status("Fitting...")
+        if not self.design.people:
+            raise DesignError("Add a person first: the scene is empty")
+        if not self.session.fit(source=self):
+            self._status("The fit was overtaken by a newer edit.")
+
+    def fitting(self, iteration: int | None, energy: float | None) -> None:
+        """A fit's news: started (None) or one more accepted iteration."""
+        self.progress.content = ("*Fitting...*" if iteration is None else
+                                 f"*Fitting: iteration {iteration}, energy {energy:.4g}*")
+
+    def fitted(self, source: "DesignView | None" = None) -> None:
+        """Draws the last fit: surface, fitted control net, bodies by pressure, figures and
+        what misses the bars."""
+        outcome = self.design.last
+        if outcome is None:
+            return
+        self.progress.content = ""
+        self._draw_surface()
+        self._draw_people(self._pressure())
+        self._draw_relaxed()
+        r = outcome.result
+        self._status(f"**Fitted** (fit {self.session.fits}) in {r.iterations} iterations, "
+                     f"{outcome.seconds:.2f} s ({r.stop_reason.split(':')[0]}).\n\n"
+                     f"{self._figures()}")
+        self._show_warnings()
+
+    def _figures(self) -> str:
+        """The last fit's figures per person, as a markdown table."""
+        rows = "\n".join(
+            f"| {p['name'].split(' (')[0]} | {p['coverage']:.2f} | "
+            f"{peak_text(p)} / {peak_text(p['flat'])} | "
+            f"{1000 * p['max_penetration_m']:.0f} |" for p in self.design.last.persons)
+        return ("| person | coverage | peak kPa (flat) | into skin mm |\n|---|---|---|---|\n"
+                f"{rows}")
+
+    def _draw_surface(self) -> None:
+        outcome = self.design.last
+        if outcome is None:
+            self._clear_surface()
+            return
+        if self._surface is not None and self._drawn_fit is outcome:
+            return
+        self._drawn_fit = outcome
+        r = outcome.result
+        self._surface = self.scene.add_mesh_simple(
+            f"{self.prefix}/surface", r.surface, quad_triangles(r.surface_faces),
+            color=_rgb(SURFACE), side="double")
+        edges = np.concatenate([r.faces[:, [0, 1]], r.faces[:, [1, 2]], r.faces[:, [2, 3]],
+                                r.faces[:, [3, 0]]])
+        self._fitted_net = self.scene.add_line_segments(
+            f"{self.prefix}/fitted_net", r.control[np.unique(np.sort(edges, axis=1), axis=0)],
+            FITTED_NET_COLOR, thickness=1.5, thickness_units="screen")
+
+    def _clear_surface(self) -> None:
+        for name in ("_surface", "_fitted_net"):
+            handle = getattr(self, name)
+            if handle is not None:
+                handle.remove()
+                setattr(self, name, None)
+
+    def _show_warnings(self) -> None:
+        lines = self.design.pose_warnings() + self.design.result_warnings()
+        self.warnings.content = "\n".join(
+            f"<span style='color:#c0392b'>&#9888; {line}</span>  " for line in lines)
+        self.warning_lines = lines
+
+    # files --------------------------------------------------------------------------------
+    def _save_db(self) -> None:
+        with self.context.library_lock:
+            name = self.design.save_to_library(check_name(self.name.value))
+        self._status(f"Saved the scenario {name!r} to {self.design.db}.")
+
+    def _save_toml(self) -> None:
+        path = self.design.save_toml(self.out / f"{check_name(self.name.value)}.toml")
+        self._status(f"Wrote {path}.")
+
+    def _export(self) -> None:
+        name = check_name(self.name.value)
+        self._status("Exporting...")
+        data, report = self.design.export_zip(name)
+        self.client.send_file_download(f"{name}.zip", data, save_immediately=True)
+        self.exported = data
+        self._status(f"Exported {len(report['files'])} files as {name}.zip ({len(data)} bytes, "
+                     "downloaded).")
+
+    # sessions -----------------------------------------------------------------------------
+    def _join(self) -> None:
+        name = self.join_name.value.strip()
+        if name:
+            check_name(name)
+        old = self.session
+        if name == old.name:
+            return
+        new = self.context.designs.get(name) if name else None
+        if new is None:
+            new = Session(self.context.db, name)
+            if name:
+                self.context.designs[name] = new
+        self._leave()
+        with new.lock:
+            self.session = new
+            new.views.append(self)
+            self.selection = []
+            self.redraw()
+        self._status(f"Joined the session {name!r} ({len(new.views)} tab(s))." if name else
+                     "This tab's own session.")
+
+    def _leave(self) -> None:
+        old = self.session
+        with old.lock:
+            if self in old.views:
+                old.views.remove(self)
+            if not old.views:
+                old.close()
+                if old.name and self.context.designs.get(old.name) is old:
+                    del self.context.designs[old.name]
+
+    # drawing ------------------------------------------------------------------------------
+    def redraw(self) -> None:
+        """Draws the whole session anew (after an undo, a join, another tab's edit)."""
+        with self.session.lock:
+            labels = self._labels() or ["(none)"]
+            self._syncing = True
+            try:
+                self.selected.options = labels
+                if self.selected.value not in labels:
+                    self.selected.value = labels[-1]
+            finally:
+                self._syncing = False
+            self._show_person()
+            self.selection = [j for j in self.selection if j < len(self.design.vertices)]
+            self._draw_control()
+            self._draw_surface()
+            self._draw_people(self._pressure())
+            self._draw_relaxed()
+            self._history_buttons()
+            self._show_warnings()
+
+    def close(self) -> None:
+        """The tab went away: leaves its session (which stops when no tab shows it)."""
+        self._leave()

@@ -1,0 +1,261 @@
+"""The studio's Design view driven over viser's own protocol (tabs without a browser,
+`studio.headless`): one session per tab, picking by clicks and boxes, typed placements,
+undo and redo, creases and splits, warnings before and after a fit, refits while dragging, the
+relaxed pose saved to the library and the export as one zip."""
+
+from __future__ import annotations
+
+import io
+import time
+import zipfile
+
+import numpy as np
+import pytest
+from viser import _messages
+
+from capture.recordings import resolve_path
+from posedb import PoseLibrary
+from studio.design_view import project, ray_pick
+from studio.web import VIEWS, Studio
+
+from studio.headless import CAMERA, HeadlessTab as Tab
+
+HIGH_SIT = "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"
+STANDING = "bvh:bundled:axis_neuron_standing_yxz.bvh#frame=39"
+
+
+@pytest.fixture(scope="module")
+def library(tmp_path_factory):
+    path = tmp_path_factory.mktemp("design-view") / "poses.h5"
+    lib = PoseLibrary(path, create=True)
+    take = lib.import_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"), name="high_sit")
+    lib.add_pose(take.id, 39, "perch", tags=["sit", "high"])
+    return path
+
+
+@pytest.fixture(scope="module")
+def studio(library, tmp_path_factory):
+    server = Studio(db=str(library), port=0, out=str(tmp_path_factory.mktemp("out")))
+    yield server
+    server.stop()
+
+
+@pytest.fixture
+def tab(studio):
+    tab = Tab(studio)
+    yield tab
+    tab.close()
+
+
+def _wait(predicate, timeout: float, what: str):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        time.sleep(0.02)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+
+def _seat(view, pose: str = HIGH_SIT) -> None:
+    """single_seated's start (0.5 x 0.6 m at 0.42 m) and one seated person on it."""
+    view.grid_size.value, view.grid_res.value, view.grid_height.value = (0.5, 0.6), (8, 6), 0.42
+    view._guarded(view._new_grid)
+    view.live.value = False
+    view.add_person(pose, position=[0.0, 0.0, -0.1], facing="capture", support="seat")
+
+
+def _click(tab, point, modifier=None) -> None:
+    """A click on the screen where `point` is seen from the tab's camera: the ray the browser
+    would send (from the camera through that pixel)."""
+    origin = np.array(CAMERA["position"])
+    direction = np.asarray(point) - origin
+    tab.send(_messages.ScenePointerMessage("click", tuple(origin), tuple(direction),
+                                           ((0.5, 0.5),), modifier))
+
+
+def test_every_tab_gets_the_three_tabs_and_its_own_session(studio):
+    assert [label for label, _ in VIEWS] == ["Record", "Library", "Design"]
+    first, second = Tab(studio), Tab(studio)
+    try:
+        a, b = first.view, second.view
+        assert a.session is not b.session
+        a.add_person(HIGH_SIT)
+        a.design.move_vertex(0, [-0.6, 0.5, -0.4])
+        assert len(a.design.people) == 1 and b.design.people == []
+        assert np.allclose(b.design.vertices[0], [-0.6, 0.45, -0.4])
+        assert "Added" not in b.status_text  # a new tab shows none of another's status
+        # joining by name shares one session
+        for view in (a, b):
+            view.join_name.value = "shared bench"
+            view._guarded(view._join)
+        assert a.session is b.session and a.design.people == []
+        a.add_person(HIGH_SIT)
+        assert len(b.design.people) == 1 and b.selected.options[0].startswith("1: person 1")
+        assert studio.context.designs["shared bench"] is a.session
+    finally:
+        first.close()
+        _wait(lambda: first.client_id not in studio.views, 10, "the tab's views to close")
+        assert "shared bench" in studio.context.designs  # the second tab still shows it
+        second.close()
+    _wait(lambda: "shared bench" not in studio.context.designs, 10, "the session to end")
+
+
+def test_picks_by_click_shift_click_and_box_then_fix_crease_and_split(tab):
+    view = tab.view
+    view.add_person(HIGH_SIT)
+    v = view.design.vertices
+    a, b, c, d = (int(j) for j in view.design.faces[20])  # a quad's corners, in turn
+    _click(tab, v[a])
+    _wait(lambda: view.selection == [a], 10, "the click to pick a corner")
+    _click(tab, v[d], modifier="shift")
+    _wait(lambda: view.selection == [a, d], 10, "shift-click to add another")
+    _click(tab, v[d], modifier="shift")
+    _wait(lambda: view.selection == [a], 10, "shift-click to drop it again")
+    # boxes around b and then c, in the image as the tab's camera sees it
+    cam = view.client.camera
+    uv, front = project(v, cam.position, cam.wxyz, cam.fov, cam.aspect)
+    assert front.all() and np.all((uv > 0) & (uv < 1))  # the grid is in view
+    for j, expect in ((b, [a, b]), (c, [a, b, c])):
+        lo, hi = uv[j] - 0.005, uv[j] + 0.005
+        assert np.flatnonzero(np.all((uv >= lo) & (uv <= hi), axis=1)).tolist() == [j]
+        tab.send(_messages.ScenePointerMessage("rect-select", None, None,
+                                               (tuple(lo), tuple(hi)), "shift"))
+        _wait(lambda: view.selection == expect, 10, f"the box to add {j}")
+    view._guarded(lambda: view._fix(True))
+    assert view.design.fixed == {a, b, c}
+    view._guarded(lambda: view._crease(True))
+    spanned = {tuple(sorted(e)) for e in ((a, b), (b, c))}  # the control edges they span
+    assert view.design.creases == spanned, view.status_text
+    assert set(view.design.scenario().surface.params.creases) == spanned
+    view.pick(view.design.faces[0][:3])  # three corners pick one face
+    view._guarded(view._split)
+    assert "Split control face 0" in view.status_text, view.status_text
+    assert len(view.design.vertices) == 80
+    view._guarded(view._undo)
+    assert len(view.design.vertices) == 63 and view.design.creases == spanned
+    view._guarded(view._undo)
+    assert view.design.creases == set() and view.design.fixed == {a, b, c}
+    view._guarded(view._redo)
+    view._guarded(view._redo)
+    assert len(view.design.vertices) == 80
+    view._guarded(view._redo)
+    assert view.status_text == "**Problem:** Nothing to redo"
+
+
+def test_a_click_far_from_every_vertex_picks_none():
+    points = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    assert ray_pick(points, (0, 0, 5), (0, 0, -1)) == 0
+    assert ray_pick(points, (0, 0, 5), (0, 1, -1)) is None  # 45 degrees off
+    assert ray_pick(points, (0, 0, 5), (0, 0, 1)) is None  # behind the camera
+
+
+def test_typed_placements_move_people_and_picks(tab):
+    view = tab.view
+    view.live.value = False
+    view.add_person(HIGH_SIT)
+    view.add_person(HIGH_SIT)
+    view.selected.value = view._labels()[1]
+    view.position.value = (0.4, 0.0, -0.1)
+    view.rotation.value = (0.0, 90.0, 0.0)
+    assert "Problem" not in view.status_text, view.status_text
+    assert view.design.people[1]["position"] == [0.4, 0.0, -0.1]
+    assert view.design.people[1]["rotation_deg"] == [0.0, 90.0, 0.0]
+    assert np.allclose(view._people[1].position, (0.4, 0.0, -0.1))
+    assert view.design.people[0]["position"] == [0.0, 0.0, 0.0]
+    view.pick([0, 1])
+    centre = view.design.vertices[[0, 1]].mean(axis=0)
+    view.centroid.value = tuple(centre + [0.0, 0.1, 0.0])
+    assert np.allclose(view.design.vertices[[0, 1], 1], 0.55)
+    view.position.value = (0.4, 0.0)  # not a position: refused, nothing changes
+    assert view.design.people[1]["position"] == [0.4, 0.0, -0.1]
+
+
+def test_a_standing_pose_on_a_seat_is_warned_before_fitting(tab):
+    view = tab.view
+    _seat(view)
+    assert view.warning_lines == []
+    view.add_person(STANDING, position=[0.3, 0.0, 0.3])
+    assert any("stands" in w for w in view.warning_lines)
+    assert "&#9888;" in view.warnings.content and "stands" in view.warnings.content
+    view.selected.value = view._labels()[1]
+    view._guarded(view._remove_person)
+    assert view.warning_lines == [] and view.warnings.content == ""
+
+
+# the fits of these take a few seconds each on two loaded cores: under the slow mark
+@pytest.mark.slow
+def test_a_standing_pose_on_a_seat_is_warned_after_fitting(tab):
+    view = tab.view
+    _seat(view)
+    view.add_person(STANDING, position=[0.3, 0.0, 0.3])
+    view._guarded(view.run_fit)
+    assert "Fitted" in view.status_text, view.status_text
+    assert any("stands" in w for w in view.warning_lines)
+    # and the fit's figures that miss the bars are warned too: the standing body is not
+    # carried (its coverage is far under 0.95)
+    assert any("person 2: coverage" in w for w in view.warning_lines), view.warning_lines
+
+
+@pytest.mark.slow
+def test_fit_shows_the_fitted_net_relax_saves_and_removal_clears(tab, library):
+    view = tab.view
+    _seat(view, "db:perch")
+    view._guarded(view.run_fit)
+    assert view._fitted_net is not None and view._surface is not None
+    assert not np.allclose(view.design.last.result.control, view.design.vertices)
+    view._guarded(view._relax)
+    assert 0 in view._relaxed, view.status_text
+    before = {p.name for p in PoseLibrary(library).poses()}
+    view._guarded(view._save_pose)
+    assert "Saved person 1's relaxed pose" in view.status_text, view.status_text
+    (new,) = {p.name for p in PoseLibrary(library).poses()} - before
+    assert new.startswith("perch-relaxed")
+    assert "relaxed" in PoseLibrary(library).pose(new).tags
+    view._guarded(view._remove_person)
+    assert view._relaxed == {} and view.design.relaxed == {}
+    view._guarded(view._undo)  # the person and its relaxed body come back
+    assert 0 in view._relaxed and len(view.design.people) == 1
+
+
+@pytest.mark.slow
+def test_export_downloads_one_zip_of_every_format(tab):
+    view = tab.view
+    _seat(view)
+    view.name.value = "bench one"
+    view._guarded(view._export)
+    assert "Exported" in view.status_text, view.status_text
+    with zipfile.ZipFile(io.BytesIO(view.exported)) as pack:
+        names = set(pack.namelist())
+        report = pack.read("bench one/report.json")
+    assert {"bench one/surface.obj", "bench one/surface.ply", "bench one/surface.glb",
+            "bench one/scene.3dm", "bench one/control.obj",
+            "bench one/scenario.toml"} <= names
+    assert b'"persons"' in report
+    assert not (view.out / "bench one").exists()  # nothing left on the server
+
+
+@pytest.mark.slow
+def test_dragging_refits_on_the_worker_and_a_newer_drag_cancels(tab):
+    view = tab.view
+    _seat(view)
+    view.live.value = True
+    name = f"{view.prefix}/people/p0"
+    owner = str(tab.client_id)
+    tab.send(_messages.TransformControlsDragStartMessage(name, owner))
+    for dz in (0.0, 0.01, 0.02):
+        tab.send(_messages.TransformControlsUpdateMessage(name, (1.0, 0.0, 0.0, 0.0),
+                                                          (0.0, 0.0, -0.1 + dz), owner))
+    tab.send(_messages.TransformControlsDragEndMessage(name, owner))
+    _wait(lambda: view.design.people[0]["position"] == [0.0, 0.0, -0.08], 10, "the drag")
+    _wait(lambda: view.fits >= 1, 60, "a refit after the drag")
+    _wait(lambda: "Fitted" in view.status_text, 10, "the refit drawn")
+    fitted_at = view.design.last.people[0].spec.position
+    assert fitted_at == (0.0, 0.0, -0.08)  # the fit drawn is the newest placement's
+    # an edit while a fit runs cancels it: the fit returns nothing and draws nothing
+    fits = view.fits
+    view.session.refitter.request()
+    _wait(lambda: view.session.refitter.busy, 10, "the refit to start")
+    view._guarded(lambda: view.design.update_person(0, position=[0.0, 0.0, -0.09]))
+    view.session.refitter.bump()
+    _wait(lambda: not view.session.refitter.busy, 30, "the cancelled fit to stop")
+    assert view.fits == fits
