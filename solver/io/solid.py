@@ -212,8 +212,8 @@ def thicken(vertices: np.ndarray, faces: np.ndarray, thickness: float, *,
     check : bool, default True
         Run `check_solid` and raise if it fails.
     trim : bool, default True
-        Trim the offset where moving the vertices along their normals does not make a sound
-        one (False: return that offset as it is).
+        Split and trim the offset as above (False: return the vertices' copies as they are,
+        sound or not).
 
     Returns
     -------
@@ -231,8 +231,10 @@ def thicken(vertices: np.ndarray, faces: np.ndarray, thickness: float, *,
     tris = f if f.shape[1] == 3 else quad_triangles(f)
     offset = _true_offset(v, tris, v - t * vertex_normals(v, tris), t)
     plain = Solid(np.concatenate([v, offset]), _close(v, f, offset), "offset", t, len(v), tris)
-    unsound = _unsound_faces(plain) if trim else np.zeros(len(tris), dtype=bool)
-    if unsound.any():
+    unsound = _unsound_faces(plain) if trim else None
+    if unsound is None:
+        solid = plain
+    elif unsound.any():
         solid = _trimmed(v, tris, offset, t, unsound)
     else:
         solid = Solid(*_offset_shell(v, tris, offset, t), "offset", t, len(v), tris)

@@ -21,7 +21,7 @@ from posedb.record import journal_dir
 from studio.context import StudioContext
 from studio.skeleton_draw import pose_world, skeleton_thumbnail
 
-from tests.studio.test_studio import ARTIFACTS, CHROMIUM, DRIVER, _browser, _wait
+from tests.studio.test_studio_browser import ARTIFACTS, CHROMIUM, DRIVER, _browser, _wait
 
 ROOT = Path(__file__).resolve().parents[2]
 AXIS = "axis_neuron_standing_yxz.bvh"

@@ -108,7 +108,7 @@ def test_hovering_body_settles_onto_the_seat(hovering):
     body, verts, field, mask, problem, gv, gf = hovering
     # 5 cm above the seat: more rounds than the default three (rounds after the first get half
     # the evaluations, to keep a judged relaxation under 0.2 s)
-    result = relax(problem, rounds=5)
+    result = relax(problem, rounds=6)
     surface = SurfaceMesh.from_quads(gv, gf)
     before, _ = evaluate_person(surface, _supported(body, verts, field.importance, mask), 0.03,
                                 Foam(200e3))
