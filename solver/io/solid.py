@@ -243,7 +243,8 @@ def thicken(vertices: np.ndarray, faces: np.ndarray, thickness: float, *,
     return solid
 
 
-MAX_SPLITS = 2  # times the offset sheet's triangles may be split into four
+MAX_SPLITS = 1  # times the offset sheet's triangles may be split into four
+MAX_SHEET = 100_000  # triangles of the offset sheet beyond which it is not split (memory)
 
 
 def _offset_shell(v: np.ndarray, tris: np.ndarray, offset: np.ndarray,
@@ -260,6 +261,8 @@ def _offset_shell(v: np.ndarray, tris: np.ndarray, offset: np.ndarray,
     if not chains:
         raise SolidError("Expected a surface with a border, got a closed one")
     for _ in range(MAX_SPLITS):
+        if 4 * len(sheet) > MAX_SHEET:
+            break
         middles = bottom[sheet].mean(axis=1)
         if np.abs(mesh.closest(middles)[0] - t).max() <= 0.75 * THICKNESS_TOLERANCE:
             break
