@@ -189,6 +189,7 @@ def _turned_copy(path, yaw_deg: float, out):
     return out
 
 
+@pytest.mark.slow  # the default run stays within its time
 @pytest.mark.filterwarnings("ignore:Gimbal lock detected")  # a quarter turn in Z-Y-X angles
 def test_the_same_pose_in_any_capture_heading_fits_the_same_surface(tmp_path):
     from solver.scene.run import fit_people

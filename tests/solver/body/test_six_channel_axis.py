@@ -167,6 +167,7 @@ def test_a_library_pose_of_a_six_channel_take_keeps_its_frame(axis_studio_seated
     np.testing.assert_allclose(from_db.world.positions, from_file.world.positions, atol=2e-5)
 
 
+@pytest.mark.slow  # the default run stays within its time
 def test_a_scenario_fits_a_six_channel_pose(axis_studio_seated, tmp_path):
     from solver.scene.run import run_fit
 

@@ -95,6 +95,7 @@ def test_batch_runs_records_failures_stores_and_skips(library, tmp_path, capsys)
     assert json.loads((out / "summary.json").read_text()) == rows
 
 
+@pytest.mark.slow  # the default run stays within its time
 def test_a_batch_on_one_local_worker_records_a_failure_stores_and_skips(library, tmp_path,
                                                                        capsys):
     """The default run's smoke test of `sitrelax batch`: one good job and one broken one on a

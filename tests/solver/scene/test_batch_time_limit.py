@@ -20,6 +20,7 @@ pose = "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"
 """
 
 
+@pytest.mark.slow  # the default run stays within its time
 def test_a_never_ending_job_times_out(tmp_path):
     """The default run's smoke test: one FIFO job on one worker, a 2 s limit."""
     os.mkfifo(tmp_path / "never.obj")
