@@ -56,6 +56,7 @@ def _request(api, method: str, path: str, body=None, headers=None):
     return response.status, json.loads(payload) if payload else None
 
 
+@pytest.mark.slow  # the default run stays within its time
 def test_fit_of_one_person_answers_with_the_surface_and_its_evaluation(api):
     status, reply = _request(api, "POST", "/api/fit", SINGLE)
     assert status == 200, reply
@@ -110,6 +111,7 @@ def test_library_poses_are_listed_searched_and_used(api):
     assert abs(sum(map(sum, a["vertices"])) - sum(map(sum, b["vertices"]))) < 1e-3
 
 
+@pytest.mark.slow  # the default run stays within its time
 def test_pressure_evaluate_and_relax(api):
     person = SINGLE["person"][0]
     status, field = _request(api, "POST", "/api/pressure", {"person": person})

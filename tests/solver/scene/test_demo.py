@@ -82,6 +82,7 @@ support = "seat"
 """
 
 
+@pytest.mark.slow  # the default run stays within its time
 def test_the_demo_command_runs_every_stage_on_a_smaller_scene(tmp_path, capsys, monkeypatch):
     from solver.scene import demo
 

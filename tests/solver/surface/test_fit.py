@@ -185,6 +185,7 @@ def test_missing_scenario_and_unknown_pose(tmp_path):
         place_person(scenario.persons[0])
 
 
+@pytest.mark.slow  # the default run stays within its time
 def test_fit_command_writes_files_that_open_again(tmp_path):
     import json
 
@@ -425,6 +426,7 @@ def test_support_inside_other_bodies_is_the_share_of_importance_they_contain():
     assert support_inside(v, np.zeros(len(v)), [(hv, ht)]) == 0.0
 
 
+@pytest.mark.slow  # the default run stays within its time
 def test_the_floor_holds_the_surface_up(ball):
     # the ball's bottom is at 0.42 m: without a floor the bowl under it goes below 0.44 m
     v, t, normals, areas, importance = ball
