@@ -5,6 +5,7 @@ drawing its 3D nodes under its own scene prefix (`/record`, `/library`, `/design
 from __future__ import annotations
 
 import threading
+import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
@@ -34,3 +35,16 @@ class View(Protocol):
 
     def close(self) -> None:
         """Stops what the view runs (streams, fits) when its tab goes away."""
+
+
+def guarded(lock, action, status) -> None:
+    """Runs a view's `action` holding `lock`; a problem becomes `status(text)`: bad input names
+    itself, anything else shows its trace, and the studio stays up."""
+    with lock:
+        try:
+            action()
+        except (ValueError, OSError, KeyError) as exc:
+            status(f"**Problem:** {exc}")
+        except Exception as exc:  # noqa: BLE001 (the studio stays up; the trace is shown)
+            status(f"**Internal error:** {type(exc).__name__}: {exc}\n\n```\n"
+                   f"{traceback.format_exc(limit=3)}\n```")

@@ -22,7 +22,6 @@ from __future__ import annotations
 import json
 import threading
 import time
-import traceback
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +35,7 @@ from solver.mesh import quad_triangles
 from solver.scene import schema
 from solver.scene.run import pressure_on_skin
 
-from .context import StudioContext
+from .context import StudioContext, guarded
 from .design import DEFAULT_POSE, Design, DesignError, check_name
 
 CONTROL_COLOR = (40, 40, 48)
@@ -377,14 +376,7 @@ class DesignView:
 
     def _guarded(self, action) -> None:
         """Runs one action at a time in the session; a problem becomes the status line."""
-        with self.session.lock:
-            try:
-                action()
-            except (ValueError, OSError, KeyError) as exc:
-                self._status(f"**Problem:** {exc}")
-            except Exception as exc:  # noqa: BLE001 (the studio stays up; the trace is shown)
-                self._status(f"**Internal error:** {type(exc).__name__}: {exc}\n\n```\n"
-                             f"{traceback.format_exc(limit=3)}\n```")
+        guarded(self.session.lock, action, self._status)
 
     def _status(self, text: str) -> None:
         self.status_text = text

@@ -16,7 +16,6 @@ import contextlib
 import html
 import os
 import threading
-import traceback
 
 import numpy as np
 
@@ -26,7 +25,7 @@ from posedb.library import TakeData
 from posedb.regions import DEFAULT_SUPPORT
 from posedb.suggest import HeldPosture, take_holds
 
-from .context import StudioContext
+from .context import StudioContext, guarded
 from .record import split_words
 from .skeleton_draw import SceneFigure, png_base64, pose_world, posed_body, skeleton_thumbnail
 
@@ -142,14 +141,7 @@ class LibraryView:
 
     # plumbing ------------------------------------------------------------------------------
     def _guarded(self, action) -> None:
-        with self._lock:
-            try:
-                action()
-            except (ValueError, OSError, KeyError) as exc:
-                self._status(f"**Problem:** {exc}")
-            except Exception as exc:  # noqa: BLE001 (the studio stays up; the trace is shown)
-                self._status(f"**Internal error:** {type(exc).__name__}: {exc}\n\n```\n"
-                             f"{traceback.format_exc(limit=3)}\n```")
+        guarded(self._lock, action, self._status)
 
     def _status(self, text: str) -> None:
         self.status.content = text

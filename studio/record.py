@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import threading
 import time
-import traceback
 
 import numpy as np
 
@@ -30,7 +29,7 @@ from capture.stream_layout import StreamLayout
 from posedb.record import TakeRecorder
 from posedb.regions import BODY_REGIONS, DEFAULT_SUPPORT, support_regions
 
-from .context import StudioContext
+from .context import StudioContext, guarded
 from .skeleton_draw import SceneFigure, posed_body
 
 DRAW_HZ = 30.0  # skeleton updates sent to the browser per second, at most
@@ -240,14 +239,7 @@ class RecordView:
 
     # actions -------------------------------------------------------------------------------
     def _guarded(self, action) -> None:
-        with self._lock:
-            try:
-                action()
-            except (ValueError, OSError, KeyError) as exc:
-                self._status(f"**Problem:** {exc}")
-            except Exception as exc:  # noqa: BLE001 (the studio stays up; the trace is shown)
-                self._status(f"**Internal error:** {type(exc).__name__}: {exc}\n\n```\n"
-                             f"{traceback.format_exc(limit=3)}\n```")
+        guarded(self._lock, action, self._status)
 
     def _status(self, text: str) -> None:
         self.status.content = text
