@@ -244,7 +244,7 @@ def thicken(vertices: np.ndarray, faces: np.ndarray, thickness: float, *,
 
 
 MAX_SPLITS = 1  # times the offset sheet's triangles may be split into four
-MAX_SHEET = 100_000  # triangles of the offset sheet beyond which it is not split (memory)
+MAX_SHEET = 400_000  # triangles of the offset sheet beyond which it is not split (memory)
 
 
 def _offset_shell(v: np.ndarray, tris: np.ndarray, offset: np.ndarray,
@@ -364,6 +364,8 @@ def _vertex_faces(tris: np.ndarray, n: int):
 # neighbouring pieces overlap in volume rather than touch in a plane.
 SAGITTA = 5e-5  # m
 WIDEN = 1e-3  # of the distance from the triangle's centre
+TURN = 0.1  # cosine: a face of the underside turned further from where it faced is refused
+SHORT_EDGE = 3e-4  # m: shorter edges of the trimmed underside are collapsed (`_collapse_short`)
 
 
 def _trimmed(v: np.ndarray, tris: np.ndarray, offset: np.ndarray, t: float,
@@ -380,6 +382,11 @@ def _trimmed(v: np.ndarray, tris: np.ndarray, offset: np.ndarray, t: float,
     seam = np.zeros(len(v), dtype=bool)
     seam[tris[unsound].ravel()] = True
     swept = unsound | seam[tris].any(axis=1)
+    # and under the border's triangles: the plain wall follows the copies of the border's
+    # vertices, which a face there bending away more steeply leans out past
+    rim = np.zeros(len(v), dtype=bool)
+    rim[boundary_edges(tris).ravel()] = True
+    swept |= rim[tris].any(axis=1)
     around = {}  # vertex -> the directions of the normals around it
     for corner in np.unique(tris[swept]):
         ring = incidence.indices[incidence.indptr[corner]:incidence.indptr[corner + 1]]
@@ -413,19 +420,154 @@ def _trimmed(v: np.ndarray, tris: np.ndarray, offset: np.ndarray, t: float,
     dist, _, _, face, closest = surface.closest(out_v)
     under = (dist > 0.5 * t) & ~_on_border(surface, boundary_edges(tris), face, closest)
     target = closest + t * (out_v - closest) / np.maximum(dist, 1e-300)[:, None]
-    before = face_cross(out_v, out_t)
-    while under.any():  # a move that turns a face over (a sliver, a step) is not made
-        moved = out_v.copy()
-        moved[under] = target[under]
-        after = face_cross(moved, out_t)
-        turned = np.einsum("ij,ij->i", before, after) <= 0.5 * np.linalg.norm(
-            before, axis=1) * np.linalg.norm(after, axis=1)
-        turned &= under[out_t].any(axis=1)
-        if not turned.any():
-            out_v = moved
-            break
-        under[out_t[turned].ravel()] = False
+    up = face_normals(v, tris)[surface.closest(out_v[out_t].mean(axis=1))[3]]
+    out_v, out_t, keep, alive = _collapse_short(out_v, out_t, under, target, up, SHORT_EDGE)
+    out_v = _snap(out_v, out_t, target[keep], under[keep], up[alive])
     return _surface_first(v, tris, out_v, out_t, t, int(unsound.sum()))
+
+
+def _collapse_short(vertices: np.ndarray, triangles: np.ndarray, movable: np.ndarray,
+                    target: np.ndarray, up: np.ndarray, length: float
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Edges between two `movable` vertices of a closed triangle mesh that are shorter than
+    `length`, or that moving both ends to `target` would shrink below a quarter or turn
+    round, collapsed to their middles, shortest first, where that keeps the mesh a manifold
+    (the two ends share no neighbour but the edge's two opposite corners), turns no
+    triangle by more than 60 degrees and none towards the bodies (see `_snap`; `up`, per
+    triangle). Where merged pieces meet they leave clusters of slivers a fraction of a
+    millimetre across, which a move of a tenth of a millimetre turns over.
+
+    Returns the vertices, the triangles, which of the given vertices remain (renumbered in
+    order) and which of the given triangles remain."""
+    a, b = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]],
+                           triangles[:, [2, 0]]]).T
+    now = vertices[b] - vertices[a]
+    span = np.linalg.norm(now, axis=1)
+    later = np.einsum("ij,ij->i", now, target[b] - target[a])
+    pick = ((span < length) | (later < 0.25 * span ** 2)) & movable[a] & movable[b] & (a < b)
+    if not pick.any():
+        return vertices, triangles, np.ones(len(vertices), dtype=bool), \
+            np.ones(len(triangles), dtype=bool)
+    vertices, triangles = vertices.copy(), triangles.copy()
+    faces_of: dict[int, set[int]] = {}
+    ends = np.unique(np.concatenate([a[pick], b[pick]]))
+    near = np.flatnonzero(np.isin(triangles, ends).any(axis=1))
+    for face in near.tolist():
+        for corner in triangles[face].tolist():
+            faces_of.setdefault(corner, set()).add(face)
+    alive = np.ones(len(triangles), dtype=bool)
+    gone = np.zeros(len(vertices), dtype=bool)
+    order = np.flatnonzero(pick)[np.argsort(span[pick])]
+    for p, q in zip(a[order].tolist(), b[order].tolist()):
+        if gone[p] or gone[q]:
+            continue
+        shared = faces_of[p] & faces_of[q]
+        if len(shared) != 2:
+            continue
+        link_p = set(triangles[list(faces_of[p])].ravel().tolist()) - {p}
+        link_q = set(triangles[list(faces_of[q])].ravel().tolist()) - {q}
+        opposite = set(triangles[list(shared)].ravel().tolist()) - {p, q}
+        if link_p & link_q != opposite:
+            continue
+        middle = 0.5 * (vertices[p] + vertices[q])
+        rest = sorted((faces_of[p] | faces_of[q]) - shared)
+        corners = triangles[rest]
+        before = face_cross(vertices, corners)
+        moved = vertices.copy()
+        moved[[p, q]] = middle
+        after = face_cross(moved, corners)
+        size, size_before = np.linalg.norm(after, axis=1), np.linalg.norm(before, axis=1)
+        if np.any(np.einsum("ij,ij->i", before, after) <= 0.5 * size_before * size):
+            continue
+        towards = np.einsum("ij,ij->i", after, up[rest]) > 0.4 * size
+        if np.any(towards & (np.einsum("ij,ij->i", before, up[rest]) <= 0.5 * size_before)):
+            continue
+        vertices[p] = middle
+        for face in faces_of[q] - shared:
+            triangles[face][triangles[face] == q] = p
+            faces_of[p].add(face)
+        for face in shared:
+            alive[face] = False
+            for corner in triangles[face].tolist():
+                faces_of[corner].discard(face)
+        gone[q] = True
+    keep = ~gone
+    index = np.cumsum(keep) - 1
+    return vertices[keep], index[triangles[alive]], keep, alive
+
+
+def _snap(vertices: np.ndarray, triangles: np.ndarray, target: np.ndarray,
+          movable: np.ndarray, up: np.ndarray, passes: int = 16) -> np.ndarray:
+    """`vertices` moved towards `target` where `movable`, in `passes` steps: in each, every
+    vertex that has further to go than a micrometre goes there, or half way once a whole
+    move was refused, unless its move turns a face over (its normal's cosine with where it
+    faced first falls to `TURN`) or towards the bodies (from at most half along `up`, the normal of the
+    surface under each triangle, to more than 0.4 along it). A vertex held back in one pass
+    (its neighbours had not moved yet) may go in the next."""
+    start = face_cross(vertices, triangles)
+    start_size = np.linalg.norm(start, axis=1)
+    facing_before = np.einsum("ij,ij->i", start, up) > 0.5 * start_size
+    share = np.ones(len(vertices))
+    vertices = vertices.copy()
+    for _ in range(passes):
+        gap = target - vertices
+        trying = movable & (np.linalg.norm(gap, axis=1) > 1e-6)
+        if not trying.any():
+            break
+        held = np.zeros(len(vertices), dtype=bool)
+        while trying.any():
+            moved = vertices.copy()
+            moved[trying] += share[trying, None] * gap[trying]
+            after = face_cross(moved, triangles)
+            size = np.linalg.norm(after, axis=1)
+            turned = np.einsum("ij,ij->i", start, after) <= TURN * start_size * size
+            turned |= ~facing_before & (np.einsum("ij,ij->i", after, up) > 0.4 * size)
+            turned &= trying[triangles].any(axis=1)
+            if not turned.any():
+                vertices = moved
+                break
+            if _flip_caps(moved, triangles, np.flatnonzero(turned), start):
+                start_size = np.linalg.norm(start, axis=1)
+                continue  # a cap's long edge flipped: try the same moves again
+            stuck = np.unique(triangles[turned])
+            held[stuck] |= trying[stuck]
+            trying[stuck] = False
+        share[held] = 0.5
+    return vertices
+
+
+def _flip_caps(moved: np.ndarray, triangles: np.ndarray, faces: np.ndarray,
+               start: np.ndarray) -> bool:
+    """Flips the longest edge of each of `faces` that is a cap (an angle over 150 degrees)
+    where the two triangles made across the other diagonal face, with the moved corners,
+    within 60 degrees of where the old two faced (`start`, updated); in place. Returns
+    whether any edge flipped."""
+    flipped = False
+    corners = moved[triangles[faces]]
+    sides = np.linalg.norm(np.roll(corners, -1, axis=1) - corners, axis=2)  # edge k: k -> k+1
+    for face, side in zip(faces.tolist(), sides):
+        k = int(np.argmax(side))
+        if side[k] < 0.98 * (side.sum() - side[k]):  # largest angle under ~150 degrees
+            continue
+        p, q, r = (int(triangles[face][(k + i) % 3]) for i in range(3))
+        across = np.flatnonzero((triangles == q).any(axis=1) & (triangles == p).any(axis=1))
+        across = across[across != face]
+        if len(across) != 1:
+            continue
+        other = int(across[0])
+        apex = int(np.setdiff1d(triangles[other], [p, q])[0])
+        if np.any(np.isin(triangles[(triangles == r).any(axis=1)], apex)):
+            continue  # the two apexes are joined already
+        new = np.array([[p, apex, r], [apex, q, r]])
+        facing = start[face] + start[other]
+        after = face_cross(moved, new)
+        if np.any(after @ facing <= 0.5 * np.linalg.norm(after, axis=1) *
+                  np.linalg.norm(facing)):
+            continue
+        triangles[face], triangles[other] = new
+        start[face] = start[other] = 0.5 * facing
+        flipped = True
+    return flipped
 
 
 def _directions(up: np.ndarray, ring: np.ndarray, ring_tris: np.ndarray,
@@ -592,10 +734,11 @@ def check_solid(solid: Solid) -> SolidCheck:
                       solid.trimmed)
 
 
-# m: triangles of a solid cross only where they overlap deeper than this. Where the trimmed
-# offset's pieces meet, the merge leaves slivers whose corners lie a fraction of a micrometre
-# apart; a workshop's tolerance is a hundredfold coarser.
-CROSSING_DEPTH = 1e-6
+# m: triangles of a solid cross only where they overlap deeper than this, and a triangle
+# thinner than this (its least height) folds nothing. Where the trimmed offset's pieces meet,
+# the merge leaves slivers and flat caps whose corners lie micrometres off a line; a
+# workshop's tolerance (0.1 mm) is ten times coarser.
+CROSSING_DEPTH = 1e-5
 
 
 def _underside(solid: Solid):
@@ -617,7 +760,10 @@ def _underside(solid: Solid):
     longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
     sliver = np.linalg.norm(face_cross(solid.vertices, tris), axis=1) < \
         CROSSING_DEPTH * longest
-    folded = int(np.sum(sheet & (facing > 0.5) & ~sliver))
+    candidates = np.flatnonzero(sheet & (facing > 0.5) & ~sliver)
+    depth = _fold_depths(solid.vertices, tris, closest[candidates],
+                         solid.vertices[tris[candidates]].mean(axis=1), t)
+    folded = int(np.sum(depth > THICKNESS_TOLERANCE))
     if not sheet.any():
         return folded, None, None, 0, None
     d_corner, _, _, c_face, c_closest = surface.closest(solid.vertices[np.unique(tris[sheet])])
@@ -629,6 +775,46 @@ def _underside(solid: Solid):
     close = int(np.sum(d_corner < t - THICKNESS_TOLERANCE))
     return folded, low, high, close, float(min(dist[sheet].min(), d_in.min(initial=np.inf),
                                                low))
+
+
+def _fold_depths(vertices: np.ndarray, underside: np.ndarray, feet: np.ndarray,
+                 points: np.ndarray, t: float) -> np.ndarray:
+    """(P,) how deep the underside folds on each line from a surface point (`feet`) through
+    a point of a face that turns towards the bodies (`points`): the span, along the line,
+    between the first and the last of the `underside` triangles it passes through (ray and
+    triangle by the Moeller-Trumbore test) past half the thickness `t`. A sheet that folds
+    back on itself is crossed three times or more; a flap a few micrometres deep where
+    merged pieces met spans as little."""
+    from scipy.spatial import cKDTree
+
+    if len(points) == 0:
+        return np.zeros(0)
+    corners = vertices[underside]
+    centres = corners.mean(axis=1)
+    reach = np.linalg.norm(corners - centres[:, None], axis=2).max()
+    tree = cKDTree(centres)
+    depths = np.zeros(len(points))
+    for k, (foot, point) in enumerate(zip(feet, points)):
+        direction = (point - foot) / max(np.linalg.norm(point - foot), 1e-300)
+        # triangles within reach of the line's first 2 t, sampled
+        samples = foot + np.outer(np.linspace(0.0, 2.0 * t, 32), direction)
+        near = np.unique(np.concatenate(
+            tree.query_ball_point(samples, reach + 0.1 * t))).astype(np.int64)
+        a, b, c = (corners[near, i] for i in range(3))
+        e1, e2 = b - a, c - a
+        pvec = np.cross(direction, e2)
+        det = np.einsum("ij,ij->i", e1, pvec)
+        ok = np.abs(det) > 1e-18
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        tvec = foot - a
+        u = np.einsum("ij,ij->i", tvec, pvec) * inv
+        qvec = np.cross(tvec, e1)
+        w = (qvec @ direction) * inv
+        along = np.einsum("ij,ij->i", e2, qvec) * inv
+        hit = ok & (u >= 0) & (w >= 0) & (u + w <= 1) & (along > 0) & (along < 2.0 * t)
+        if hit.sum() >= 2:
+            depths[k] = float(np.ptp(along[hit]))
+    return depths
 
 
 def _on_border(surface: SurfaceMesh, edges: np.ndarray, face: np.ndarray,

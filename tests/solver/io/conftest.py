@@ -56,8 +56,15 @@ def underside_distances(solid):
     closest, dist, _ = trimesh.proximity.closest_point(surface, probes)
     edges = surface.vertices[boundary_edges(solid.surface_triangles)]  # (B, 2, 3)
     a, ab = edges[:, 0], edges[:, 1] - edges[:, 0]
-    s = np.clip(np.einsum("pbk,bk->pb", closest[:, None] - a[None], ab) /
-                np.einsum("bk,bk->b", ab, ab), 0.0, 1.0)
-    to_border = np.linalg.norm(closest[:, None] - (a[None] + s[..., None] * ab[None]), axis=2)
-    keep = (to_border.min(axis=1) > 1e-4) & (dist > 0.5 * solid.thickness)
+    to_border = np.concatenate([_to_segments(part, a, ab)
+                                for part in np.array_split(closest, len(closest) // 2000 + 1)])
+    keep = (to_border > 1e-4) & (dist > 0.5 * solid.thickness)
     return dist[:len(corners)][keep[:len(corners)]], dist[len(corners):][keep[len(corners):]]
+
+
+def _to_segments(points, a, ab):
+    """(P,) least distance from each point to the segments a -> a + ab."""
+    s = np.clip(np.einsum("pbk,bk->pb", points[:, None] - a[None], ab) /
+                np.einsum("bk,bk->b", ab, ab), 0.0, 1.0)
+    return np.linalg.norm(points[:, None] - (a[None] + s[..., None] * ab[None]),
+                          axis=2).min(axis=1)

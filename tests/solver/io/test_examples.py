@@ -17,6 +17,7 @@ from .conftest import underside_distances
 SCENARIOS = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios"
 EXAMPLES = sorted(p.stem for p in SCENARIOS.glob("*.toml"))
 THICK = 0.01  # m: a shell every example's surface takes (its ridges are 1.5 cm or wider)
+WORKSHOP = 0.03  # m: the slab, under the seated example
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +70,8 @@ def test_fit_writes_solid_reach_and_drawings(tmp_path):
 
     out = tmp_path / "fit"
     code = main(["fit", str(SCENARIOS / "single_seated.toml"), "--out", str(out),
-                 "--solid", str(THICK), "--drawings", "--tool-radius", "0.02"])
+                 "--format", "3dm", "--solid", str(WORKSHOP), "--drawings",
+                 "--tool-radius", "0.02"])
     assert code == 0
     report = json.loads((out / "report.json").read_text())
     files, fab = report["files"], report["fabrication"]
@@ -77,7 +79,9 @@ def test_fit_writes_solid_reach_and_drawings(tmp_path):
         assert (out / files[key]).exists()
     assert files["section_dxf"] == ["section_1_sagittal.dxf", "section_1_transverse.dxf"]
     assert fab["solid"]["ok"] and fab["solid"]["watertight"]
-    assert abs(fab["solid"]["thickness_min_m"] - THICK) <= THICKNESS_TOLERANCE
+    assert abs(fab["solid"]["thickness_min_m"] - WORKSHOP) <= THICKNESS_TOLERANCE
+    assert abs(fab["solid"]["thickness_max_m"] - WORKSHOP) <= THICKNESS_TOLERANCE
+    assert (out / files["scene_3dm"]).exists()
     surface = trimesh.load(out / "surface.obj", process=False).vertices
     doc = ezdxf.readfile(out / "overall.dxf")
     measured = sorted(d.get_measurement() for d in doc.modelspace().query("DIMENSION"))

@@ -152,3 +152,59 @@ def test_3mf_reads_back_with_lib3mf_in_millimetres(tmp_path, trough):
         len(np.unique(solid.triangles)), len(solid.triangles))
     names = zipfile.ZipFile(io.BytesIO(model_3mf(solid))).namelist()
     assert "3D/3dmodel.model" in names
+
+
+def _sphere():
+    mesh = trimesh.creation.icosphere(subdivisions=2, radius=0.05)
+    return np.array(mesh.vertices), np.array(mesh.faces, dtype=np.int64)
+
+
+def _sound(vertices, triangles):
+    """trimesh's and manifold3d's word on a closed mesh."""
+    import manifold3d
+
+    mesh = trimesh.Trimesh(vertices, triangles, process=False)
+    status = manifold3d.Manifold(manifold3d.Mesh64(
+        vert_properties=np.ascontiguousarray(vertices),
+        tri_verts=np.ascontiguousarray(triangles, dtype=np.uint64))).status().name
+    return mesh.is_watertight and mesh.is_winding_consistent and status == "NoError"
+
+
+def test_short_edges_of_the_underside_collapse_and_the_mesh_stays_closed():
+    from solver.io.solid import _collapse_short
+
+    v, t = _sphere()
+    a, b = t[0, 0], t[0, 1]
+    v[b] = v[a] + 1e-4 * (v[b] - v[a]) / np.linalg.norm(v[b] - v[a])  # a 0.1 mm edge
+    up = trimesh.Trimesh(v, t, process=False).face_normals
+    movable = np.ones(len(v), dtype=bool)
+    out_v, out_t, keep, alive = _collapse_short(v, t, movable, v, up, 3e-4)
+    assert (len(out_v), len(out_t)) == (len(v) - 1, len(t) - 2)
+    assert keep.sum() == len(out_v) and alive.sum() == len(out_t)
+    assert _sound(out_v, out_t)
+    edges = np.concatenate([out_t[:, [0, 1]], out_t[:, [1, 2]], out_t[:, [2, 0]]])
+    assert np.linalg.norm(out_v[edges[:, 0]] - out_v[edges[:, 1]], axis=1).min() > 3e-4
+    # an edge between vertices that may not move stays
+    movable[:] = False
+    assert len(_collapse_short(v, t, movable, v, up, 3e-4)[0]) == len(v)
+
+
+def test_snapping_moves_vertices_but_never_turns_a_face_over():
+    from solver.io.solid import _snap
+    from solver.mesh import face_cross
+
+    v, t = _sphere()
+    up = -trimesh.Trimesh(v, t, process=False).face_normals  # "bodies" at the centre
+    movable = np.ones(len(v), dtype=bool)
+    grown = _snap(v, t.copy(), 1.002 * v, movable, up)
+    np.testing.assert_allclose(grown, 1.002 * v, atol=1e-12)
+    # one vertex asked through the sphere to its far side: it may not go all the way
+    target = v.copy()
+    target[0] = -0.5 * v[0]
+    tris = t.copy()
+    moved = _snap(v, tris, target, movable, up)
+    before, after = face_cross(v, t), face_cross(moved, tris)
+    ring = (t == 0).any(axis=1)
+    assert np.all(np.einsum("ij,ij->i", before[ring], after[ring]) > 0)
+    assert np.linalg.norm(moved[0] - target[0]) > 0.01
+    assert _sound(moved, tris)
