@@ -366,6 +366,7 @@ SAGITTA = 5e-5  # m
 WIDEN = 1e-3  # of the distance from the triangle's centre
 TURN = 0.1  # cosine: a face of the underside turned further from where it faced is refused
 SHORT_EDGE = 3e-4  # m: shorter edges of the trimmed underside are collapsed (`_collapse_short`)
+TINY_EDGE = 1e-5  # m: shorter edges anywhere on the trimmed solid are collapsed
 
 
 def _trimmed(v: np.ndarray, tris: np.ndarray, offset: np.ndarray, t: float,
@@ -421,13 +422,21 @@ def _trimmed(v: np.ndarray, tris: np.ndarray, offset: np.ndarray, t: float,
     under = (dist > 0.5 * t) & ~_on_border(surface, boundary_edges(tris), face, closest)
     target = closest + t * (out_v - closest) / np.maximum(dist, 1e-300)[:, None]
     up = face_normals(v, tris)[surface.closest(out_v[out_t].mean(axis=1))[3]]
-    out_v, out_t, keep, alive = _collapse_short(out_v, out_t, under, target, up, SHORT_EDGE)
+    from scipy.spatial import cKDTree
+
+    fixed = cKDTree(v).query(out_v)[0] <= 1e-9  # the surface's own vertices
+    out_v, out_t, keep, alive = _collapse_short(out_v, out_t, under, fixed, target, up,
+                                                SHORT_EDGE)
     out_v = _snap(out_v, out_t, target[keep], under[keep], up[alive])
+    # vertices the snap brought together (one closest point, one direction) are joined
+    fixed = fixed[keep]
+    out_v, out_t = _collapse_short(out_v, out_t, np.zeros(len(out_v), dtype=bool), fixed,
+                                   out_v, up[alive], 0.0)[:2]
     return _surface_first(v, tris, out_v, out_t, t, int(unsound.sum()))
 
 
 def _collapse_short(vertices: np.ndarray, triangles: np.ndarray, movable: np.ndarray,
-                    target: np.ndarray, up: np.ndarray, length: float
+                    fixed: np.ndarray, target: np.ndarray, up: np.ndarray, length: float
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Edges between two `movable` vertices of a closed triangle mesh that are shorter than
     `length`, or that moving both ends to `target` would shrink below a quarter or turn
@@ -435,7 +444,10 @@ def _collapse_short(vertices: np.ndarray, triangles: np.ndarray, movable: np.nda
     (the two ends share no neighbour but the edge's two opposite corners), turns no
     triangle by more than 60 degrees and none towards the bodies (see `_snap`; `up`, per
     triangle). Where merged pieces meet they leave clusters of slivers a fraction of a
-    millimetre across, which a move of a tenth of a millimetre turns over.
+    millimetre across, which a move of a tenth of a millimetre turns over. Edges shorter
+    than `TINY_EDGE` collapse wherever a manifold allows, but never move a `fixed` vertex
+    (the surface's): the merge leaves corners a fraction of a micrometre apart, which a
+    file in single precision would fuse.
 
     Returns the vertices, the triangles, which of the given vertices remain (renumbered in
     order) and which of the given triangles remain."""
@@ -444,7 +456,9 @@ def _collapse_short(vertices: np.ndarray, triangles: np.ndarray, movable: np.nda
     now = vertices[b] - vertices[a]
     span = np.linalg.norm(now, axis=1)
     later = np.einsum("ij,ij->i", now, target[b] - target[a])
-    pick = ((span < length) | (later < 0.25 * span ** 2)) & movable[a] & movable[b] & (a < b)
+    tiny = (span < TINY_EDGE) & ~(fixed[a] & fixed[b])
+    pick = ((span < length) | (later < 0.25 * span ** 2)) & movable[a] & movable[b]
+    pick = (pick | tiny) & (a < b)
     if not pick.any():
         return vertices, triangles, np.ones(len(vertices), dtype=bool), \
             np.ones(len(triangles), dtype=bool)
@@ -469,19 +483,23 @@ def _collapse_short(vertices: np.ndarray, triangles: np.ndarray, movable: np.nda
         opposite = set(triangles[list(shared)].ravel().tolist()) - {p, q}
         if link_p & link_q != opposite:
             continue
-        middle = 0.5 * (vertices[p] + vertices[q])
-        rest = sorted((faces_of[p] | faces_of[q]) - shared)
-        corners = triangles[rest]
-        before = face_cross(vertices, corners)
-        moved = vertices.copy()
-        moved[[p, q]] = middle
-        after = face_cross(moved, corners)
-        size, size_before = np.linalg.norm(after, axis=1), np.linalg.norm(before, axis=1)
-        if np.any(np.einsum("ij,ij->i", before, after) <= 0.5 * size_before * size):
-            continue
-        towards = np.einsum("ij,ij->i", after, up[rest]) > 0.4 * size
-        if np.any(towards & (np.einsum("ij,ij->i", before, up[rest]) <= 0.5 * size_before)):
-            continue
+        if fixed[q]:
+            p, q = q, p  # the surface's vertex stays where it is
+        middle = vertices[p] if fixed[p] else 0.5 * (vertices[p] + vertices[q])
+        if np.linalg.norm(vertices[p] - vertices[q]) >= TINY_EDGE:
+            rest = sorted((faces_of[p] | faces_of[q]) - shared)
+            corners = triangles[rest]
+            before = face_cross(vertices, corners)
+            moved = vertices.copy()
+            moved[[p, q]] = middle
+            after = face_cross(moved, corners)
+            size, size_before = np.linalg.norm(after, axis=1), np.linalg.norm(before, axis=1)
+            if np.any(np.einsum("ij,ij->i", before, after) <= 0.5 * size_before * size):
+                continue
+            towards = np.einsum("ij,ij->i", after, up[rest]) > 0.4 * size
+            if np.any(towards & (np.einsum("ij,ij->i", before, up[rest]) <=
+                                 0.5 * size_before)):
+                continue
         vertices[p] = middle
         for face in faces_of[q] - shared:
             triangles[face][triangles[face] == q] = p

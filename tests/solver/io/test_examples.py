@@ -70,7 +70,7 @@ def test_fit_writes_solid_reach_and_drawings(tmp_path):
 
     out = tmp_path / "fit"
     code = main(["fit", str(SCENARIOS / "single_seated.toml"), "--out", str(out),
-                 "--format", "3dm", "--solid", str(WORKSHOP), "--drawings",
+                 "--format", "obj,3dm", "--solid", str(WORKSHOP), "--drawings",
                  "--tool-radius", "0.02"])
     assert code == 0
     report = json.loads((out / "report.json").read_text())

@@ -178,7 +178,7 @@ def test_short_edges_of_the_underside_collapse_and_the_mesh_stays_closed():
     v[b] = v[a] + 1e-4 * (v[b] - v[a]) / np.linalg.norm(v[b] - v[a])  # a 0.1 mm edge
     up = trimesh.Trimesh(v, t, process=False).face_normals
     movable = np.ones(len(v), dtype=bool)
-    out_v, out_t, keep, alive = _collapse_short(v, t, movable, v, up, 3e-4)
+    out_v, out_t, keep, alive = _collapse_short(v, t, movable, ~movable, v, up, 3e-4)
     assert (len(out_v), len(out_t)) == (len(v) - 1, len(t) - 2)
     assert keep.sum() == len(out_v) and alive.sum() == len(out_t)
     assert _sound(out_v, out_t)
@@ -186,7 +186,7 @@ def test_short_edges_of_the_underside_collapse_and_the_mesh_stays_closed():
     assert np.linalg.norm(out_v[edges[:, 0]] - out_v[edges[:, 1]], axis=1).min() > 3e-4
     # an edge between vertices that may not move stays
     movable[:] = False
-    assert len(_collapse_short(v, t, movable, v, up, 3e-4)[0]) == len(v)
+    assert len(_collapse_short(v, t, movable, ~movable, v, up, 3e-4)[0]) == len(v)
 
 
 def test_snapping_moves_vertices_but_never_turns_a_face_over():
