@@ -366,6 +366,7 @@ SAGITTA = 5e-5  # m
 WIDEN = 1e-3  # of the distance from the triangle's centre
 TURN = 0.1  # cosine: a face of the underside turned further from where it faced is refused
 SHORT_EDGE = 3e-4  # m: shorter edges of the trimmed underside are collapsed (`_collapse_short`)
+MAX_FLIPS = 4  # rounds of cap flips in one pass of the snap
 TINY_EDGE = 1e-5  # m: shorter edges anywhere on the trimmed solid are collapsed
 
 
@@ -533,6 +534,7 @@ def _snap(vertices: np.ndarray, triangles: np.ndarray, target: np.ndarray,
         if not trying.any():
             break
         held = np.zeros(len(vertices), dtype=bool)
+        flips = 0
         while trying.any():
             moved = vertices.copy()
             moved[trying] += share[trying, None] * gap[trying]
@@ -544,7 +546,9 @@ def _snap(vertices: np.ndarray, triangles: np.ndarray, target: np.ndarray,
             if not turned.any():
                 vertices = moved
                 break
-            if _flip_caps(moved, triangles, np.flatnonzero(turned), start):
+            if flips < MAX_FLIPS and _flip_caps(moved, triangles, np.flatnonzero(turned),
+                                                start):
+                flips += 1
                 start_size = np.linalg.norm(start, axis=1)
                 continue  # a cap's long edge flipped: try the same moves again
             stuck = np.unique(triangles[turned])
@@ -560,21 +564,32 @@ def _flip_caps(moved: np.ndarray, triangles: np.ndarray, faces: np.ndarray,
     where the two triangles made across the other diagonal face, with the moved corners,
     within 60 degrees of where the old two faced (`start`, updated); in place. Returns
     whether any edge flipped."""
-    flipped = False
+    n = len(moved)
     corners = moved[triangles[faces]]
     sides = np.linalg.norm(np.roll(corners, -1, axis=1) - corners, axis=2)  # edge k: k -> k+1
-    for face, side in zip(faces.tolist(), sides):
-        k = int(np.argmax(side))
-        if side[k] < 0.98 * (side.sum() - side[k]):  # largest angle under ~150 degrees
+    k = sides.argmax(axis=1)
+    longest = sides[np.arange(len(faces)), k]
+    cap = longest >= 0.98 * (sides.sum(axis=1) - longest)  # largest angle over ~150 degrees
+    if not cap.any():
+        return False
+    edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    keys = edges.min(axis=1) * n + edges.max(axis=1)
+    order = np.argsort(keys)
+    keys, owners = keys[order], np.tile(np.arange(len(triangles)), 3)[order]
+    touched, made = set(), set()
+    flipped = False
+    for face, corner in zip(faces[cap].tolist(), k[cap].tolist()):
+        p, q, r = (int(triangles[face][(corner + i) % 3]) for i in range(3))
+        key = min(p, q) * n + max(p, q)
+        lo, hi = np.searchsorted(keys, [key, key + 1])
+        across = [f for f in owners[lo:hi].tolist() if f != face]
+        if len(across) != 1 or face in touched or across[0] in touched:
             continue
-        p, q, r = (int(triangles[face][(k + i) % 3]) for i in range(3))
-        across = np.flatnonzero((triangles == q).any(axis=1) & (triangles == p).any(axis=1))
-        across = across[across != face]
-        if len(across) != 1:
-            continue
-        other = int(across[0])
+        other = across[0]
         apex = int(np.setdiff1d(triangles[other], [p, q])[0])
-        if np.any(np.isin(triangles[(triangles == r).any(axis=1)], apex)):
+        diagonal = min(r, apex) * n + max(r, apex)
+        if diagonal in made or np.searchsorted(keys, diagonal + 1) > np.searchsorted(
+                keys, diagonal):
             continue  # the two apexes are joined already
         new = np.array([[p, apex, r], [apex, q, r]])
         facing = start[face] + start[other]
@@ -584,6 +599,8 @@ def _flip_caps(moved: np.ndarray, triangles: np.ndarray, faces: np.ndarray,
             continue
         triangles[face], triangles[other] = new
         start[face] = start[other] = 0.5 * facing
+        touched.update((face, other))
+        made.add(diagonal)
         flipped = True
     return flipped
 
