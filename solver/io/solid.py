@@ -84,17 +84,18 @@ class SolidCheck:
     surface_folds: int = 0
     intersecting_pairs: int = 0
     trimmed: int = 0
+    closed_in_single: bool = True
 
     @property
     def ok(self) -> bool:
         """Closed, consistently wound, accepted by manifold3d, positive volume, no triangles
-        crossing, no fold in the offset and no place nearer the surface than the thickness
-        allows. (A sharp fold of
+        crossing, no fold in the offset, no place nearer the surface than the thickness
+        allows, and still closed once written in single precision (STL). (A sharp fold of
         the surface itself, `surface_folds`, is named in `problem` as the likely cause.)"""
         return bool(self.watertight and self.winding_consistent and
                     self.manifold_status == "NoError" and self.volume_m3 > 0 and
                     self.folded_faces == 0 and self.too_close == 0 and
-                    self.intersecting_pairs == 0 and
+                    self.intersecting_pairs == 0 and self.closed_in_single and
                     (self.clearance_m is None or self.clearance_m >= CLEARANCE_SHARE *
                      self.thickness_min_m))
 
@@ -122,6 +123,9 @@ class SolidCheck:
                          f"{self.clearance_m * 1000:.1f} mm of the surface")
         if not self.watertight or not self.winding_consistent:
             parts.append("the mesh is not closed and consistently wound")
+        elif not self.closed_in_single:
+            parts.append("written in single precision (STL, millimetres) some of its "
+                         "corners fuse and it is no longer closed")
         if self.manifold_status != "NoError":
             parts.append(f"manifold3d rejects it ({self.manifold_status})")
         if self.volume_m3 <= 0 and not parts:
@@ -764,9 +768,14 @@ def check_solid(solid: Solid) -> SolidCheck:
     if solid.kind == "offset":
         folded, low, high, close, clearance = _underside(solid)
     crossing = self_intersections(solid.vertices, solid.triangles, depth=CROSSING_DEPTH)
+    # what an STL reader sees: single-precision millimetres, corners welded by position
+    single = workshop_vertices(solid.vertices).astype(np.float32)
+    corners, weld = np.unique(single, axis=0, return_inverse=True)
+    welded = trimesh.Trimesh(corners.astype(np.float64), weld.ravel()[solid.triangles],
+                             process=False)
     return SolidCheck(bool(mesh.is_watertight), bool(mesh.is_winding_consistent), status,
                       volume, folded, low, high, close, clearance, creases, len(crossing),
-                      solid.trimmed)
+                      solid.trimmed, bool(welded.is_watertight))
 
 
 # m: triangles of a solid cross only where they overlap deeper than this, and a triangle
