@@ -435,8 +435,9 @@ def _trimmed(v: np.ndarray, tris: np.ndarray, offset: np.ndarray, t: float,
     out_v = _snap(out_v, out_t, target[keep], under[keep], up[alive])
     # vertices the snap brought together (one closest point, one direction) are joined
     fixed = fixed[keep]
-    out_v, out_t = _collapse_short(out_v, out_t, np.zeros(len(out_v), dtype=bool), fixed,
-                                   out_v, up[alive], 0.0)[:2]
+    out_v, out_t, keep = _collapse_short(out_v, out_t, np.zeros(len(out_v), dtype=bool),
+                                         fixed, out_v, up[alive], 0.0)[:3]
+    out_v = _part_touching(out_v, out_t, fixed[keep])
     return _surface_first(v, tris, out_v, out_t, t, int(unsound.sum()))
 
 
@@ -517,6 +518,34 @@ def _collapse_short(vertices: np.ndarray, triangles: np.ndarray, movable: np.nda
     keep = ~gone
     index = np.cumsum(keep) - 1
     return vertices[keep], index[triangles[alive]], keep, alive
+
+
+def _part_touching(vertices: np.ndarray, triangles: np.ndarray,
+                   fixed: np.ndarray) -> np.ndarray:
+    """Corners of the solid that are not joined by an edge and yet lie within `TINY_EDGE` of
+    each other (where merged pieces touch, manifold3d keeps two corners at one point) moved
+    `TINY_EDGE` into the solid, along minus their normals, unless `fixed`: written in single
+    precision they would fuse, and the file would no longer be closed."""
+    from scipy.spatial import cKDTree
+
+    used = np.unique(triangles)
+    pairs = cKDTree(vertices[used]).query_pairs(TINY_EDGE, output_type="ndarray")
+    if len(pairs) == 0:
+        return vertices
+    pairs = used[pairs]
+    n = len(vertices)
+    edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    joined = np.isin(pairs.min(axis=1) * n + pairs.max(axis=1),
+                     edges.min(axis=1) * n + edges.max(axis=1))
+    apart = np.unique(pairs[~joined])
+    apart = apart[~fixed[apart]]
+    if len(apart) == 0:
+        return vertices
+    vertices = vertices.copy()
+    with np.errstate(invalid="ignore", divide="ignore"):  # corners no triangle uses
+        normals = vertex_normals(vertices, triangles)
+    vertices[apart] -= TINY_EDGE * normals[apart]
+    return vertices
 
 
 def _snap(vertices: np.ndarray, triangles: np.ndarray, target: np.ndarray,
