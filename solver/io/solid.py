@@ -551,8 +551,8 @@ def _part_touching(vertices: np.ndarray, triangles: np.ndarray,
 def _snap(vertices: np.ndarray, triangles: np.ndarray, target: np.ndarray,
           movable: np.ndarray, up: np.ndarray, passes: int = 16) -> np.ndarray:
     """`vertices` moved towards `target` where `movable`, in `passes` steps: in each, every
-    vertex that has further to go than a micrometre goes there, or half way once a whole
-    move was refused, unless its move turns a face over (its normal's cosine with where it
+    vertex that has further to go than a micrometre goes there, or half as far each time a
+    move of it was refused (down to a sixteenth), unless its move turns a face over (its normal's cosine with where it
     faced first falls to `TURN`) or towards the bodies (from at most half along `up`, the normal of the
     surface under each triangle, to more than 0.4 along it). A vertex held back in one pass
     (its neighbours had not moved yet) may go in the next."""
@@ -587,7 +587,7 @@ def _snap(vertices: np.ndarray, triangles: np.ndarray, target: np.ndarray,
             stuck = np.unique(triangles[turned])
             held[stuck] |= trying[stuck]
             trying[stuck] = False
-        share[held] = 0.5
+        share[held] = np.maximum(0.5 * share[held], 1.0 / 16)
     return vertices
 
 
