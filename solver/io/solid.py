@@ -552,10 +552,12 @@ def _snap(vertices: np.ndarray, triangles: np.ndarray, target: np.ndarray,
           movable: np.ndarray, up: np.ndarray, passes: int = 16) -> np.ndarray:
     """`vertices` moved towards `target` where `movable`, in `passes` steps: in each, every
     vertex that has further to go than a micrometre goes there, or half as far each time a
-    move of it was refused (down to a sixteenth), unless its move turns a face over (its normal's cosine with where it
-    faced first falls to `TURN`) or towards the bodies (from at most half along `up`, the normal of the
-    surface under each triangle, to more than 0.4 along it). A vertex held back in one pass
-    (its neighbours had not moved yet) may go in the next."""
+    move of it was refused (down to a sixteenth), unless its move turns a face over (the
+    cosine of its normal with where it faced first falls to `TURN`) or towards the bodies
+    (from at most half along `up`, the normal of the surface under each triangle, to more
+    than 0.4 along it). A vertex held back in one pass (its neighbours had not moved yet)
+    may go in the next. A turned cap (a corner moved across the long edge of a flat
+    triangle) is mended by flipping that edge (`triangles` changes in place)."""
     start = face_cross(vertices, triangles)
     start_size = np.linalg.norm(start, axis=1)
     facing_before = np.einsum("ij,ij->i", start, up) > 0.5 * start_size

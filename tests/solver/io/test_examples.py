@@ -41,10 +41,11 @@ def fitted():
 @pytest.mark.slow
 @pytest.mark.parametrize("name", EXAMPLES)
 def test_every_example_thickens_to_a_closed_manifold(fitted, name, tmp_path):
-    """The 1 cm solid of every example's surface: watertight and consistently wound by trimesh, a manifold by manifold3d, no crossing
-    triangles, as thick as asked within 0.1 mm at every vertex of its underside, and within
-    1 mm at its triangles' middles (trimesh's distances; a flat triangle of the offset is a
-    chord of a curved sheet, and the largest sheets are not split)."""
+    """The 1 cm solid of every example's surface: watertight and consistently wound by
+    trimesh, a manifold by manifold3d, no crossing triangles, as thick as asked within 0.1 mm
+    at every vertex of its underside, and within 1 mm at its triangles' middles (trimesh's
+    distances; a flat triangle of the offset is a chord of a curved sheet), and still closed
+    when its STL is read back."""
     vertices, faces = fitted[name]
     solid = thicken(vertices, faces, THICK, check=False)
     check = check_solid(solid)
