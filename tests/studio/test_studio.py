@@ -4,27 +4,16 @@ test_studio_browser.py)."""
 from __future__ import annotations
 
 import tomllib
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from capture.recordings import resolve_path
 from posedb import PoseLibrary
 from studio.design import Design, DesignError
 
 from tests.conftest import listening_addresses
 
 HIGH_SIT = "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"
-
-
-@pytest.fixture(scope="module")
-def library(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("studio") / "poses.h5"
-    lib = PoseLibrary(path, create=True)
-    take = lib.import_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"), name="high_sit")
-    lib.add_pose(take.id, 39, "perch", tags=["sit", "high"])
-    return path
 
 
 def test_a_design_fits_relaxes_and_saves_what_reads_back(library, tmp_path):

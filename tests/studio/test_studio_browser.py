@@ -18,7 +18,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from capture.recordings import resolve_path
 from posedb import PoseLibrary
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -34,15 +33,6 @@ pytestmark = [
                        reason="needs Debian's chromium and chromium-driver (apt-get install "
                               "chromium chromium-driver)"),
 ]
-
-
-@pytest.fixture(scope="module")
-def library(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("studio-browser") / "poses.h5"
-    lib = PoseLibrary(path, create=True)
-    take = lib.import_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"), name="high_sit")
-    lib.add_pose(take.id, 39, "perch", tags=["sit", "high"])
-    return path
 
 
 def _browser(downloads: Path | None = None):
