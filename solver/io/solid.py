@@ -437,8 +437,43 @@ def _trimmed(v: np.ndarray, tris: np.ndarray, offset: np.ndarray, t: float,
     fixed = fixed[keep]
     out_v, out_t, keep = _collapse_short(out_v, out_t, np.zeros(len(out_v), dtype=bool),
                                          fixed, out_v, up[alive], 0.0)[:3]
-    out_v = _part_touching(out_v, out_t, fixed[keep])
+    out_v, out_t, fixed = _mend(out_v, out_t, fixed[keep], surface, boundary_edges(tris), t)
+    out_v = _part_touching(out_v, out_t, fixed)
     return _surface_first(v, tris, out_v, out_t, t, int(unsound.sum()))
+
+
+MEND_ROUNDS = 4
+
+
+def _mend(vertices: np.ndarray, triangles: np.ndarray, fixed: np.ndarray,
+          surface: SurfaceMesh, edges: np.ndarray, t: float
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The trimmed solid's last faults removed: a vertex of the underside the snap left short
+    of the thickness (its move would have turned a face over), and the corners of a face
+    where the underside folds, each collapsed into the nearest neighbour that takes it
+    (`_collapse` with the merged vertex at the neighbour's place: no face turns by more than
+    60 degrees or towards the bodies), for up to `MEND_ROUNDS` rounds. Such vertices sit
+    among slivers where merged pieces meet, a fraction of a millimetre from a neighbour.
+    Returns the vertices, the triangles and which of them are `fixed`."""
+    for _ in range(MEND_ROUNDS):
+        faults = _sheet_faults(vertices, triangles, fixed, surface, edges, t)
+        short = np.zeros(0, dtype=np.int64) if faults.distance is None else \
+            faults.corners[faults.distance < t - THICKNESS_TOLERANCE]
+        faulty = np.unique(np.concatenate([short, triangles[faults.folds].ravel()]))
+        faulty = faulty[~fixed[faulty]]
+        if len(faulty) == 0:
+            break
+        ends = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+        ends = np.concatenate([ends, ends[:, ::-1]])
+        pairs = ends[np.isin(ends[:, 1], faulty)]  # (kept, removed)
+        span = np.linalg.norm(vertices[pairs[:, 0]] - vertices[pairs[:, 1]], axis=1)
+        up = surface.face_normals[surface.closest(vertices[triangles].mean(axis=1))[3]]
+        vertices, triangles, keep, _ = _collapse(vertices, triangles, pairs[np.argsort(span)],
+                                                 fixed, up, at_first=True)
+        fixed = fixed[keep]
+        if keep.all():
+            break
+    return vertices, triangles, fixed
 
 
 def _collapse_short(vertices: np.ndarray, triangles: np.ndarray, movable: np.ndarray,
@@ -465,21 +500,31 @@ def _collapse_short(vertices: np.ndarray, triangles: np.ndarray, movable: np.nda
     tiny = (span < TINY_EDGE) & ~(fixed[a] & fixed[b])
     pick = ((span < length) | (later < 0.25 * span ** 2)) & movable[a] & movable[b]
     pick = (pick | tiny) & (a < b)
-    if not pick.any():
-        return vertices, triangles, np.ones(len(vertices), dtype=bool), \
-            np.ones(len(triangles), dtype=bool)
+    order = np.flatnonzero(pick)[np.argsort(span[pick])]
+    return _collapse(vertices, triangles, np.stack([a[order], b[order]], axis=1), fixed, up)
+
+
+def _collapse(vertices: np.ndarray, triangles: np.ndarray, pairs: np.ndarray,
+              fixed: np.ndarray, up: np.ndarray, at_first: bool = False
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The edges `pairs` (p, q) of a closed triangle mesh collapsed in order, q into p, each
+    where both ends remain, the mesh stays a manifold (the ends share no neighbour but the
+    edge's two opposite corners) and, unless the edge is shorter than `TINY_EDGE`, no
+    triangle turns by more than 60 degrees or towards the bodies (from at most half along
+    `up`, per triangle, to more than 0.4 along it). The merged vertex goes to the middle, or
+    stays at p's place with `at_first`; a `fixed` end never moves. Returns the vertices, the
+    triangles, which of the given vertices remain (renumbered in order) and which of the
+    given triangles remain."""
     vertices, triangles = vertices.copy(), triangles.copy()
     faces_of: dict[int, set[int]] = {}
-    ends = np.unique(np.concatenate([a[pick], b[pick]]))
-    near = np.flatnonzero(np.isin(triangles, ends).any(axis=1))
+    near = np.flatnonzero(np.isin(triangles, np.unique(pairs)).any(axis=1))
     for face in near.tolist():
         for corner in triangles[face].tolist():
             faces_of.setdefault(corner, set()).add(face)
     alive = np.ones(len(triangles), dtype=bool)
     gone = np.zeros(len(vertices), dtype=bool)
-    order = np.flatnonzero(pick)[np.argsort(span[pick])]
-    for p, q in zip(a[order].tolist(), b[order].tolist()):
-        if gone[p] or gone[q]:
+    for p, q in pairs.tolist():
+        if gone[p] or gone[q] or (fixed[p] and fixed[q]):
             continue
         shared = faces_of[p] & faces_of[q]
         if len(shared) != 2:
@@ -490,8 +535,10 @@ def _collapse_short(vertices: np.ndarray, triangles: np.ndarray, movable: np.nda
         if link_p & link_q != opposite:
             continue
         if fixed[q]:
+            if at_first:
+                continue
             p, q = q, p  # the surface's vertex stays where it is
-        middle = vertices[p] if fixed[p] else 0.5 * (vertices[p] + vertices[q])
+        middle = vertices[p] if fixed[p] or at_first else 0.5 * (vertices[p] + vertices[q])
         if np.linalg.norm(vertices[p] - vertices[q]) >= TINY_EDGE:
             rest = sorted((faces_of[p] | faces_of[q]) - shared)
             corners = triangles[rest]
@@ -523,9 +570,13 @@ def _collapse_short(vertices: np.ndarray, triangles: np.ndarray, movable: np.nda
 def _part_touching(vertices: np.ndarray, triangles: np.ndarray,
                    fixed: np.ndarray) -> np.ndarray:
     """Corners of the solid that are not joined by an edge and yet lie within `TINY_EDGE` of
-    each other (where merged pieces touch, manifold3d keeps two corners at one point) moved
-    `TINY_EDGE` into the solid, along minus their normals, unless `fixed`: written in single
-    precision they would fuse, and the file would no longer be closed."""
+    each other (where merged pieces touch, manifold3d keeps two corners at one point) parted:
+    of each such group one stays (a `fixed` one if there is one) and the k-th of the others
+    moves k `TINY_EDGE` into the solid, along minus its normal (moved alike, two would stay
+    together). Written in single precision they would fuse, and the file would no longer be
+    closed."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
     used = np.unique(triangles)
@@ -537,14 +588,24 @@ def _part_touching(vertices: np.ndarray, triangles: np.ndarray,
     edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
     joined = np.isin(pairs.min(axis=1) * n + pairs.max(axis=1),
                      edges.min(axis=1) * n + edges.max(axis=1))
-    apart = np.unique(pairs[~joined])
-    apart = apart[~fixed[apart]]
-    if len(apart) == 0:
+    pairs = pairs[~joined]
+    if len(pairs) == 0:
         return vertices
+    graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    label = connected_components(graph, directed=False)[1]
+    members = np.unique(pairs)
+    # within a group, fixed corners first (they stay), then by index
+    members = members[np.lexsort((members, ~fixed[members], label[members]))]
+    group = label[members]
+    first = np.r_[True, group[1:] != group[:-1]]
+    rank = np.arange(len(members)) - np.maximum.accumulate(np.where(first, np.arange(
+        len(members)), 0))
+    moving = (rank > 0) & ~fixed[members]
     vertices = vertices.copy()
     with np.errstate(invalid="ignore", divide="ignore"):  # corners no triangle uses
         normals = vertex_normals(vertices, triangles)
-    vertices[apart] -= TINY_EDGE * normals[apart]
+    vertices[members[moving]] -= (TINY_EDGE * rank[moving])[:, None] * \
+        normals[members[moving]]
     return vertices
 
 
@@ -823,33 +884,60 @@ def _underside(solid: Solid):
     surface = SurfaceMesh.from_triangles(solid.vertices[:solid.n_surface],
                                          solid.surface_triangles)
     edges = boundary_edges(solid.surface_triangles)
-    # the walls meet the surface; the underside, its steps and any fold lie over its inside
-    tris = solid.triangles[(solid.triangles >= solid.n_surface).all(axis=1)]
-    dist, _, _, face, closest = surface.closest(solid.vertices[tris].mean(axis=1))
+    on_surface = np.arange(len(solid.vertices)) < solid.n_surface
+    faults = _sheet_faults(solid.vertices, solid.triangles, on_surface, surface, edges, t)
+    if faults.distance is None:
+        return len(faults.folds), None, None, 0, None
+    low, high = float(faults.distance.min()), float(faults.distance.max())
+    inside = np.setdiff1d(np.arange(solid.n_surface), edges)
+    d_in = SurfaceMesh.from_triangles(solid.vertices, solid.triangles[faults.sheet]).closest(
+        surface.vertices[inside])[0]
+    return len(faults.folds), low, high, int(np.sum(faults.distance <
+                                                    t - THICKNESS_TOLERANCE)), \
+        float(min(faults.middle.min(), d_in.min(initial=np.inf), low))
+
+
+@dataclass(frozen=True)
+class _Faults:
+    """The underside of an offset (see `_sheet_faults`): `sheet` (indices of its triangles),
+    `folds` (of those that fold), `corners` (its vertices over the surface's inside) with their
+    `distance` from the surface (None if there is no underside) and the distance of its
+    triangles' middles, `middle`."""
+
+    sheet: np.ndarray
+    folds: np.ndarray
+    corners: np.ndarray
+    distance: np.ndarray | None
+    middle: np.ndarray
+
+
+def _sheet_faults(vertices: np.ndarray, triangles: np.ndarray, on_surface: np.ndarray,
+                  surface: SurfaceMesh, edges: np.ndarray, t: float) -> _Faults:
+    """The underside of a solid offset `t` from `surface` (whose vertices are `on_surface`
+    and border `edges`): every triangle with no corner on the surface whose middle lies over
+    the surface's inside (not beside its border) at least half the thickness away. Those
+    facing the bodies whose line from the surface folds the underside deeper than
+    `THICKNESS_TOLERANCE` (`_fold_depths`) are folds."""
+    chosen = np.flatnonzero(~on_surface[triangles].any(axis=1))  # the walls meet the surface
+    tris = triangles[chosen]
+    dist, _, _, face, closest = surface.closest(vertices[tris].mean(axis=1))
     sheet = ~_on_border(surface, edges, face, closest) & (dist >= 0.5 * t)
-    facing = np.einsum("ij,ij->i", face_normals(solid.vertices, tris),
-                       surface.face_normals[face])
+    facing = np.einsum("ij,ij->i", face_normals(vertices, tris), surface.face_normals[face])
     # a sliver thinner than CROSSING_DEPTH (left where merged pieces meet) has no meaningful
     # normal; a fold faces the bodies, a step where pieces meet stands across
-    corners = solid.vertices[tris]
+    corners = vertices[tris]
     longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
-    sliver = np.linalg.norm(face_cross(solid.vertices, tris), axis=1) < \
-        CROSSING_DEPTH * longest
+    sliver = np.linalg.norm(face_cross(vertices, tris), axis=1) < CROSSING_DEPTH * longest
     candidates = np.flatnonzero(sheet & (facing > 0.5) & ~sliver)
-    depth = _fold_depths(solid.vertices, tris, closest[candidates],
-                         solid.vertices[tris[candidates]].mean(axis=1), t)
-    folded = int(np.sum(depth > THICKNESS_TOLERANCE))
+    depth = _fold_depths(vertices, tris, closest[candidates],
+                         vertices[tris[candidates]].mean(axis=1), t)
+    folds = chosen[candidates[depth > THICKNESS_TOLERANCE]]
     if not sheet.any():
-        return folded, None, None, 0, None
-    d_corner, _, _, c_face, c_closest = surface.closest(solid.vertices[np.unique(tris[sheet])])
-    d_corner = d_corner[~_on_border(surface, edges, c_face, c_closest)]
-    inside = np.setdiff1d(np.arange(solid.n_surface), edges)
-    d_in = SurfaceMesh.from_triangles(solid.vertices, tris[sheet]).closest(
-        surface.vertices[inside])[0]
-    low, high = float(d_corner.min()), float(d_corner.max())
-    close = int(np.sum(d_corner < t - THICKNESS_TOLERANCE))
-    return folded, low, high, close, float(min(dist[sheet].min(), d_in.min(initial=np.inf),
-                                               low))
+        return _Faults(chosen[sheet], folds, np.zeros(0, dtype=np.int64), None, dist[sheet])
+    ends = np.unique(tris[sheet])
+    d_corner, _, _, c_face, c_closest = surface.closest(vertices[ends])
+    inner = ~_on_border(surface, edges, c_face, c_closest)
+    return _Faults(chosen[sheet], folds, ends[inner], d_corner[inner], dist[sheet])
 
 
 def _fold_depths(vertices: np.ndarray, underside: np.ndarray, feet: np.ndarray,

@@ -208,3 +208,66 @@ def test_snapping_moves_vertices_but_never_turns_a_face_over():
     assert np.all(np.einsum("ij,ij->i", before[ring], after[ring]) > 0)
     assert np.linalg.norm(moved[0] - target[0]) > 0.01
     assert _sound(moved, tris)
+
+
+def test_a_vertex_left_short_of_the_thickness_is_mended_away(trough):
+    """An underside vertex 0.15 mm short of the 5 mm thickness (a triangle of the sheet split at a
+    point raised towards the surface) is collapsed into a neighbour; the solid stays closed,
+    the surface's vertices stay where they are, and trimesh finds every underside vertex at
+    the thickness."""
+    from solver.io.solid import _mend
+    from solver.mesh import SurfaceMesh
+
+    vertices, faces, _ = trough
+    solid = thicken(vertices, faces, 0.005)
+    v, tris, n = solid.vertices, solid.triangles, solid.n_surface
+    sheet = np.flatnonzero((tris >= n).all(axis=1))
+    face = sheet[len(sheet) // 2]
+    a, b, c = tris[face]
+    centre = v[[a, b, c]].mean(axis=0)
+    surface = SurfaceMesh.from_triangles(v[:n], solid.surface_triangles)
+    dist, _, _, _, foot = surface.closest(centre[None])
+    raised = foot[0] + (0.005 - 1.5e-4) * (centre - foot[0]) / dist[0]
+    k = len(v)
+    v = np.vstack([v, raised])
+    tris = np.vstack([np.delete(tris, face, axis=0), [[a, b, k], [b, c, k], [c, a, k]]])
+    assert _sound(v, tris)
+    fixed = np.arange(len(v)) < n
+    out_v, out_t, out_fixed = _mend(v, tris, fixed, surface,
+                                    boundary_edges(solid.surface_triangles), 0.005)
+    assert len(out_v) == len(v) - 1 and out_fixed.sum() == n
+    np.testing.assert_array_equal(out_v[out_fixed], v[:n])
+    assert _sound(out_v, out_t)
+    query = trimesh.proximity.ProximityQuery(
+        trimesh.Trimesh(v[:n], solid.surface_triangles, process=False))
+    under = np.unique(out_t[(out_t >= n).all(axis=1)])
+    assert np.abs(np.abs(query.signed_distance(out_v[under])) - 0.005).max() < 1e-4
+
+
+def test_touching_corners_are_parted_so_single_precision_keeps_them_apart():
+    """Three tetrahedra meeting at one point through three distinct corners (as merged pieces
+    leave them): after parting, written as float32 millimetres the corners stay distinct and
+    the welded mesh is still closed."""
+    from solver.io.solid import _part_touching, workshop_vertices
+
+    tip = np.array([0.3, 0.4, 0.5])
+    vertices, triangles = [], []
+    for k in range(3):
+        angle = 2 * np.pi * k / 3
+        out = np.array([np.cos(angle), 0.0, np.sin(angle)])
+        side = np.cross(out, [0.0, 1.0, 0.0])
+        base = tip + 0.01 * out
+        corners = [tip, base + 0.005 * side, base - 0.005 * side, base + [0.0, 0.008, 0.0]]
+        tet = trimesh.convex.convex_hull(np.array(corners))
+        triangles.append(np.array(tet.faces) + 4 * k)
+        vertices.extend(np.array(tet.vertices))
+    vertices, triangles = np.array(vertices), np.vstack(triangles)
+    fixed = np.zeros(len(vertices), dtype=bool)
+    parted = _part_touching(vertices, triangles, fixed)
+    single = workshop_vertices(parted).astype(np.float32)
+    corners, weld = np.unique(single, axis=0, return_inverse=True)
+    assert len(corners) == len(vertices)
+    assert trimesh.Trimesh(corners, weld.ravel()[triangles], process=False).is_watertight
+    # the untouched corners stay; the moved ones move by micrometres
+    moved = np.linalg.norm(parted - vertices, axis=1)
+    assert (moved > 0).sum() == 2 and moved.max() < 1e-4
