@@ -434,15 +434,30 @@ def _trimmed(v: np.ndarray, tris: np.ndarray, offset: np.ndarray, t: float,
                                                 SHORT_EDGE)
     out_v = _snap(out_v, out_t, target[keep], under[keep], up[alive])
     # vertices the snap brought together (one closest point, one direction) are joined
-    fixed = fixed[keep]
-    out_v, out_t, keep = _collapse_short(out_v, out_t, np.zeros(len(out_v), dtype=bool),
-                                         fixed, out_v, up[alive], 0.0)[:3]
-    out_v, out_t, fixed = _mend(out_v, out_t, fixed[keep], surface, boundary_edges(tris), t)
+    out_v, out_t, fixed = _collapse_tiny(out_v, out_t, fixed[keep])
+    out_v, out_t, fixed = _mend(out_v, out_t, fixed, surface, boundary_edges(tris), t)
+    out_v, out_t, fixed = _collapse_tiny(out_v, out_t, fixed)
     out_v = _part_touching(out_v, out_t, fixed)
     return _surface_first(v, tris, out_v, out_t, t, int(unsound.sum()))
 
 
 MEND_ROUNDS = 4
+
+
+def _collapse_tiny(vertices: np.ndarray, triangles: np.ndarray, fixed: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Edges shorter than `TINY_EDGE` off the surface collapsed (`_collapse_short`), again
+    while any collapses: in a cluster of them one may only take once its neighbour has.
+    Returns the vertices, the triangles and which of them are `fixed`."""
+    for _ in range(MEND_ROUNDS):
+        up = np.zeros((len(triangles), 3))  # unused: no turn is judged under TINY_EDGE
+        vertices, triangles, keep = _collapse_short(
+            vertices, triangles, np.zeros(len(vertices), dtype=bool), fixed, vertices, up,
+            0.0)[:3]
+        fixed = fixed[keep]
+        if keep.all():
+            break
+    return vertices, triangles, fixed
 
 
 def _mend(vertices: np.ndarray, triangles: np.ndarray, fixed: np.ndarray,
@@ -573,8 +588,8 @@ def _part_touching(vertices: np.ndarray, triangles: np.ndarray,
     each other (where merged pieces touch, manifold3d keeps two corners at one point) parted:
     of each such group one stays (a `fixed` one if there is one) and the k-th of the others
     moves k `TINY_EDGE` into the solid, along minus its normal (moved alike, two would stay
-    together). Written in single precision they would fuse, and the file would no longer be
-    closed."""
+    together). An edge as short that no collapse could take is lengthened (`_lengthen`).
+    Written in single precision they would fuse, and the file would no longer be closed."""
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
@@ -588,6 +603,9 @@ def _part_touching(vertices: np.ndarray, triangles: np.ndarray,
     edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
     joined = np.isin(pairs.min(axis=1) * n + pairs.max(axis=1),
                      edges.min(axis=1) * n + edges.max(axis=1))
+    vertices = vertices.copy()
+    for p, q in pairs[joined].tolist():  # edges the collapse could not take
+        vertices = _lengthen(vertices, triangles, p, q, fixed)
     pairs = pairs[~joined]
     if len(pairs) == 0:
         return vertices
@@ -601,11 +619,32 @@ def _part_touching(vertices: np.ndarray, triangles: np.ndarray,
     rank = np.arange(len(members)) - np.maximum.accumulate(np.where(first, np.arange(
         len(members)), 0))
     moving = (rank > 0) & ~fixed[members]
-    vertices = vertices.copy()
     with np.errstate(invalid="ignore", divide="ignore"):  # corners no triangle uses
         normals = vertex_normals(vertices, triangles)
     vertices[members[moving]] -= (TINY_EDGE * rank[moving])[:, None] * \
         normals[members[moving]]
+    return vertices
+
+
+def _lengthen(vertices: np.ndarray, triangles: np.ndarray, p: int, q: int,
+              fixed: np.ndarray) -> np.ndarray:
+    """An edge p-q shorter than `TINY_EDGE` that no collapse may take (its ends share a
+    neighbour besides the edge's opposite corners) lengthened: the end with fewer triangles
+    (not a `fixed` one) moves `TINY_EDGE` / 4 along the sheet, towards the middle of its
+    neighbours that are not the other end's. In place; returns `vertices`."""
+    rings = [triangles[(triangles == k).any(axis=1)] for k in (p, q)]
+    if fixed[p] or (not fixed[q] and len(rings[1]) < len(rings[0])):
+        p, q = q, p
+        rings.reverse()
+    if fixed[p]:
+        return vertices
+    own = np.setdiff1d(rings[0], np.concatenate([rings[1].ravel(), [p]]))
+    if len(own) == 0:
+        own = np.setdiff1d(rings[0], [p, q])
+    away = vertices[own].mean(axis=0) - vertices[p]
+    size = np.linalg.norm(away)
+    if size > 0:
+        vertices[p] += 0.25 * TINY_EDGE * away / size
     return vertices
 
 

@@ -271,3 +271,23 @@ def test_touching_corners_are_parted_so_single_precision_keeps_them_apart():
     # the untouched corners stay; the moved ones move by micrometres
     moved = np.linalg.norm(parted - vertices, axis=1)
     assert (moved > 0).sum() == 2 and moved.max() < 1e-4
+
+
+def test_an_edge_too_short_for_single_precision_is_lengthened_along_the_sheet():
+    """An edge of 0.04 um (which float32 millimetres would fuse) is lengthened to a quarter of
+    `TINY_EDGE` by moving its end with fewer triangles towards its own neighbours: the mesh
+    stays closed and its faces keep their directions."""
+    from solver.io.solid import TINY_EDGE, _lengthen, workshop_vertices
+    from solver.mesh import face_cross
+
+    v, t = _sphere()
+    p, q = t[0, 0], t[0, 1]
+    v[q] = v[p] + 4e-8 * (v[q] - v[p]) / np.linalg.norm(v[q] - v[p])
+    before = face_cross(v, t)
+    out = _lengthen(v.copy(), t, p, q, np.zeros(len(v), dtype=bool))
+    assert np.linalg.norm(out[p] - out[q]) > 0.2 * TINY_EDGE
+    assert len(np.unique(workshop_vertices(out).astype(np.float32), axis=0)) == len(v)
+    after = face_cross(out, t)
+    big = np.linalg.norm(before, axis=1) > 1e-12
+    assert np.all(np.einsum("ij,ij->i", before[big], after[big]) > 0)
+    assert _sound(out, t)
