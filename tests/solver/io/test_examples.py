@@ -21,68 +21,21 @@ WORKSHOP = 0.03  # m: the workshop's slab, trimmed under the ridges
 
 
 @pytest.fixture(scope="module")
-def fits():
-    """Each example's fit and its control creases."""
+def fitted():
+    """Each example's limit surface (what `surface.*` and the solid are made of)."""
     from solver.scene.placement import place_scene
     from solver.scene.run import fit_people
     from solver.scene.scenario import load_scenario
-
-    found = {}
-    for name in EXAMPLES:
-        scenario, people = place_scene(load_scenario(SCENARIOS / f"{name}.toml"))
-        found[name] = (fit_people(scenario, people), list(scenario.surface.params.creases))
-    return found
-
-
-@pytest.fixture(scope="module")
-def fitted(fits):
-    """Each example's limit surface (what `surface.*` and the solid are made of)."""
     from solver.surface.limit import limit_of_level
 
-    return {name: (limit_of_level(result.subdivision, result.surface, creases or None),
-                   result.surface_faces) for name, (result, creases) in fits.items()}
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("name", EXAMPLES)
-def test_every_example_3dm_nurbs_is_the_limit_surface(fits, name, tmp_path):
-    """The .3dm's NURBS as rhino3dm evaluates them (`PointAt`), at the parameters of every
-    level-3 vertex, against the limit found without our limit masks: the vertex followed
-    down levels 4 and 5 of the subdivision and extrapolated (on a regular grid and along its
-    border a vertex closes on its limit by a factor 1/4 per level; corners stay). Within
-    0.05 mm, in the document's millimetres and Z up."""
-    rhino3dm = pytest.importorskip("rhino3dm")
-    from solver.io.export import frame_matrix
-    from solver.scene.cad import cad_surface, write_scene_3dm
-    from solver.surface.nurbs import grid_layout, grid_patches, subdivided_grid
-    from solver.surface.subdivision import subdivision
-
-    result, creases = fits[name]
-    cad = cad_surface(result, creases)
-    assert cad.figures["kind"] == "nurbs"  # every example's control net is a grid
-    path = write_scene_3dm(tmp_path / "scene.3dm", result, cad, [], [])
-    model = rhino3dm.File3dm.Read(str(path))
-    layers = [layer.Name for layer in model.Layers]
-    surfaces = [obj.Geometry for obj in model.Objects
-                if layers[obj.Attributes.LayerIndex] == "surface"]
-    patches = grid_patches(len(result.control), result.faces, creases or None)
-    assert len(surfaces) == len(patches) == 1
-    grid = grid_layout(len(result.control), result.faces)
-    levels = []
-    for level in (4, 5):
-        sub = subdivision(len(result.control), result.faces, level, creases or None)
-        fine = subdivided_grid(grid, sub, result.faces)
-        step = 2 ** (level - 3)
-        levels.append(sub.apply(result.control)[fine[::step, ::step]])
-    limit = (levels[1] + (levels[1] - levels[0]) / 3.0) @ frame_matrix("mm", "z").T
-    nurbs = surfaces[0]
-    (u0, u1), (w0, w1) = ((d.T0, d.T1) for d in (nurbs.Domain(0), nurbs.Domain(1)))
-    rows, cols = limit.shape[:2]
-    us, ws = np.linspace(u0, u1, rows), np.linspace(w0, w1, cols)
-    points = np.array([[[p.X, p.Y, p.Z] for p in (nurbs.PointAt(u, w) for w in ws)]
-                       for u in us])
-    gaps = np.linalg.norm(points - limit, axis=-1)
-    assert gaps.max() < 0.05, gaps.max()  # mm
+    surfaces = {}
+    for name in EXAMPLES:
+        scenario, people = place_scene(load_scenario(SCENARIOS / f"{name}.toml"))
+        result = fit_people(scenario, people)
+        limit = limit_of_level(result.subdivision, result.surface,
+                               list(scenario.surface.params.creases) or None)
+        surfaces[name] = (limit, result.surface_faces)
+    return surfaces
 
 
 @pytest.mark.slow
@@ -91,9 +44,9 @@ def test_every_example_3dm_nurbs_is_the_limit_surface(fits, name, tmp_path):
 def test_every_example_thickens_to_a_closed_manifold(fitted, name, thickness, tmp_path):
     """The 1 cm and the 3 cm solid of every example's surface: watertight and consistently
     wound by trimesh, a manifold by manifold3d, no crossing triangles, as thick as asked
-    within 0.1 mm at every vertex of its underside, and within 1 mm at its triangles' middles (trimesh's
-    distances; a flat triangle of the offset is a chord of a curved sheet), and still closed
-    when its STL is read back."""
+    within 0.1 mm at every vertex of its underside, and within 1 mm at its triangles'
+    middles (trimesh's distances; a flat triangle of the offset is a chord of a curved
+    sheet), and still closed when its STL is read back."""
     vertices, faces = fitted[name]
     solid = thicken(vertices, faces, thickness, check=False)
     check = check_solid(solid)
