@@ -248,7 +248,11 @@ def self_intersections(vertices: np.ndarray, triangles: np.ndarray,
     lo, hi = corners.min(axis=1), corners.max(axis=1)
     pairs = _box_pairs(lo, hi)
     a, b = pairs[:, 0], pairs[:, 1]
-    shared = (t[a][:, :, None] == t[b][:, None, :]).any(axis=(1, 2))
+    ta, tb = t[a], t[b]
+    shared = np.zeros(len(a), dtype=bool)
+    for i in range(3):  # nine comparisons of columns: no (P, 3, 3) array
+        for j in range(3):
+            shared |= ta[:, i] == tb[:, j]
     a, b = a[~shared], b[~shared]
     hits = [np.zeros((0, 2), dtype=np.int64)]
     for s in range(0, len(a), chunk):
@@ -272,9 +276,12 @@ def _box_pairs(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 
         pairs = cKDTree(0.5 * (lo + hi)).query_pairs(2.0 * half.max() + 1e-12,
                                                       output_type="ndarray")  # i < j
-        a, b = pairs[:, 0], pairs[:, 1]
-        overlap = (lo[a] <= hi[b]) & (lo[b] <= hi[a])
-        return pairs[overlap[:, 0] & overlap[:, 1] & overlap[:, 2]]
+        keep = np.arange(len(pairs))
+        for axis in range(3):  # one axis at a time, each on the pairs the ones before left
+            a, b = pairs[keep, 0], pairs[keep, 1]
+            low, high = lo[:, axis], hi[:, axis]
+            keep = keep[(low[a] <= high[b]) & (low[b] <= high[a])]
+        return pairs[keep]
     return _grid_box_pairs(lo, hi)
 
 

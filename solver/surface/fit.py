@@ -44,7 +44,8 @@ the energy with every body point at its nearest vertex of the new surface, plus 
 demands the new surface leaves unmet) and folds no neighbouring level-s quads further apart than
 FOLD_GUARD_DEG (or than the iterate before it); otherwise it is tried again half as long (a
 backtracking line search along the programme's solution), up to MAX_HALVINGS times, after which
-the fit has converged. The programme knows nothing of folds and ridges, so in a warm refit
+the fit has converged. A step is judged without its rows (the judgement needs only how deep the
+surface lies and which vertices join the rows); the accepted one's rows are made for the next. The programme knows nothing of folds and ridges, so in a warm refit
 (which starts against the guards) a step refused for one is first tried again as long with the
 control vertices that shape the offending quads held still (up to FREEZES times). So the judged energies of
 the accepted iterates never rise (a rising tau can only lower them), and a surface that starts
@@ -61,7 +62,7 @@ the last result at tau_max with what still holds of its set-up, and stops once s
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
 
 import numpy as np
@@ -105,6 +106,7 @@ FREEZES = 2  # times a warm refit's step that folds or ridges too far is retried
              # control vertices that shape the offending quads held still (a cold fit's steps
              # are not: held vertices next to moving ones leave kinks that a thin solid's
              # offset folds over)
+TREE_LEAF = 32  # points per leaf of the search trees (of the bodies, of the surface)
 FLOOR_REACH = 2.0  # steps: a surface vertex this near the floor gets a floor row (it moves at
                    # most one step per iteration, so none gets under unseen)
 
@@ -253,9 +255,15 @@ class FitState:
 
 def _search_trees(points: np.ndarray, normals: np.ndarray) -> tuple:
     """The body vertices' search trees: (position, FACING_SCALE x normal), positions,
-    (position, EXIT_SCALE x normal)."""
-    return (cKDTree(np.concatenate([points, FACING_SCALE * normals], axis=1)), cKDTree(points),
-            cKDTree(np.concatenate([points, EXIT_SCALE * normals], axis=1)))
+    (position, EXIT_SCALE x normal), the last the first while the two scales are the same.
+    Split at the middle of each box rather than at the median and with larger leaves: quicker
+    to build and to query (the same nearest points)."""
+    def tree(data: np.ndarray) -> cKDTree:
+        return cKDTree(data, leafsize=TREE_LEAF, balanced_tree=False)
+
+    facing = tree(np.concatenate([points, FACING_SCALE * normals], axis=1))
+    return (facing, tree(points), facing if EXIT_SCALE == FACING_SCALE else
+            tree(np.concatenate([points, EXIT_SCALE * normals], axis=1)))
 
 
 def _state_key(n0: int, params: "FitParams") -> tuple:
@@ -483,7 +491,8 @@ def pair(fit: _Fit, surf: np.ndarray) -> Pairing:
     """Each important body point pulls its closest surface vertex. Body points farther than the
     pull range do not pull (yet): the surface grows towards the bodies from where the designer
     put it, instead of reaching across the scene."""
-    surf_tree = cKDTree(surf, balanced_tree=False, compact_nodes=False)  # built each time
+    surf_tree = cKDTree(surf, leafsize=TREE_LEAF, balanced_tree=False,
+                        compact_nodes=False)  # built each time
     gap, nearest = surf_tree.query(fit.b_imp, distance_upper_bound=fit.params.pull_range)
     reached = np.isfinite(gap)
     if not reached.all():  # the energy still counts them, at their nearest surface vertex
@@ -512,10 +521,15 @@ def assemble(fit: _Fit, pairing: Pairing, surf_n: np.ndarray, tau: float
     nt = np.einsum("ij,ij->i", n_p, t_p)  # n . p per paired surface vertex
     blocks = [[None] * 3 for _ in range(3)]
     g = np.zeros(3 * n0)
+    if not fit.dense:  # S_p^T diag(c) S_p as (the rows of S_p scaled by c)^T times S_p
+        s_csc = s_p.tocsc()
+        row_of = np.repeat(np.arange(s_p.shape[0]), np.diff(s_p.indptr))
     for a in range(3):
         for b in range(a, 3):
             c = w_p * (tau * n_p[:, a] * n_p[:, b] + ((1 - tau) if a == b else 0.0))
-            blocks[a][b] = (s_p.T * c) @ s_p if fit.dense else s_p.T @ sp.diags(c) @ s_p
+            blocks[a][b] = (s_p.T * c) @ s_p if fit.dense else \
+                sp.csr_matrix((s_p.data * c[row_of], s_p.indices, s_p.indptr),
+                              shape=s_p.shape).T @ s_csc
         ga = w_p * ((1 - tau) * t_p[:, a] + tau * n_p[:, a] * nt)
         g[a * n0:(a + 1) * n0] = s_p.T @ ga + fit.fixed * v0[:, a]
         blocks[a][a] = blocks[a][a] + fit.diagonal
@@ -526,35 +540,71 @@ def assemble(fit: _Fit, pairing: Pairing, surf_n: np.ndarray, tau: float
     return sp.bmat(blocks, format="csr"), g
 
 
-def _nearest_skin(fit: _Fit, sv: np.ndarray, sn: np.ndarray, skin: np.ndarray | None = None
+@dataclass(frozen=True, eq=False)
+class Depths:
+    """Sampled surface vertices (m of them) against the bodies, what the judged energy needs of
+    them: the distance `gap` (m,) to each one's nearest body vertex `nearest` (m,) within
+    INSIDE_REACH (inf and 0 beyond it), whether it lies inside a body (`inside`, behind that
+    vertex's tangent plane) and how deep (`depth`, 0 outside)."""
+
+    gap: np.ndarray
+    nearest: np.ndarray
+    inside: np.ndarray
+    depth: np.ndarray
+
+
+def _depths(fit: _Fit, sv: np.ndarray) -> Depths:
+    """The `Depths` of sampled surface vertices sv (m, 3): how deep, behind the tangent plane of
+    the nearest skin vertex (smooth as the surface slides along the skin, where the distance to
+    the nearest vertex would jump by a facet)."""
+    points, normals = fit.points, fit.normals
+    gap, nearest = fit.body_tree3.query(sv - fit.tree_offset, distance_upper_bound=INSIDE_REACH)
+    outside = nearest == len(points)
+    nearest[outside] = 0
+    ahead = np.einsum("ij,ij->i", sv - points[nearest], normals[nearest])
+    inside = ~outside & (ahead < 0)
+    return Depths(gap, nearest, inside, np.where(inside, -ahead, 0.0))
+
+
+def _facing(fit: _Fit, sv: np.ndarray, sn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For surface vertices sv (k, 3) with normals sn that have a skin vertex within
+    CONSTRAINT_RADIUS: the closest body vertex facing each (0 where none is within
+    FACING_REACH in the search) and its distance (inf for none)."""
+    points = fit.points
+    near_s = np.zeros(len(sv), dtype=np.int64)
+    dist = np.full(len(sv), np.inf)
+    _, facing = fit.body_tree.query(np.concatenate([sv - fit.tree_offset, -FACING_SCALE * sn],
+                                                   axis=1), distance_upper_bound=FACING_REACH)
+    found = facing < len(points)
+    near_s[found] = facing[found]
+    dist[found] = np.linalg.norm(points[facing[found]] - sv[found], axis=1)
+    return near_s, dist
+
+
+def _nearest_skin(fit: _Fit, sv: np.ndarray, sn: np.ndarray, skin: np.ndarray | None = None,
+                  depths: Depths | None = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """For sampled surface vertices sv (m, 3) with normals sn: the body vertex each stays in
     front of, its distance, whether the surface vertex lies inside a body and how deep (behind
     the tangent plane of its nearest skin vertex, 0 outside). `skin` (m,):
     the body vertices the rows held the vertices to before (-1 for none), kept for the
-    vertices now inside a body (so the demand on them does not jump as the surface moves)."""
-    points, normals = fit.points, fit.normals
-    gap, nearest = fit.body_tree3.query(sv - fit.tree_offset, distance_upper_bound=INSIDE_REACH)
+    vertices now inside a body (so the demand on them does not jump as the surface moves).
+    `depths`: the vertices' `Depths` when already known."""
+    if depths is None:
+        depths = _depths(fit, sv)
     # closest body vertex facing the surface, sought only where a skin vertex lies within
     # CONSTRAINT_RADIUS: the one it finds lies no nearer than that, so elsewhere (or where the
     # search finds nothing within reach) the surface vertex is far from every body: no row
     near_s = np.zeros(len(sv), dtype=np.int64)
     dist = np.full(len(sv), np.inf)
-    reach = np.flatnonzero(gap <= CONSTRAINT_RADIUS)
-    _, facing = fit.body_tree.query(np.concatenate([sv[reach] - fit.tree_offset,
-                                                    -FACING_SCALE * sn[reach]], axis=1),
-                                    distance_upper_bound=FACING_REACH)
-    found = facing < len(points)
-    near_s[reach[found]] = facing[found]
-    dist[reach[found]] = np.linalg.norm(points[facing[found]] - sv[reach[found]], axis=1)
+    reach = np.flatnonzero(depths.gap <= CONSTRAINT_RADIUS)
+    near_s[reach], dist[reach] = _facing(fit, sv[reach], sn[reach])
     # a surface vertex inside a body (behind its nearest skin vertex) is always constrained,
     # however far the skin it faces: it must get out (no body part is so thick that a point
     # inside it lies farther than INSIDE_REACH from its skin); it leaves through the skin it
     # was held to before it went in or, new to the rows, through the skin facing against the
     # surface's normal
-    outside = nearest == len(points)
-    nearest[outside] = 0
-    inside = ~outside & (np.einsum("ij,ij->i", sv - points[nearest], normals[nearest]) < 0)
+    inside = depths.inside
     kept = np.zeros(len(sv), dtype=bool) if skin is None else inside & (skin >= 0)
     if kept.any():
         near_s[kept] = skin[kept]
@@ -562,10 +612,12 @@ def _nearest_skin(fit: _Fit, sv: np.ndarray, sn: np.ndarray, skin: np.ndarray | 
     if new.any():
         _, near_s[new] = fit.exit_tree.query(np.concatenate([sv[new] - fit.tree_offset,
                                                              -EXIT_SCALE * sn[new]], axis=1))
-    # how deep: behind the tangent plane of the nearest skin vertex (smooth as the surface
-    # slides along the skin, where the distance to the nearest vertex would jump by a facet)
-    behind = -np.einsum("ij,ij->i", sv - points[nearest], normals[nearest])
-    return near_s, dist, inside, np.where(inside, behind, 0.0)
+    return near_s, dist, inside, depths.depth
+
+
+def _beyond_margin(fit: _Fit, depth: np.ndarray) -> float:
+    """m^2: the sum of squares of the `depth`s (m,) beyond the margin (and DEPTH_TOLERANCE)."""
+    return float(np.sum(np.maximum(0.0, depth - fit.params.margin - DEPTH_TOLERANCE) ** 2))
 
 
 def _rows(rows: np.ndarray, normals: np.ndarray, demanded: np.ndarray, surf: np.ndarray,
@@ -575,16 +627,17 @@ def _rows(rows: np.ndarray, normals: np.ndarray, demanded: np.ndarray, surf: np.
 
 
 def constrain(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray, member: np.ndarray,
-              floor_member: np.ndarray | None = None, skin: np.ndarray | None = None
-              ) -> Rows:
+              floor_member: np.ndarray | None = None, skin: np.ndarray | None = None,
+              depths: Depths | None = None) -> Rows:
     """Non-penetration: each sampled surface vertex near a body (or inside one) stays outside
     the tangent plane at its body vertex, less the margin. Rows join `member` (updated in
     place) and stay, inactive when not wanted, so that OSQP is set up again only when a new
     surface vertex comes near a body. `skin`: the body vertices the sampled vertices were held
     to before (`Rows.skin`), kept for those now inside a body. With `floor_member` ((ns,) bool, updated in place) and
-    a floor in the parameters, the floor's rows follow (`floor_rows`)."""
+    a floor in the parameters, the floor's rows follow (`floor_rows`). `depths`: the sampled
+    vertices' `Depths` when already known."""
     ids = fit.sampled_ids
-    near_s, dist, inside, depth = _nearest_skin(fit, surf[ids], surf_n[ids], skin)
+    near_s, dist, inside, depth = _nearest_skin(fit, surf[ids], surf_n[ids], skin, depths)
     closest = np.zeros(len(surf), dtype=np.int64)
     closest[ids] = near_s
     wanted = np.zeros(len(surf), dtype=bool)
@@ -600,9 +653,7 @@ def constrain(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray, member: np.ndarra
     inside_row = np.zeros(len(surf), dtype=bool)
     inside_row[ids] = inside
     held = np.where(wanted[ids], near_s, -1)
-    body = _rows(rows, cn, demanded, surf, held,
-                 float(np.sum(np.maximum(0.0, depth - fit.params.margin - DEPTH_TOLERANCE)
-                              ** 2)))
+    body = _rows(rows, cn, demanded, surf, held, _beyond_margin(fit, depth))
     outside = ~inside_row[rows]
     body.demanded[outside] = np.minimum(body.demanded[outside], body.now[outside])
     if floor_member is None or fit.params.floor is None:
@@ -735,12 +786,47 @@ def _with_extra(fit: _Fit, v: np.ndarray, rows: Rows) -> Rows:
     if fit.extra is None:
         return rows
     e = fit.extra
-    now = np.einsum("ij,ij->i", e.normals, e.points @ v)
+    now, short = _extra_now(fit, v)
     ids = fit.sub.matrix.shape[0] + np.arange(len(now))
-    short = np.maximum(0.0, e.demanded - now - DEPTH_TOLERANCE)
     return Rows(np.concatenate([rows.rows, ids]), np.concatenate([rows.normals, e.normals]),
                 np.concatenate([rows.demanded, e.demanded]), np.concatenate([rows.now, now]),
-                rows.skin, rows.beyond_m2 + float(np.sum(short ** 2)))
+                rows.skin, rows.beyond_m2 + short)
+
+
+def _extra_now(fit: _Fit, v: np.ndarray) -> tuple[np.ndarray, float]:
+    """The fit's rows on samples (`fit.extra`, not None) at control vertices v (n0, 3): n . p
+    now (k,) and the sum of squares of their shortfall beyond DEPTH_TOLERANCE (m^2)."""
+    e = fit.extra
+    now = np.einsum("ij,ij->i", e.normals, e.points @ v)
+    short = np.maximum(0.0, e.demanded - now - DEPTH_TOLERANCE)
+    return now, float(np.sum(short ** 2))
+
+
+def _out_of_bounds(fit: _Fit, v: np.ndarray, surf: np.ndarray, surf_n: np.ndarray,
+                   member: np.ndarray, floor_member: np.ndarray | None = None
+                   ) -> tuple[Depths, float]:
+    """What the judgement needs of the rows of control vertices v (n0, 3) with level-s surface
+    `surf` and normals `surf_n`, without the rows themselves (`constrain` and `_with_extra`
+    make them, for an iterate that is accepted): the sampled vertices' `Depths` and how far the
+    surface is out of bounds (`Rows.beyond_m2`, the same sum). The vertices that `constrain`
+    would add to `member` and `floor_member` join them (in place) all the same: a refused step
+    changes the rows (and so OSQP's set-up) as it did when it was constrained in full."""
+    ids = fit.sampled_ids
+    sv = surf[ids]
+    depths = _depths(fit, sv)
+    # a vertex inside a body is wanted; one outside, when its facing skin is near enough (only
+    # those not in the rows yet are sought: the others stay in them anyway)
+    joining = np.flatnonzero(~member[ids] & ~depths.inside & (depths.gap <= CONSTRAINT_RADIUS))
+    member[ids[depths.inside]] = True
+    if len(joining):
+        _, dist = _facing(fit, sv[joining], surf_n[ids[joining]])
+        member[ids[joining[dist <= CONSTRAINT_RADIUS]]] = True
+    beyond = _beyond_margin(fit, depths.depth)
+    if floor_member is not None and fit.params.floor is not None:
+        beyond = beyond + floor_rows(fit, surf, floor_member).beyond_m2
+    if fit.extra is not None:
+        beyond = beyond + _extra_now(fit, v)[1]
+    return depths, beyond
 
 
 @dataclass(frozen=True, eq=False)
@@ -760,7 +846,7 @@ class Iterate:
     surf: np.ndarray
     surf_n: np.ndarray
     pairing: Pairing
-    rows: Rows
+    rows: Rows | None  # None until the iterate is accepted (`with_rows`)
     point: float  # m^2, importance-weighted mean squared distance to the nearest vertex
     plane: float  # m^2, the same along the surface normal
     rest: float  # smoothness and the pulls to the start
@@ -768,6 +854,7 @@ class Iterate:
     max_fold: float  # degrees between neighbouring level-s quads (creases left out)
     min_ridge: float  # metres, the tightest radius where the surface bends away from bodies
     slack_weight: float
+    depths: Depths | None = None  # the sampled vertices' (the rows start from them)
 
     def energy(self, tau: float) -> float:
         return (1 - tau) * self.point + tau * self.plane + self.rest + \
@@ -775,15 +862,16 @@ class Iterate:
 
 
 def assess(fit: _Fit, v: np.ndarray, member: np.ndarray,
-           floor_member: np.ndarray | None = None, skin: np.ndarray | None = None
-           ) -> Iterate:
+           floor_member: np.ndarray | None = None, skin: np.ndarray | None = None,
+           rows: bool = True) -> Iterate:
     """The `Iterate` of control vertices v (n0, 3): subdivides, pairs, constrains (rows join
     `member` and `floor_member` in place; `skin` as `constrain` takes it) and measures the
-    energy's parts and the folds."""
+    energy's parts and the folds. Without `rows`, the iterate is judged without its rows (the
+    loop's candidates: most are refused), which `with_rows` adds."""
     surf = fit.sub.matrix @ v
     surf_n = fit.sub.normals(surf)
     pairing = pair(fit, surf)
-    rows = _with_extra(fit, v, constrain(fit, surf, surf_n, member, floor_member, skin))
+    depths, unmet = _out_of_bounds(fit, v, surf, surf_n, member, floor_member)
     diff = fit.b_imp - surf[pairing.pair]
     total = max(fit.w_imp.sum(), 1e-300)
     point = float(fit.w_imp @ np.einsum("ij,ij->i", diff, diff) / total)
@@ -791,8 +879,19 @@ def assess(fit: _Fit, v: np.ndarray, member: np.ndarray,
     smooth = float(sum(v[:, a] @ (fit.smooth @ v[:, a]) for a in range(3)))
     pulls = float(np.sum(fit.fixed[:, None] * (v - fit.v0) ** 2))
     fold, ridge = _bends(fit, surf)
-    return Iterate(v, surf, surf_n, pairing, rows, point, plane, smooth + pulls,
-                   rows.beyond_m2, fold, ridge, fit.programme.slack_weight)
+    it = Iterate(v, surf, surf_n, pairing, None, point, plane, smooth + pulls, unmet, fold,
+                 ridge, fit.programme.slack_weight, depths)
+    return with_rows(fit, it, member, floor_member, skin) if rows else it
+
+
+def with_rows(fit: _Fit, it: Iterate, member: np.ndarray,
+              floor_member: np.ndarray | None = None, skin: np.ndarray | None = None
+              ) -> Iterate:
+    """`it` with its rows (`constrain`, then the rows on samples): for the members that the
+    iterate's assessment left in `member` and `floor_member`."""
+    rows = _with_extra(fit, it.v, constrain(fit, it.surf, it.surf_n, member, floor_member, skin,
+                                            it.depths))
+    return replace(it, rows=rows)
 
 
 def _bends(fit: _Fit, surf: np.ndarray) -> tuple[float, float]:
@@ -816,10 +915,10 @@ def _bend_pairs(fit: _Fit, surf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     both = diagonals @ surf
     n = np.cross(both[:len(both) // 2], both[len(both) // 2:])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-    a, b = fit.neighbours[:, 0], fit.neighbours[:, 1]
-    angle = np.arccos(np.clip(np.einsum("ij,ij->i", n[a], n[b]), -1.0, 1.0))
+    n_a, n_b = n[fit.neighbours[:, 0]], n[fit.neighbours[:, 1]]
+    angle = np.arccos(np.clip(np.einsum("ij,ij->i", n_a, n_b), -1.0, 1.0))
     gap = centre_map @ surf
-    ridge = (np.einsum("ij,ij->i", gap, n[a]) < 0) & (np.einsum("ij,ij->i", gap, n[b]) > 0) & \
+    ridge = (np.einsum("ij,ij->i", gap, n_a) < 0) & (np.einsum("ij,ij->i", gap, n_b) > 0) & \
         (angle > 1e-6)
     radius = np.full(len(angle), np.inf)
     radius[ridge] = np.linalg.norm(gap[ridge], axis=1) / angle[ridge]
@@ -1093,7 +1192,7 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
         halving = freezes = 0
         while halving <= MAX_HALVINGS:
             v = it.v + 0.5 ** halving * moving * (target - it.v)
-            candidate = assess(fit, v, member, floor_member, it.rows.skin)
+            candidate = assess(fit, v, member, floor_member, rows=False)
             why = acceptable(fit, it, candidate, t)
             if why is None:
                 break
@@ -1112,7 +1211,7 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
                     f"1/{2 ** MAX_HALVINGS} of it) lowers the energy without folding (energy "
                     f"{it.energy(t):.6g})"), iteration
         before = it.energy(t)
-        it = candidate
+        it = with_rows(fit, candidate, member, floor_member, it.rows.skin)
         run.accepted.append(it)
         run.energies.append(it.energy(t))
         run.statuses.append(status)
