@@ -424,11 +424,11 @@ def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedB
     same = state is not None and state.key == _state_key(n0, params)
     if same:  # the same control quads (`_warm_state`), level and creases
         neighbours, quad_maps = state.neighbours, state.quad_maps
-    else:
-        neighbours = neighbour_faces(sub.faces, sub.steps[-1].creases if sub.steps else
-                                     (np.asarray(params.creases).reshape(-1, 2)
-                                      if params.creases else None))
-        quad_maps = _quad_maps(sub, neighbours)
+    else:  # the topology's alone: built once per subdivision operator
+        neighbours = sub.kept("fit.neighbours", lambda: neighbour_faces(
+            sub.faces, sub.steps[-1].creases if sub.steps else
+            (np.asarray(params.creases).reshape(-1, 2) if params.creases else None)))
+        quad_maps = sub.kept("fit.quad_maps", lambda: _quad_maps(sub, neighbours))
     trees = None
     if state is not None and state.points.shape == points.shape and \
             np.allclose(state.normals, normals, rtol=0.0, atol=1e-9):
@@ -708,13 +708,13 @@ def deep_samples(fit: _Fit, v: np.ndarray) -> ExtraRows | None:
     deepest of each triangle that a body's winding number puts inside it, held in front of the
     plane of the skin triangle nearest to it. None where there is no such place (or no closed
     skin to look in)."""
-    from solver.mesh import face_normals, quad_triangles
+    from solver.mesh import face_normals
     from solver.surface.guarantees import barycentric_weights
 
     if not fit.skins:
         return None
     limit = limit_points(fit, v)
-    triangles = quad_triangles(fit.sub.faces)
+    triangles = fit.sub.triangles
     weights = barycentric_weights()  # (S, 3)
     allowed = fit.params.margin - REPAIR_SAFETY
     # only triangles with a corner inside a body, deeper than `allowed` less a centimetre
@@ -989,9 +989,9 @@ def acceptable(fit: _Fit, it: Iterate, candidate: Iterate, tau: float) -> str | 
 def _crossings(fit: _Fit, v: np.ndarray) -> int:
     """Crossing triangle pairs of the limit surface of control vertices v (what `surface.*`
     holds)."""
-    from solver.mesh import quad_triangles, self_intersections
+    from solver.mesh import self_intersections
 
-    return len(self_intersections(limit_points(fit, v), quad_triangles(fit.sub.faces)))
+    return len(self_intersections(limit_points(fit, v), fit.sub.triangles))
 
 
 def uncrossed(fit: _Fit, accepted: Sequence[np.ndarray]) -> tuple[int, int]:

@@ -139,6 +139,7 @@ def limit_matrix(n: int, faces, level: int, creases: Iterable[Sequence[int]] | N
     scipy.sparse.csr_matrix
         (n_s, n), rows summing to 1; ``matrix @ control`` gives (n_s, 3) points on the limit
         surface, in the order (and with the quads) of ``subdivision(n, faces, level, creases)``.
+        Built once per topology and kept with that subdivision: not to be modified.
 
     Raises
     ------
@@ -147,8 +148,8 @@ def limit_matrix(n: int, faces, level: int, creases: Iterable[Sequence[int]] | N
     """
     sub = subdivision(n, faces, level, creases)
     level_creases = creases if level == 0 else sub.steps[-1].creases
-    lim = limit_operator(sub.matrix.shape[0], sub.faces, level_creases)
-    return (lim @ sub.matrix).tocsr()
+    return sub.kept("limit", lambda: (limit_operator(sub.matrix.shape[0], sub.faces,
+                                                     level_creases) @ sub.matrix).tocsr())
 
 
 def limit_positions(control: np.ndarray, faces, level: int,

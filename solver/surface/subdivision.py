@@ -21,8 +21,8 @@ next. Operators are cached by topology, so a fitting loop that moves vertices ne
 from __future__ import annotations
 
 from collections import OrderedDict
-from dataclasses import dataclass
-from typing import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -52,16 +52,26 @@ class Subdivision:
     matrix : (n_s, n_0) scipy.sparse CSR, rows summing to 1.
     faces : (F_s, 4) int quads of level s.
     steps : the per-level steps, coarse to fine.
+    derived : what `kept` built from the topology alone, by name.
     """
 
     matrix: sp.csr_matrix
     faces: np.ndarray
     level: int
     steps: tuple[Step, ...]
+    derived: dict = field(default_factory=dict, repr=False)
 
     @property
     def triangles(self) -> np.ndarray:
-        return quad_triangles(self.faces)
+        return self.kept("triangles", lambda: quad_triangles(self.faces))
+
+    def kept(self, name: str, make: Callable[[], Any]) -> Any:
+        """What `make` builds from this topology alone (the same faces, creases and level), built
+        on first use and kept with the operator (which `subdivision` caches by topology), so
+        that the fits of one control mesh build it once. Callers do not modify it."""
+        if name not in self.derived:
+            self.derived[name] = make()
+        return self.derived[name]
 
     def apply(self, control: np.ndarray) -> np.ndarray:
         """(n_s, 3) vertices of level s for control vertices (n_0, 3)."""
