@@ -30,6 +30,7 @@ FOLD_LIMIT_DEG = 60.0  # neighbouring faces further apart than this are a fold
 FLOOR_TOLERANCE = 1e-3  # m the surface may sit below the floor before it counts as under it
 PENETRATION_TOLERANCE = 1e-3  # m a body may be cut beyond the margin
 SAMPLE_DIVISIONS = 4  # each triangle's edges in this many parts: 15 barycentric samples
+ONE_TO_ONE_MARGIN = 1e-9  # relative: how clearly `one_to_one_over_plane` must see its signs
 
 
 def quad_normals(vertices: np.ndarray, quads: np.ndarray) -> np.ndarray:
@@ -71,6 +72,97 @@ def fold_angles(vertices: np.ndarray, quads: np.ndarray,
     normals = quad_normals(vertices, quads)
     dots = np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]])
     return np.degrees(np.arccos(np.clip(dots, -1.0, 1.0)))
+
+
+def disk_border(quads: np.ndarray, n: int) -> np.ndarray | None:
+    """The border of a quad mesh of n vertices as one loop of vertex indices (K,), when the
+    mesh is a topological disk: every vertex used, connected, consistently oriented (each edge
+    on one quad, or on two that run it opposite ways), one border loop and Euler characteristic
+    V - E + F = 1. None for any other mesh."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    q = np.asarray(quads, dtype=np.int64)
+    edges = np.stack([q, np.roll(q, -1, axis=1)], axis=2).reshape(-1, 2)  # as each quad runs it
+    _, inverse, counts = np.unique(edges.min(axis=1) * n + edges.max(axis=1),
+                                   return_inverse=True, return_counts=True)
+    used = np.zeros(n, dtype=bool)
+    used[q.ravel()] = True
+    if q.min(initial=0) < 0 or counts.max(initial=0) > 2 or not used.all() or \
+            n - len(counts) + len(q) != 1 or \
+            len(np.unique(edges[:, 0] * n + edges[:, 1])) < len(edges):
+        return None
+    border = edges[counts[inverse] == 1]
+    after = np.full(n, -1)
+    after[border[:, 0]] = border[:, 1]
+    if not len(border) or np.bincount(border[:, 0], minlength=n).max() > 1:
+        return None
+    loop = [int(border[0, 0])]
+    while len(loop) <= len(border) and after[loop[-1]] not in (-1, loop[0]):
+        loop.append(int(after[loop[-1]]))
+    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    if len(loop) != len(border) or connected_components(graph, directed=False)[0] != 1:
+        return None
+    return np.array(loop)
+
+
+def one_to_one_over_plane(vertices: np.ndarray, triangles: np.ndarray, border: np.ndarray
+                          ) -> bool:
+    """Whether a triangulated disk (`disk_border`'s `border` loop) projects one-to-one onto
+    the plane across its vector area, and so cannot cross itself: every triangle faces that way
+    (its projection keeps its orientation) and the projected border is a simple polygon (no
+    two of its edges meet, neighbours but at their corner), each by a margin. A map of a disk
+    that keeps every triangle's orientation and is one-to-one on the border is one-to-one (the
+    degree argument), so triangles that share no corner lie apart. False says nothing.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float
+    triangles : (T, 3) int
+        The disk's triangles, consistently oriented.
+    border : (K,) int
+        Its border loop.
+    """
+    from solver.mesh import face_cross
+
+    v = np.asarray(vertices, dtype=np.float64)
+    cross = face_cross(v, triangles)
+    area = cross.sum(axis=0)
+    if not np.linalg.norm(area) > 0:
+        return False
+    up = area / np.linalg.norm(area)
+    if not np.all(cross @ up > ONE_TO_ONE_MARGIN * np.linalg.norm(cross, axis=1)):
+        return False
+    side = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    side /= np.linalg.norm(side)
+    p = v[border] @ np.stack([side, np.cross(up, side)], axis=1)  # (K, 2) the border, flat
+    a, run = p, np.roll(p, -1, axis=0) - p  # edge k runs from p[k] by run[k]
+    margin = ONE_TO_ONE_MARGIN * np.max(np.einsum("ij,ij->i", run, run))  # m^2, as `turn`
+
+    def turn(u: np.ndarray, w: np.ndarray) -> np.ndarray:
+        return u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]
+
+    after = np.roll(run, -1, axis=0)  # neighbours may not fold back onto each other
+    if np.any((np.abs(turn(run, after)) <= margin) & (np.einsum("ij,ij->i", run, after) < 0)):
+        return False
+    # the other pairs whose extents along the plane's first axis overlap (a sweep)
+    lo, hi = np.minimum(a, a + run), np.maximum(a, a + run)
+    order = np.argsort(lo[:, 0], kind="stable")
+    count = np.searchsorted(lo[order, 0], hi[order, 0], side="right") - np.arange(len(p)) - 1
+    i = np.repeat(np.arange(len(p)), count)
+    j = i + 1 + np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+    i, j = order[i], order[j]
+    gap = np.abs(i - j)
+    apart = (gap == 1) | (gap == len(p) - 1)  # neighbours (the loop's last and first too)
+    apart |= (lo[i, 1] > hi[j, 1]) | (lo[j, 1] > hi[i, 1])
+    i, j = i[~apart], j[~apart]
+
+    def beside(k: np.ndarray, other: np.ndarray) -> np.ndarray:
+        """Whether both ends of edge `other` lie on one side of edge k's line."""
+        s, t = turn(run[k], a[other] - a[k]), turn(run[k], a[other] + run[other] - a[k])
+        return ((s > margin) & (t > margin)) | ((s < -margin) & (t < -margin))
+
+    return bool(np.all(beside(i, j) | beside(j, i)))
 
 
 def barycentric_weights(divisions: int = SAMPLE_DIVISIONS) -> np.ndarray:

@@ -5,7 +5,9 @@ import pytest
 import trimesh
 
 from solver.contact.evaluate import penetration_depth
-from solver.surface.guarantees import barycentric_samples, fold_angles, surface_guarantees
+from solver.mesh import quad_triangles, self_intersections
+from solver.surface.guarantees import barycentric_samples, disk_border, fold_angles, \
+    one_to_one_over_plane, surface_guarantees
 
 
 def grid(n: int = 4, size: float = 2.0, height: float = 0.5, offset=(0.0, 0.0)):
@@ -89,3 +91,43 @@ def test_bad_shapes_are_refused():
         surface_guarantees(v, q[:, :3], [], margin=0.03)
     with pytest.raises(ValueError, match="margin >= 0"):
         surface_guarantees(v, q, [], margin=-1.0)
+
+
+def test_disk_border_is_the_grids_rim_and_none_for_other_meshes():
+    v, q = grid(n=4)
+    border = disk_border(q, len(v))
+    assert len(border) == 16 and set(border) == set(np.flatnonzero(
+        np.isclose(np.abs(v[:, [0, 2]]).max(axis=1), 1.0)))
+    assert np.all(np.abs(np.diff(v[np.r_[border, border[0]]][:, [0, 2]], axis=0)).sum(axis=1)
+                  == pytest.approx(0.5))  # in order round the rim
+    flipped = q.copy()
+    flipped[5] = flipped[5, ::-1]  # one quad the other way round
+    assert disk_border(flipped, len(v)) is None
+    k = np.arange(25).reshape(5, 5)  # the grid's last column glued to its first: a tube
+    k[:, -1] = k[:, 0]
+    tube = np.stack([k[:-1, :-1], k[:-1, 1:], k[1:, 1:], k[1:, :-1]], axis=-1).reshape(-1, 4)
+    _, tube = np.unique(tube, return_inverse=True)  # the 20 vertices left, numbered afresh
+    assert disk_border(tube.reshape(-1, 4), 20) is None
+    assert disk_border(np.concatenate([q, q + len(v)]), 2 * len(v)) is None  # two pieces
+
+
+def test_one_to_one_over_a_plane_means_no_crossing():
+    """Bumpy sheets that lie one-to-one over a plane cross nowhere (as the exact test finds);
+    a sheet folded over itself, or a ramp wound over itself, is not one-to-one."""
+    rng = np.random.default_rng(5)
+    v, q = grid(n=8)
+    triangles, border = quad_triangles(q), disk_border(q, len(v))
+    for _ in range(20):
+        bumpy = v + rng.normal(scale=[0.02, 0.2, 0.02], size=v.shape)
+        assert one_to_one_over_plane(bumpy, triangles, border)
+        assert len(self_intersections(bumpy, triangles)) == 0
+    folded = v.copy()
+    folded[v[:, 0] > 0.6] *= [-1.0, 1.0, 1.0]  # the last columns laid back over the others
+    folded[v[:, 0] > 0.6, 1] += 0.1
+    assert not one_to_one_over_plane(folded, triangles, border)
+    angle = np.linspace(0.0, 3.0 * np.pi, 9)[:, None]  # a ramp one and a half turns round
+    radius = np.linspace(1.0, 2.0, 9)[None, :]
+    ramp = np.stack([radius * np.cos(angle), 0.5 * angle + 0.0 * radius,
+                     radius * np.sin(angle)], axis=-1).reshape(-1, 3)
+    assert len(self_intersections(ramp, triangles)) == 0
+    assert not one_to_one_over_plane(ramp, triangles, border)
