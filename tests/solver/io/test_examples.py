@@ -101,14 +101,24 @@ def test_fit_writes_solid_reach_and_drawings(tmp_path):
 
 
 @pytest.mark.slow
-def test_fit_refuses_a_solid_that_folds(tmp_path, capsys):
+def test_fit_refuses_a_solid_that_folds(tmp_path, capsys, monkeypatch):
+    """A 6 cm offset of single_seated's surface made without trimming (each vertex moved along
+    its normal: under the seat's 1.5 cm ridges it folds over itself) is judged by the checks,
+    refused, not written, and named in the report; the command exits 1. (Trimmed, the same
+    6 cm solid is sound and written.)"""
+    import functools
+
+    import solver.scene.workshop as workshop
     from studio.cli import main
 
+    monkeypatch.setattr(workshop, "thicken", functools.partial(thicken, trim=False))
     out = tmp_path / "fit"
     code = main(["fit", str(SCENARIOS / "single_seated.toml"), "--out", str(out),
                  "--solid", "0.06"])
     assert code == 1
     assert "solid NOT written" in capsys.readouterr().out
     report = json.loads((out / "report.json").read_text())
-    assert not report["fabrication"]["solid"]["ok"]
+    solid = report["fabrication"]["solid"]
+    assert not solid["ok"] and solid["folded_faces"] + solid["too_close"] > 0
+    assert "fold" in solid["problem"] or "within" in solid["problem"]
     assert "solid_stl" not in report["files"] and not (out / "solid.stl").exists()
