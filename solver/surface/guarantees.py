@@ -31,6 +31,8 @@ FLOOR_TOLERANCE = 1e-3  # m the surface may sit below the floor before it counts
 PENETRATION_TOLERANCE = 1e-3  # m a body may be cut beyond the margin
 SAMPLE_DIVISIONS = 4  # each triangle's edges in this many parts: 15 barycentric samples
 ONE_TO_ONE_MARGIN = 1e-9  # relative: how clearly `one_to_one_over_plane` must see its signs
+ONE_TO_ONE_TURNS = 16  # times it may turn its plane towards the triangle facing it least
+ONE_TO_ONE_NUDGE = 0.05  # how far each such triangle is turned to face the plane (a cosine)
 
 
 def quad_normals(vertices: np.ndarray, quads: np.ndarray) -> np.ndarray:
@@ -109,11 +111,13 @@ def disk_border(quads: np.ndarray, n: int) -> np.ndarray | None:
 def one_to_one_over_plane(vertices: np.ndarray, triangles: np.ndarray, border: np.ndarray
                           ) -> bool:
     """Whether a triangulated disk (`disk_border`'s `border` loop) projects one-to-one onto
-    the plane across its vector area, and so cannot cross itself: every triangle faces that way
-    (its projection keeps its orientation) and the projected border is a simple polygon (no
-    two of its edges meet, neighbours but at their corner), each by a margin. A map of a disk
-    that keeps every triangle's orientation and is one-to-one on the border is one-to-one (the
-    degree argument), so triangles that share no corner lie apart. False says nothing.
+    a plane, and so cannot cross itself: every triangle faces one way (its projection keeps its
+    orientation) and the projected border is a simple polygon (no two of its edges meet,
+    neighbours but at their corner), each by a margin. A map of a disk that keeps every
+    triangle's orientation and is one-to-one on the border is one-to-one (the degree argument),
+    so triangles that share no corner lie apart. The way is sought from the disk's vector area,
+    turned towards the triangle that faces it least (up to ONE_TO_ONE_TURNS times: a seat's
+    flank may stand past upright). False says nothing.
 
     Parameters
     ----------
@@ -127,11 +131,18 @@ def one_to_one_over_plane(vertices: np.ndarray, triangles: np.ndarray, border: n
 
     v = np.asarray(vertices, dtype=np.float64)
     cross = face_cross(v, triangles)
-    area = cross.sum(axis=0)
-    if not np.linalg.norm(area) > 0:
-        return False
-    up = area / np.linalg.norm(area)
-    if not np.all(cross @ up > ONE_TO_ONE_MARGIN * np.linalg.norm(cross, axis=1)):
+    unit = cross / np.maximum(np.linalg.norm(cross, axis=1, keepdims=True), 1e-300)
+    up = cross.sum(axis=0)
+    for _ in range(ONE_TO_ONE_TURNS + 1):
+        if not np.linalg.norm(up) > 0:
+            return False
+        up = up / np.linalg.norm(up)
+        facing = unit @ up
+        worst = int(np.argmin(facing))
+        if facing[worst] > ONE_TO_ONE_MARGIN:
+            break
+        up = up + (ONE_TO_ONE_NUDGE - facing[worst]) * unit[worst]  # it faces up by the nudge
+    else:
         return False
     side = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
     side /= np.linalg.norm(side)

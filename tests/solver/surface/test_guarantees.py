@@ -7,7 +7,7 @@ import trimesh
 from solver.contact.evaluate import penetration_depth
 from solver.mesh import quad_triangles, self_intersections
 from solver.surface.guarantees import barycentric_samples, disk_border, fold_angles, \
-    one_to_one_over_plane, surface_guarantees
+    one_to_one_over_plane, quad_normals, surface_guarantees
 
 
 def grid(n: int = 4, size: float = 2.0, height: float = 0.5, offset=(0.0, 0.0)):
@@ -112,8 +112,9 @@ def test_disk_border_is_the_grids_rim_and_none_for_other_meshes():
 
 
 def test_one_to_one_over_a_plane_means_no_crossing():
-    """Bumpy sheets that lie one-to-one over a plane cross nowhere (as the exact test finds);
-    a sheet folded over itself, or a ramp wound over itself, is not one-to-one."""
+    """Bumpy sheets that lie one-to-one over a plane cross nowhere (as the exact test finds),
+    nor does one whose edge leans back past upright (one-to-one over a tilted plane); a sheet
+    folded over itself, or a ramp wound over itself, is not one-to-one."""
     rng = np.random.default_rng(5)
     v, q = grid(n=8)
     triangles, border = quad_triangles(q), disk_border(q, len(v))
@@ -121,6 +122,13 @@ def test_one_to_one_over_a_plane_means_no_crossing():
         bumpy = v + rng.normal(scale=[0.02, 0.2, 0.02], size=v.shape)
         assert one_to_one_over_plane(bumpy, triangles, border)
         assert len(self_intersections(bumpy, triangles)) == 0
+    leaning = v.copy()  # the last columns stand up and lean back over the sheet, past upright
+    rise = np.maximum(v[:, 0] - 0.5, 0.0)
+    leaning[:, 0] = np.minimum(v[:, 0], 0.5) - 0.1 * rise
+    leaning[:, 1] += rise
+    assert np.min(quad_normals(leaning, q)[:, 1]) < 0  # not one-to-one over the floor, ...
+    assert one_to_one_over_plane(leaning, triangles, border)  # but over a tilted plane
+    assert len(self_intersections(leaning, triangles)) == 0
     folded = v.copy()
     folded[v[:, 0] > 0.6] *= [-1.0, 1.0, 1.0]  # the last columns laid back over the others
     folded[v[:, 0] > 0.6, 1] += 0.1
