@@ -272,3 +272,90 @@ def subdivided_grid(grid: np.ndarray, sub: Subdivision, faces) -> np.ndarray:
         fine[1::2, 1::2] = n + len(keys) + face_at
         grid, n, faces = fine, step.matrix.shape[0], np.asarray(step.faces)
     return grid
+
+
+def regular_face_patches(n: int, faces, creases=None) -> tuple[np.ndarray, np.ndarray]:
+    """The faces of any control mesh whose limit surface is one uniform bicubic B-spline
+    patch, and the patch's 4 x 4 control vertices.
+
+    A quad is regular when each of its corners is an inner vertex of four quads and no crease
+    ends at it: then a Catmull-Clark step makes its four sub-quads regular too, from the
+    quad's own ring of 16 control vertices only, and its limit surface is the uniform
+    bicubic B-spline of that ring (whatever the mesh does further out).
+
+    Parameters
+    ----------
+    n : int
+        Number of vertices.
+    faces : (F, k) int array or list of index lists
+        The control faces, consistently wound.
+    creases : iterable of (2,) int pairs, optional
+        Sharp edges.
+
+    Returns
+    -------
+    faces : (P,) int
+        Indices of the regular faces.
+    rings : (P, 4, 4) int
+        Their rings: ring[i, j] is the control vertex at (u, v) = (i - 1, j - 1) of the patch
+        over the face, whose corners (a, b, c, d) sit at (0, 0), (1, 0), (1, 1), (0, 1).
+    """
+    arr, sizes = _as_faces(faces, n)
+    quad = sizes == 4
+    directed: dict[tuple[int, int], int] = {}
+    for f, (face, size) in enumerate(zip(arr.tolist(), sizes.tolist())):
+        for k in range(size):
+            directed[(face[k], face[(k + 1) % size])] = f
+    inner = np.ones(n, dtype=bool)
+    for a, b in directed:
+        if (b, a) not in directed:
+            inner[[a, b]] = False
+    quads_at = np.zeros(n, dtype=np.int64)
+    faces_at = np.zeros(n, dtype=np.int64)
+    valid = np.arange(arr.shape[1])[None, :] < sizes[:, None]
+    np.add.at(faces_at, arr[valid], 1)
+    np.add.at(quads_at, arr[quad, :4].ravel(), 1)
+    sharp = np.zeros(n, dtype=bool)
+    for pair in [] if creases is None else creases:
+        sharp[list(map(int, pair))] = True
+    regular = inner & (faces_at == 4) & (quads_at == 4) & ~sharp
+
+    def across(a: int, b: int) -> tuple[int, int]:
+        """The far corners (next to a, next to b) of the quad across the edge a -> b."""
+        face = arr[directed[(b, a)], :4].tolist()
+        k = face.index(b)  # face runs b -> a -> x -> y
+        return face[(k + 2) % 4], face[(k + 3) % 4]
+
+    def diagonal(corner: int, one: int, other: int) -> int:
+        """The corner opposite `corner` of the quad holding the edges to `one` and `other`."""
+        face = arr[directed[(one, corner)], :4].tolist()
+        k = face.index(corner)  # face runs one -> corner -> other -> far
+        if face[(k + 1) % 4] != other:
+            raise MeshError("a regular vertex's quads do not close around it")
+        return face[(k + 2) % 4]
+
+    found, rings = [], []
+    for f in np.flatnonzero(quad & regular[arr[:, :4].clip(0)].all(axis=1)).tolist():
+        a, b, c, d = arr[f, :4].tolist()
+        ring = np.empty((4, 4), dtype=np.int64)
+        ring[1, 1], ring[2, 1], ring[2, 2], ring[1, 2] = a, b, c, d
+        ring[1, 0], ring[2, 0] = across(a, b)
+        ring[3, 1], ring[3, 2] = across(b, c)
+        ring[2, 3], ring[1, 3] = across(c, d)
+        ring[0, 2], ring[0, 1] = across(d, a)
+        ring[0, 0] = diagonal(a, ring[1, 0], ring[0, 1])
+        ring[3, 0] = diagonal(b, ring[3, 1], ring[2, 0])
+        ring[3, 3] = diagonal(c, ring[2, 3], ring[3, 2])
+        ring[0, 3] = diagonal(d, ring[0, 2], ring[1, 3])
+        if len(np.unique(ring)) == 16:
+            found.append(f)
+            rings.append(ring)
+    return np.asarray(found, dtype=np.int64), np.asarray(rings, dtype=np.int64).reshape(-1, 4, 4)
+
+
+def bspline_of_ring(control: np.ndarray, ring: np.ndarray) -> BSplineSurface:
+    """The patch of one regular face (`regular_face_patches`): its 16 control vertices as a
+    uniform bicubic B-spline over the domain [0, 1] x [0, 1]."""
+    knots = np.arange(-2.0, 4.0)
+    return BSplineSurface(np.asarray(control, dtype=np.float64)[np.asarray(ring)], knots,
+                          knots.copy())

@@ -167,3 +167,72 @@ def test_a_control_net_with_an_extraordinary_vertex_gives_the_limit_mesh(tmp_pat
     write_scene_3dm(tmp_path / "scene.3dm", result, cad, [], [])
     _, surfaces = _surface_nurbs(tmp_path / "scene.3dm")
     assert isinstance(surfaces[0], rhino3dm.Mesh) and surfaces[0].Faces.QuadCount == 5 * 64
+
+
+def _rounded_box():
+    """An open quad net with extraordinary vertices: a cube's net subdivided twice (its corners
+    stay valence 3), the faces near the top left out, the vertices jittered."""
+    cube = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
+    quads = np.array([[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4],
+                      [1, 5, 7, 3]])
+    twice = subdivision(8, quads, 2)
+    v, f = twice.apply(cube), twice.faces
+    f = f[v[f].mean(axis=1)[:, 1] < 0.9]
+    used = np.unique(f)
+    index = np.full(len(v), -1)
+    index[used] = np.arange(len(used))
+    v = v[used] * 0.5 + np.random.default_rng(1).normal(0.0, 0.005, (len(used), 3))
+    return v, index[f]
+
+
+def test_a_general_net_gets_a_nurbs_patch_per_regular_face(tmp_path):
+    """A net with valence-3 vertices and a border: each face whose four corners are inner
+    vertices of four quads is an exact bicubic patch in the .3dm, the rest the limit mesh.
+    rhino3dm's `PointAt` on each patch, at the face's level-1 points (corners, edge middles,
+    centre), against the limit extrapolated from levels 4 and 5 of the net (no limit mask)."""
+    from solver.surface.nurbs import regular_face_patches
+
+    v, f = _rounded_box()
+    sub = subdivision(len(v), f, 3)
+    result = FitResult(v, f, sub.apply(v), sub.faces, 0, "test", [], {}, 0.0, [], sub)
+    cad = cad_surface(result)
+    found, _ = regular_face_patches(len(v), f)
+    inner = np.ones(len(v), dtype=bool)
+    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 3]], f[:, [3, 0]]])
+    keys, count = np.unique(np.sort(edges, axis=1), axis=0, return_counts=True)
+    inner[keys[count == 1].ravel()] = False
+    valence = np.bincount(f.ravel(), minlength=len(v))
+    expected = np.flatnonzero((inner & (valence == 4))[f].all(axis=1))
+    np.testing.assert_array_equal(found, expected)
+    assert 0 < len(found) < len(f)
+    assert cad.figures["kind"] == "nurbs and limit mesh"
+    assert cad.figures["patches"] == len(found)
+    assert cad.figures["mesh_faces"] == 64 * (len(f) - len(found))
+    write_scene_3dm(tmp_path / "scene.3dm", result, cad, [], [])
+    _, surfaces = _surface_nurbs(tmp_path / "scene.3dm")
+    patches = [s for s in surfaces if isinstance(s, rhino3dm.NurbsSurface)]
+    meshes = [s for s in surfaces if isinstance(s, rhino3dm.Mesh)]
+    assert len(patches) == len(found) and len(meshes) == 1
+    assert meshes[0].Faces.QuadCount == cad.figures["mesh_faces"]
+    # the limit at level 1's points, followed down to levels 4 and 5 (indices kept)
+    n, faces, points, levels = len(v), f, v, {}
+    for level in range(1, 6):
+        step = subdivide_once(n, faces)
+        if level == 1:
+            first = step.faces
+        points, faces, n = step.matrix @ points, step.faces, step.matrix.shape[0]
+        if level >= 4:
+            levels[level] = points
+    kept = len(levels[4])  # a step keeps its vertices' indices first
+    limit = ((4 * levels[5][:kept] - levels[4]) / 3) @ frame_matrix("mm", "z").T
+    face_point = first[:, 2].min()
+    uv = [(0, 0), (1, 0), (1, 1), (0, 1), (0.5, 0), (1, 0.5), (0.5, 1), (0, 0.5), (0.5, 0.5)]
+    worst = 0.0
+    for face, patch in zip(found.tolist(), patches):
+        corners = f[face].tolist()
+        quads = first[first[:, 2] == face_point + face]
+        after = {int(q[0]): int(q[1]) for q in quads}
+        index = corners + [after[c] for c in corners] + [face_point + face]
+        got = np.array([[p.X, p.Y, p.Z] for p in (patch.PointAt(a, b) for a, b in uv)])
+        worst = max(worst, float(np.linalg.norm(got - limit[index], axis=1).max()))
+    assert worst < 0.05, worst  # mm

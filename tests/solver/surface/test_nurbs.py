@@ -120,3 +120,26 @@ def test_the_uniform_cubic_basis_is_scipys_design_matrix():
     full = np.concatenate([[knots[0] - 1], knots, [knots[-1] + 1]])
     expected = BSpline.design_matrix(t, full, 3).toarray()
     np.testing.assert_allclose(uniform_cubic_basis(t, knots), expected, atol=1e-14)
+
+
+def test_regular_face_patches_of_a_grid_are_its_bspline_spans():
+    """On a grid every inner face (no corner on the border) is regular, and its patch is the
+    grid's B-spline over that face's span, at any parameters."""
+    from solver.surface.nurbs import bspline_of_ring, regular_face_patches
+
+    v, f = grid_mesh((0.5, 0.6), (6, 5), 0.42)
+    v[:, 1] += 0.05 * np.sin(4 * v[:, 0]) * np.cos(5 * v[:, 2])
+    grid = grid_layout(len(v), f)
+    whole = bspline_of_grid(v, grid)
+    found, rings = regular_face_patches(len(v), f)
+    assert len(found) == 4 * 3  # the 6 x 5 quads less the border's
+    rng = np.random.default_rng(0)
+    for face, ring in zip(found, rings):
+        assert set(ring[1:3, 1:3].ravel()) == set(f[face])
+        i, j = (int(k[0]) for k in np.nonzero(grid == ring[1, 1]))
+        u, w = rng.uniform(0, 1, (2, 20))
+        np.testing.assert_allclose(bspline_of_ring(v, ring).evaluate(u, w),
+                                   whole.evaluate(i + u, j + w), atol=1e-12)
+    # a crease at a corner makes its faces irregular
+    found_creased, _ = regular_face_patches(len(v), f, [tuple(f[found[0]][:2])])
+    assert found[0] not in found_creased and len(found_creased) < len(found)
