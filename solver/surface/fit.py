@@ -233,7 +233,8 @@ class _Skin:
 @dataclass(frozen=True, eq=False)
 class FitState:
     """What a fit leaves for a warm refit of the same control mesh (`fit_surface`'s `warm`):
-    the subdivision's key (control vertices, level, creases), the start, the limit map, the
+    the subdivision's key (control vertices, level, creases), the start and its Laplacian (kept
+    while the start stays where it was), the limit map, the
     surface vertices that carried rows and the programme set up for them (so that OSQP is seldom
     set up again) and the bodies with their search structures (reused while the bodies only
     move)."""
@@ -251,6 +252,7 @@ class FitState:
     programme: Programme | None  # the fit's programme while it has no rows on dense samples
     neighbours: np.ndarray  # `_Fit.neighbours`
     quad_maps: tuple  # `_Fit.quad_maps`
+    lap: sp.csr_matrix | None = None  # `_Fit.lap`, the start's Laplacian
 
 
 def _search_trees(points: np.ndarray, normals: np.ndarray) -> tuple:
@@ -402,7 +404,8 @@ def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedB
         if not 0 <= j < n0:
             raise FitError(f"Expected fixed control vertices in 0..{n0 - 1}, got {j}")
     sub = subdivision(n0, faces, params.level, params.creases or None)
-    lap = control_laplacian(v0, faces)
+    lap = state.lap if state is not None and state.lap is not None and \
+        np.array_equal(state.start, v0) else control_laplacian(v0, faces)
     points, normals, rho, owner = _stack(targets)
     important = np.flatnonzero(rho > 1e-3)
     surface0 = sub.matrix @ v0
@@ -1135,7 +1138,7 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
                               fit.points, fit.normals,
                               (fit.body_tree, fit.body_tree3, fit.exit_tree), fit.tree_offset,
                               fit.skins, fit.programme if fit.extra is None else None,
-                              fit.neighbours, fit.quad_maps))
+                              fit.neighbours, fit.quad_maps, fit.lap))
 
 
 def _warm_state(warm: FitResult | None, control: np.ndarray, faces: np.ndarray
