@@ -9,8 +9,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
-from .recordings import resolve_path
-
 
 @dataclass(frozen=True)
 class BenchCase:
@@ -35,6 +33,8 @@ AXIS_RECORDING = "bundled:axis_neuron_standing_yxz.bvh"
 
 
 def _read_setup() -> str:
+    from .recordings import resolve_path  # `sitrelax` starts without it
+
     return str(resolve_path(AXIS_RECORDING))
 
 

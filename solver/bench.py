@@ -7,7 +7,6 @@ speed-up is a ratio measured under the same conditions.
 
 from __future__ import annotations
 
-import statistics
 import time
 from pathlib import Path
 from typing import Callable, Iterable
@@ -394,6 +393,8 @@ class BenchUnavailable(Exception):
 
 def _median_time(fn: Callable[[object], object], arg: object, repeats: int,
                  warmup: bool = True) -> float:
+    import statistics  # loaded when the benchmarks run
+
     if warmup:
         fn(arg)  # imports, caches, page cache
     times = []

@@ -179,6 +179,10 @@ def _cmd_design(args: argparse.Namespace) -> int:
 
 
 def _workshop_options(args: argparse.Namespace):
+    """The workshop files asked for, or None when none is (the solids are not loaded)."""
+    if args.solid is None and not args.plinth and not args.drawings and \
+            args.tool_radius is None:
+        return None
     from solver.scene.workshop import WorkshopOptions
 
     return WorkshopOptions(solid_thickness=args.solid, plinth=args.plinth,

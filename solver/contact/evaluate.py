@@ -27,6 +27,7 @@ import numpy as np
 
 from solver.contact.mat import contact_figures, mat_figures
 from solver.contact.settle import Foam, Settled, Support, reach_depth, settle
+from solver.contact.skins import body_winding, vertex_tree
 from solver.contact.supported import SupportedBody
 from solver.mesh import SurfaceMesh
 from solver.threads import with_limited_threads
@@ -142,21 +143,11 @@ def equilibrium_figures(settled: Settled) -> dict:
             "supports": supports}
 
 
-def body_winding(vertices: np.ndarray, triangles: np.ndarray):
-    """The closed body's fast winding number tree (libigl's `FastWindingNumberBVH`), built once
-    for `cut_vertices` and `penetration_depth` to share. vertices (V, 3) m, triangles (F, 3)."""
-    import igl
-
-    tree = igl.FastWindingNumberBVH()
-    tree.init(np.asarray(vertices, dtype=np.float64), np.asarray(triangles, dtype=np.int64))
-    return tree
-
-
 def penetration_depth(surface_points: np.ndarray, body_vertices: np.ndarray,
                       body_triangles: np.ndarray, winding=None) -> float:
     """Largest depth (m) of the given surface points (P, 3) inside a closed body mesh (0 if
-    none): inside where the body's fast winding number (`winding`, its `body_winding`, built
-    here when None) exceeds one half, the depth the exact distance to the skin.
+    none): inside where the body's fast winding number (`winding`, its `body_winding`, kept
+    per skin when None) exceeds one half, the depth the exact distance to the skin.
 
     A point's distance to its nearest body vertex bounds its depth from above, so the points
     are taken largest bound first, tested for inside in batches of `DEPTH_BATCH` and measured
@@ -164,7 +155,6 @@ def penetration_depth(surface_points: np.ndarray, body_vertices: np.ndarray,
     the skin triangles that can hold its closest point (a triangle within that bound has a
     vertex within it plus the triangle's longest edge)."""
     import igl
-    from scipy.spatial import cKDTree
 
     points = np.asarray(surface_points, dtype=np.float64)
     if not len(points):
@@ -173,7 +163,7 @@ def penetration_depth(surface_points: np.ndarray, body_vertices: np.ndarray,
     triangles = np.asarray(body_triangles, dtype=np.int64)
     if winding is None:
         winding = body_winding(vertices, triangles)
-    tree = cKDTree(vertices)
+    tree = vertex_tree(vertices)
     bound, _ = tree.query(points)
     order = np.argsort(-bound)
     a, b, c = (vertices[triangles[:, k]] for k in range(3))
@@ -432,10 +422,7 @@ def flat_seat_height(surface: SurfaceMesh, person: SupportedBody) -> float:
     vertices, importance = person.vertices, person.importance
     top = importance >= np.quantile(importance[importance > 0], 0.9) if (importance > 0).any() \
         else np.ones(len(importance), dtype=bool)
-    import igl
-
-    _, _, closest = igl.point_mesh_squared_distance(vertices[top], surface.vertices,
-                                                    surface.triangles)
+    closest = surface.closest(vertices[top])[4]  # on the surface's own tree (kept)
     return float(np.median(closest[:, 1]))
 
 

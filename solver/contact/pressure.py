@@ -130,7 +130,7 @@ def reachable(vertices: np.ndarray, triangles: np.ndarray, normals: np.ndarray,
     """(V,) bool: vertices a support could touch, those whose outward normal does not run
     straight back into the body within 16 cm (the underside of a belly over the thighs, the
     inner side of a thigh against the other). Only `candidates` (V,) bool are tested."""
-    import igl
+    from solver.contact.skins import body_winding
 
     out = np.zeros(len(vertices), dtype=bool)
     idx = np.flatnonzero(candidates)
@@ -138,8 +138,8 @@ def reachable(vertices: np.ndarray, triangles: np.ndarray, normals: np.ndarray,
         return out
     steps = np.asarray(REACH_STEPS)
     probes = (vertices[idx, None, :] + steps[None, :, None] * normals[idx, None, :]).reshape(-1, 3)
-    wn = igl.fast_winding_number(np.asarray(vertices, dtype=np.float64),
-                                 np.asarray(triangles, dtype=np.int64), probes)
+    # the skin's tree is kept: the evaluation's inside tests ask the same body again
+    wn = body_winding(vertices, triangles).winding_number(probes)
     blocked = (wn.reshape(len(idx), len(steps)) > 0.5).any(axis=1)
     out[idx] = ~blocked
     return out

@@ -18,6 +18,8 @@ from __future__ import annotations
 import functools
 import io
 import os
+import struct
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -86,44 +88,55 @@ def rasterize(corners: np.ndarray, depth: np.ndarray, colors: np.ndarray, width:
     rgb = np.empty((height * width, 3))
     rgb[:] = background
     zbuf = np.full(height * width, -np.inf)
-    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
-    area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    x, y = corners[..., 0], corners[..., 1]
+    area = (x[:, 1] - x[:, 0]) * (y[:, 2] - y[:, 0]) - (y[:, 1] - y[:, 0]) * (x[:, 2] - x[:, 0])
     # the columns and rows whose centres lie in each triangle's box
-    j0 = np.maximum(np.ceil(corners[..., 0].min(axis=1) - 0.5), 0)
-    j1 = np.minimum(np.floor(corners[..., 0].max(axis=1) - 0.5), width - 1)
-    i0 = np.maximum(np.ceil(corners[..., 1].min(axis=1) - 0.5), 0)
-    i1 = np.minimum(np.floor(corners[..., 1].max(axis=1) - 0.5), height - 1)
+    j0 = np.maximum(np.ceil(np.minimum(np.minimum(x[:, 0], x[:, 1]), x[:, 2]) - 0.5), 0)
+    j1 = np.minimum(np.floor(np.maximum(np.maximum(x[:, 0], x[:, 1]), x[:, 2]) - 0.5), width - 1)
+    i0 = np.maximum(np.ceil(np.minimum(np.minimum(y[:, 0], y[:, 1]), y[:, 2]) - 0.5), 0)
+    i1 = np.minimum(np.floor(np.maximum(np.maximum(y[:, 0], y[:, 1]), y[:, 2]) - 0.5), height - 1)
     nx = np.maximum(j1 - j0 + 1, 0).astype(np.int64)
     ny = np.maximum(i1 - i0 + 1, 0).astype(np.int64)
-    count = np.where(np.abs(area) > 1e-12, nx * ny, 0)
-    # barycentric weight k is linear in the pixel: w_k = ex_k x + ey_k y + e0_k, from the edge
-    # opposite corner k (p to q), over the triangle's doubled signed area
-    p, q = corners[:, [1, 2, 0]], corners[:, [2, 0, 1]]
-    safe = np.where(np.abs(area) > 1e-12, area, 1.0)[:, None]
-    dx, dy = q[..., 0] - p[..., 0], q[..., 1] - p[..., 1]
-    edges = np.concatenate([-dy / safe, dx / safe, (dy * p[..., 0] - dx * p[..., 1]) / safe],
-                           axis=1).astype(np.float32)
+    flat = np.abs(area) <= 1e-12
+    count = np.where(flat, 0, nx * ny)
+    safe = np.where(flat, 1.0, area)[:, None]
+    # barycentric weight k is linear in the pixel, from the edge opposite corner k (p to q) over
+    # the triangle's doubled signed area: its value at the centre of the box's first pixel, and
+    # its steps one column right and one row down (offsets from the box: no cancellation)
+    px, py = x[:, [1, 2, 0]], y[:, [1, 2, 0]]
+    dx, dy = x[:, [2, 0, 1]] - px, y[:, [2, 0, 1]] - py
+    first = (dy * (px - (j0 + 0.5)[:, None]) - dx * (py - (i0 + 0.5)[:, None])) / safe
+    step_x, step_y = -dy / safe, dx / safe
+    z_first, z_x, z_y = (np.einsum("tk,tk->t", w, depth) for w in (first, step_x, step_y))
+    corner = (i0 * width + j0).astype(np.int64)  # the box's first pixel
     start, live = 0, np.flatnonzero(count)
     while start < len(live):
         total = np.cumsum(count[live[start:]])
         stop = start + max(1, int(np.searchsorted(total, MAX_CANDIDATES, side="right")))
         tris = live[start:stop]
-        n = count[tris]
-        tri = np.repeat(tris, n)
-        local = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
-        width_of = nx[tri]
-        col = j0[tri].astype(np.int64) + local % width_of
-        row = i0[tri].astype(np.int64) + local // width_of
-        e = edges[tri]
-        px = (col + 0.5).astype(np.float32)[:, None]
-        py = (row + 0.5).astype(np.float32)[:, None]
-        w = e[:, 0:3] * px + e[:, 3:6] * py + e[:, 6:9]
-        inside = (w >= -1e-6).all(axis=1)
-        tri, w, key = tri[inside], w[inside], (row * width + col)[inside]
-        z = np.einsum("nk,nk->n", w, depth[tri])
+        # each box's rows, then each row's pixels: a row's weights stepped along it
+        rows = ny[tris]
+        row_tri = np.repeat(tris, rows)
+        down = np.arange(len(row_tri)) - np.repeat(np.cumsum(rows) - rows, rows)
+        cols = nx[row_tri]
+        across = np.arange(int(cols.sum())) - np.repeat(np.cumsum(cols) - cols, cols)
+        steps = across.astype(np.float32)
+        inside = np.ones(len(across), dtype=bool)
+        for k in range(3):
+            w_row = (first[row_tri, k] + step_y[row_tri, k] * down).astype(np.float32)
+            w = np.repeat(w_row, cols)
+            w += np.repeat(step_x[row_tri, k].astype(np.float32), cols) * steps
+            inside &= w >= -1e-6
+        hit = np.flatnonzero(inside)
+        row = np.repeat(np.arange(len(row_tri)), cols)[hit]
+        tri, down, across = row_tri[row], down[row], across[hit]
+        key = corner[tri] + down * width + across
+        z = z_first[tri] + z_y[tri] * down + z_x[tri] * across
         np.maximum.at(zbuf, key, z)
-        near = z >= zbuf[key]
-        rgb[key[near]] = np.einsum("nk,nkc->nc", w[near], colors[tri[near]])
+        near = np.flatnonzero(z >= zbuf[key])
+        tri, down, across = tri[near], down[near], across[near]
+        w = first[tri] + step_y[tri] * down[:, None] + step_x[tri] * across[:, None]
+        rgb[key[near]] = np.einsum("nk,nkc->nc", w, colors[tri])
         start = stop
     return rgb.reshape(height, width, 3), np.isfinite(zbuf).reshape(height, width)
 
@@ -220,10 +233,10 @@ class Canvas:
 
     def line(self, points_xy, color=(0, 0, 0), width: float = 1.0) -> None:
         """A polyline through (K, 2) pixel points, `width` in points."""
-        pts = [tuple(map(float, p)) for p in np.asarray(points_xy, dtype=float)]
-        if len(pts) > 1:
-            self.draw.line(pts, fill=_rgb8(color), width=max(1, round(width * DPI / 72)),
-                           joint="curve")
+        pts = np.asarray(points_xy, dtype=float).reshape(-1, 2)
+        if len(pts) > 1:  # Pillow takes the points as one flat list x0, y0, x1, y1, ...
+            self.draw.line(pts.ravel().tolist(), fill=_rgb8(color),
+                           width=max(1, round(width * DPI / 72)), joint="curve")
 
     def arrow(self, p1, p2, color=(0.15, 0.15, 0.15), width: float = 0.8,
               head: float = 7.0) -> None:
@@ -244,13 +257,38 @@ class Canvas:
                             width=max(1, round(width * DPI / 72)))
 
     def save(self, path: str | os.PathLike) -> Path:
-        """Writes the picture as PNG, atomically; returns the path."""
+        """Writes the picture as PNG (`png_bytes`), atomically; returns the path."""
         from capture.files import write_atomic
 
-        buf = io.BytesIO()
-        self.image.save(buf, format="PNG", compress_level=1)
-        write_atomic(Path(path), buf.getvalue())
+        if self.image.mode == "RGB":
+            data = png_bytes(np.asarray(self.image))
+        else:
+            buf = io.BytesIO()
+            self.image.save(buf, format="PNG", compress_level=1)
+            data = buf.getvalue()
+        write_atomic(Path(path), data)
         return Path(path)
+
+
+def png_bytes(rgb: np.ndarray) -> bytes:
+    """A PNG file of an (h, w, 3) uint8 picture: 8-bit RGB, its rows unfiltered and deflated
+    at zlib's fastest level. The pictures are flat colour and white, which deflate compresses
+    as well without a row filter as with one; choosing a filter per row (what Pillow's encoder
+    does) takes three times as long."""
+    rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or not rgb.size:
+        raise RasterError(f"Expected an (h, w, 3) picture, got {rgb.shape}")
+    height, width = rgb.shape[:2]
+    rows = np.zeros((height, 1 + 3 * width), dtype=np.uint8)  # each row: filter type 0, pixels
+    rows[:, 1:] = rgb.reshape(height, 3 * width)
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return (struct.pack(">I", len(body)) + kind + body
+                + struct.pack(">I", zlib.crc32(kind + body)))
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)  # 8-bit RGB, not interlaced
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header)
+            + chunk(b"IDAT", zlib.compress(rows.tobytes(), 1)) + chunk(b"IEND", b""))
 
 
 def to_bytes(rgb: np.ndarray) -> np.ndarray:

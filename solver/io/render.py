@@ -66,37 +66,50 @@ def mesh_triangles(meshes: Sequence[MeshView], right: np.ndarray, up: np.ndarray
     """
     light = np.asarray(light, dtype=float)
     light = light / np.linalg.norm(light)
+    camera = np.stack([right, up, back], axis=1)
     planes, depths, colors = [np.zeros((0, 3, 2))], [np.zeros((0, 3))], [np.zeros((0, 3, 3))]
     for mesh in meshes:
         v = np.asarray(mesh.vertices, dtype=float)
         f = np.asarray(mesh.faces, dtype=np.int64)
         if not len(f):
             continue
-        corners = v[f]  # (F, k, 3)
-        normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        a = v[f[:, 0]]
+        normal = np.cross(v[f[:, 1]] - a, v[f[:, 2]] - a)
         if f.shape[1] == 4:
-            normal += np.cross(corners[:, 2] - corners[:, 0], corners[:, 3] - corners[:, 0])
+            normal += np.cross(v[f[:, 2]] - a, v[f[:, 3]] - a)
         normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
         facing = normal @ back > 0
-        col = np.asarray(mesh.color, dtype=float)
-        if col.ndim == 1:
-            corner_col = np.broadcast_to(col[:3], f.shape + (3,))
-        elif len(col) == len(v) and len(v) != len(f):
-            corner_col = col[f][..., :3]  # per vertex: blended across the face
-        else:
-            corner_col = np.broadcast_to(col[:, None, :3], f.shape + (3,))
-        if mesh.back_color is not None:
-            corner_col = np.where(facing[:, None, None], corner_col,
-                                  np.asarray(mesh.back_color, dtype=float)[:3])
-            facing = np.ones(len(f), dtype=bool)
         shade = 0.35 + 0.65 * np.clip(np.abs(normal @ light), 0, 1)
-        keep = np.flatnonzero(facing)
+        if mesh.back_color is not None:
+            keep = np.arange(len(f))
+        else:
+            keep = np.flatnonzero(facing)
+        kept = f[keep]
+        shade = shade[keep, None, None]
+        col = np.asarray(mesh.color, dtype=float)
+        per_vertex = col.ndim > 1 and len(col) == len(v) and len(v) != len(f)
+        if col.ndim > 1 and not per_vertex:  # per face
+            face_col = col[keep, :3]
+        elif col.ndim == 1:
+            face_col = np.broadcast_to(col[:3], (len(keep), 3))
+        if mesh.back_color is not None and not per_vertex:
+            face_col = np.where(facing[:, None], face_col,
+                                np.asarray(mesh.back_color, dtype=float)[:3])
+        seen = v @ camera  # each vertex in the camera's frame: right, up, towards it
         split = [[0, 1, 2]] if f.shape[1] == 3 else [[0, 1, 2], [0, 2, 3]]
         for idx in split:
-            tri = corners[keep][:, idx]
-            planes.append(np.stack([tri @ right, tri @ up], axis=-1))
-            depths.append(tri @ back)
-            colors.append(np.clip(corner_col[keep][:, idx] * shade[keep, None, None], 0, 1))
+            tri = kept[:, idx]
+            corners = seen[tri]
+            planes.append(corners[..., :2])
+            depths.append(corners[..., 2])
+            if per_vertex:  # blended across the face
+                corner_col = col[tri, :3]
+                if mesh.back_color is not None:
+                    corner_col = np.where(facing[:, None, None], corner_col,
+                                          np.asarray(mesh.back_color, dtype=float)[:3])
+            else:
+                corner_col = face_col[:, None, :]
+            colors.append(np.broadcast_to(np.clip(corner_col * shade, 0, 1), tri.shape + (3,)))
     return np.concatenate(planes), np.concatenate(depths), np.concatenate(colors)
 
 

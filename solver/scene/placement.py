@@ -56,6 +56,34 @@ def facing_front(motion: RigMotion) -> np.ndarray:
     return Rotation.from_euler("y", yaw).as_matrix()
 
 
+def person_frame(person) -> tuple[np.ndarray, np.ndarray]:
+    """Where a placed person's sections go.
+
+    Parameters
+    ----------
+    person : PlacedPerson
+
+    Returns
+    -------
+    pelvis : (3,) float
+        The rig's root (pelvis) in the scene frame, metres.
+    forward : (3,) float
+        Horizontal unit direction the person faces: the hip axis (right to left) turned a
+        quarter about the vertical, or the pelvis's own forward axis where the hip axis
+        stands near vertical (lying on a side).
+    """
+    body, world = person.body, person.motion.world
+    rot, shift = person.transform[:3, :3], person.transform[:3, 3]
+    pelvis = rot @ world.positions[0, 0] + shift
+    hips = world.positions[0, [body.joint_index("LeftUpLeg"), body.joint_index("RightUpLeg")]]
+    left = rot @ (hips[0] - hips[1])
+    forward = np.cross(left, [0.0, 1.0, 0.0])
+    if np.hypot(forward[0], forward[2]) < 0.3 * np.linalg.norm(left):
+        forward = rot @ world.rotmats[0, 0] @ [0.0, 0.0, 1.0]
+    forward[1] = 0.0
+    return pelvis, forward / np.linalg.norm(forward)
+
+
 def place_person(spec: PersonSpec, db: str | os.PathLike | None = None,
                  index: int = 0) -> PlacedPerson:
     """Poses the person's body (lowest point on y = 0, pelvis over the origin), then places it.

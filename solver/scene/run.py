@@ -21,8 +21,6 @@ from solver.contact.evaluate import PressureMap, contact_footprint, surface_pres
 from solver.contact.mat import PressureGrid, pressure_grid, write_pressure_csv
 from solver.contact.settle import Foam, reach_depth
 from solver.io.export import ExportError, frame_matrix, write_mesh
-from solver.body.relax import (DEFAULT_MARGIN, GUARD_BAND, GUARD_SPACING, RelaxError,
-                               RelaxProblem, relax)
 from solver.mesh import triangle_mesh
 from solver.surface.fit import FitError, FitResult, fit_surface
 from solver.io.render import (SKIN, SURFACE, MeshView, Panel, field_colors, render_panels,
@@ -33,6 +31,7 @@ from solver.scene.placement import PlacedPerson, place_scene, scene_posture
 from solver.mesh import quad_triangles
 
 if TYPE_CHECKING:
+    from solver.body.relax import RelaxProblem  # the relaxation loads when a pose is relaxed
     from solver.scene.workshop import WorkshopOptions
 
 
@@ -143,6 +142,8 @@ def relax_problem(person: PlacedPerson, surface_vertices: np.ndarray,
     -------
     RelaxProblem, for `relax`. Raises RelaxError when nothing is supportable.
     """
+    from solver.body.relax import DEFAULT_MARGIN, RelaxError, RelaxProblem
+
     ids = np.flatnonzero(person.importance > threshold)
     if not ids.size:
         raise RelaxError(f"{person.label}: nothing to support (no importance above "
@@ -165,6 +166,8 @@ def guarded_vertices(person: PlacedPerson, surface: SurfaceMesh, threshold: floa
     """(g,) the person's vertices of importance up to `threshold` that face the surface (their
     closest point is no border point) and that it cuts into (`cut_vertices`) or that lie within
     `GUARD_BAND` in front of it: of those in each `GUARD_SPACING` cube, the deepest."""
+    from solver.body.relax import GUARD_BAND, GUARD_SPACING
+
     rest = np.flatnonzero(person.importance <= threshold)
     reach = max(reach_depth(foam), GUARD_BAND)
     lo, hi = surface.vertices.min(axis=0) - reach, surface.vertices.max(axis=0) + reach
@@ -187,6 +190,8 @@ def relax_person(scenario: Scenario, person: PlacedPerson, surface: np.ndarray,
     person's figures before and after (as `evaluate_person` gives them), and the solver's
     seconds. When no round was accepted, the person keeps the captured pose exactly (its
     figures after are those before)."""
+    from solver.body.relax import relax
+
     margin, (foam, floor) = scenario.surface.params.margin, foams(scenario.evaluation)
     problem = relax_problem(person, surface, quad_triangles(quads), margin=margin, foam=foam)
     mesh = problem.surface_mesh()
@@ -499,10 +504,10 @@ def pressure_on_skin(pressure: np.ndarray, peak: float) -> np.ndarray:
 
 def _contact_colors(surface: np.ndarray, people: list[PlacedPerson]) -> np.ndarray:
     """Per surface vertex: blue where no body is near, warm where a body rests (within 3 cm)."""
-    from scipy.spatial import cKDTree
+    from solver.contact.skins import vertex_tree
 
     points = np.concatenate([p.vertices for p in people])
-    dist, _ = cKDTree(points).query(surface)
+    dist, _ = vertex_tree(points).query(surface)  # one person's: the evaluation's tree
     near = np.clip(1.0 - dist / 0.03, 0.0, 1.0)
     base = np.array(SURFACE)
     warm = np.array([0.95, 0.55, 0.2])
@@ -533,6 +538,7 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
     """
     from capture import Motion, write_bvh
 
+    from solver.body.relax import RelaxError
     from solver.body.rig import pose_channels, rig_skeleton
     from solver.io.obj import read_quad_obj
 

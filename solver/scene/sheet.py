@@ -4,7 +4,7 @@ pressure the surface puts on each body, and, in red, every bar the fit misses
 (`solver.scene.quality`).
 
 The section runs vertically through the person's left hip joint along the direction the person
-faces (`solver.scene.workshop.person_frame`): it cuts the buttock, the thigh and the calf where
+faces (`solver.scene.placement.person_frame`): it cuts the buttock, the thigh and the calf where
 they rest, and the back beside the spine, rather than the gap between the legs. The pressure is
 the surface's alone (the floor's under the feet is left out: its tens of kPa would drown the
 seat's few), each body seen from where the surface meets it (against the force-weighted mean of
@@ -21,10 +21,9 @@ import numpy as np
 from solver.contact.evaluate import SURFACE_PARTS, PressureMap, surface_pressure
 from solver.io.drawing import Section, section
 from solver.io.render import MeshView, Panel
-from solver.scene.placement import PlacedPerson
+from solver.scene.placement import PlacedPerson, person_frame
 from solver.scene.quality import person_loads, person_misses, surface_misses
 from solver.scene.run import pressure_on_skin
-from solver.scene.workshop import person_frame
 
 
 def person_section(name: str, surface: np.ndarray, faces: np.ndarray,

@@ -17,6 +17,7 @@ from solver.io.drawing import (overall_dimensions, render_sections, section,
                                write_overall_dxf, write_section_dxf)
 from solver.io.reach import bending_towards_normal, cutter_reach, render_reach
 from solver.io.solid import SolidError, check_solid, plinth, thicken, write_3mf, write_stl
+from solver.scene.placement import person_frame
 
 WORKSHOP_UNITS = ("STL, 3MF and DXF in millimetres, Z up: a scene point (x, y, z) in metres, "
                   "Y up, is written as 1000 (x, -z, y); sections are drawn in their own plane "
@@ -46,34 +47,6 @@ class WorkshopOptions:
     def any(self) -> bool:
         return bool(self.solid_thickness is not None or self.plinth or self.drawings or
                     self.tool_radius is not None)
-
-
-def person_frame(person) -> tuple[np.ndarray, np.ndarray]:
-    """Where a placed person's sections go.
-
-    Parameters
-    ----------
-    person : PlacedPerson
-
-    Returns
-    -------
-    pelvis : (3,) float
-        The rig's root (pelvis) in the scene frame, metres.
-    forward : (3,) float
-        Horizontal unit direction the person faces: the hip axis (right to left) turned a
-        quarter about the vertical, or the pelvis's own forward axis where the hip axis
-        stands near vertical (lying on a side).
-    """
-    body, world = person.body, person.motion.world
-    rot, shift = person.transform[:3, :3], person.transform[:3, 3]
-    pelvis = rot @ world.positions[0, 0] + shift
-    hips = world.positions[0, [body.joint_index("LeftUpLeg"), body.joint_index("RightUpLeg")]]
-    left = rot @ (hips[0] - hips[1])
-    forward = np.cross(left, [0.0, 1.0, 0.0])
-    if np.hypot(forward[0], forward[2]) < 0.3 * np.linalg.norm(left):
-        forward = rot @ world.rotmats[0, 0] @ [0.0, 0.0, 1.0]
-    forward[1] = 0.0
-    return pelvis, forward / np.linalg.norm(forward)
 
 
 def export_workshop(out: Path, surface: np.ndarray, faces: np.ndarray, people: list,

@@ -4,8 +4,8 @@ point-in-polygon test, its viridis colour map) rather than against themselves.""
 import numpy as np
 import pytest
 
-from solver.io.raster import (Canvas, RasterError, nice_ticks, rasterize, tick_label, viridis,
-                              viridis_table)
+from solver.io.raster import (Canvas, RasterError, nice_ticks, png_bytes, rasterize, tick_label,
+                              viridis, viridis_table)
 from solver.io.render import MeshView, draw_meshes, field_colors
 
 
@@ -61,6 +61,64 @@ def test_a_rendered_triangle_lands_where_its_projection_says():
         Path(corners).contains_points(_pixel_centres(160, 120), radius=-2.0)
     assert inside.sum() > 3000
     assert (drawn == inside)[~near_edge.reshape(120, 160)].all()
+
+
+def test_many_triangles_match_a_pixel_by_pixel_z_buffer(monkeypatch):
+    """Overlapping triangles of every size, each pixel judged against every triangle at once
+    (float64, no boxes): the same picture wherever no pixel centre lies on an edge or two
+    depths tie; and the same again when the candidates are split into many small chunks."""
+    import solver.io.raster as raster
+
+    rng = np.random.default_rng(7)
+    width, height, count = 64, 48, 120
+    centres = rng.uniform([-4, -4], [width + 4, height + 4], (count, 1, 2))
+    corners = centres + rng.normal(0, 1, (count, 3, 2)) * rng.uniform(0.5, 12, (count, 1, 1))
+    depth = rng.uniform(0, 1, (count, 3))
+    colors = rng.uniform(0, 1, (count, 3, 3))
+    rgb, covered = rasterize(corners, depth, colors, width, height)
+
+    p = _pixel_centres(width, height)[:, None, :]  # (P, 1, 2) against (T, ...)
+    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
+
+    def cross(u, v, q):
+        return (v[..., 0] - u[..., 0]) * (q[..., 1] - u[..., 1]) - \
+            (v[..., 1] - u[..., 1]) * (q[..., 0] - u[..., 0])
+
+    area = cross(a, b, c)
+    w = np.stack([cross(b, c, p), cross(c, a, p), cross(a, b, p)], axis=-1) / area[:, None]
+    inside = (w >= 0).all(axis=-1)
+    z = np.where(inside, np.einsum("ptk,tk->pt", w, depth), -np.inf)
+    nearest = np.argmax(z, axis=1)
+    expected = np.where(inside.any(axis=1)[:, None],
+                        np.einsum("pk,pkc->pc", w[np.arange(len(p)), nearest],
+                                  colors[nearest]), 1.0)
+    top2 = np.sort(z, axis=1)[:, -2:]
+    clear = (np.abs(w).min(axis=-1) > 1e-4).all(axis=1) & \
+        ((top2[:, 1] - top2[:, 0] > 1e-6) | ~np.isfinite(top2[:, 1]))
+    assert clear.mean() > 0.8 and inside.any(axis=1)[clear].mean() > 0.5
+    np.testing.assert_allclose(rgb.reshape(-1, 3)[clear], expected[clear], atol=1e-5)
+    assert (covered.ravel() == inside.any(axis=1))[clear].all()
+
+    monkeypatch.setattr(raster, "MAX_CANDIDATES", 50)
+    chunked, chunked_covered = rasterize(corners, depth, colors, width, height)
+    assert np.array_equal(chunked, rgb) and np.array_equal(chunked_covered, covered)
+
+
+def test_a_saved_picture_reads_back_pixel_for_pixel(tmp_path):
+    import io
+
+    from PIL import Image
+
+    rgb = np.random.default_rng(2).integers(0, 256, (37, 53, 3), dtype=np.uint8)
+    read = Image.open(io.BytesIO(png_bytes(rgb)))
+    assert read.mode == "RGB" and np.array_equal(np.asarray(read), rgb)
+    canvas = Canvas.blank(90, 60)
+    canvas.paste(rgb / 255.0, 20, 10)
+    canvas.text((5, 5), "kPa", 9)
+    path = canvas.save(tmp_path / "picture.png")
+    assert np.array_equal(np.asarray(Image.open(path)), np.asarray(canvas.image))
+    with pytest.raises(RasterError, match="Expected an"):
+        png_bytes(rgb[..., :2])
 
 
 def test_rasterize_refuses_mismatched_shapes():

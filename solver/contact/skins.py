@@ -1,0 +1,63 @@
+"""The search structures of a closed skin, built once per skin and kept: its fast winding number
+tree (inside tests) and the k-d tree of its vertices (nearest vertices).
+
+A scene's placement (which skin a support can reach), its evaluation (where a surface cuts into
+the body, how deep) and the fit's guarantees (the dense penetration) all ask about the same
+posed bodies; the structures are kept by the skin's content, so each is built once however
+many of them ask.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+
+import solver.threads  # noqa: F401  (libigl's thread count, set before libigl first runs)
+
+KEPT_SKINS = 4  # skins whose structures are kept
+_SKINS: dict[tuple, dict] = {}
+_LOCK = threading.Lock()  # the studio evaluates from several threads
+
+
+def _kept(vertices: np.ndarray, triangles: np.ndarray | None) -> dict:
+    """The structures kept for a skin (vertices (V, 3) float64, triangles (F, 3) int64 or None
+    for the vertices alone), by content."""
+    key = (vertices.shape, hash(vertices.tobytes()),
+           None if triangles is None else (triangles.shape, hash(triangles.tobytes())))
+    with _LOCK:
+        kept = _SKINS.pop(key, None)
+        if kept is None:
+            kept = {}
+            while len(_SKINS) >= KEPT_SKINS:
+                del _SKINS[next(iter(_SKINS))]
+        _SKINS[key] = kept  # the last asked for last: the least recently asked go first
+    return kept
+
+
+def body_winding(vertices: np.ndarray, triangles: np.ndarray):
+    """The closed skin's fast winding number tree (libigl's `FastWindingNumberBVH`, the same
+    numbers as `igl.fast_winding_number`), built on first use and kept. vertices (V, 3) m,
+    triangles (F, 3)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.asarray(triangles, dtype=np.int64)
+    kept = _kept(v, t)
+    if "winding" not in kept:
+        import igl
+
+        tree = igl.FastWindingNumberBVH()
+        tree.init(v, t)
+        kept["winding"] = tree
+    return kept["winding"]
+
+
+def vertex_tree(vertices: np.ndarray):
+    """A k-d tree of the vertices (V, 3) (scipy's cKDTree, on its own copy of them), built on
+    first use and kept."""
+    v = np.asarray(vertices, dtype=np.float64)
+    kept = _kept(v, None)
+    if "tree" not in kept:
+        from scipy.spatial import cKDTree
+
+        kept["tree"] = cKDTree(v, copy_data=True)
+    return kept["tree"]
