@@ -27,7 +27,7 @@ from typing import Sequence
 import numpy as np
 
 DPI = 100
-MAX_CANDIDATES = 4_000_000  # pixel candidates in one rasterising chunk (about 100 MB)
+MAX_CANDIDATES = 32_768  # pixel candidates in one rasterising chunk (small arrays: cached, reused)
 BAD_COLOR = (0.93, 0.93, 0.93)  # a map's cell where nothing presses
 COLORBAR_WIDTH = 110  # pixels a colour bar and its labels take on the right
 
@@ -107,7 +107,12 @@ def rasterize(corners: np.ndarray, depth: np.ndarray, colors: np.ndarray, width:
     dx, dy = x[:, [2, 0, 1]] - px, y[:, [2, 0, 1]] - py
     first = (dy * (px - (j0 + 0.5)[:, None]) - dx * (py - (i0 + 0.5)[:, None])) / safe
     step_x, step_y = -dy / safe, dx / safe
+    # depth and colour likewise: the weights' blend of the corners'
     z_first, z_x, z_y = (np.einsum("tk,tk->t", w, depth) for w in (first, step_x, step_y))
+    c_first, c_x, c_y = (np.einsum("tk,tkc->ct", w, colors) for w in (first, step_x, step_y))
+    # one contiguous row per weight (per channel): the candidates gather them with `take`
+    first, step_x, step_y = (np.ascontiguousarray(w.T) for w in (first, step_x, step_y))
+    c_first, c_x, c_y = (np.ascontiguousarray(c) for c in (c_first, c_x, c_y))
     corner = (i0 * width + j0).astype(np.int64)  # the box's first pixel
     start, live = 0, np.flatnonzero(count)
     while start < len(live):
@@ -115,28 +120,28 @@ def rasterize(corners: np.ndarray, depth: np.ndarray, colors: np.ndarray, width:
         stop = start + max(1, int(np.searchsorted(total, MAX_CANDIDATES, side="right")))
         tris = live[start:stop]
         # each box's rows, then each row's pixels: a row's weights stepped along it
-        rows = ny[tris]
+        rows = ny.take(tris)
         row_tri = np.repeat(tris, rows)
         down = np.arange(len(row_tri)) - np.repeat(np.cumsum(rows) - rows, rows)
-        cols = nx[row_tri]
+        cols = nx.take(row_tri)
         across = np.arange(int(cols.sum())) - np.repeat(np.cumsum(cols) - cols, cols)
         steps = across.astype(np.float32)
         inside = np.ones(len(across), dtype=bool)
         for k in range(3):
-            w_row = (first[row_tri, k] + step_y[row_tri, k] * down).astype(np.float32)
+            w_row = (first[k].take(row_tri) + step_y[k].take(row_tri) * down).astype(np.float32)
             w = np.repeat(w_row, cols)
-            w += np.repeat(step_x[row_tri, k].astype(np.float32), cols) * steps
+            w += np.repeat(step_x[k].take(row_tri).astype(np.float32), cols) * steps
             inside &= w >= -1e-6
         hit = np.flatnonzero(inside)
-        row = np.repeat(np.arange(len(row_tri)), cols)[hit]
-        tri, down, across = row_tri[row], down[row], across[hit]
-        key = corner[tri] + down * width + across
-        z = z_first[tri] + z_y[tri] * down + z_x[tri] * across
+        row = np.repeat(np.arange(len(row_tri)), cols).take(hit)
+        tri, down, across = row_tri.take(row), down.take(row), across.take(hit)
+        key = corner.take(tri) + down * width + across
+        z = z_first.take(tri) + z_y.take(tri) * down + z_x.take(tri) * across
         np.maximum.at(zbuf, key, z)
-        near = np.flatnonzero(z >= zbuf[key])
-        tri, down, across = tri[near], down[near], across[near]
-        w = first[tri] + step_y[tri] * down[:, None] + step_x[tri] * across[:, None]
-        rgb[key[near]] = np.einsum("nk,nkc->nc", w, colors[tri])
+        near = np.flatnonzero(z >= zbuf.take(key))
+        tri, down, across, key = tri.take(near), down.take(near), across.take(near), key.take(near)
+        for c in range(3):
+            rgb[key, c] = c_first[c].take(tri) + c_y[c].take(tri) * down + c_x[c].take(tri) * across
         start = stop
     return rgb.reshape(height, width, 3), np.isfinite(zbuf).reshape(height, width)
 

@@ -73,10 +73,11 @@ def mesh_triangles(meshes: Sequence[MeshView], right: np.ndarray, up: np.ndarray
         f = np.asarray(mesh.faces, dtype=np.int64)
         if not len(f):
             continue
-        a = v[f[:, 0]]
-        normal = np.cross(v[f[:, 1]] - a, v[f[:, 2]] - a)
+        corner = [v.take(f[:, k], axis=0) for k in range(f.shape[1])]  # take: a fast gather
+        a = corner[0]
+        normal = np.cross(corner[1] - a, corner[2] - a)
         if f.shape[1] == 4:
-            normal += np.cross(v[f[:, 2]] - a, v[f[:, 3]] - a)
+            normal += np.cross(corner[2] - a, corner[3] - a)
         normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
         facing = normal @ back > 0
         shade = 0.35 + 0.65 * np.clip(np.abs(normal @ light), 0, 1)
@@ -84,7 +85,7 @@ def mesh_triangles(meshes: Sequence[MeshView], right: np.ndarray, up: np.ndarray
             keep = np.arange(len(f))
         else:
             keep = np.flatnonzero(facing)
-        kept = f[keep]
+        kept = f.take(keep, axis=0)
         shade = shade[keep, None, None]
         col = np.asarray(mesh.color, dtype=float)
         per_vertex = col.ndim > 1 and len(col) == len(v) and len(v) != len(f)
@@ -99,11 +100,11 @@ def mesh_triangles(meshes: Sequence[MeshView], right: np.ndarray, up: np.ndarray
         split = [[0, 1, 2]] if f.shape[1] == 3 else [[0, 1, 2], [0, 2, 3]]
         for idx in split:
             tri = kept[:, idx]
-            corners = seen[tri]
+            corners = seen.take(tri, axis=0)
             planes.append(corners[..., :2])
             depths.append(corners[..., 2])
             if per_vertex:  # blended across the face
-                corner_col = col[tri, :3]
+                corner_col = col[:, :3].take(tri, axis=0)
                 if mesh.back_color is not None:
                     corner_col = np.where(facing[:, None, None], corner_col,
                                           np.asarray(mesh.back_color, dtype=float)[:3])
