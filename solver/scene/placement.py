@@ -172,12 +172,12 @@ def place_scene(scenario: Scenario, db: str | os.PathLike | None = None, *,
 def furnished(scenario: Scenario, people: list[PlacedPerson]) -> Scenario:
     """The scenario with its template surface built around the placed people (the scenario
     itself when its surface is no template, or is built already)."""
-    from solver.scene.furnish import furnish
-    from solver.surface.templates import TemplateError
-
     surface = scenario.surface
     if surface.template is None or surface.vertices is not None:
         return scenario
+    from solver.scene.furnish import furnish  # loaded for a template only
+    from solver.surface.templates import TemplateError
+
     try:
         mesh = furnish(surface.template.kind, surface.template.given, people)
     except TemplateError as exc:
