@@ -481,6 +481,7 @@ def _mend(vertices: np.ndarray, triangles: np.ndarray, fixed: np.ndarray,
         ends = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
         ends = np.concatenate([ends, ends[:, ::-1]])
         pairs = ends[np.isin(ends[:, 1], faulty)]  # (kept, removed)
+        pairs = pairs[~fixed[pairs[:, 0]]]  # never onto the surface: no thickness left there
         span = np.linalg.norm(vertices[pairs[:, 0]] - vertices[pairs[:, 1]], axis=1)
         up = surface.face_normals[surface.closest(vertices[triangles].mean(axis=1))[3]]
         vertices, triangles, keep, _ = _collapse(vertices, triangles, pairs[np.argsort(span)],
@@ -620,7 +621,7 @@ def _part_touching(vertices: np.ndarray, triangles: np.ndarray,
         len(members)), 0))
     moving = (rank > 0) & ~fixed[members]
     with np.errstate(invalid="ignore", divide="ignore"):  # corners no triangle uses
-        normals = vertex_normals(vertices, triangles)
+        normals = np.nan_to_num(vertex_normals(vertices, triangles))
     vertices[members[moving]] -= (TINY_EDGE * rank[moving])[:, None] * \
         normals[members[moving]]
     return vertices
@@ -631,7 +632,8 @@ def _lengthen(vertices: np.ndarray, triangles: np.ndarray, p: int, q: int,
     """An edge p-q shorter than `TINY_EDGE` that no collapse may take (its ends share a
     neighbour besides the edge's opposite corners) lengthened: the end with fewer triangles
     (not a `fixed` one) moves `TINY_EDGE` / 4 along the sheet, towards the middle of its
-    neighbours that are not the other end's. In place; returns `vertices`."""
+    neighbours that are not the other end's, unless that turns one of its faces over. In place;
+    returns `vertices`."""
     rings = [triangles[(triangles == k).any(axis=1)] for k in (p, q)]
     if fixed[p] or (not fixed[q] and len(rings[1]) < len(rings[0])):
         p, q = q, p
@@ -643,8 +645,15 @@ def _lengthen(vertices: np.ndarray, triangles: np.ndarray, p: int, q: int,
         own = np.setdiff1d(rings[0], [p, q])
     away = vertices[own].mean(axis=0) - vertices[p]
     size = np.linalg.norm(away)
-    if size > 0:
-        vertices[p] += 0.25 * TINY_EDGE * away / size
+    if not size > 0:
+        return vertices
+    moved = vertices.copy()
+    moved[p] += 0.25 * TINY_EDGE * away / size
+    before, after = face_cross(vertices, rings[0]), face_cross(moved, rings[0])
+    big = np.linalg.norm(before, axis=1) > 0
+    if np.any(np.einsum("ij,ij->i", before[big], after[big]) <= 0):
+        return vertices  # a face would turn over: the edge stays
+    vertices[p] = moved[p]
     return vertices
 
 

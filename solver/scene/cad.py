@@ -102,7 +102,7 @@ def _regular_faces(result: FitResult, creases, limit: np.ndarray, figures: dict)
     control, faces = result.control, result.faces
     found, rings = regular_face_patches(len(control), faces, list(creases) or None)
     everything = np.asarray(result.surface_faces)
-    if len(found) == 0:
+    if len(found) == 0 or result.subdivision.level == 0:
         return CadSurface(limit, everything, (), figures)
     nurbs = tuple(bspline_of_ring(control, ring) for ring in rings)
     owner = control_face_of(result.subdivision, len(faces))

@@ -291,3 +291,16 @@ def test_an_edge_too_short_for_single_precision_is_lengthened_along_the_sheet():
     big = np.linalg.norm(before, axis=1) > 1e-12
     assert np.all(np.einsum("ij,ij->i", before[big], after[big]) > 0)
     assert _sound(out, t)
+
+
+def test_lengthening_never_turns_a_sliver_over():
+    """Where the move towards its own neighbours would take the end across a sliver's far
+    edge (2 um away), the edge is left as it is."""
+    from solver.io.solid import _lengthen
+
+    p, q = [0.0, 2e-6, 0.0], [0.0, 2.04e-6, 0.0]
+    v = np.array([p, q, [1e-3, 0, 0], [-1e-3, 0, 0], [0, 1e-3, 0], [1e-3, 1e-3, 0],
+                  [-1e-3, 1e-3, 0]])
+    t = np.array([[0, 3, 2], [1, 0, 4], [1, 4, 5], [1, 6, 4]])
+    out = _lengthen(v.copy(), t, 0, 1, np.zeros(len(v), dtype=bool))
+    np.testing.assert_array_equal(out, v)
