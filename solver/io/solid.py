@@ -133,6 +133,11 @@ class SolidCheck:
         return "; ".join(parts)
 
 
+def _edges_of(triangles: np.ndarray) -> np.ndarray:
+    """(3F, 2) the directed edges of triangles: every 0 -> 1, then 1 -> 2, then 2 -> 0."""
+    return np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+
+
 def boundary_edges(faces: np.ndarray) -> np.ndarray:
     """The border's edges of a surface, each as its one face runs it.
 
@@ -270,7 +275,7 @@ def _offset_shell(v: np.ndarray, tris: np.ndarray, offset: np.ndarray,
         middles = bottom[sheet].mean(axis=1)
         if np.abs(mesh.closest(middles)[0] - t).max() <= 0.75 * THICKNESS_TOLERANCE:
             break
-        edges = np.concatenate([sheet[:, [0, 1]], sheet[:, [1, 2]], sheet[:, [2, 0]]])
+        edges = _edges_of(sheet)
         pairs, inverse = np.unique(np.sort(edges, axis=1), axis=0, return_inverse=True)
         halves = len(bottom) + np.arange(len(pairs))
         bottom = np.concatenate([bottom, _at_thickness(
@@ -342,8 +347,7 @@ def _unsound_faces(solid: Solid, rings: int = 2) -> np.ndarray:
         good = tris[~bad]
         if len(good) == 0:
             return bad
-        edges = np.sort(np.concatenate([good[:, [0, 1]], good[:, [1, 2]], good[:, [2, 0]]]),
-                        axis=1)
+        edges = np.sort(_edges_of(good), axis=1)
         key, count = np.unique(edges, axis=0, return_counts=True)
         open_ends = np.bincount(key[count == 1].ravel(), minlength=n)
         pinched = open_ends > 2
@@ -478,12 +482,16 @@ def _mend(vertices: np.ndarray, triangles: np.ndarray, fixed: np.ndarray,
         faulty = faulty[~fixed[faulty]]
         if len(faulty) == 0:
             break
-        ends = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+        ends = _edges_of(triangles)
         ends = np.concatenate([ends, ends[:, ::-1]])
         pairs = ends[np.isin(ends[:, 1], faulty)]  # (kept, removed)
         pairs = pairs[~fixed[pairs[:, 0]]]  # never onto the surface: no thickness left there
         span = np.linalg.norm(vertices[pairs[:, 0]] - vertices[pairs[:, 1]], axis=1)
-        up = surface.face_normals[surface.closest(vertices[triangles].mean(axis=1))[3]]
+        # the surface's normal under each triangle a collapse may turn (around the faulty)
+        up = np.zeros((len(triangles), 3))
+        near = np.flatnonzero(np.isin(triangles, pairs).any(axis=1))
+        up[near] = surface.face_normals[surface.closest(
+            vertices[triangles[near]].mean(axis=1))[3]]
         vertices, triangles, keep, _ = _collapse(vertices, triangles, pairs[np.argsort(span)],
                                                  fixed, up, at_first=True)
         fixed = fixed[keep]
@@ -508,8 +516,7 @@ def _collapse_short(vertices: np.ndarray, triangles: np.ndarray, movable: np.nda
 
     Returns the vertices, the triangles, which of the given vertices remain (renumbered in
     order) and which of the given triangles remain."""
-    a, b = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]],
-                           triangles[:, [2, 0]]]).T
+    a, b = _edges_of(triangles).T
     now = vertices[b] - vertices[a]
     span = np.linalg.norm(now, axis=1)
     later = np.einsum("ij,ij->i", now, target[b] - target[a])
@@ -601,7 +608,7 @@ def _part_touching(vertices: np.ndarray, triangles: np.ndarray,
         return vertices
     pairs = used[pairs]
     n = len(vertices)
-    edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    edges = _edges_of(triangles)
     joined = np.isin(pairs.min(axis=1) * n + pairs.max(axis=1),
                      edges.min(axis=1) * n + edges.max(axis=1))
     vertices = vertices.copy()
@@ -716,7 +723,7 @@ def _flip_caps(moved: np.ndarray, triangles: np.ndarray, faces: np.ndarray,
     cap = longest >= 0.98 * (sides.sum(axis=1) - longest)  # largest angle over ~150 degrees
     if not cap.any():
         return False
-    edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    edges = _edges_of(triangles)
     keys = edges.min(axis=1) * n + edges.max(axis=1)
     order = np.argsort(keys)
     keys, owners = keys[order], np.tile(np.arange(len(triangles)), 3)[order]
@@ -1076,7 +1083,7 @@ def surface_folds(vertices: np.ndarray, triangles: np.ndarray) -> int:
     """
     t = np.asarray(triangles, dtype=np.int64)
     normals = face_normals(vertices, t)
-    edges = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
+    edges = np.sort(_edges_of(t), axis=1)
     face = np.tile(np.arange(len(t)), 3)
     order = np.lexsort((edges[:, 1], edges[:, 0]))
     edges, face = edges[order], face[order]
