@@ -68,6 +68,11 @@ if set(REGION_BONES) != set(BODY_REGIONS) or set(REGION_PART.values()) != set(BO
 
 # per trunk region, the most a supported skin vertex's rest normal may face forward (+Z)
 TRUNK_FACING = {"upper_back": 0.0, "lower_back": 0.0, "pelvis": 0.5}
+# metres along the thigh bone, before the knee, that a support of the thighs without the
+# calves leaves free: a seat's front edge under the back of the knee (the popliteal fossa)
+# presses its nerves and vessels and, on a seat whose calves hang, the top of the calves;
+# seating guidance leaves a hand's breadth between them
+POPLITEAL_CLEARANCE = 0.08
 
 
 class BodyShapeError(ValueError):
@@ -333,7 +338,29 @@ class Body:
         for region, most in TRUNK_FACING.items():
             if region in regions:
                 mask[(self.regions == BODY_REGIONS.index(region)) & (facing > most)] = False
+        if "thighs" in regions and "calves" not in regions:
+            mask[self.popliteal] = False
         return mask
+
+    @cached_property
+    def popliteal(self) -> np.ndarray:
+        """(V,) bool: the thighs' skin within POPLITEAL_CLEARANCE of the knee along the thigh
+        bone (rest pose), all round the knee's end of each thigh."""
+        thighs = np.flatnonzero(self.regions == BODY_REGIONS.index("thighs"))
+        p = self.vertices[thighs]
+        along, off = [], []
+        for side in ("Left", "Right"):
+            hip = self.joints[self.joint_index(f"{side}UpLeg")]
+            axis = self.joints[self.joint_index(f"{side}Leg")] - hip  # hip to knee
+            length = float(np.linalg.norm(axis))
+            t = (p - hip) @ (axis / length)
+            along.append(t - length)  # metres past the knee (negative before it)
+            off.append(np.linalg.norm(p - hip - np.outer(t / length, axis), axis=1))
+        side = np.argmin(off, axis=0)  # each vertex's own thigh: the nearer bone
+        past_knee = np.choose(side, along)
+        free = np.zeros(len(self.vertices), dtype=bool)
+        free[thighs[past_knee > -POPLITEAL_CLEARANCE]] = True
+        return free
 
     def summary(self) -> dict:
         return {"shape": self.shape.as_dict(), "age_years": self.shape.age_years,

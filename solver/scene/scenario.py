@@ -17,6 +17,7 @@
     step = 0.05        # metres a control vertex may move per iteration
     floor = 0.0        # metres: the surface stays above y = floor (JSON null: no floor)
     min_ridge_radius = 0.015  # metres: the tightest it may bend away from the bodies
+    sink = 0.008       # metres into the skin the fit aims (the foam pressed at rest)
 
     [evaluation]
     foam_stiffness = 200.0  # kPa of pressure per metre the foam is pressed in

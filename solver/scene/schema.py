@@ -94,6 +94,9 @@ FIT_FIELDS: dict[str, Any] = {
                                                   "iteration (a trust region)")],
     "floor": Annotated[Union[Number, None], Field(description="the floor's height y, metres: "
                                                   "the surface stays above it (null: no floor)")],
+    "sink": Annotated[float, Field(strict=True, allow_inf_nan=False, ge=0.0, le=0.1,
+                                   description="metres into the skin the surface is fitted "
+                                               "to (where the foam is pressed at rest)")],
     "min_ridge_radius": Annotated[NonNegative, Field(
         description="metres: the tightest the surface may bend away from the bodies (a solid "
                     "up to this thick can follow it)")],

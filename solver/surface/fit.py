@@ -13,7 +13,10 @@ smoothly, without cutting into it. Each iteration:
 
        + (anchor / n0) sum_all |v_j - v0_j|^2
 
-   where L is the cotangent Laplacian of the control mesh, tau rises from 0 to tau_max over the
+   where b_k is the body vertex moved `sink` (8 mm) inwards along its normal (the foam is
+   pressed that far where it carries the body, so the skin rests on it instead of grazing it:
+   aimed at the skin itself, half the supported skin ends up a few millimetres in front of the
+   surface, out of contact), L is the cotangent Laplacian of the control mesh, tau rises from 0 to tau_max over the
    first iterations, subject to every surface vertex near a body staying on the outer side of the
    tangent plane at its closest body vertex, less the softness margin:
    n_b . (v_s - b) >= -margin. "Closest" weighs the body vertex's normal too: the search runs in
@@ -44,10 +47,16 @@ the energy with every body point at its nearest vertex of the new surface, plus 
 demands the new surface leaves unmet) and folds no neighbouring level-s quads further apart than
 FOLD_GUARD_DEG (or than the iterate before it); otherwise it is tried again half as long (a
 backtracking line search along the programme's solution), up to MAX_HALVINGS times, after which
-the fit has converged. A step is judged without its rows (the judgement needs only how deep the
-surface lies and which vertices join the rows); the accepted one's rows are made for the next. The programme knows nothing of folds and ridges, so in a warm refit
-(which starts against the guards) a step refused for one is first tried again as long with the
-control vertices that shape the offending quads held still (up to FREEZES times). So the judged energies of
+the fit has converged. In a cold fit, a full step refused for a fold or a ridge is first proposed again, up to
+STIFFEN_ROUNDS times, with the smoothness raised (tenfold each time) at the control vertices that
+shape the offending quads (`_stiffened`; the raise stays for the rest of the fit and only the
+proposals see it): the programme knows nothing of folds, and halving a step that folds seldom
+stops it folding, so without this a fit stopped after a few iterations, far from its best. In a
+warm refit (which starts against the guards, and must settle in a few iterations) such a step is
+instead tried again as long with the
+control vertices that shape the offending quads held still (up to FREEZES times). A step is
+judged without its rows (the judgement needs only how deep the surface lies and which vertices
+join the rows); the accepted one's rows are made for the next. So the judged energies of
 the accepted iterates never rise (a rising tau can only lower them), and a surface that starts
 without folds ends without them. The loop stops once tau has reached tau_max and the energy has
 not improved by `tolerance` (relative) in PATIENCE iterations, or after `max_iterations`. The
@@ -102,6 +111,10 @@ REPAIR_ITERATIONS = 10  # iterations each such round may take
 REPAIR_SAFETY = 2e-3  # metres inside the margin those rows hold the samples to
 SAG_ALLOWANCE = 0.01  # metres a triangle may sink deeper between its corners than at them
 MAX_HALVINGS = 4  # a rejected step is retried half as long this often
+STIFFEN_ROUNDS = 4  # times a step refused for a fold or a ridge is proposed again, the surface
+                    # made stiffer where it folded (`_stiffened`), before it is tried shorter
+STIFFEN_FIRST = 30.0  # that stiffening's first weight, in units of the smoothness (sigma) ...
+STIFFEN_FACTOR = 10.0  # ... and what each further round multiplies it by
 FREEZES = 2  # times a warm refit's step that folds or ridges too far is retried with the
              # control vertices that shape the offending quads held still (a cold fit's steps
              # are not: held vertices next to moving ones leave kinks that a thin solid's
@@ -128,7 +141,9 @@ class FitParams:
     iteration (a trust region); floor : the floor's height y (metres) that every level-s
     surface vertex stays above (soft rows, like non-penetration), None for no floor;
     min_ridge_radius : metres, the tightest a step may bend the surface away from the bodies
-    (a ridge; a solid thicker than its radius cannot follow it).
+    (a ridge; a solid thicker than its radius cannot follow it); sink : metres into the skin,
+    along its normal, that the data terms aim the surface (where the foam is pressed when it
+    carries the body at rest; 0 fits the skin itself).
     """
 
     level: int = 3
@@ -146,6 +161,7 @@ class FitParams:
     floor: float | None = 0.0  # metres: the level-s surface stays above y = floor (None: free)
     min_ridge_radius: float = 0.015  # metres: where the surface bends away from the bodies, no
                                     # tighter (a solid of up to this thickness can follow it)
+    sink: float = 0.008  # metres into the skin the data terms aim (the foam pressed at rest)
 
 
 @dataclass
@@ -293,7 +309,7 @@ class _Fit:
     lap: sp.csr_matrix  # (n0, n0) control-mesh Laplacian
     points: np.ndarray  # (P, 3) every body vertex
     normals: np.ndarray  # (P, 3)
-    b_imp: np.ndarray  # (I, 3) the important ones
+    b_imp: np.ndarray  # (I, 3) the important ones, `sink` inside the skin: where they pull
     w_imp: np.ndarray  # (I,) their importance
     body_tree: cKDTree  # (position, FACING_SCALE x normal) of every body vertex
     body_tree3: cKDTree  # positions
@@ -312,6 +328,8 @@ class _Fit:
     tree_offset: np.ndarray  # (3,) the bodies' move since their trees were built: the trees
                              # are queried this much back
     limit: sp.csr_matrix | None = None  # (ns, n0) control vertices -> limit points of level s
+    stiff: np.ndarray | None = None  # (n0,) extra smoothness of the steps' proposals per control
+                                     # vertex, where proposals folded (`_stiffened`)
     extra: "ExtraRows | None" = None  # rows on dense samples found too deep (`deep_samples`)
 
     @property
@@ -456,7 +474,10 @@ def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedB
             len(skins) < len(state.skins) else None
         skins.append(old.moved(t.vertices, t.triangles, stack) if old is not None else
                      _Skin(t.vertices, t.triangles, stack))
-    return _Fit(v0, faces, params, sub, lap, points, normals, points[important],
+    # the data terms aim `sink` into the skin: the foam is pressed that far where it carries
+    # the body at rest, so the skin touches it there rather than grazing it
+    return _Fit(v0, faces, params, sub, lap, points, normals,
+                points[important] - params.sink * normals[important],
                 rho[important], *trees,
                 fixed, smooth, diagonal.toarray() if dense else diagonal, proximal, dense,
                 programme, sampled, neighbours, quad_maps,
@@ -959,6 +980,22 @@ def converged(energies: Sequence[float], tolerance: float) -> bool:
     return len(post) > PATIENCE and min(post) > min(post[:-PATIENCE]) * (1 - tolerance)
 
 
+def _stiffened(fit: _Fit, quadratic: tuple) -> tuple:
+    """The quadratic (H, g) of `assemble` with the proposals' extra smoothness added:
+    sum_j stiff_j |(L V)_j|^2, which keeps the next proposal from bending the surface where
+    earlier ones folded it. Only proposals see it: steps are judged by the energy itself."""
+    if fit.stiff is None or not fit.stiff.any():
+        return quadratic
+    h, g = quadratic
+    extra = fit.lap.T @ sp.diags(fit.stiff) @ fit.lap
+    if fit.dense:
+        h, n0, block = h.copy(), fit.n0, extra.toarray()
+        for a in range(3):
+            h[a * n0:(a + 1) * n0, a * n0:(a + 1) * n0] += block
+        return h, g
+    return (h + sp.kron(sp.identity(3), extra)).tocsr(), g
+
+
 def propose(fit: _Fit, it: Iterate, radius: float, quadratic
             ) -> tuple[np.ndarray, str, float]:
     """One step from iterate `it`: the programme at its pairing and rows, within a trust
@@ -1092,6 +1129,7 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
         member = initial_rows(fit, v_start)
         floor_member = np.zeros_like(member)
     setups = fit.programme.setups  # a reused programme counts its earlier set-ups
+    fit.stiff = np.zeros(fit.n0)
     run = _Descent([assess(fit, v_start.copy(), member, floor_member)])
     stop, iteration = descend(fit, run, member, floor_member, 1, params.max_iterations,
                               progress, tau=None if warm is None else params.tau_max,
@@ -1127,7 +1165,8 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
     terms = terms_of(fit, result, params.tau_max if repairs or warm is not None else
                      params.tau_max * min(1.0, max(keep - 1, 0) / TAU_RAMP))
     terms.update(best_iteration=keep, qp_setups=fit.programme.setups - setups,
-                 rejected_steps=dict(run.rejected), repairs=repairs,
+                 rejected_steps=dict(run.rejected), stiffened_proposals=run.stiffened,
+                 repairs=repairs,
                  largest_row_residual_m=run.residuals[keep - 1] if keep else 0.0)
     return FitResult(result.v, fit.faces, result.surf, fit.sub.faces, iteration, stop,
                      run.energies[:len(run.energies) - sum(len(r["energies"]) for r in repairs)],
@@ -1166,6 +1205,7 @@ class _Descent:
     statuses: list = field(default_factory=list)
     residuals: list = field(default_factory=list)
     rejected: dict = field(default_factory=lambda: {"energy": 0, "fold": 0, "ridge": 0})
+    stiffened: int = 0  # proposals made again, stiffer where they folded
 
     def extend(self, other: "_Descent") -> None:
         self.accepted += other.accepted[1:]
@@ -1174,6 +1214,7 @@ class _Descent:
         self.residuals += other.residuals
         for why, count in other.rejected.items():
             self.rejected[why] += count
+        self.stiffened += other.stiffened
 
 
 def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarray,
@@ -1195,10 +1236,10 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
             return (f"cancelled after {iteration - first} iteration(s); the last accepted "
                     f"iterate is kept"), iteration - 1
         t = params.tau_max * min(1.0, (iteration - 1) / TAU_RAMP) if tau is None else tau
-        target, status, residual = propose(fit, it, params.step,
-                                           assemble(fit, it.pairing, it.surf_n, t))
+        quadratic = assemble(fit, it.pairing, it.surf_n, t)
+        target, status, residual = propose(fit, it, params.step, _stiffened(fit, quadratic))
         moving = np.ones((fit.n0, 1))
-        halving = freezes = 0
+        halving = freezes = stiffened = 0
         while halving <= MAX_HALVINGS:
             v = it.v + 0.5 ** halving * moving * (target - it.v)
             candidate = assess(fit, v, member, floor_member, rows=False)
@@ -1206,6 +1247,19 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
             if why is None:
                 break
             run.rejected[why] += 1
+            if why != "energy" and halving == 0 and not freeze and \
+                    stiffened < STIFFEN_ROUNDS:
+                # the programme knows no fold or ridge: it proposes again with the surface
+                # stiffer where this proposal bends it too far (and stays so for later steps)
+                bent = _bent_controls(fit, it, candidate)
+                if bent.any():
+                    first = STIFFEN_FIRST * max(params.sigma, FitParams.sigma) / fit.n0
+                    fit.stiff[bent] = np.maximum(fit.stiff[bent] * STIFFEN_FACTOR, first)
+                    target, status, residual = propose(fit, it, params.step,
+                                                       _stiffened(fit, quadratic))
+                    stiffened += 1
+                    run.stiffened += 1
+                    continue
             if freeze and why != "energy" and freezes < FREEZES:
                 # the programme knows no fold or ridge: the step is tried again, as long, with
                 # the control vertices that shape the offending quads held where they are

@@ -81,7 +81,8 @@ def test_weights_and_parts(body):
 def test_legs_split_at_the_knee(body):
     """Thighs and calves are the legs, split without overlap: in the rest pose the thighs lie
     above the knees and the calves below them (within the knee's own flesh, 5 cm)."""
-    legs, thighs, calves = (body.part_mask([p]) for p in ("legs", "thighs", "calves"))
+    legs, calves = (body.part_mask([p]) for p in ("legs", "calves"))
+    thighs = body.part_mask(["thighs", "calves"]) & ~calves
     assert not (thighs & calves).any() and ((thighs | calves) == legs).all()
     assert thighs.sum() > 300 and calves.sum() > 300
     knee = max(body.joints[body.joint_index(n), 1] for n in ("LeftLeg", "RightLeg"))
@@ -161,7 +162,7 @@ def test_regions_partition_the_body_and_sit_where_they_should(body):
     counts = np.bincount(regions, minlength=len(BODY_REGIONS))
     assert (counts > 50).all(), dict(zip(BODY_REGIONS, counts))
     mask = {r: regions == k for k, r in enumerate(BODY_REGIONS)}
-    np.testing.assert_array_equal(mask["thighs"], body.part_mask(["thighs"]))
+    np.testing.assert_array_equal(mask["thighs"] & ~body.popliteal, body.part_mask(["thighs"]))
     np.testing.assert_array_equal(mask["calves"], body.part_mask(["calves"]))
     centre = {r: body.vertices[m].mean(axis=0) for r, m in mask.items()}
     joint = {n: body.joints[body.joint_index(n)] for n in ("Hips", "LowerBack", "Spine1", "Neck")}
@@ -236,3 +237,25 @@ def test_a_trunk_region_named_for_support_is_its_back_not_its_front(region):
     assert named[whole & backward].all() and not named[whole & forward].any()
     assert body.part_mask(["torso"])[whole].all()
     assert not body.part_mask("chair")[whole & forward].any()
+
+
+def test_thighs_without_the_calves_leave_the_back_of_the_knee_free(body):
+    """Asked for alone (a seat), the thighs stop 8 cm before each knee along the thigh bone,
+    the same on both legs; with the calves (a bed, a floor cushion) the whole leg counts."""
+    from solver.body.model import POPLITEAL_CLEARANCE
+
+    thighs = body.regions == BODY_REGIONS.index("thighs")
+    free = body.popliteal
+    assert free.any() and not (free & ~thighs).any()
+    seat = body.part_mask("seat")
+    assert not (seat & free).any() and (seat | free)[thighs].all()
+    assert body.part_mask(["thighs", "calves"])[free].all()
+    for side, sign in (("Left", 1.0), ("Right", -1.0)):
+        hip = body.joints[body.joint_index(f"{side}UpLeg")]
+        knee = body.joints[body.joint_index(f"{side}Leg")]
+        axis = (knee - hip) / np.linalg.norm(knee - hip)
+        mine = thighs & (np.sign(body.vertices[:, 0]) == np.sign(hip[0]))
+        past = (body.vertices - knee) @ axis  # metres past the knee along the bone
+        assert past[mine & free].min() > -POPLITEAL_CLEARANCE - 1e-9
+        assert past[mine & ~free].max() <= -POPLITEAL_CLEARANCE + 1e-9
+        assert 60 < (mine & free).sum() < 0.4 * mine.sum()
