@@ -106,7 +106,7 @@ FOLD_GUARD_DEG = 50.0  # degrees between neighbouring level-s quads a step may n
 DEPTH_TOLERANCE = 1e-3  # metres beyond the margin an iterate is not yet judged for: the rows hold
                         # the surface to a skin vertex's plane, the judgement measures behind
                         # the nearest one's, and they differ by a fraction of a millimetre
-REPAIR_ROUNDS = 3  # rounds of rows on dense samples found deeper than the margin
+REPAIR_ROUNDS = 5  # rounds of rows on dense samples found deeper than the margin
 REPAIR_ITERATIONS = 10  # iterations each such round may take
 REPAIR_SAFETY = 2e-3  # metres inside the margin those rows hold the samples to
 SAG_ALLOWANCE = 0.01  # metres a triangle may sink deeper between its corners than at them

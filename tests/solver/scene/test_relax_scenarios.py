@@ -53,11 +53,14 @@ def test_the_seated_person_relaxed_on_its_own_seat_is_never_worse():
 
 
 @pytest.mark.slow
-def test_every_example_relaxed_on_its_own_surface_is_never_worse_and_some_gain():
+def test_every_example_relaxed_on_its_own_surface_is_never_worse():
+    """Every person of every example, relaxed on the surface fitted to its captured pose: no
+    figure gets worse (`_check`). Since the fit aims 8 mm into the skin and stiffens its folding
+    proposals, no example's relaxation finds a round that gains without losing elsewhere, so
+    each keeps its captured pose; that a relaxation can gain is the figure 8 cross case's test
+    (tests/solver/body/test_relax.py)."""
     names = sorted(p.stem for p in EXAMPLES.glob("*.toml"))
     assert len(names) >= 6
-    gained = {}
     for name in names:
         for person, *rest in _relaxed(name):
-            gained[f"{name}: {person.label}"] = _check(person, *rest)
-    assert any(gained.values()), gained
+            _check(person, *rest)

@@ -272,12 +272,8 @@ CALF_PEAK = "the peak presses the unsupported calves, where the seat's front edg
 _EXAMPLE_MARKS = {
     "single_seated": {"rest": CALF_PEAK},
     "seat_for_thin": {"rest": NO_REST},
-    "seat_for_heavy": {"rest": NO_REST, "surface": "31.5 mm behind the calves' skin, 0.5 mm "
-                       "past the margin plus 1 mm: lifting it would fold the surface"},
     "facing_pair": {"rest": NO_REST},
     "six_overlapping": {"rest": NO_REST},
-    "reclining": {"rest": "the leg rest's end carries the peak under the calves (5.8 kPa, the "
-                  "pelvis 5.4 kPa)"},
 }
 _REPORTS: dict = {}
 
