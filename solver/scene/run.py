@@ -74,7 +74,8 @@ def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.n
 def fit_scene(scenario: Scenario, people: list[PlacedPerson],
               progress: Callable[[int, float, float], None] | None = None,
               timing: dict | None = None, *, warm: FitResult | None = None,
-              cancel: Callable[[], bool] | None = None
+              cancel: Callable[[], bool] | None = None,
+              iterates: Callable[[int, np.ndarray, np.ndarray], None] | None = None
               ) -> tuple[FitResult, list[dict], list[np.ndarray]]:
     """Fits the scenario's surface to the posed people and evaluates it.
 
@@ -84,8 +85,9 @@ def fit_scene(scenario: Scenario, people: list[PlacedPerson],
     people : the scenario's people as `place_person` posed them, in its order.
     progress : optional callback (iteration, energy, tau) of the fit's loop.
     timing : optional dict that receives `fit_s` and `evaluate_s` (seconds).
-    warm, cancel : as `fit_surface` takes them: an earlier fit of the same control mesh to
-        refit from, and a callable polled between iterations that ends the fit early.
+    warm, cancel, iterates : as `fit_surface` takes them: an earlier fit of the same control
+        mesh to refit from, a callable polled between iterations that ends the fit early, and
+        one given every accepted iterate (iteration, control vertices, level-s vertices).
 
     Returns
     -------
@@ -97,7 +99,8 @@ def fit_scene(scenario: Scenario, people: list[PlacedPerson],
     """
     timing = timing if timing is not None else {}
     t = time.perf_counter()
-    result = fit_people(scenario, people, progress, warm=warm, cancel=cancel)
+    result = fit_people(scenario, people, progress, warm=warm, cancel=cancel,
+                        iterates=iterates)
     timing["fit_s"] = time.perf_counter() - t
     t = time.perf_counter()
     # evaluated on the limit surface, as `surface.*` holds it and the guarantees judge it
@@ -109,15 +112,18 @@ def fit_scene(scenario: Scenario, people: list[PlacedPerson],
 
 def fit_people(scenario: Scenario, people: list[PlacedPerson],
                progress: Callable[[int, float, float], None] | None = None, *,
-               warm: FitResult | None = None, cancel: Callable[[], bool] | None = None
+               warm: FitResult | None = None, cancel: Callable[[], bool] | None = None,
+               iterates: Callable[[int, np.ndarray, np.ndarray], None] | None = None
                ) -> FitResult:
     """The scenario's surface fitted to the posed people (a template's control mesh built
-    around them by `place_scene`); `warm` and `cancel` as `fit_surface` takes them."""
+    around them by `place_scene`); `warm`, `cancel` and `iterates` as `fit_surface` takes
+    them."""
     if scenario.surface.vertices is None:
         raise FitError("The scenario's template has no control mesh yet: it is built around "
                        "the placed people (solver.scene.placement.place_scene)")
     return fit_surface(scenario.surface.vertices, scenario.surface.faces, people,
-                       scenario.surface.params, progress, warm=warm, cancel=cancel)
+                       scenario.surface.params, progress, warm=warm, cancel=cancel,
+                       iterates=iterates)
 
 
 def relax_problem(person: PlacedPerson, surface_vertices: np.ndarray,

@@ -1063,7 +1063,8 @@ def uncrossed(fit: _Fit, accepted: Sequence[np.ndarray]) -> tuple[int, int]:
 def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedBody],
                 params: FitParams = FitParams(),
                 progress: Callable[[int, float, float], None] | None = None, *,
-                warm: FitResult | None = None, cancel: Callable[[], bool] | None = None
+                warm: FitResult | None = None, cancel: Callable[[], bool] | None = None,
+                iterates: Callable[[int, np.ndarray, np.ndarray], None] | None = None
                 ) -> FitResult:
     """Fits the control mesh to the bodies (see the module docstring): each iteration proposes
     a step (pair, assemble, constrain, solve) and accepts it only if it lowers the judged
@@ -1096,6 +1097,10 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
     cancel : callable, optional
         Polled between iterations; when it returns True the fit ends early with the last
         accepted iterate (the best so far) and a `stop_reason` that begins with "cancelled".
+    iterates : callable, optional
+        Called after every accepted iteration as ``iterates(iteration, control, surface)``
+        with that iterate's control vertices (n0, 3) and level-s surface vertices (ns, 3),
+        metres (copies: a viewer may keep them), to show the fit as it goes.
 
     Returns
     -------
@@ -1132,7 +1137,8 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
     fit.stiff = np.zeros(fit.n0)
     run = _Descent([assess(fit, v_start.copy(), member, floor_member)])
     stop, iteration = descend(fit, run, member, floor_member, 1, params.max_iterations,
-                              progress, tau=None if warm is None else params.tau_max,
+                              _reporter(progress, iterates),
+                              tau=None if warm is None else params.tau_max,
                               settle=warm is not None, cancel=cancel,
                               freeze=warm is not None)
     repairs = []
@@ -1146,7 +1152,8 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
         again = _Descent([assess(fit, run.accepted[-1].v, member, floor_member,
                                  run.accepted[-1].rows.skin)])
         repair_stop, iteration = descend(fit, again, member, floor_member, iteration + 1,
-                                         iteration + REPAIR_ITERATIONS, progress,
+                                         iteration + REPAIR_ITERATIONS,
+                                         _reporter(progress, iterates),
                                          tau=params.tau_max, settle=True, cancel=cancel,
                                          freeze=warm is not None)
         if repair_stop.startswith("cancelled"):
@@ -1217,6 +1224,20 @@ class _Descent:
         self.stiffened += other.stiffened
 
 
+def _reporter(progress, iterates) -> Callable | None:
+    """The loop's one callback (iteration, energy, tau, iterate) for the caller's `progress`
+    (iteration, energy, tau) and `iterates` (iteration, control, surface)."""
+    if progress is None and iterates is None:
+        return None
+
+    def report(iteration: int, energy: float, tau: float, it: "Iterate") -> None:
+        if progress is not None:
+            progress(iteration, energy, tau)
+        if iterates is not None:
+            iterates(iteration, it.v.copy(), it.surf.copy())
+    return report
+
+
 def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarray,
             first: int, last: int, progress=None, tau: float | None = None,
             settle: bool = False, cancel: Callable[[], bool] | None = None,
@@ -1280,7 +1301,7 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
         run.statuses.append(status)
         run.residuals.append(residual)
         if progress is not None:
-            progress(iteration, run.energies[-1], t)
+            progress(iteration, run.energies[-1], t, it)
         if settle and run.energies[-1] > before * (1 - params.tolerance):
             return (f"settled: the last step lowered the energy by less than "
                     f"{100 * params.tolerance:g} % ({run.energies[-1]:.6g})"), iteration

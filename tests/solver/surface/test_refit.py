@@ -103,3 +103,23 @@ def test_a_warm_start_from_another_control_mesh_is_refused(seated):
     grid_v, grid_f = grid_mesh((0.5, 0.6), (4, 3), 0.42)
     with pytest.raises(FitError, match="same control mesh"):
         fit_surface(grid_v, grid_f, people, scenario.surface.params, warm=first)
+
+
+def test_every_accepted_iterate_reaches_the_iterates_callback(seated):
+    """`iterates` sees each accepted iterate once, in order, as copies; the last is the
+    result when no crossing was backed out of."""
+    scenario, _, people = seated
+    seen, energies = [], []
+    result = fit_surface(scenario.surface.vertices, scenario.surface.faces, people,
+                         scenario.surface.params,
+                         lambda i, e, tau: energies.append(i),
+                         iterates=lambda i, control, surface: seen.append((i, control, surface)))
+    assert [i for i, _, _ in seen] == energies == list(range(1, len(seen) + 1))
+    assert len(seen) == len(result.energies) + sum(
+        len(r["energies"]) for r in result.energy_terms["repairs"])
+    _, control, surface = seen[-1]
+    if "crossed itself" not in result.stop_reason:
+        np.testing.assert_array_equal(control, result.control)
+        np.testing.assert_allclose(surface, result.surface)
+    control[:] = 0.0  # a copy: the result is untouched
+    assert np.abs(result.control).max() > 0.1
