@@ -14,7 +14,10 @@ Each person's support is the use of the furniture (`posedb.regions.SUPPORT_USES`
 regions that kind of furniture carries), so the scenario says `support = "chair"`.
 
 People sitting on the floor or lying are lifted by the cushion's or the bed's height (`LIFT`),
-a reclined person until the pelvis is `RECLINED_PELVIS` high, so there is furniture under them. Standing poses and poses of different postures stop with a
+a reclined person until the pelvis is `RECLINED_PELVIS` high, so there is furniture under them;
+seated and perched people 2 cm (so the seat, not the floor under the feet, takes most of the
+weight), several of them each to the highest pelvis (one seat height serves them all). A chair's
+or bench's seat front edge is held (`fixed`). Standing poses and poses of different postures stop with a
 `DesignError`: there is nothing to sit on, or no one piece for them all.
 """
 
@@ -57,7 +60,12 @@ DESIGNS = {
     "floor": Design("floor_cushion", "floor_cushion", "floor"),
     "lying": Design("bed", "bed", "bed"),
 }
-LIFT = {"floor": 0.13, "lying": 0.46}  # metres people are raised: cushion / bed top + 1 cm
+LIFT = {"floor": 0.13, "lying": 0.46,  # metres people are raised: cushion / bed top + 1 cm,
+        "seated": 0.02, "perched": 0.02}  # a seat: the feet rest on a floor 150 times
+        # stiffer than its foam, so the seat's share of the weight hinges on how deep it sits
+        # in the skin against them (captured as they are, the floor takes 40-45 %)
+HELD_FRONT = ("chair", "bench")  # templates whose seat's front edge is held (`fixed`): free, it
+                                 # rises along the thighs to the knees and presses the calves
 RECLINED_PELVIS = 0.4  # metres: a reclined person is raised until the pelvis is this high
 GAP = 0.04  # metres between neighbours' skin, side by side
 
@@ -116,6 +124,9 @@ def design_scenario(poses: Sequence[str], db: str | os.PathLike | None = None,
     given = dict(design.single_given if one else design.several_given)
     lifts = [LIFT.get(posture, 0.0) if posture != "reclined" else
              max(RECLINED_PELVIS - figures.pelvis_height, 0.0) for _, figures in read]
+    if posture in ("seated", "perched") and not one:  # one seat height: the lower sit higher
+        top = max(figures.pelvis_height for _, figures in read)
+        lifts = [lift + top - figures.pelvis_height for lift, (_, figures) in zip(lifts, read)]
     people = [{"name": f"person {k + 1}", "pose": p, "support": design.use,
                "position": [0.0, float(lift), 0.0]}
               for k, (p, lift) in enumerate(zip(poses, lifts))]
@@ -131,6 +142,10 @@ def design_scenario(poses: Sequence[str], db: str | os.PathLike | None = None,
             person["position"][0] = float(x - c)
     built, _ = place_scene(parse_scenario(data, "design", base), db)
     data["surface"]["template"] = template_table(built.surface.template)
+    if kind in HELD_FRONT:  # the seat's front edge: the control vertices farthest forward
+        v = built.surface.vertices
+        data["surface"]["fixed"] = [int(j) for j in
+                                    np.flatnonzero(v[:, 2] > v[:, 2].max() - 1e-6)]
     return data, {"postures": postures, "posture": posture, "template": kind,
                   "figures": [r[1].__dict__ for r in read]}
 

@@ -980,14 +980,18 @@ def converged(energies: Sequence[float], tolerance: float) -> bool:
     return len(post) > PATIENCE and min(post) > min(post[:-PATIENCE]) * (1 - tolerance)
 
 
-def _stiffened(fit: _Fit, quadratic: tuple) -> tuple:
-    """The quadratic (H, g) of `assemble` with the proposals' extra smoothness added:
-    sum_j stiff_j |(L V)_j|^2, which keeps the next proposal from bending the surface where
-    earlier ones folded it. Only proposals see it: steps are judged by the energy itself."""
+def _stiffened(fit: _Fit, quadratic: tuple, v: np.ndarray | None = None) -> tuple:
+    """The quadratic (H, g) of `assemble` with the surface made stiffer where earlier
+    proposals folded: sum_j stiff_j |(L V)_j|^2 (smoother there), or with control vertices v
+    (n0, 3) given, sum_j stiff_j |(L (V - v))_j|^2 (the step bends less there; staying costs
+    nothing, so the proposal still lowers the programme's objective). Only proposals see it:
+    steps are judged by the energy itself."""
     if fit.stiff is None or not fit.stiff.any():
         return quadratic
     h, g = quadratic
-    extra = fit.lap.T @ sp.diags(fit.stiff) @ fit.lap
+    extra = (fit.lap.T @ sp.diags(fit.stiff) @ fit.lap).tocsr()
+    if v is not None:
+        g = g + (extra @ v).T.reshape(-1)  # x^T K x - 2 (K v)^T x: the step's bending
     if fit.dense:
         h, n0, block = h.copy(), fit.n0, extra.toarray()
         for a in range(3):
@@ -1261,6 +1265,7 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
         target, status, residual = propose(fit, it, params.step, _stiffened(fit, quadratic))
         moving = np.ones((fit.n0, 1))
         halving = freezes = stiffened = 0
+        stepped = freeze  # (a warm refit holds vertices still instead)
         while halving <= MAX_HALVINGS:
             v = it.v + 0.5 ** halving * moving * (target - it.v)
             candidate = assess(fit, v, member, floor_member, rows=False)
@@ -1281,6 +1286,13 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
                     stiffened += 1
                     run.stiffened += 1
                     continue
+            if why == "energy" and halving == 0 and not stepped and fit.stiff.any():
+                # a smoother surface costs more than it gains: a step that only bends less
+                # where proposals folded (it may stay, so it lowers the programme's objective)
+                target, status, residual = propose(fit, it, params.step,
+                                                   _stiffened(fit, quadratic, it.v))
+                stepped = True
+                continue
             if freeze and why != "energy" and freezes < FREEZES:
                 # the programme knows no fold or ridge: the step is tried again, as long, with
                 # the control vertices that shape the offending quads held where they are
