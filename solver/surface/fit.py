@@ -1215,7 +1215,8 @@ class _Descent:
     energies: list = field(default_factory=list)
     statuses: list = field(default_factory=list)
     residuals: list = field(default_factory=list)
-    rejected: dict = field(default_factory=lambda: {"energy": 0, "fold": 0, "ridge": 0})
+    rejected: dict = field(default_factory=lambda: {"energy": 0, "fold": 0, "ridge": 0,
+                                                    "programme": 0})
     stiffened: int = 0  # proposals made again, stiffer where they folded
 
     def extend(self, other: "_Descent") -> None:
@@ -1262,10 +1263,17 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
                     f"iterate is kept"), iteration - 1
         t = params.tau_max * min(1.0, (iteration - 1) / TAU_RAMP) if tau is None else tau
         quadratic = assemble(fit, it.pairing, it.surf_n, t)
-        target, status, residual = propose(fit, it, params.step, _stiffened(fit, quadratic))
+        try:
+            target, status, residual = propose(fit, it, params.step, _stiffened(fit, quadratic))
+        except FitError:
+            if not fit.stiff.any():
+                raise
+            # OSQP gave up on the stiffened programme: the programme as it is
+            run.rejected["programme"] += 1
+            target, status, residual = propose(fit, it, params.step, quadratic)
         moving = np.ones((fit.n0, 1))
         halving = freezes = stiffened = 0
-        stepped = freeze  # (a warm refit holds vertices still instead)
+        bend_less = False  # the proposals' stiffening: smoother (False) or bending less (True)
         while halving <= MAX_HALVINGS:
             v = it.v + 0.5 ** halving * moving * (target - it.v)
             candidate = assess(fit, v, member, floor_member, rows=False)
@@ -1273,26 +1281,30 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
             if why is None:
                 break
             run.rejected[why] += 1
-            if why != "energy" and halving == 0 and not freeze and \
-                    stiffened < STIFFEN_ROUNDS:
-                # the programme knows no fold or ridge: it proposes again with the surface
-                # stiffer where this proposal bends it too far (and stays so for later steps)
-                bent = _bent_controls(fit, it, candidate)
-                if bent.any():
-                    first = STIFFEN_FIRST * max(params.sigma, FitParams.sigma) / fit.n0
-                    fit.stiff[bent] = np.maximum(fit.stiff[bent] * STIFFEN_FACTOR, first)
-                    target, status, residual = propose(fit, it, params.step,
-                                                       _stiffened(fit, quadratic))
-                    stiffened += 1
-                    run.stiffened += 1
+            again = None
+            if halving == 0 and not freeze:  # (a warm refit holds vertices still instead)
+                if why != "energy" and stiffened < STIFFEN_ROUNDS:
+                    # the programme knows no fold or ridge: it proposes again with the
+                    # surface stiffer where this proposal bends it too far (and stays so)
+                    bent = _bent_controls(fit, it, candidate)
+                    if bent.any():
+                        first = STIFFEN_FIRST * max(params.sigma, FitParams.sigma) / fit.n0
+                        fit.stiff[bent] = np.maximum(fit.stiff[bent] * STIFFEN_FACTOR, first)
+                        stiffened += 1
+                        run.stiffened += 1
+                        again = False
+                elif why == "energy" and not bend_less and fit.stiff.any():
+                    # a smoother surface costs more than it gains: a step that only bends
+                    # less where proposals folded (staying costs nothing, so it lowers the
+                    # programme's objective)
+                    bend_less = again = True
+            if again is not None:
+                try:
+                    target, status, residual = propose(
+                        fit, it, params.step, _stiffened(fit, quadratic, it.v if again else None))
                     continue
-            if why == "energy" and halving == 0 and not stepped and fit.stiff.any():
-                # a smoother surface costs more than it gains: a step that only bends less
-                # where proposals folded (it may stay, so it lowers the programme's objective)
-                target, status, residual = propose(fit, it, params.step,
-                                                   _stiffened(fit, quadratic, it.v))
-                stepped = True
-                continue
+                except FitError:  # OSQP gave up on it: the last proposal is shortened instead
+                    run.rejected["programme"] += 1
             if freeze and why != "energy" and freezes < FREEZES:
                 # the programme knows no fold or ridge: the step is tried again, as long, with
                 # the control vertices that shape the offending quads held where they are
