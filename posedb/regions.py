@@ -45,7 +45,8 @@ SUPPORT_USES = {
     "stool": ("pelvis",),                         # a perch: the thighs slope off its edge
     "chair": _BACK + ("pelvis", "thighs"),        # a seat with a backrest
     "lounger": ("head",) + _BACK + ("pelvis", "thighs"),  # reclined, knees bent
-    "bed": BODY_REGIONS,                          # everything that lies on it
+    "bed": ("head",) + _BACK + ("pelvis", "thighs", "calves", "feet"),  # the whole body but
+    # the arms, which move freely in bed: a raised hand pulled a 0.3 m hump out of the mattress
     "floor": ("pelvis", "thighs", "calves", "feet"),  # a floor cushion: legs on it too
 }
 DEFAULT_SUPPORT = "seat"  # what a person of a scenario or a new pose needs supported, unless told

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from posedb.library import PoseLibrary
-from posedb.regions import BODY_REGIONS, SUPPORT_GROUPS
+from posedb.regions import BODY_REGIONS, SUPPORT_GROUPS, support_regions
 from posedb.schema import SCHEMA_VERSION, SUPPORT_BITS, decode_supports, encode_supports
 from posedb.verify import verify
 
@@ -107,8 +107,9 @@ def test_a_current_file_stores_regions_only(tmp_path):
         masks = f["poses"]["supports"][:]
     coarse = sum(1 << SUPPORT_BITS.index(g) for g in SUPPORT_GROUPS)
     assert (masks & coarse == 0).all()
-    assert masks[0] == sum(1 << SUPPORT_BITS.index(r) for r in BODY_REGIONS)
-    assert lib.pose("bed_pose").supports == BODY_REGIONS
+    bed = support_regions("bed")  # a use is stored as the regions it names
+    assert masks[0] == sum(1 << SUPPORT_BITS.index(r) for r in bed)
+    assert lib.pose("bed_pose").supports == bed
     assert lib.pose("default_pose").supports == ("pelvis", "thighs")  # a seat's
 
 
