@@ -123,3 +123,25 @@ def test_a_reclined_person_gets_a_lounger_under_them(tmp_path):
     template = data["surface"]["template"]
     assert 0.1 < template["seat_height"] < 0.45
     assert 20.0 < template["back_angle_deg"] < 50.0
+
+
+def test_seated_people_sit_2_cm_up_at_one_height_on_a_chair_with_its_front_edge_held():
+    """One sitter: 2 cm up and the chair's seat front edge (its foremost control vertices)
+    held; two sitters of different heights: each raised to the higher one's pelvis (plus the
+    2 cm), on a bench whose edge is free."""
+    from solver.scene.placement import place_scene
+
+    data, decided = design_scenario([HIGH.format(39)])
+    assert decided["template"] == "chair"
+    (person,) = data["person"]
+    assert person["position"][1] == pytest.approx(0.02)
+    built, _ = place_scene(parse_scenario(data, "design"))
+    front = np.flatnonzero(built.surface.vertices[:, 2] > built.surface.vertices[:, 2].max()
+                           - 1e-6)
+    assert data["surface"]["fixed"] == [int(j) for j in front] and len(front) >= 5
+    data, decided = design_scenario([HIGH.format(39), MEDIUM.format(200)])
+    assert decided["template"] == "bench" and "fixed" not in data["surface"]
+    pelvis = [f["pelvis_height"] for f in decided["figures"]]
+    lifts = [p["position"][1] for p in data["person"]]
+    assert lifts[0] + pelvis[0] == pytest.approx(lifts[1] + pelvis[1])  # one seat height
+    assert min(lifts) == pytest.approx(0.02) and max(lifts) > 0.1
