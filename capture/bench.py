@@ -27,6 +27,9 @@ class BenchCase:
     baseline_repeats: int = 3
     per_second: int | None = None  # items handled per run, to report a throughput
     warmup: bool = True  # one untimed run first (off for entries that start fresh each run)
+    # run and baseline return the seconds of the part they time themselves (the rest of what
+    # they do, such as waiting for the work before to settle, is not timed)
+    self_timed: bool = False
 
 
 AXIS_RECORDING = "bundled:axis_neuron_standing_yxz.bvh"

@@ -392,7 +392,7 @@ class BenchUnavailable(Exception):
 
 
 def _median_time(fn: Callable[[object], object], arg: object, repeats: int,
-                 warmup: bool = True) -> float:
+                 warmup: bool = True, self_timed: bool = False) -> float:
     import statistics  # loaded when the benchmarks run
 
     if warmup:
@@ -400,8 +400,8 @@ def _median_time(fn: Callable[[object], object], arg: object, repeats: int,
     times = []
     for _ in range(max(1, repeats)):
         start = time.perf_counter()
-        fn(arg)
-        times.append(time.perf_counter() - start)
+        seconds = fn(arg)
+        times.append(float(seconds) if self_timed else time.perf_counter() - start)
     return statistics.median(times)
 
 
@@ -436,14 +436,15 @@ def run_benchmarks(
             continue
         n = repeats or case.repeats
         row = {"name": case.name, "description": case.description,
-               "median_s": _median_time(case.run, arg, n, case.warmup), "repeats": n}
+               "median_s": _median_time(case.run, arg, n, case.warmup, case.self_timed),
+               "repeats": n}
         if case.per_second is not None:
             row["per_second"] = case.per_second / row["median_s"]
         if case.baseline is not None:
             nb = repeats or case.baseline_repeats
             if progress:
                 progress(f"[{k}/{len(chosen)}] {case.name}: baseline {case.baseline_name}")
-            base = _median_time(case.baseline, arg, nb, case.warmup)
+            base = _median_time(case.baseline, arg, nb, case.warmup, case.self_timed)
             row.update(baseline=case.baseline_name, baseline_median_s=base,
                        baseline_repeats=nb, speedup=base / row["median_s"])
         results.append(row)

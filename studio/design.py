@@ -4,8 +4,8 @@ them in the studio, and what can be done with them: fit, relax, save (library or
 The session is plain data (scenario person tables, a control mesh, parameters) turned into a
 `Scenario` by `parse_scenario` (the scenario schema: its defaults, its checks) whenever it
 runs, so everything the studio does is what `sitrelax fit` would do with the same scenario
-file. Posed people are cached by their table, so moving one person re-poses
-that person only.
+file. Posed people are cached by their table, and a person moved (nothing else changed) is
+the posed body moved, not posed again, so a drag costs no posing.
 
 Every edit is one step of the session's history (`undo`, `redo`): the people, the control mesh,
 the fixed vertices, the creases, the parameters, and the fit and relaxed bodies that went with
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import dataclasses
 import io
 import json
 import os
@@ -35,10 +36,12 @@ from solver.mesh import split_quad
 from solver.scene import schema
 from solver.scene.quality import design_misses
 from solver.surface.fit import FitResult
-from solver.scene.run import (SURFACE_FORMATS, fit_scene, relax_person, relax_text, run_fit,
-                              save_relaxed)
-from solver.scene.scenario import Scenario, parse_scenario, read_control_mesh, scenario_toml
+from solver.scene.run import (SURFACE_FORMATS, evaluate_scene, fit_people, relax_person,
+                              relax_text, run_fit, save_relaxed)
+from solver.scene.scenario import (PersonSpec, Scenario, parse_scenario, read_control_mesh,
+                                   scenario_toml)
 from solver.scene.placement import PlacedPerson, place_person, scene_posture
+from solver.surface.subdivision import subdivision
 
 PARAMETERS = ("level", "sigma", "tau_max", "margin")  # the ones the studio's panel sets
 MAX_PEOPLE = 8
@@ -55,6 +58,25 @@ class DesignError(ValueError):
 
 NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789-_. ")
 MAX_NAME = 80
+
+
+def control_edges(faces: np.ndarray) -> np.ndarray:
+    """(E, 2) int: the edges of control quads `faces` (F, 4), each once, smaller index first."""
+    f = np.asarray(faces)
+    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 3]], f[:, [3, 0]]])
+    return np.unique(np.sort(edges, axis=1), axis=0)
+
+
+def moved_to(placed: PlacedPerson, spec: PersonSpec) -> PlacedPerson:
+    """`placed` moved to `spec.position` (metres), `spec` its scenario person at that position
+    (nothing else changed): the skin vertices and the placement moved by the same vector, the
+    rest (normals, areas, importance, the rig) as they were."""
+    shift = np.asarray(spec.position, dtype=np.float64) - \
+        np.asarray(placed.spec.position, dtype=np.float64)
+    transform = placed.transform.copy()
+    transform[:3, 3] += shift
+    return dataclasses.replace(placed, vertices=placed.vertices + shift, spec=spec,
+                               transform=transform)
 
 
 def check_name(name: str) -> str:
@@ -78,6 +100,25 @@ class FitOutcome:
     persons: list[dict]
     pressure: list[np.ndarray]
     seconds: float
+    limit: np.ndarray | None = None  # (ns, 3) m: the level-s vertices' limit points (exported)
+
+
+@dataclass(frozen=True)
+class Iterate:
+    """One accepted iterate of a running fit, to show the fit as it goes (`Design.fit`).
+
+    iteration : the fit's iteration that accepted it (1, 2, ...).
+    control : (n0, 3) float, metres: its control vertices; faces : (F0, 4) int, the control
+        quads.
+    surface : (ns, 3) float, metres: its level-s surface vertices (not their limit points);
+        surface_faces : (Fs, 4) int, the level-s quads (those of the finished fit's surface).
+    """
+
+    iteration: int
+    control: np.ndarray
+    faces: np.ndarray
+    surface: np.ndarray
+    surface_faces: np.ndarray
 
 
 @dataclass
@@ -106,8 +147,13 @@ class Design:
         self.vertices = np.zeros((0, 3))
         self.faces = np.zeros((0, 4), dtype=np.int64)
         self.last: FitOutcome | None = None
+        # the newest accepted iterate of a fit a newer edit cancelled, while it is newer than
+        # `last`: the next warm fit goes on from it (what the tabs show), no step of the history
+        self.resume: FitResult | None = None
+        self._resumable = 0  # counts the edits after which no running fit may become `resume`
         self.relaxed: dict[int, RelaxOutcome] = {}  # person -> its relaxed body
         self._placed: dict[str, PlacedPerson] = {}
+        self._posed: dict[str, PlacedPerson] = {}  # by the table but for the position
         self._undo: list[dict] = []
         self._redo: list[dict] = []
         self._group: str | None = None  # the group of the last step (its edits coalesce)
@@ -125,6 +171,7 @@ class Design:
     def _restore(self, state: dict) -> None:
         for name in _STATE:
             setattr(self, name, state[name])
+        self._forget_resume()  # a warm fit goes on from the fit restored with the state
 
     @contextlib.contextmanager
     def edit(self, group: str | None = None):
@@ -203,6 +250,7 @@ class Design:
         self.fixed = set()
         self.creases = set()
         self.last = None
+        self._forget_resume()
 
     def move_vertex(self, j: int, position, group: str | None = None) -> None:
         self.move_vertices([j], np.asarray(position, dtype=np.float64)[None], group)
@@ -231,9 +279,7 @@ class Design:
 
     def control_edges(self) -> np.ndarray:
         """(E, 2) int: the control mesh's edges, each once, smaller index first."""
-        f = self.faces
-        edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 3]], f[:, [3, 0]]])
-        return np.unique(np.sort(edges, axis=1), axis=0)
+        return control_edges(self.faces)
 
     def set_crease(self, i: int, j: int, sharp: bool = True) -> None:
         """Makes the control edge between vertices i and j a crease (or smooth again)."""
@@ -260,6 +306,7 @@ class Design:
             self.vertices, self.faces = v, f
             self.creases = {(min(a, b), max(a, b)) for a, b in creases}
             self.last = None  # its control mesh is another's now
+            self._forget_resume()
         return list(range(n, len(v)))
 
     def face_of(self, vertices: Iterable[int]) -> int:
@@ -320,6 +367,7 @@ class Design:
             self.people = [p for i, p in enumerate(self.people) if i != k]
             self.relaxed = {i - (i > k): r for i, r in self.relaxed.items() if i != k}
             self.last = None
+        self._forget_resume()
 
     def _person(self, k: int) -> dict:
         if not 0 <= k < len(self.people):
@@ -332,12 +380,20 @@ class Design:
             self.place(dict(person, position=[0.0, 0.0, 0.0], rotation_deg=[0.0, 0.0, 0.0]))
 
     def place(self, person: dict) -> PlacedPerson:
+        """The person (a table of the session) posed and placed (`place_person`), cached by its
+        table; a person placed before at another position only is moved there instead (every
+        skin vertex by the same vector: its pose, normals, reach and pressure field do not
+        depend on where it stands), so a drag does not pose the body again at every step."""
         key = json.dumps(person, sort_keys=True)
         if key not in self._placed:
             spec = self._parse(self._data(people=[person])).persons[0]
             if len(self._placed) > 64:
                 self._placed.clear()
-            self._placed[key] = place_person(spec, self.db)
+                self._posed.clear()
+            anywhere = json.dumps(dict(person, position=None), sort_keys=True)
+            posed = self._posed.get(anywhere)
+            self._placed[key] = self._posed[anywhere] = (
+                place_person(spec, self.db) if posed is None else moved_to(posed, spec))
         return self._placed[key]
 
     # scenarios ----------------------------------------------------------------------------
@@ -365,34 +421,72 @@ class Design:
         return self._parse(self.scenario_data())
 
     def fit(self, progress: Callable[[int, float, float], None] | None = None, *,
-            warm: bool = False, cancel: Callable[[], bool] | None = None) -> FitOutcome | None:
-        """Fits the session as it is now (`fit_scene`) and keeps the outcome as `last`.
+            warm: bool = False, cancel: Callable[[], bool] | None = None,
+            iterates: Callable[[Iterate], None] | None = None) -> FitOutcome | None:
+        """Fits the session as it is now and evaluates the fit (what `fit_scene` does), and
+        keeps the outcome as `last`.
 
         Parameters
         ----------
         progress : optional callback (iteration, energy, tau) after each accepted iteration.
-        warm : refit from the last fit's result when the control mesh has the same vertices
-            and quads (a cold fit otherwise).
-        cancel : optional callable, asked between iterations: True stops the fit, which then
-            returns None and leaves `last` as it was (a newer edit outdated it).
+        warm : refit from the newest fit of a control mesh with the same vertices and quads:
+            the last fit's result, or the last accepted iterate of a fit cancelled since
+            (`resume`); a cold fit when there is none.
+        cancel : optional callable, asked between iterations and before the evaluation: True
+            stops the fit, which then returns None and leaves `last` as it was (a newer edit
+            outdated it); its last accepted iterate becomes `resume`.
+        iterates : optional callback given every accepted iterate (`Iterate`: its control and
+            level-s vertices with their faces) as the fit goes, on the fitting thread.
         """
-        start = time.perf_counter()
+        start, resumable = time.perf_counter(), self._resumable
         if cancel is not None and cancel():
             return None
         scenario = self.scenario()
         people = [self.place(p) for p in self.people]
-        last = self.last.result if warm and self.last is not None else None
-        if last is not None and (last.control.shape != self.vertices.shape or
-                                 not np.array_equal(last.faces, self.faces)):
-            last = None  # another control mesh: nothing to start from
-        result, persons, settles = fit_scene(scenario, people, progress, warm=last,
-                                             cancel=cancel)
+        params, faces = scenario.surface.params, scenario.surface.faces
+        each = None
+        if iterates is not None:  # the fit's own subdivision (cached by topology): its faces
+            surface_faces = subdivision(len(scenario.surface.vertices), faces, params.level,
+                                        params.creases or None).faces
+
+            def each(iteration: int, control: np.ndarray, surface: np.ndarray) -> None:
+                iterates(Iterate(iteration, control, faces, surface, surface_faces))
+        result = fit_people(scenario, people, progress, warm=self._warm_start() if warm else None,
+                            cancel=cancel, iterates=each)
         if result.stop_reason.startswith("cancelled") or (cancel is not None and cancel()):
+            self._keep_resume(result, resumable)
+            return None  # no evaluation: a newer edit wants another fit
+        # evaluated on the limit surface, as `surface.*` holds it and the guarantees judge it
+        limit = result.limit_surface(params.creases)
+        persons, settles = evaluate_scene(scenario, people, limit, result.surface_faces)
+        if cancel is not None and cancel():
+            self._keep_resume(result, resumable)
             return None
         self.last = FitOutcome(result, people, persons, [m.pressure_kpa for m in settles],
-                               time.perf_counter() - start)
+                               time.perf_counter() - start, limit)
+        self.resume = None
         self.relaxed = {}  # relaxed onto the surface before
         return self.last
+
+    def _keep_resume(self, result: FitResult, resumable: int) -> None:
+        """A cancelled fit's result for the next warm fit to go on from, if it got somewhere
+        and nothing since its start dropped the fits (another control mesh, a person removed,
+        an undo)."""
+        if result.energy_terms.get("best_iteration", 0) > 0 and resumable == self._resumable:
+            self.resume = result
+
+    def _forget_resume(self) -> None:
+        self.resume = None
+        self._resumable += 1
+
+    def _warm_start(self) -> FitResult | None:
+        """The newest fit to refit from (`resume`, else `last`'s) when its control mesh has the
+        session's vertices and quads."""
+        newest = self.resume or (self.last.result if self.last is not None else None)
+        if newest is None or newest.control.shape != self.vertices.shape or \
+                not np.array_equal(newest.faces, self.faces):
+            return None  # another control mesh: nothing to start from
+        return newest
 
     def pose_warnings(self) -> list[str]:
         """Why a person cannot sit on the surface, before any fit: a pose the posture

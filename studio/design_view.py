@@ -8,10 +8,13 @@ selection's centroid moves all of them, and the selection can be fixed, freed, t
 centroid, creased along the control edges it spans, or split (the quad its corners pick).
 
 While "Refit while dragging" is on, every drag or typed move asks the session's worker thread
-for a fit (`Refitter`): the newest edit cancels a fit still running for an older one, and fits
-start no faster than they finish, so the machine keeps up; each fit's iterations are shown as
-they come and its surface as soon as it is done. Everything goes through `Design` (the same
-solver and library calls as the command line).
+for a fit (`Refitter`): the newest edit cancels a fit still running for an older one (the next
+fit goes on from the cancelled one's last iterate, warm), and fits start no faster than they
+finish, so the machine keeps up. A fit's accepted iterates stream to the tabs as they come: the
+surface node's vertices (level s) and the fitted control net are updated in place, as often as
+showing them takes at most `SHOW_SHARE` of the fit's time; the finished fit replaces them with
+its limit surface (the same quads), the bodies coloured by pressure and the figures. Everything
+goes through `Design` (the same solver and library calls as the command line).
 
 A tab has its own session; tabs that join the same session name share one (each with its own
 selection and status line, all drawing every edit).
@@ -36,7 +39,7 @@ from solver.scene import schema
 from solver.scene.run import pressure_on_skin
 
 from .context import StudioContext, guarded
-from .design import DEFAULT_POSE, Design, DesignError, check_name
+from .design import DEFAULT_POSE, Design, DesignError, Iterate, check_name, control_edges
 
 CONTROL_COLOR = (40, 40, 48)
 FIXED_COLOR = (220, 50, 40)
@@ -48,6 +51,8 @@ RELAXED_COLOR = (150, 200, 150)
 PICK_ANGLE = 0.03  # radians off a click's ray within which a control vertex is hit
 BODY_MODES = {"shown": 1.0, "ghost": 0.25, "hidden": 0.0}  # opacity of the bodies
 QUIET_S = 0.03  # a refit waits this long for the drag's next event before it starts
+SHOW_SHARE = 0.2  # showing a fit's iterates takes at most this share of the fit's time
+STEP_GRACE_S = 0.15  # a newer edit lets a fit run this long for its first accepted iterate
 
 
 def _rgb(color) -> tuple[int, int, int]:
@@ -109,11 +114,18 @@ def ray_pick(points: np.ndarray, origin, direction, angle: float = PICK_ANGLE) -
     return int(np.argmin(ang))
 
 
+def show_due(spent: float, elapsed: float, share: float = SHOW_SHARE) -> bool:
+    """Whether a fit that has run `elapsed` seconds, `spent` of them showing its iterates, shows
+    the next one: showing stays within `share` of the fit's time (by at most one showing's
+    cost; the first iterate is always shown)."""
+    return spent <= share * elapsed
+
+
 class Refitter:
     """Fits a session on a worker thread: `request` after an edit; the newest request wins (a
-    fit still running for an older one is cancelled between its iterations) and fits start no
-    more often than the last one took, so a drag never queues fits the machine cannot keep up
-    with."""
+    fit still running for an older one is cancelled between its iterations, once it has made a
+    step: `Session.fit`) and fits start no more often than the last one took, so a drag never
+    queues fits the machine cannot keep up with."""
 
     def __init__(self, session: "Session"):
         self.session = session
@@ -141,6 +153,15 @@ class Refitter:
 
     def outdated(self, generation: int) -> bool:
         return self._closed or self.generation != generation
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    @property
+    def wanted(self) -> bool:
+        """A fit is asked for and not yet started."""
+        return self._wanted is not None
 
     def _run(self) -> None:
         while True:
@@ -175,7 +196,7 @@ class Refitter:
 
 class Session:
     """One design session and the views (tabs) showing it: a lock for its edits, the worker
-    that refits it, and the count of fits drawn."""
+    that refits it, the count of fits drawn and of iterates shown (streamed while fitting)."""
 
     def __init__(self, db: str | None, name: str = ""):
         self.design = Design(db)
@@ -183,6 +204,8 @@ class Session:
         self.lock = threading.RLock()
         self.views: list["DesignView"] = []
         self.fits = 0
+        self.shown = 0
+        self.showing_s = 0.0  # the seconds the last fit spent showing its iterates
         self.refitter = Refitter(self)
 
     def changed(self, source: "DesignView | None" = None) -> None:
@@ -192,23 +215,55 @@ class Session:
                 view.redraw()
 
     def fit(self, generation: int | None = None, source: "DesignView | None" = None) -> bool:
-        """Fits the session now (a newer edit cancels it: `generation` outdated) and draws the
-        outcome in every view; False when cancelled."""
+        """Fits the session now and draws the outcome in every view; False when cancelled.
+
+        A newer edit (`generation` outdated) cancels the fit once it has accepted an iterate
+        (or has run `STEP_GRACE_S` without one): the next fit goes on from that iterate, so a
+        drag faster than one iteration still moves the surface. The iterates are shown as they
+        come, within `SHOW_SHARE` of the fit's time.
+        """
         if generation is None:
             generation = self.refitter.bump()
         for view in list(self.views):
             view.fitting(None, None)
+        begun, spent, accepted = time.perf_counter(), 0.0, 0
 
         def progress(iteration: int, energy: float, tau: float) -> None:
+            nonlocal accepted
+            accepted += 1
             for view in list(self.views):
                 view.fitting(iteration, energy)
 
-        outcome = self.design.fit(progress, warm=True,
-                                  cancel=lambda: self.refitter.outdated(generation))
-        if outcome is None or outcome.result.stop_reason.startswith("cancelled"):
-            return False
+        def cancel() -> bool:
+            stepped = accepted > 0 or time.perf_counter() - begun > STEP_GRACE_S
+            return self.refitter.closed or (stepped and self.refitter.outdated(generation))
+
+        def iterate(it: Iterate) -> None:
+            nonlocal spent
+            if not show_due(spent, time.perf_counter() - begun):
+                return
+            if not self.lock.acquire(blocking=False):
+                return  # the session is being edited or redrawn: the next one, then
+            try:
+                mesh = self.design.vertices.shape == it.control.shape and \
+                    np.array_equal(self.design.faces, it.faces)
+                if self.refitter.closed or not mesh:
+                    return  # (an iterate outdated by a move is shown: the next fit goes on from it)
+                t = time.perf_counter()
+                for view in list(self.views):
+                    view.show_iterate(it)
+                self.shown += 1
+                spent += time.perf_counter() - t
+            finally:
+                self.lock.release()
+
+        outcome = self.design.fit(progress, warm=True, iterates=iterate, cancel=cancel)
+        self.showing_s = spent
         with self.lock:
-            if self.refitter.outdated(generation):
+            if outcome is None or self.refitter.outdated(generation):
+                if not self.refitter.wanted:  # no newer fit on its way to take its place
+                    for view in list(self.views):
+                        view.overtaken()
                 return False
             self.fits += 1
             for view in list(self.views):
@@ -247,7 +302,10 @@ class DesignView:
         self._relaxed: dict[int, object] = {}
         self._surface = None
         self._fitted_net = None
-        self._drawn_fit = None  # the fit outcome the surface drawn is of
+        self._drawn_fit = None  # the fit outcome the surface drawn is of (None: an iterate)
+        self._drawn_quads: tuple = (None, None)  # the quads of the surface and of the net drawn
+        self._fit_news = ""  # the running fit's last iteration and energy
+        self._shown_iteration: int | None = None  # the running fit's iterate drawn last
         self._gizmo = None
         self._gizmo_start: tuple[np.ndarray, np.ndarray] | None = None
         with tab:
@@ -808,8 +866,30 @@ class DesignView:
 
     def fitting(self, iteration: int | None, energy: float | None) -> None:
         """A fit's news: started (None) or one more accepted iteration."""
-        self.progress.content = ("*Fitting...*" if iteration is None else
-                                 f"*Fitting: iteration {iteration}, energy {energy:.4g}*")
+        if iteration is None:
+            self._fit_news, self._shown_iteration = "Fitting...", None
+        else:
+            self._fit_news = f"Fitting: iteration {iteration}, energy {energy:.4g}"
+        self._show_progress()
+
+    def show_iterate(self, it: Iterate) -> None:
+        """Shows an iterate of the running fit: its level-s surface and its control net, their
+        vertices sent alone while the quads are those drawn."""
+        self._show_surface(it.surface, it.surface_faces, it.control, it.faces)
+        self._drawn_fit = None  # a redraw draws the last finished fit again
+        self._shown_iteration = it.iteration
+        self._show_progress()  # after the surface: a page that shows this has the surface
+
+    def overtaken(self) -> None:
+        """The running fit was cancelled and no other follows: the last finished fit again."""
+        self._fit_news, self._shown_iteration = "", None
+        self.progress.content = ""
+        self._draw_surface()
+
+    def _show_progress(self) -> None:
+        shown = "" if self._shown_iteration is None else \
+            f"; surface of iteration {self._shown_iteration} shown"
+        self.progress.content = f"*{self._fit_news}{shown}*"
 
     def fitted(self, source: "DesignView | None" = None) -> None:
         """Draws the last fit: surface, fitted control net, bodies by pressure, figures and
@@ -818,6 +898,7 @@ class DesignView:
         if outcome is None:
             return
         self.progress.content = ""
+        self._shown_iteration = None
         self._draw_surface()
         self._draw_people(self._pressure())
         self._draw_relaxed()
@@ -845,14 +926,30 @@ class DesignView:
             return
         self._drawn_fit = outcome
         r = outcome.result
-        self._surface = self.scene.add_mesh_simple(
-            f"{self.prefix}/surface", r.surface, quad_triangles(r.surface_faces),
-            color=_rgb(SURFACE), side="double")
-        edges = np.concatenate([r.faces[:, [0, 1]], r.faces[:, [1, 2]], r.faces[:, [2, 3]],
-                                r.faces[:, [3, 0]]])
-        self._fitted_net = self.scene.add_line_segments(
-            f"{self.prefix}/fitted_net", r.control[np.unique(np.sort(edges, axis=1), axis=0)],
-            FITTED_NET_COLOR, thickness=1.5, thickness_units="screen")
+        # the limit surface (what is exported and judged) on the iterates' level-s quads
+        self._show_surface(r.surface if outcome.limit is None else outcome.limit,
+                           r.surface_faces, r.control, r.faces)
+
+    def _show_surface(self, surface: np.ndarray, surface_faces: np.ndarray,
+                      control: np.ndarray, faces: np.ndarray) -> None:
+        """The surface node (vertices (ns, 3) m, quads (Fs, 4)) and the fitted control net
+        (control vertices (n0, 3) m, quads (F0, 4)): where the quads are those drawn, only the
+        new vertices are sent."""
+        drawn_surface, drawn_net = self._drawn_quads
+        if self._surface is not None and np.array_equal(drawn_surface, surface_faces):
+            self._surface.vertices = surface
+        else:
+            self._surface = self.scene.add_mesh_simple(
+                f"{self.prefix}/surface", surface, quad_triangles(surface_faces),
+                color=_rgb(SURFACE), side="double")
+        edges = control_edges(faces)
+        if self._fitted_net is not None and np.array_equal(drawn_net, faces):
+            self._fitted_net.points = control[edges]
+        else:
+            self._fitted_net = self.scene.add_line_segments(
+                f"{self.prefix}/fitted_net", control[edges], FITTED_NET_COLOR, thickness=1.5,
+                thickness_units="screen")
+        self._drawn_quads = (surface_faces, faces)
 
     def _clear_surface(self) -> None:
         for name in ("_surface", "_fitted_net"):
@@ -860,6 +957,7 @@ class DesignView:
             if handle is not None:
                 handle.remove()
                 setattr(self, name, None)
+        self._drawn_fit, self._drawn_quads = None, (None, None)
 
     def _show_warnings(self) -> None:
         lines = self.design.pose_warnings() + self.design.result_warnings()

@@ -1,13 +1,14 @@
 """A browser tab without a browser (`HeadlessTab`): a websocket client speaking viser's protocol
 to the studio's viser server, so the studio builds that tab's views as for a page. It reports a
 camera (when viser counts a client as connected), sends what a page sends (clicks, gizmo drags)
-and reads whatever the server sends, noting when a scene node's message last arrived. The
-tests and the `studio_refit` benchmark drive the studio with it."""
+and reads whatever the server sends, noting when a scene node's messages and the texts of
+markdown panels arrived. The tests and the `studio_refit` benchmark drive the studio with it."""
 
 from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 
 import msgspec
 import numpy as np
@@ -15,7 +16,6 @@ import viser
 import zstandard
 from viser import _messages
 from websockets.sync.client import connect
-
 
 
 def looking(position, target) -> tuple[float, float, float, float]:
@@ -37,30 +37,34 @@ CAMERA = dict(wxyz=looking((0.0, 1.8, 1.2), (0.0, 0.45, 0.0)), position=(0.0, 1.
               look_at=(0.0, 0.45, 0.0), up_direction=(0.0, 1.0, 0.0))
 
 
-def _node_names(frame: bytes) -> list[str]:
-    """The scene node names of the messages in one of viser's frames (a zstd-compressed msgpack
-    window of messages after two little-endian uint64 sizes, then the raw arrays)."""
+def _messages_of(frame: bytes) -> list[dict]:
+    """The messages in one of viser's frames (a zstd-compressed msgpack window of messages after
+    two little-endian uint64 sizes, then the raw arrays)."""
     size, packed = int.from_bytes(frame[:8], "little"), int.from_bytes(frame[8:16], "little")
     inner = zstandard.ZstdDecompressor().decompress(frame[16:16 + packed],
                                                      max_output_size=size)
-    messages = msgspec.msgpack.decode(inner)["messages"]
-    return [m["name"] for m in messages if isinstance(m.get("name"), str)]
+    return msgspec.msgpack.decode(inner)["messages"]
 
 
 class HeadlessTab:
     """One connected tab of `studio` (a `studio.web.Studio`); `view` its Design view.
-    `watch` names scene nodes (e.g. "/design/surface") whose messages' arrival times are kept
-    in `arrived` (name -> time.perf_counter())."""
+    `watch` names scene nodes (e.g. "/design/surface") whose messages' arrival times are kept:
+    the last in `arrived` (name -> time.perf_counter()), the last few thousand in `arrivals`
+    (name -> times, oldest first). With `texts`, the contents sent to markdown panels are kept
+    with their arrival times in `contents` ((time, text), the last few thousand)."""
 
     def __init__(self, studio, camera: dict | None = None, timeout: float = 20.0,
-                 watch: tuple[str, ...] = ()):
+                 watch: tuple[str, ...] = (), texts: bool = False):
         self.studio = studio
         before = set(studio.views)
         self.socket = connect(f"ws://127.0.0.1:{studio.server.get_port()}",
                               subprotocols=[f"viser-v{viser.__version__}"], max_size=None)
         self.received = 0
         self.arrived: dict[str, float] = {}
+        self.arrivals: dict[str, deque] = {name: deque(maxlen=4096) for name in watch}
         self._watch = set(watch)
+        self._texts = texts
+        self.contents: deque = deque(maxlen=4096)
         self._closed = threading.Event()
         threading.Thread(target=self._drain, daemon=True).start()
         self.send(_messages.ViewerCameraMessage(**{**CAMERA, **(camera or {})}))
@@ -85,10 +89,24 @@ class HeadlessTab:
             except Exception:  # noqa: BLE001 (the socket closed)
                 return
             self.received += len(frame)
-            if self._watch and isinstance(frame, bytes):
+            if (self._watch or self._texts) and isinstance(frame, bytes):
                 now = time.perf_counter()
-                for name in self._watch & set(_node_names(frame)):
+                messages = _messages_of(frame)
+                names = {m["name"] for m in messages if isinstance(m.get("name"), str)}
+                for name in self._watch & names:
                     self.arrived[name] = now
+                    self.arrivals[name].append(now)
+                if self._texts:  # a markdown panel's text goes as its parsed "_markdown"
+                    self.contents.extend(
+                        (now, m["updates"]["_markdown"]) for m in messages
+                        if isinstance(m.get("updates"), dict) and
+                        isinstance(m["updates"].get("_markdown"), str))
+
+    def text_arrived(self, part: str, since: float) -> float | None:
+        """When a markdown text containing `part` first arrived at or after `since` (a
+        time.perf_counter()), or None (the tab must have been made with `texts`)."""
+        return next((t for t, text in list(self.contents) if t >= since and part in text),
+                    None)
 
     def close(self, timeout: float = 10.0) -> None:
         """Closes the connection and waits (up to `timeout` s) for the studio to close the

@@ -259,3 +259,45 @@ def test_dragging_refits_on_the_worker_and_a_newer_drag_cancels(tab):
     view.session.refitter.bump()
     _wait(lambda: not view.session.refitter.busy, 30, "the cancelled fit to stop")
     assert view.fits == fits
+
+
+@pytest.mark.slow
+def test_a_drag_streams_the_surface_and_the_fit_of_its_end_replaces_it(studio):
+    """A person dragged for a second in 0.5 mm steps: the tab receives surfaces while the drag
+    goes on (iterates, sent as new vertices of the same node), and after it the finished fit of
+    the last position, its limit surface on the iterates' quads."""
+    from solver.mesh import quad_triangles
+
+    tab = Tab(studio, watch=("/design/surface",), texts=True)
+    try:
+        view = tab.view
+        _seat(view)
+        view._guarded(view.run_fit)
+        assert view.fits == 1, view.status_text
+        surface = view._surface
+        view.live.value = True
+        name, owner = f"{view.prefix}/people/p0", str(tab.client_id)
+        tab.send(_messages.TransformControlsDragStartMessage(name, owner))
+        start = time.perf_counter()
+        for step in range(1, 41):
+            tab.send(_messages.TransformControlsUpdateMessage(
+                name, (1.0, 0.0, 0.0, 0.0), (0.0005 * step, 0.0, -0.1), owner))
+            time.sleep(0.03)
+        _wait(lambda: view.design.people[0]["position"] == [0.02, 0.0, -0.1], 30, "the drag")
+        dragged = time.perf_counter()
+        tab.send(_messages.TransformControlsDragEndMessage(name, owner))
+        _wait(lambda: view.fits >= 2 and not view.session.refitter.busy and
+              not view.session.refitter.wanted, 60, "the fit after the drag")
+        _wait(lambda: view.design.last.people[0].spec.position == (0.02, 0.0, -0.1), 60,
+              "the fit of the drag's end")
+        while_dragging = [t for t in tab.arrivals["/design/surface"] if start <= t <= dragged]
+        assert len(while_dragging) >= 2, (len(while_dragging), view.session.shown)
+        assert tab.text_arrived("surface of iteration", start) is not None
+        # one node throughout, its quads those of the fit; the finished fit's limit surface
+        assert view._surface is surface
+        result = view.design.last.result
+        np.testing.assert_array_equal(surface.faces, quad_triangles(result.surface_faces))
+        np.testing.assert_allclose(surface.vertices, view.design.last.limit, atol=1e-6)
+        assert view.progress.content == "" and "Fitted" in view.status_text
+    finally:
+        tab.close()
