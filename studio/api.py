@@ -274,6 +274,8 @@ def _deadline(seconds: float):
             raise TimeLimit(f"The request took over this server's time limit of {seconds:g} "
                             "s (stopped); lower the level, the iterations or the control mesh")
 
+    # a fit polls this within its iterations too (a large programme's tries take seconds)
+    progress.expired = lambda: time.monotonic() > end
     return progress
 
 
@@ -402,14 +404,17 @@ def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
     @app.post("/api/fit", summary="Fit a surface to a scenario, with each person's evaluation")
     def fit(s: schema.Scenario) -> FitResponse:
         from solver.scene.placement import place_scene
-        from solver.scene.run import fit_scene, report_parameters
+        from solver.scene.run import evaluate_scene, fit_people, report_parameters
 
         start = time.perf_counter()
         check = _deadline(time_limit)
         scenario = request_scenario(s)
         scenario, people = place_scene(scenario, place=place)
         check()
-        result, persons, _ = fit_scene(scenario, people, check)
+        result = fit_people(scenario, people, check, cancel=check.expired)
+        check()  # a fit cancelled at the deadline is refused, not evaluated
+        limit = result.limit_surface(scenario.surface.params.creases)
+        persons, _ = evaluate_scene(scenario, people, limit, result.surface_faces)
         return FitResponse(control=_mesh(result.control, result.faces),
                            surface=_mesh(result.surface, result.surface_faces),
                            parameters=report_parameters(scenario),

@@ -71,8 +71,10 @@ TRUNK_FACING = {"upper_back": 0.0, "lower_back": 0.0, "pelvis": 0.5}
 # metres along the thigh bone, before the knee, that a support of the thighs without the
 # calves leaves free: a seat's front edge under the back of the knee (the popliteal fossa)
 # presses its nerves and vessels and, on a seat whose calves hang, the top of the calves;
-# seating guidance leaves a hand's breadth between them
-POPLITEAL_CLEARANCE = 0.08
+# seating guidance leaves a hand's breadth between them. 11 cm, where the templates' seats end
+# (`solver.scene.furnish.KNEE_PIT`); at 8 cm the gallery's bench and lounger put their peaks on
+# the calves, at 11 cm on the thighs and the head
+POPLITEAL_CLEARANCE = 0.11
 
 
 class BodyShapeError(ValueError):

@@ -1275,6 +1275,10 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
         halving = freezes = stiffened = 0
         bend_less = False  # the proposals' stiffening: smoother (False) or bending less (True)
         while halving <= MAX_HALVINGS:
+            if cancel is not None and (halving or stiffened or freezes or bend_less) and \
+                    cancel():  # (a large programme's tries take seconds each)
+                return (f"cancelled after {iteration - first} iteration(s); the last "
+                        f"accepted iterate is kept"), iteration - 1
             v = it.v + 0.5 ** halving * moving * (target - it.v)
             candidate = assess(fit, v, member, floor_member, rows=False)
             why = acceptable(fit, it, candidate, t)

@@ -243,7 +243,7 @@ def test_a_trunk_region_named_for_support_is_its_back_not_its_front(region):
 
 
 def test_thighs_without_the_calves_leave_the_back_of_the_knee_free(body):
-    """Asked for alone (a seat), the thighs stop 8 cm before each knee along the thigh bone,
+    """Asked for alone (a seat), the thighs stop 11 cm before each knee along the thigh bone,
     the same on both legs; with the calves (a bed, a floor cushion) the whole leg counts."""
     from solver.body.model import POPLITEAL_CLEARANCE
 

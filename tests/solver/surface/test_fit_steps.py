@@ -323,3 +323,32 @@ def test_a_stiffened_programme_osqp_gives_up_on_is_set_aside(ball, monkeypatch):
     assert result.energy_terms["max_fold_deg"] <= 8.0
     e = np.asarray(result.energies)
     assert len(e) >= 2 and np.all(np.diff(e) <= 1e-12 * e[:-1])
+
+
+def test_cancel_is_polled_within_an_iteration_between_its_tries(ball, monkeypatch):
+    """A fit whose steps are refused and tried again polls `cancel` between the tries too (a
+    large programme's tries take seconds each): cancelled in the middle of an iteration, it
+    ends with the accepted iterates so far."""
+    v, t, normals, areas, importance = ball
+    grid_v, grid_f = grid_mesh((1.2, 0.8), (8, 6), 0.45)
+    body = [SupportedBody(v, normals, importance, "ball", t)]
+    params = F.FitParams(margin=0.02, sigma=0.01, max_iterations=25)
+    monkeypatch.setattr(F, "FOLD_GUARD_DEG", 8.0)  # so that steps are refused and tried again
+    accepted, polls = [], []
+    real = F.acceptable
+
+    def acceptable(fit, it, candidate, tau):
+        polls.append(len(accepted))
+        return real(fit, it, candidate, tau)
+
+    monkeypatch.setattr(F, "acceptable", acceptable)
+
+    def cancel():  # true once the iteration under way has had a try refused
+        return polls.count(len(accepted)) >= 1
+
+    result = F.fit_surface(grid_v, grid_f, body, params,
+                           lambda i, e, tau: accepted.append(i), cancel=cancel)
+    assert result.stop_reason.startswith("cancelled"), result.stop_reason
+    k = len(result.energies)  # the iterations accepted before the cancelled one
+    assert k == len(accepted) and polls.count(k) == 1  # stopped before its second try
+    assert all(polls.count(j) == 1 for j in range(k))  # the earlier ones took their first
