@@ -1250,10 +1250,12 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
     """Iterations `first`..`last` from the run's last iterate: each proposes a step and
     accepts it (`acceptable`) or tries it half as long; tau ramps over the first TAU_RAMP
     iterations unless given. With `settle`, it stops once an accepted step lowers the energy
-    by less than the tolerance (relative); `cancel` is polled before each iteration; with
-    `freeze`, a step refused for a fold or a ridge is first tried again with the control
-    vertices that shape the offending quads held still. Returns why it stopped and the last
-    iteration."""
+    by less than the tolerance (relative); `cancel` is polled before each iteration and before
+    each try after the first. A full step refused for a fold or a ridge is proposed again with
+    the surface stiffer where it folded (`_stiffened`, up to STIFFEN_ROUNDS times), and one then
+    refused for its energy once more as a step that bends less there; with `freeze` (a warm
+    refit) such a step is instead tried again with the control vertices that shape the
+    offending quads held still. Returns why it stopped and the last iteration."""
     params = fit.params
     it = run.accepted[-1]
     iteration = first - 1
@@ -1292,8 +1294,8 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
                     # surface stiffer where this proposal bends it too far (and stays so)
                     bent = _bent_controls(fit, it, candidate)
                     if bent.any():
-                        first = STIFFEN_FIRST * max(params.sigma, FitParams.sigma) / fit.n0
-                        fit.stiff[bent] = np.maximum(fit.stiff[bent] * STIFFEN_FACTOR, first)
+                        least = STIFFEN_FIRST * max(params.sigma, FitParams.sigma) / fit.n0
+                        fit.stiff[bent] = np.maximum(fit.stiff[bent] * STIFFEN_FACTOR, least)
                         stiffened += 1
                         run.stiffened += 1
                         again = False

@@ -348,7 +348,8 @@ def test_cancel_is_polled_within_an_iteration_between_its_tries(ball, monkeypatc
 
     result = F.fit_surface(grid_v, grid_f, body, params,
                            lambda i, e, tau: accepted.append(i), cancel=cancel)
-    assert result.stop_reason.startswith("cancelled"), result.stop_reason
     k = len(result.energies)  # the iterations accepted before the cancelled one
+    assert result.stop_reason.startswith(f"cancelled after {k} iteration(s)"), \
+        result.stop_reason
     assert k == len(accepted) and polls.count(k) == 1  # stopped before its second try
     assert all(polls.count(j) == 1 for j in range(k))  # the earlier ones took their first
