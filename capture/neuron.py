@@ -10,8 +10,9 @@ The decoder reads a byte stream in pieces of any size. It resynchronises on the 
 header after garbage, rejects impossible headers (a DataCount over `MAX_DATA_COUNT` is never
 allocated), and, because the format has no checksum, accepts a binary frame only when its
 framing is confirmed: the bytes after it start another frame, the datagram ends exactly there,
-or its DataCount is the one the paired skeleton expects for its flags, and no valid header
-begins inside it (which would mean it was cut short). A bit flipped inside a value, or a frame
+or its DataCount is the one the paired skeleton expects for its flags, and no other header
+begins inside it (which would mean it was cut short): neither a valid one nor the token and
+version of its own header, the start of a fragment. A bit flipped inside a value, or a frame
 cut short and followed by exactly as many stray bytes as it lost, cannot be detected by any
 reader of this format; a value made NaN or infinite is rejected.
 """
@@ -536,7 +537,7 @@ class StreamDecoder:
             self._skip(1)
             return pos + 1, _REJECT
         end = pos + HEADER_SIZE + 4 * head.count
-        inner = _embedded_header(buf, pos + 2, min(end, n))
+        inner = _embedded_header(buf, pos, min(end, n))
         if inner == _UNDECIDED and not final:
             return pos, _WAIT
         if inner >= 0:
@@ -634,18 +635,31 @@ class StreamDecoder:
 
 _UNDECIDED = -2
 _FRAME, _REJECT, _WAIT = 0, 1, 2
+_OWN_START = 6  # token and version: how a header of the same stream begins
 
 
-def _embedded_header(buf: bytearray, start: int, stop: int) -> int:
-    """Position of a valid header starting in buf[start:stop], -1 if none, or _UNDECIDED if a
-    token there cannot be judged yet because its header has not fully arrived."""
-    k = buf.find(TOKEN, start, stop + 1 if stop < len(buf) else stop)
+def _embedded_header(buf: bytearray, pos: int, stop: int) -> int:
+    """Where another header begins inside the frame whose header is at `pos` and whose bytes
+    received so far end at `stop`: -1 if nowhere, or _UNDECIDED if a token there cannot be
+    judged yet because its header has not fully arrived.
+
+    Another header begins where a valid one does, or where the frame's own token and version
+    bytes come again within it, even if what follows them is no valid header: a fragment of a
+    frame that was itself cut short. Wherever they fall among a frame's float32 values, those
+    six bytes make one of them a magnitude no sender of this format produces: about 2e18, or
+    nonzero and below 1e-37.
+    """
+    own = buf[pos:pos + _OWN_START]
+    hi = stop + 1 if stop < len(buf) else stop
+    k = buf.find(TOKEN, pos + 2, hi)
     while 0 <= k < stop:
+        if k + _OWN_START <= stop and buf[k:k + _OWN_START] == own:
+            return k
         if k + HEADER_SIZE > len(buf):
             return _UNDECIDED
         if _parse_header(buf, k) is not None:
             return k
-        k = buf.find(TOKEN, k + 1, stop + 1 if stop < len(buf) else stop)
+        k = buf.find(TOKEN, k + 1, hi)
     return -1
 
 

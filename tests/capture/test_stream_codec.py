@@ -161,16 +161,23 @@ damage = st.lists(
 )
 
 
-@settings(deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(n=st.integers(1, 10), seed=st.integers(0, 2**16), ops=damage,
-       splits=st.lists(st.integers(1, 4000), max_size=12), strict=st.booleans())
-def test_damage_never_invents_frames_and_spares_intact_ones(n, seed, ops, splits, strict):
+def _check_damage(n, seed, ops, splits, strict):
+    """Damages n encoded frames by `ops`, decodes them in `splits` pieces and checks that no
+    frame is invented, none comes out twice, none differs from what was sent where the damage
+    left it detectable, and every intact, confirmed frame comes out."""
     values = _frames(n, seed)
     blobs = _encode(values)
     damaged = set()
-    kept_floats = {}  # frames cut short: how many of their values survived whole
+    shortened = set()  # frames cut short at some point
+    # floats in front of the first payload byte any op changed, per frame damaged there
+    untouched = {}
     prefix = [b""] * n  # stray bytes in front of each frame
     body = [bytearray(b) for b in blobs]
+    interleaved = 0  # frames of the other sender, 7, 8, ..., put in front of ours in part
+
+    def touch(k, at):
+        untouched[k] = min(untouched.get(k, 9), max(0, (at - 64) // 4))
+
     for op, where, data, param in ops:
         k = where % n
         if op == "garbage":
@@ -179,12 +186,14 @@ def test_damage_never_invents_frames_and_spares_intact_ones(n, seed, ops, splits
             cut = param % len(blobs[k])
             del body[k][cut:]
             damaged.add(k)
-            kept_floats[k] = min(kept_floats.get(k, 9), max(0, (cut - 64) // 4))
+            shortened.add(k)
+            touch(k, cut)
         elif op == "insert":
             # stray bytes inside the payload: the values after them would come out shifted
             at = 64 + param % (len(blobs[k]) - 64)
             body[k][at:at] = (data * 4)[:4]
             damaged.add(k)
+            touch(k, at)
         elif op == "cut_long_tail":
             # cut short, then more stray bytes than it lost (fewer or as many slip through:
             # the format has no checksum)
@@ -193,6 +202,7 @@ def test_damage_never_invents_frames_and_spares_intact_ones(n, seed, ops, splits
             tail = (data * (lost // len(data) + 2))[:lost + 1 + param % 7]
             body[k][cut:] = tail.replace(b"\xff\xdd", b"\xfe\xdd")
             damaged.add(k)
+            touch(k, cut)
         elif op == "header_flip":
             # a flipped bit in the framing fields: token, version, count, flags or footer
             # (without a paired skeleton nothing tells a flipped flag from a true one)
@@ -202,24 +212,31 @@ def test_damage_never_invents_frames_and_spares_intact_ones(n, seed, ops, splits
             if pos < len(body[k]):
                 body[k][pos] ^= 1 << (param // 12 % 8)
                 damaged.add(k)
-        else:  # interleave: part of another avatar's frame lands in front of this one
-            other = encode_binary(OTHER, frame_index=7, with_displacement=False)
+        else:  # interleave: part of another avatar's next frame lands in front of this one
+            index = 7 + interleaved
+            interleaved += 1
+            other = encode_binary(OTHER, frame_index=index, with_displacement=False)
             part = 1 + param % (len(other) - 1)
             prefix[k] = other[:part] + prefix[k]
-            kept_floats[7 - 100] = min(kept_floats.get(7 - 100, 9), max(0, (part - 64) // 4))
+            touch(index - 100, part)
+            shortened.add(index - 100)
+    # A frame cut short and followed by exactly as many stray bytes as it lost looks whole (the
+    # format has no checksum): only its header and the values no op changed still hold. That
+    # includes a cut made up for by stray bytes inserted or appended to the same frame: those
+    # can restore its length exactly (cut to 99 bytes, then 36 stray bytes after the header).
+    kept_floats = {k: untouched[k] for k in shortened}
     pieces = [p + bytes(b) for p, b in zip(prefix, body)]
     stream = b"".join(pieces)
     cuts = sorted({s % (len(stream) + 1) for s in splits})
     chunks = [stream[a:b] for a, b in zip([0] + cuts, cuts + [len(stream)])]
     out, stats = decode_all(chunks, counts=COUNTS if strict else None)
     sent = {100 + i: v for i, v in enumerate(values)}
-    sent[7] = OTHER  # the interleaved frame was sent too, if only in part
+    for j in range(interleaved):
+        sent[7 + j] = OTHER  # the interleaved frames were sent too, if only in part
     for frame in out:
         assert frame.frame_index in sent, frame
         k = frame.frame_index - 100
         if k in kept_floats:
-            # A frame cut short and followed by exactly as many stray bytes as it lost looks
-            # whole (the format has no checksum): its header and surviving values still hold.
             m = kept_floats[k]
             assert np.array_equal(frame.values[:m], sent[frame.frame_index][:m])
         else:
@@ -235,6 +252,59 @@ def test_damage_never_invents_frames_and_spares_intact_ones(n, seed, ops, splits
             intact = False
         if intact:
             assert 100 + i in got, (i, stats)
+    return out, stats
+
+
+@settings(deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(n=st.integers(1, 10), seed=st.integers(0, 2**16), ops=damage,
+       splits=st.lists(st.integers(1, 4000), max_size=12), strict=st.booleans())
+def test_damage_never_invents_frames_and_spares_intact_ones(n, seed, ops, splits, strict):
+    _check_damage(n, seed, ops, splits, strict)
+
+
+# Found by the property test above: a frame cut to 99 bytes, then cut after its header and given
+# one stray byte more than the 35 it had left, is its header and 36 zero bytes again: the exact
+# bytes of a frame sent with nine zeros.
+CUT_THEN_LONG_TAIL = dict(n=1, seed=0, ops=[("cut", 0, b"\x00", 62499),
+                                            ("cut_long_tail", 0, b"\x00", 0)],
+                          splits=[], strict=False)
+
+
+def test_a_cut_made_up_by_a_long_tail_is_a_whole_frame_no_reader_can_question():
+    sent = _frames(1, 0)[0]
+    stream = _encode([sent])[0][:64] + bytes(36)
+    assert stream == encode_binary(np.zeros(9, dtype=np.float32), frame_index=100,
+                                   with_displacement=False, avatar_name="Seat")
+    for counts in (None, COUNTS):
+        (frame,), stats = decode_all(stream, counts=counts)  # a valid frame decodes as sent
+        assert frame.frame_index == 100 and not frame.values.any() and stats.corrupt == 0
+    (frame,), _ = _check_damage(**CUT_THEN_LONG_TAIL)  # its values are not asked to hold
+    assert not frame.values.any() and sent[:8].all()
+
+
+def test_a_cut_made_up_by_inserted_bytes_keeps_only_the_values_before_them():
+    # cut to 96 bytes, then 4 stray bytes after the header: 100 bytes again, values shifted
+    (frame,), _ = _check_damage(n=1, seed=0, ops=[("cut", 0, b"\x00", 52396),
+                                                  ("insert", 0, b"\x00", 0)],
+                                splits=[], strict=True)
+    np.testing.assert_array_equal(frame.values, np.r_[np.float32(0), _frames(1, 0)[0][:8]])
+
+
+def test_a_fragment_of_a_header_inside_a_frame_means_it_was_cut_short():
+    # Found by the property test with 5000 examples (seed 2): 93 bytes of the other sender's
+    # frame, then its first 7 bytes again, are 100 bytes followed by a token, twice. The second
+    # fragment's token and version inside the first frame show it was cut short.
+    other = encode_binary(OTHER, frame_index=7, with_displacement=False)
+    ours = _encode(_frames(1, 0))[0]
+    fragment_frame = other[:93] + other[:7]
+    stream = 2 * fragment_frame + ours
+    for counts in (None, COUNTS):
+        for chunks in ([stream], [stream[:150], stream[150:]], [bytes([b]) for b in stream]):
+            out, stats = decode_all(chunks, counts=counts)
+            assert [f.frame_index for f in out] == [100] and stats.corrupt >= 2
+    # the same bytes with the fragment's token and version gone come out: no reader can tell
+    whole = other[:93] + b"\0" * 7
+    assert [f.frame_index for f in decode_all(whole + ours)[0]] == [7, 100]
 
 
 @settings(deadline=None)
