@@ -404,7 +404,7 @@ def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
     @app.post("/api/fit", summary="Fit a surface to a scenario, with each person's evaluation")
     def fit(s: schema.Scenario) -> FitResponse:
         from solver.scene.placement import place_scene
-        from solver.scene.run import evaluate_scene, fit_people, report_parameters
+        from solver.scene.run import evaluate_fit, fit_people, report_parameters
 
         start = time.perf_counter()
         check = _deadline(time_limit)
@@ -413,8 +413,7 @@ def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
         check()
         result = fit_people(scenario, people, check, cancel=check.expired)
         check()  # a fit cancelled at the deadline is refused, not evaluated
-        limit = result.limit_surface(scenario.surface.params.creases)
-        persons, _ = evaluate_scene(scenario, people, limit, result.surface_faces)
+        _, persons, _ = evaluate_fit(scenario, people, result)
         return FitResponse(control=_mesh(result.control, result.faces),
                            surface=_mesh(result.surface, result.surface_faces),
                            parameters=report_parameters(scenario),

@@ -36,7 +36,7 @@ from solver.mesh import split_quad
 from solver.scene import schema
 from solver.scene.quality import design_misses
 from solver.surface.fit import FitResult
-from solver.scene.run import (SURFACE_FORMATS, evaluate_scene, fit_people, relax_person,
+from solver.scene.run import (SURFACE_FORMATS, evaluate_fit, fit_people, relax_person,
                               relax_text, run_fit, save_relaxed)
 from solver.scene.scenario import (PersonSpec, Scenario, parse_scenario, read_control_mesh,
                                    scenario_toml)
@@ -456,9 +456,7 @@ class Design:
         if result.stop_reason.startswith("cancelled") or (cancel is not None and cancel()):
             self._keep_resume(result, resumable)
             return None  # no evaluation: a newer edit wants another fit
-        # evaluated on the limit surface, as `surface.*` holds it and the guarantees judge it
-        limit = result.limit_surface(params.creases)
-        persons, settles = evaluate_scene(scenario, people, limit, result.surface_faces)
+        limit, persons, settles = evaluate_fit(scenario, people, result)
         if cancel is not None and cancel():
             self._keep_resume(result, resumable)
             return None

@@ -103,11 +103,20 @@ def fit_scene(scenario: Scenario, people: list[PlacedPerson],
                         iterates=iterates)
     timing["fit_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    # evaluated on the limit surface, as `surface.*` holds it and the guarantees judge it
-    limit = result.limit_surface(scenario.surface.params.creases)
-    persons, maps = evaluate_scene(scenario, people, limit, result.surface_faces)
+    _, persons, maps = evaluate_fit(scenario, people, result)
     timing["evaluate_s"] = time.perf_counter() - t
     return result, persons, maps
+
+
+def evaluate_fit(scenario: Scenario, people: list[PlacedPerson], result: FitResult
+                 ) -> tuple[np.ndarray, list[dict], list]:
+    """A fit evaluated as `fit_scene` does it, on its limit surface (what `surface.*` holds
+    and the guarantees judge): the limit surface (ns, 3) and `evaluate_scene`'s figures and
+    pressure maps per person. For callers that decide between the fit and its evaluation (a
+    cancelled fit is not evaluated)."""
+    limit = result.limit_surface(scenario.surface.params.creases)
+    persons, maps = evaluate_scene(scenario, people, limit, result.surface_faces)
+    return limit, persons, maps
 
 
 def fit_people(scenario: Scenario, people: list[PlacedPerson],

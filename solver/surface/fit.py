@@ -16,9 +16,9 @@ smoothly, without cutting into it. Each iteration:
    where b_k is the body vertex moved `sink` (8 mm) inwards along its normal (the foam is
    pressed that far where it carries the body, so the skin rests on it instead of grazing it:
    aimed at the skin itself, half the supported skin ends up a few millimetres in front of the
-   surface, out of contact), L is the cotangent Laplacian of the control mesh, tau rises from 0 to tau_max over the
-   first iterations, subject to every surface vertex near a body staying on the outer side of the
-   tangent plane at its closest body vertex, less the softness margin:
+   surface, out of contact), L is the cotangent Laplacian of the control mesh, tau rises from
+   0 to tau_max over the first iterations, subject to every surface vertex near a body staying
+   on the outer side of the tangent plane at its closest body vertex, less the softness margin:
    n_b . (v_s - b) >= -margin. "Closest" weighs the body vertex's normal too: the search runs in
    (position, FACING_SCALE x normal) space for (v_s, -n_s), so a surface vertex pairs with the
    body side that faces it. Without that, a surface that starts inside a body (a grid through
@@ -47,14 +47,15 @@ the energy with every body point at its nearest vertex of the new surface, plus 
 demands the new surface leaves unmet) and folds no neighbouring level-s quads further apart than
 FOLD_GUARD_DEG (or than the iterate before it); otherwise it is tried again half as long (a
 backtracking line search along the programme's solution), up to MAX_HALVINGS times, after which
-the fit has converged. In a cold fit, a full step refused for a fold or a ridge is first proposed again, up to
-STIFFEN_ROUNDS times, with the smoothness raised (tenfold each time) at the control vertices that
-shape the offending quads (`_stiffened`; the raise stays for the rest of the fit and only the
-proposals see it): the programme knows nothing of folds, and halving a step that folds seldom
-stops it folding, so without this a fit stopped after a few iterations, far from its best. In a
-warm refit (which starts against the guards, and must settle in a few iterations) such a step is
-instead tried again as long with the
-control vertices that shape the offending quads held still (up to FREEZES times). A step is
+the fit has converged. In a cold fit, a full step refused for a fold or a ridge is first
+proposed again, up to STIFFEN_ROUNDS times, with the smoothness raised (tenfold each time) at the
+control vertices that shape the offending quads (`_stiffened`; the raise stays for the rest of
+the fit and only the proposals see it), and a stiffened proposal refused for its energy once as
+a step that only bends less there: the programme knows nothing of folds, and halving a step
+that folds seldom stops it folding, so without this a fit stopped after a few iterations, far
+from its best. In a warm refit (which starts against the guards, and must settle in a few
+iterations) such a step is instead tried again as long with the control vertices that shape
+the offending quads held still (up to FREEZES times). A step is
 judged without its rows (the judgement needs only how deep the surface lies and which vertices
 join the rows); the accepted one's rows are made for the next. So the judged energies of
 the accepted iterates never rise (a rising tau can only lower them), and a surface that starts
@@ -330,6 +331,8 @@ class _Fit:
     limit: sp.csr_matrix | None = None  # (ns, n0) control vertices -> limit points of level s
     stiff: np.ndarray | None = None  # (n0,) extra smoothness of the steps' proposals per control
                                      # vertex, where proposals folded (`_stiffened`)
+    stiff_matrix: tuple | None = None  # (stiff, L^T diag(stiff) L and its dense block): built
+                                       # once per raise of `stiff`, not per proposal
     extra: "ExtraRows | None" = None  # rows on dense samples found too deep (`deep_samples`)
 
     @property
@@ -989,11 +992,14 @@ def _stiffened(fit: _Fit, quadratic: tuple, v: np.ndarray | None = None) -> tupl
     if fit.stiff is None or not fit.stiff.any():
         return quadratic
     h, g = quadratic
-    extra = (fit.lap.T @ sp.diags(fit.stiff) @ fit.lap).tocsr()
+    if fit.stiff_matrix is None or not np.array_equal(fit.stiff_matrix[0], fit.stiff):
+        extra = (fit.lap.T @ sp.diags(fit.stiff) @ fit.lap).tocsr()
+        fit.stiff_matrix = (fit.stiff.copy(), extra, extra.toarray() if fit.dense else None)
+    _, extra, block = fit.stiff_matrix
     if v is not None:
         g = g + (extra @ v).T.reshape(-1)  # x^T K x - 2 (K v)^T x: the step's bending
     if fit.dense:
-        h, n0, block = h.copy(), fit.n0, extra.toarray()
+        h, n0 = h.copy(), fit.n0
         for a in range(3):
             h[a * n0:(a + 1) * n0, a * n0:(a + 1) * n0] += block
         return h, g
@@ -1243,6 +1249,10 @@ def _reporter(progress, iterates) -> Callable | None:
     return report
 
 
+def _cancelled(done: int) -> str:
+    return f"cancelled after {done} iteration(s); the last accepted iterate is kept"
+
+
 def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarray,
             first: int, last: int, progress=None, tau: float | None = None,
             settle: bool = False, cancel: Callable[[], bool] | None = None,
@@ -1261,8 +1271,7 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
     iteration = first - 1
     for iteration in range(first, last + 1):
         if cancel is not None and cancel():
-            return (f"cancelled after {iteration - first} iteration(s); the last accepted "
-                    f"iterate is kept"), iteration - 1
+            return _cancelled(iteration - first), iteration - 1
         t = params.tau_max * min(1.0, (iteration - 1) / TAU_RAMP) if tau is None else tau
         quadratic = assemble(fit, it.pairing, it.surf_n, t)
         try:
@@ -1279,8 +1288,7 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
         while halving <= MAX_HALVINGS:
             if cancel is not None and (halving or stiffened or freezes or bend_less) and \
                     cancel():  # (a large programme's tries take seconds each)
-                return (f"cancelled after {iteration - first} iteration(s); the last "
-                        f"accepted iterate is kept"), iteration - 1
+                return _cancelled(iteration - first), iteration - 1
             v = it.v + 0.5 ** halving * moving * (target - it.v)
             candidate = assess(fit, v, member, floor_member, rows=False)
             why = acceptable(fit, it, candidate, t)

@@ -78,7 +78,7 @@ def _counting(monkeypatch):
     import studio.design as design_module
 
     calls = {"evaluations": 0, "warm": []}
-    fit_people, evaluate_scene = design_module.fit_people, design_module.evaluate_scene
+    fit_people, evaluate_fit = design_module.fit_people, design_module.evaluate_fit
 
     def fit(*args, **kwargs):
         calls["warm"].append(kwargs.get("warm"))
@@ -86,10 +86,10 @@ def _counting(monkeypatch):
 
     def evaluate(*args, **kwargs):
         calls["evaluations"] += 1
-        return evaluate_scene(*args, **kwargs)
+        return evaluate_fit(*args, **kwargs)
 
     monkeypatch.setattr(design_module, "fit_people", fit)
-    monkeypatch.setattr(design_module, "evaluate_scene", evaluate)
+    monkeypatch.setattr(design_module, "evaluate_fit", evaluate)
     return calls
 
 

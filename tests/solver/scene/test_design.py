@@ -136,9 +136,14 @@ def test_seated_people_sit_2_cm_up_at_one_height_on_a_chair_with_its_front_edge_
     (person,) = data["person"]
     assert person["position"][1] == pytest.approx(0.02)
     built, _ = place_scene(parse_scenario(data, "design"))
-    front = np.flatnonzero(built.surface.vertices[:, 2] > built.surface.vertices[:, 2].max()
-                           - 1e-6)
-    assert data["surface"]["fixed"] == [int(j) for j in front] and len(front) >= 5
+    template = data["surface"]["template"]
+    held = built.surface.vertices[data["surface"]["fixed"]]
+    # one vertex per column across the seat, all on its front edge: at the seat's height and
+    # ahead of every other control vertex
+    assert len(held) == template["seat_quads"][0] + 1
+    np.testing.assert_allclose(held[:, 1], template["seat_height"], atol=1e-9)
+    others = np.delete(built.surface.vertices, data["surface"]["fixed"], axis=0)
+    assert held[:, 2].min() > others[:, 2].max()
     data, decided = design_scenario([HIGH.format(39), MEDIUM.format(200)])
     assert decided["template"] == "bench" and "fixed" not in data["surface"]
     pelvis = [f["pelvis_height"] for f in decided["figures"]]
