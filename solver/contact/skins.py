@@ -1,5 +1,6 @@
 """The search structures of a closed skin, built once per skin and kept: its fast winding number
-tree (inside tests) and the k-d tree of its vertices (nearest vertices).
+tree (inside tests), its bounding-box tree (closest points) and the k-d tree of its vertices
+(nearest vertices).
 
 A scene's placement (which skin a support can reach), its evaluation (where a surface cuts into
 the body, how deep) and the fit's guarantees (the dense penetration) all ask about the same
@@ -15,7 +16,7 @@ import numpy as np
 
 import solver.threads  # noqa: F401  (libigl's thread count, set before libigl first runs)
 
-KEPT_SKINS = 4  # skins whose structures are kept
+KEPT_SKINS = 16  # skins whose structures are kept (a scene of several people asks for each)
 _SKINS: dict[tuple, dict] = {}
 _LOCK = threading.Lock()  # the studio evaluates from several threads
 
@@ -49,6 +50,21 @@ def body_winding(vertices: np.ndarray, triangles: np.ndarray):
         tree.init(v, t)
         kept["winding"] = tree
     return kept["winding"]
+
+
+def body_closest(vertices: np.ndarray, triangles: np.ndarray):
+    """The closed skin's bounding-box tree (libigl's `AABB`, for closest points), built on
+    first use and kept. vertices (V, 3) m, triangles (F, 3); query it with the same arrays."""
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.asarray(triangles, dtype=np.int64)
+    kept = _kept(v, t)
+    if "closest" not in kept:
+        import igl
+
+        tree = igl.AABB()
+        tree.init(v, t)
+        kept["closest"] = tree
+    return kept["closest"]
 
 
 def vertex_tree(vertices: np.ndarray):

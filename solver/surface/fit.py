@@ -200,9 +200,10 @@ class FitResult:
 class _Skin:
     """A body's closed skin (vertices (V, 3) m, triangles (T, 3)) where `stack` (a slice)
     says which of the fit's stacked body vertices are its own, with its winding-number and
-    closest-point structures (libigl's), built when first asked for. A skin that has only been
-    moved (every vertex by the same vector) since keeps them: queries are moved back by
-    `offset`, the vector it moved by since they were built."""
+    closest-point structures (`solver.contact.skins`', kept by content), built when first asked
+    for. A skin that has only been moved (every vertex by the same vector) since asks for the
+    ones of the positions they were first built on: queries are moved back by `offset`, the
+    vector it moved by since."""
 
     def __init__(self, vertices: np.ndarray, triangles: np.ndarray, stack: slice):
         self.vertices = np.asarray(vertices, dtype=np.float64)
@@ -210,7 +211,6 @@ class _Skin:
         self.stack = stack
         self.offset = np.zeros(3)
         self._built = self.vertices  # the positions the structures are built on
-        self._winding = self._closest = None
 
     def moved(self, vertices: np.ndarray, triangles: np.ndarray, stack: slice) -> "_Skin":
         """This skin at `vertices`: its structures kept when the vertices are these moved by
@@ -227,23 +227,18 @@ class _Skin:
 
     def winding(self, points: np.ndarray) -> np.ndarray:
         """(k,) the skin's winding number at points (k, 3)."""
-        import igl
+        from solver.contact.skins import body_winding
 
-        if self._winding is None:
-            self._winding = igl.FastWindingNumberBVH()
-            self._winding.init(self._built, self.triangles)
-        return self._winding.winding_number(points - self.offset)
+        return body_winding(self._built, self.triangles).winding_number(points - self.offset)
 
     def closest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Squared distances (k,), triangles (k,) and closest points (k, 3) on the skin of
         points (k, 3)."""
-        import igl
+        from solver.contact.skins import body_closest
 
-        if self._closest is None:
-            self._closest = igl.AABB()
-            self._closest.init(self._built, self.triangles)
-        dist2, face, at = self._closest.squared_distance(self._built, self.triangles,
-                                                          points - self.offset)
+        tree = body_closest(self._built, self.triangles)
+        dist2, face, at = tree.squared_distance(self._built, self.triangles,
+                                                points - self.offset)
         return dist2, face, at + self.offset
 
 
@@ -1282,7 +1277,8 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
             # OSQP gave up on the stiffened programme: the programme as it is
             run.rejected["programme"] += 1
             target, status, residual = propose(fit, it, params.step, quadratic)
-        moving = np.ones((fit.n0, 1))
+        if not freeze or iteration == first:
+            moving = np.ones((fit.n0, 1))
         halving = freezes = stiffened = 0
         bend_less = False  # the proposals' stiffening: smoother (False) or bending less (True)
         while halving <= MAX_HALVINGS:
