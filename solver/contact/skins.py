@@ -36,35 +36,32 @@ def _kept(vertices: np.ndarray, triangles: np.ndarray | None) -> dict:
     return kept
 
 
+def _skin_tree(vertices: np.ndarray, triangles: np.ndarray, kind: str):
+    """libigl's `kind` tree ("FastWindingNumberBVH" or "AABB") of the closed skin, built on
+    first use and kept."""
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.asarray(triangles, dtype=np.int64)
+    kept = _kept(v, t)
+    if kind not in kept:
+        import igl
+
+        tree = getattr(igl, kind)()
+        tree.init(v, t)
+        kept[kind] = tree
+    return kept[kind]
+
+
 def body_winding(vertices: np.ndarray, triangles: np.ndarray):
     """The closed skin's fast winding number tree (libigl's `FastWindingNumberBVH`, the same
     numbers as `igl.fast_winding_number`), built on first use and kept. vertices (V, 3) m,
     triangles (F, 3)."""
-    v = np.asarray(vertices, dtype=np.float64)
-    t = np.asarray(triangles, dtype=np.int64)
-    kept = _kept(v, t)
-    if "winding" not in kept:
-        import igl
-
-        tree = igl.FastWindingNumberBVH()
-        tree.init(v, t)
-        kept["winding"] = tree
-    return kept["winding"]
+    return _skin_tree(vertices, triangles, "FastWindingNumberBVH")
 
 
 def body_closest(vertices: np.ndarray, triangles: np.ndarray):
     """The closed skin's bounding-box tree (libigl's `AABB`, for closest points), built on
     first use and kept. vertices (V, 3) m, triangles (F, 3); query it with the same arrays."""
-    v = np.asarray(vertices, dtype=np.float64)
-    t = np.asarray(triangles, dtype=np.int64)
-    kept = _kept(v, t)
-    if "closest" not in kept:
-        import igl
-
-        tree = igl.AABB()
-        tree.init(v, t)
-        kept["closest"] = tree
-    return kept["closest"]
+    return _skin_tree(vertices, triangles, "AABB")
 
 
 def vertex_tree(vertices: np.ndarray):
