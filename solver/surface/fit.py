@@ -65,7 +65,8 @@ result is the last accepted iterate whose limit surface does not cross itself (c
 the end, and by bisection over the accepted iterates if it does).
 
 A warm refit (`fit_surface`'s `warm`: a person moved, a control vertex was edited) starts from
-the last result at tau_max with what still holds of its set-up, and stops once settled; a
+the last result at tau_max with what still holds of its set-up, and stops once settled (or
+once its steps shrink so fast that the rest of them would not add up to `tolerance`); a
 `cancel` callable ends any fit early with its last accepted iterate.
 """
 
@@ -753,11 +754,11 @@ def deep_samples(fit: _Fit, v: np.ndarray) -> ExtraRows | None:
         return None
     points = np.einsum("sk,fkd->fsd", weights, limit[triangles[candidates]]).reshape(-1, 3)
     # a sample within `allowed` of a skin vertex lies no deeper than that in its body: only
-    # the others need the exact (and costlier) tests of that body
-    within = fit.body_tree3.query_ball_point(points - fit.tree_offset, allowed)
-    counts = np.fromiter(map(len, within), dtype=np.int64, count=len(points))
-    sample = np.repeat(np.arange(len(points)), counts)
-    vertex = np.concatenate(within).astype(np.int64) if counts.sum() else sample
+    # the others need the exact (and costlier) tests of that body (the nearest vertex's body
+    # is spared them; any other body, rarely as near, is tested)
+    _, vertex = fit.body_tree3.query(points - fit.tree_offset, distance_upper_bound=allowed)
+    sample = np.flatnonzero(vertex < len(fit.points))
+    vertex = vertex[sample]
     found: dict[int, tuple[float, int, np.ndarray, np.ndarray]] = {}
     for skin in fit.skins:
         body_v, body_t = skin.vertices, skin.triangles
@@ -971,6 +972,16 @@ def terms_of(fit: _Fit, it: Iterate, tau: float) -> dict:
             "min_ridge_radius_m": it.min_ridge if np.isfinite(it.min_ridge) else None}
 
 
+def _settled_ahead(gains: Sequence[float], energy: float, tolerance: float) -> bool:
+    """Whether the steps to come, if each lowers the energy by the same fraction of the one
+    before as the last did of its own (a geometric series), would lower `energy` by less
+    than `tolerance` (relative) in all."""
+    if len(gains) < 2 or not 0 < gains[-1] < gains[-2]:
+        return False
+    ratio = gains[-1] / gains[-2]
+    return gains[-1] * ratio / (1 - ratio) < tolerance * energy
+
+
 def converged(energies: Sequence[float], tolerance: float) -> bool:
     """Whether the best energy after the tau ramp has not improved by `tolerance` (relative)
     in the last PATIENCE iterations."""
@@ -1078,9 +1089,12 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
 
     A warm refit (`warm`, the result of an earlier fit of the same control mesh, after a person
     moved or a control vertex was edited) starts from that result's control vertices (each
-    moved as far as the designer moved it in `control` since) at tau_max, reuses what still holds (the limit map, the rows, the bodies' search trees when
-    they did not move) and stops as soon as the surface is settled: once an accepted step
-    lowers the judged energy by less than `tolerance` (relative). The energy is the cold fit's
+    moved as far as the designer moved it in `control` since) at tau_max, reuses what still
+    holds (the limit map, the rows, the bodies' search trees when they did not move) and stops
+    as soon as the surface is settled: once an accepted step lowers the judged energy by less
+    than `tolerance` (relative), or the last two steps' gains shrink so fast that all the
+    steps to come, going on so, would lower it by less than that (`_settled_ahead`). The
+    vertices it held still for a fold stay held in its next iteration. The energy is the cold fit's
     own: the pulls still hold the control vertices to `control`, the designer's start.
 
     Parameters
@@ -1255,7 +1269,8 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
     """Iterations `first`..`last` from the run's last iterate: each proposes a step and
     accepts it (`acceptable`) or tries it half as long; tau ramps over the first TAU_RAMP
     iterations unless given. With `settle`, it stops once an accepted step lowers the energy
-    by less than the tolerance (relative); `cancel` is polled before each iteration and before
+    by less than the tolerance (relative), with `freeze` too once the steps to come would
+    (`_settled_ahead`); `cancel` is polled before each iteration and before
     each try after the first. A full step refused for a fold or a ridge is proposed again with
     the surface stiffer where it folded (`_stiffened`, up to STIFFEN_ROUNDS times), and one then
     refused for its energy once more as a step that bends less there; with `freeze` (a warm
@@ -1264,6 +1279,7 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
     params = fit.params
     it = run.accepted[-1]
     iteration = first - 1
+    gains: list[float] = []  # how much each accepted step lowered the energy
     for iteration in range(first, last + 1):
         if cancel is not None and cancel():
             return _cancelled(iteration - first), iteration - 1
@@ -1339,6 +1355,11 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
         if settle and run.energies[-1] > before * (1 - params.tolerance):
             return (f"settled: the last step lowered the energy by less than "
                     f"{100 * params.tolerance:g} % ({run.energies[-1]:.6g})"), iteration
+        gains.append(before - run.energies[-1])
+        if freeze and settle and _settled_ahead(gains, run.energies[-1], params.tolerance):
+            return (f"settled: the steps to come would lower the energy by less than "
+                    f"{100 * params.tolerance:g} % in all, as the last two shrank "
+                    f"({run.energies[-1]:.6g})"), iteration
         if tau is None and converged(run.energies, params.tolerance) or \
                 tau is not None and len(run.energies) > PATIENCE and \
                 run.energies[-1] > run.energies[-1 - PATIENCE] * (1 - params.tolerance):

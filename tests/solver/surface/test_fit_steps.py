@@ -207,6 +207,15 @@ def test_stop_rule():
     assert not F.converged(stalled[:F.TAU_RAMP + F.PATIENCE], 0.01)  # too few to judge
 
 
+def test_a_warm_refit_settles_once_the_steps_to_come_add_up_to_less_than_the_tolerance():
+    # gains 0.9 then 0.09 (ratio 0.1): the ones to come add up to 0.01, 1 % of 1.0
+    assert F._settled_ahead([0.9, 0.09], 1.0, 0.0101)
+    assert not F._settled_ahead([0.9, 0.09], 1.0, 0.0099)
+    assert not F._settled_ahead([0.09], 1.0, 0.5)  # one step says nothing of the next
+    assert not F._settled_ahead([0.09, 0.09], 1.0, 0.5)  # not shrinking: no series
+    assert not F._settled_ahead([0.01, 0.09], 1.0, 0.5)
+
+
 def test_floor_search_finds_the_full_skins_lowest_point():
     from solver.body.model import BodyShape, make_body
     from solver.body.rig import rig_pose
