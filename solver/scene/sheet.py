@@ -75,9 +75,12 @@ def sheet_lines(report: dict) -> tuple[list[str], list[str]]:
                 f"{', '.join(p['support'])}: coverage {p['coverage']:.2f}, contact "
                 f"{p['contact_coverage']:.2f}")
         if loads["pelvis_thighs_share"] is not None:
-            text += (f"; weight on pelvis + thighs {100 * loads['pelvis_thighs_share']:.0f} %, "
-                     f"calves {100 * loads['calves_share']:.0f} %, floor "
-                     f"{100 * loads['floor_share']:.0f} %")
+            # (a share may be a little under 0: a wall leant on may pull the body down by its
+            # friction, and the floor carry more than the weight)
+            pct = {k: int(round(100 * loads[k])) for k in ("pelvis_thighs_share", "calves_share",
+                                                             "floor_share")}  # no "-0"
+            text += (f"; weight on pelvis + thighs {pct['pelvis_thighs_share']} %, "
+                     f"calves {pct['calves_share']} %, floor {pct['floor_share']} %")
         if loads["peak_region"] is not None:
             text += f"; peak {loads['peak_kpa']:.1f} kPa on the {loads['peak_region']}"
         notes.append(text)
