@@ -202,6 +202,9 @@ class Session:
         self.design = Design(db)
         self.name = name
         self.lock = threading.RLock()
+        # one fit at a time: the Fit button's and the refit worker's would share the last fit's
+        # set-up (its OSQP programme) and its resume; the older one is cancelled, then waited for
+        self.fit_lock = threading.Lock()
         self.views: list["DesignView"] = []
         self.fits = 0
         self.shown = 0
@@ -219,7 +222,8 @@ class Session:
 
         A newer edit (`generation` outdated) cancels the fit once it has accepted an iterate
         (or has run `STEP_GRACE_S` without one): the next fit goes on from that iterate, so a
-        drag faster than one iteration still moves the surface. The iterates are shown as they
+        drag faster than one iteration still moves the surface. Fits run one at a time (the
+        Fit button's waits for the worker's it cancelled). The iterates are shown as they
         come, within `SHOW_SHARE` of the fit's time.
         """
         if generation is None:
@@ -257,7 +261,11 @@ class Session:
             finally:
                 self.lock.release()
 
-        outcome = self.design.fit(progress, warm=True, iterates=iterate, cancel=cancel)
+        with self.fit_lock:  # a fit still running for an older edit was cancelled by `bump`
+            if self.refitter.outdated(generation):
+                outcome = None  # a newer edit came while it waited: that one's fit follows
+            else:
+                outcome = self.design.fit(progress, warm=True, iterates=iterate, cancel=cancel)
         self.showing_s = spent
         with self.lock:
             if outcome is None or self.refitter.outdated(generation):

@@ -100,3 +100,34 @@ def test_a_newer_edit_cancels_the_fit_after_its_first_iterate_and_the_next_goes_
     assert session.fit()
     assert view.calls[-1] == ("fitted", None) and session.fits == 1
     assert design.resume is None and design.last.people[0].spec.position == (0.0, 0.0, -0.09)
+
+
+def test_the_fit_button_waits_for_the_fit_it_cancels_and_fits_alone(session, monkeypatch):
+    """A fit started while another runs (the Fit button during the worker's refit) cancels it
+    and waits for it to end: two fits never share the session's last set-up at once."""
+    import threading
+
+    running, most = [0], [0]
+    fit = type(session.design).fit
+
+    def counted(self, *args, **kwargs):
+        running[0] += 1
+        most[0] = max(most[0], running[0])
+        try:
+            return fit(self, *args, **kwargs)
+        finally:
+            running[0] -= 1
+
+    monkeypatch.setattr(type(session.design), "fit", counted)
+    started = threading.Event()
+    view = NotingView(on_show=lambda it: started.set())
+    session.views.append(view)
+    outcomes = {}
+    first = threading.Thread(target=lambda: outcomes.setdefault("first", session.fit()))
+    first.start()
+    assert started.wait(60)  # the first fit has shown an iterate: it is running
+    outcomes["second"] = session.fit()  # bumps the generation: the first is cancelled
+    first.join(60)
+    assert most[0] == 1
+    assert outcomes == {"first": False, "second": True}
+    assert session.fits == 1 and view.calls[-1] == ("fitted", None)
