@@ -11,14 +11,21 @@ over the size limit or a fit over the compute budget; 403 for a foreign Host or 
 error is a 4xx with a short body. The compute budget is a bound known before a fit runs
 (control vertices x 4^level x iterations x people, MAX_WORK) and a wall-clock limit checked at
 every iteration of the fit, which stops it.
+
+A fit answers with a `fit_id`; `/api/fit?warm=FIT_ID` refits a scenario of the same control
+mesh (people moved, vertices edited) from that fit's result, as the studio does while a
+designer drags, and stops once settled. The server keeps its last FITS_KEPT fits (404 for one
+it no longer has, 400 for a scenario of another control mesh).
 """
 
 from __future__ import annotations
 
 import math
 import os
+import secrets
 import threading
 import time
+from collections import OrderedDict
 from typing import Annotated
 
 import numpy as np
@@ -48,6 +55,7 @@ COORD = 100.0  # metres: the largest coordinate a request may give
 CEILINGS = {"level": 3, "max_iterations": 100, "sigma": 100.0, "gamma": 1e6, "anchor": 1e6,
             "margin": 0.2, "tolerance": 1.0, "pull_range": COORD, "step": COORD}
 MAX_FOAM_STIFFNESS = 1e5
+FITS_KEPT = 8  # the last fits a server keeps for warm refits (`/api/fit?warm=FIT_ID`)
 
 Coord = Annotated[float, Field(ge=-COORD, le=COORD)]
 Point = Annotated[list[Coord], Field(min_length=3, max_length=3)]
@@ -91,6 +99,7 @@ class FitResponse(BaseModel):
     seconds: float
     energies: list[float]
     persons: list[dict]
+    fit_id: str  # a later request may refit warm from this fit: /api/fit?warm=FIT_ID
 
 
 ERRORS = {
@@ -400,18 +409,56 @@ def _person_routes(app: FastAPI, place, time_limit: float) -> None:
         return {"persons": out}
 
 
+class _Fits:
+    """The last FITS_KEPT fits by id, each with a lock: a warm refit holds the lock of the fit it
+    starts from (whose set-up, OSQP's programme among it, it goes on with), so two refits never
+    share one at once."""
+
+    def __init__(self):
+        self._fits: OrderedDict[str, tuple] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def keep(self, result) -> str:
+        fit_id = secrets.token_hex(8)
+        with self._lock:
+            self._fits[fit_id] = (result, threading.Lock())
+            while len(self._fits) > FITS_KEPT:
+                self._fits.popitem(last=False)
+        return fit_id
+
+    def get(self, fit_id: str) -> tuple:
+        with self._lock:
+            entry = self._fits.get(fit_id)
+            if entry is not None:
+                self._fits.move_to_end(fit_id)
+        if entry is None:
+            raise HTTPException(404, f"No fit {fit_id} here to refit from (the server keeps its "
+                                     f"last {FITS_KEPT}): fit without `warm`")
+        return entry
+
+
 def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
+    fits = _Fits()
+
     @app.post("/api/fit", summary="Fit a surface to a scenario, with each person's evaluation")
-    def fit(s: schema.Scenario) -> FitResponse:
+    def fit(s: schema.Scenario,
+            warm: Annotated[str | None, Query(
+                pattern="^[0-9a-f]{16}$",
+                description="The fit_id of an earlier fit of the same control mesh (the same "
+                            "grid, template or mesh, people moved or vertices edited since): "
+                            "refit from its result, stopping once settled")] = None
+            ) -> FitResponse:
         from solver.scene.placement import place_scene
         from solver.scene.run import evaluate_fit, fit_people, report_parameters
 
         start = time.perf_counter()
         check = _deadline(time_limit)
         scenario = request_scenario(s)
+        last, in_use = fits.get(warm) if warm is not None else (None, threading.Lock())
         scenario, people = place_scene(scenario, place=place)
         check()
-        result = fit_people(scenario, people, check, cancel=check.expired)
+        with in_use:
+            result = fit_people(scenario, people, check, cancel=check.expired, warm=last)
         check()  # a fit cancelled at the deadline is refused, not evaluated
         _, persons, _ = evaluate_fit(scenario, people, result)
         return FitResponse(control=_mesh(result.control, result.faces),
@@ -419,7 +466,7 @@ def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
                            parameters=report_parameters(scenario),
                            iterations=result.iterations, stop_reason=result.stop_reason,
                            seconds=time.perf_counter() - start, energies=result.energies,
-                           persons=persons)
+                           persons=persons, fit_id=fits.keep(result))
 
     @app.post("/api/relax", summary="Fit, then relax one person onto the surface")
     def relax(req: RelaxRequest) -> dict:

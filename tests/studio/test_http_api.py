@@ -247,3 +247,29 @@ quick = schemathesis.openapi.from_dict(
 @settings(max_examples=10, deadline=None, suppress_health_check=list(HealthCheck))
 def test_a_short_fuzz_of_every_operation_finds_no_server_error(case, api):
     case.call_and_validate(base_url=api.url, checks=[not_a_server_error], timeout=60)
+
+
+def test_a_warm_refit_goes_on_from_an_earlier_fit(api):
+    """A fit names itself (`fit_id`); the same scenario with its person moved 2 cm, sent with
+    `warm`, refits from that fit and settles in fewer iterations; an id the server does not
+    keep is a 404, a fit of another control mesh a 400 that says so."""
+    status, first = _request(api, "POST", "/api/fit", SINGLE)
+    assert status == 200, first
+    moved = json.loads(json.dumps(SINGLE))
+    moved["person"][0]["position"][2] += 0.02
+    status, cold = _request(api, "POST", "/api/fit", moved)
+    assert status == 200, cold
+    status, warm = _request(api, "POST", f"/api/fit?warm={first['fit_id']}", moved)
+    assert status == 200, warm
+    assert warm["stop_reason"].startswith("settled"), warm["stop_reason"]
+    assert warm["iterations"] < cold["iterations"]
+    assert warm["persons"][0]["coverage"] >= cold["persons"][0]["coverage"] - 0.015
+    assert warm["fit_id"] not in (first["fit_id"], cold["fit_id"])
+    status, reply = _request(api, "POST", "/api/fit?warm=0123456789abcdef", moved)
+    assert status == 404 and "fit without `warm`" in reply["detail"], reply
+    other = json.loads(json.dumps(SINGLE))
+    other["surface"]["grid"]["resolution"] = [6, 6]
+    status, reply = _request(api, "POST", f"/api/fit?warm={first['fit_id']}", other)
+    assert status == 400 and "same control mesh" in reply["detail"], reply
+    status, reply = _request(api, "POST", "/api/fit?warm=not-an-id", moved)
+    assert status == 422, reply
