@@ -411,17 +411,18 @@ def _person_routes(app: FastAPI, place, time_limit: float) -> None:
 
 class _Fits:
     """The last FITS_KEPT fits by id, each with a lock: a warm refit holds the lock of the fit it
-    starts from (whose set-up, OSQP's programme among it, it goes on with), so two refits never
-    share one at once."""
+    starts from (whose set-up, OSQP's programme among it, it goes on with, and passes on to its
+    own result, which is kept with the same lock), so two refits never share one at once."""
 
     def __init__(self):
         self._fits: OrderedDict[str, tuple] = OrderedDict()
         self._lock = threading.Lock()
 
-    def keep(self, result) -> str:
+    def keep(self, result, lock: threading.Lock | None = None) -> str:
+        """An id for `result`, kept with `lock` (that of the fit it went on from) or its own."""
         fit_id = secrets.token_hex(8)
         with self._lock:
-            self._fits[fit_id] = (result, threading.Lock())
+            self._fits[fit_id] = (result, lock if lock is not None else threading.Lock())
             while len(self._fits) > FITS_KEPT:
                 self._fits.popitem(last=False)
         return fit_id
@@ -466,7 +467,8 @@ def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
                            parameters=report_parameters(scenario),
                            iterations=result.iterations, stop_reason=result.stop_reason,
                            seconds=time.perf_counter() - start, energies=result.energies,
-                           persons=persons, fit_id=fits.keep(result))
+                           persons=persons,
+                           fit_id=fits.keep(result, in_use if warm is not None else None))
 
     @app.post("/api/relax", summary="Fit, then relax one person onto the surface")
     def relax(req: RelaxRequest) -> dict:
