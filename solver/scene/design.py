@@ -123,6 +123,11 @@ def design_scenario(poses: Sequence[str], db: str | os.PathLike | None = None,
     one = len(poses) == 1
     kind = design.single if one else design.several
     given = dict(design.single_given if one else design.several_given)
+    if kind == "bed" and not one:  # as many quads across each sleeper as a bed for one has
+        from solver.surface.templates import TEMPLATE_PARAMS
+
+        across, along = TEMPLATE_PARAMS["bed"]().quads
+        given["quads"] = [across * len(poses), along]
     lifts = [LIFT.get(posture, 0.0) if posture != "reclined" else
              max(RECLINED_PELVIS - figures.pelvis_height, 0.0) for _, figures in read]
     if posture in ("seated", "perched") and not one:  # one seat height: the lower sit higher

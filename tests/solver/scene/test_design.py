@@ -15,6 +15,7 @@ from solver.body.poses import load_pose, retarget_captured
 from solver.body.rig import pose_channels, rig_skeleton
 from solver.scene.design import DesignError, design_scenario, pose_posture
 from solver.scene.scenario import load_scenario, parse_scenario
+from solver.surface.templates import TEMPLATE_PARAMS
 
 HIGH = "bvh:bundled:cmu_75_18_high_sit.bvh#frame={}"
 MEDIUM = "bvh:bundled:cmu_75_17_medium_sit.bvh#frame={}"
@@ -89,6 +90,11 @@ def test_lying_people_get_a_bed_they_are_lifted_onto(tmp_path):
     assert data["person"][0]["position"][1] > 0.4
     assert 0.4 < data["surface"]["template"]["height"] < data["person"][0]["position"][1]
     assert data["surface"]["template"]["length"] > 1.6
+    # two sleepers: a bed as wide as both, with as many quads across each as a bed for one
+    data, decided = design_scenario([lying, lying])
+    one = TEMPLATE_PARAMS["bed"]().quads
+    assert data["surface"]["template"]["quads"] == [2 * one[0], one[1]]
+    assert data["surface"]["template"]["width"] > 1.4
 
 
 @pytest.mark.parametrize("poses, message", [
