@@ -24,7 +24,8 @@ OUT = Path(__file__).with_name("scenarios") / "fig1_multipurpose.obj"
 BENCH = dict(back=True, seams=False, back_height=0.6, back_angle_deg=10.0, seats=6,
              seat_width=0.5, seat_height=0.36, seat_depth=0.45, seat_tilt_deg=6.0,
              position=(0.0, -0.12))
-BLEND = (-0.26, 0.02)  # x, m: the sitters' side ends at the first, the standers' starts at the second
+BLEND = (-0.26, 0.02)  # x, m: the sitters' side ends at the first, the standers' begins at
+# the second
 WALL_Z = 0.24  # m: the wall's z below WALL_KNEE (the standers' buttocks are at z 0.28)
 WALL_KNEE = 1.05  # m above the floor: the wall leans back above this ...
 WALL_LEAN = 0.35  # ... by this many metres per metre up
