@@ -410,32 +410,30 @@ def _person_routes(app: FastAPI, place, time_limit: float) -> None:
 
 
 class _Fits:
-    """The last FITS_KEPT fits by id, each with a lock: a warm refit holds the lock of the fit it
-    starts from (whose set-up, OSQP's programme among it, it goes on with, and passes on to its
-    own result, which is kept with the same lock), so two refits never share one at once."""
+    """The last FITS_KEPT fits by id, for warm refits (two refits from one fit at once do not
+    share its OSQP set-up: `solver.surface.programme.Programme.claim`)."""
 
     def __init__(self):
-        self._fits: OrderedDict[str, tuple] = OrderedDict()
+        self._fits: OrderedDict[str, object] = OrderedDict()
         self._lock = threading.Lock()
 
-    def keep(self, result, lock: threading.Lock | None = None) -> str:
-        """An id for `result`, kept with `lock` (that of the fit it went on from) or its own."""
+    def keep(self, result) -> str:
         fit_id = secrets.token_hex(8)
         with self._lock:
-            self._fits[fit_id] = (result, lock if lock is not None else threading.Lock())
+            self._fits[fit_id] = result
             while len(self._fits) > FITS_KEPT:
                 self._fits.popitem(last=False)
         return fit_id
 
-    def get(self, fit_id: str) -> tuple:
+    def get(self, fit_id: str):
         with self._lock:
-            entry = self._fits.get(fit_id)
-            if entry is not None:
+            result = self._fits.get(fit_id)
+            if result is not None:
                 self._fits.move_to_end(fit_id)
-        if entry is None:
+        if result is None:
             raise HTTPException(404, f"No fit {fit_id} here to refit from (the server keeps its "
                                      f"last {FITS_KEPT}): fit without `warm`")
-        return entry
+        return result
 
 
 def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
@@ -455,11 +453,10 @@ def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
         start = time.perf_counter()
         check = _deadline(time_limit)
         scenario = request_scenario(s)
-        last, in_use = fits.get(warm) if warm is not None else (None, threading.Lock())
+        last = fits.get(warm) if warm is not None else None
         scenario, people = place_scene(scenario, place=place)
         check()
-        with in_use:
-            result = fit_people(scenario, people, check, cancel=check.expired, warm=last)
+        result = fit_people(scenario, people, check, cancel=check.expired, warm=last)
         check()  # a fit cancelled at the deadline is refused, not evaluated
         _, persons, _ = evaluate_fit(scenario, people, result)
         return FitResponse(control=_mesh(result.control, result.faces),
@@ -467,8 +464,7 @@ def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
                            parameters=report_parameters(scenario),
                            iterations=result.iterations, stop_reason=result.stop_reason,
                            seconds=time.perf_counter() - start, energies=result.energies,
-                           persons=persons,
-                           fit_id=fits.keep(result, in_use if warm is not None else None))
+                           persons=persons, fit_id=fits.keep(result))
 
     @app.post("/api/relax", summary="Fit, then relax one person onto the surface")
     def relax(req: RelaxRequest) -> dict:

@@ -202,8 +202,8 @@ class Session:
         self.design = Design(db)
         self.name = name
         self.lock = threading.RLock()
-        # one fit at a time: the Fit button's and the refit worker's would share the last fit's
-        # set-up (its OSQP programme) and its resume; the older one is cancelled, then waited for
+        # one fit at a time: the Fit button's and the refit worker's would both go on from the
+        # last fit (or its resume) and race to replace it; the older is cancelled, then waited for
         self.fit_lock = threading.Lock()
         self.views: list["DesignView"] = []
         self.fits = 0

@@ -3,6 +3,8 @@ solved by OSQP, set up once per set of rows and updated in place otherwise."""
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -22,6 +24,8 @@ class Programme:
     slack^2, so overlapping bodies that no surface can clear at once leave a measured residual
     instead of an infeasible programme. The objective's pattern for x is fixed for the whole
     fit; OSQP is set up again only when the set of rows changes, and updated in place otherwise.
+    A fit `claim`s the programme it solves (a warm refit reuses the last fit's): one held by
+    another fit running now is not shared, the refit sets up its own.
     """
 
     def __init__(self, points: sp.spmatrix, lap: sp.csr_matrix, n0: int, slack_weight: float):
@@ -42,6 +46,15 @@ class Programme:
         self.rows: np.ndarray | None = None
         self.solver = None
         self.setups = 0
+        self._in_use = threading.Lock()
+
+    def claim(self) -> bool:
+        """Whether this programme is now the caller's alone (False: another fit solves it)."""
+        return self._in_use.acquire(blocking=False)
+
+    def release(self) -> None:
+        """Gives the claimed programme back (a later warm refit may claim it)."""
+        self._in_use.release()
 
     def _setup_patterns(self, rows: np.ndarray) -> None:
         n, r = 3 * self.n0, len(rows)

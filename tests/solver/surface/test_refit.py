@@ -123,3 +123,24 @@ def test_every_accepted_iterate_reaches_the_iterates_callback(seated):
         np.testing.assert_allclose(surface, result.surface)
     control[:] = 0.0  # a copy: the result is untouched
     assert np.abs(result.control).max() > 0.1
+
+
+def test_a_refit_beside_another_sets_up_its_own_programme(seated):
+    """The programme a warm refit reuses is claimed by one fit at a time: while another fit
+    holds the first fit's, the refit sets up its own (and settles all the same); once given
+    back, the next refit reuses it."""
+    scenario, first, people = seated
+    held = first.state.programme
+    assert held.claim()  # another fit solving it now
+    try:
+        beside = fit_surface(scenario.surface.vertices, scenario.surface.faces, people,
+                             scenario.surface.params, warm=first)
+    finally:
+        held.release()
+    assert beside.state.programme is not held
+    assert beside.stop_reason.startswith("settled"), beside.stop_reason
+    after = fit_surface(scenario.surface.vertices, scenario.surface.faces, people,
+                        scenario.surface.params, warm=first)
+    assert after.state.programme is held
+    assert held.claim()  # given back when the refit ended
+    held.release()
