@@ -1144,72 +1144,80 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
     start = time.perf_counter()
     state = _warm_state(warm, control, faces)
     fit = prepare(control, faces, targets, params, state)
-    claimed = fit.programme  # released however the fit ends
+    claimed = fit.programme  # claimed in `prepare` (rounds of rows on samples replace it)
     try:
-        v_start = fit.v0
-        if warm is not None:  # a designer's edit of the start moves the fitted mesh as much
-            v_start = warm.control + (fit.v0 - state.start if state is not None else 0.0)
-        if state is not None and len(state.member) == fit.sub.matrix.shape[0]:
-            # the rows of the last fit (those that come near join as before): OSQP's set-up stays
-            member, floor_member = state.member.copy(), state.floor_member.copy()
-        else:
-            member = initial_rows(fit, v_start)
-            floor_member = np.zeros_like(member)
-        setups = fit.programme.setups  # a reused programme counts its earlier set-ups
-        fit.stiff = np.zeros(fit.n0)
-        run = _Descent([assess(fit, v_start.copy(), member, floor_member)])
-        stop, iteration = descend(fit, run, member, floor_member, 1, params.max_iterations,
-                                  _reporter(progress, iterates),
-                                  tau=None if warm is None else params.tau_max,
-                                  settle=warm is not None, cancel=cancel,
-                                  freeze=warm is not None)
-        repairs = []
-        for _ in range(REPAIR_ROUNDS):
-            if stop.startswith("cancelled"):
-                break
-            extra = deep_samples(fit, run.accepted[-1].v)
-            if extra is None:
-                break
-            add_extra_rows(fit, extra)
-            again = _Descent([assess(fit, run.accepted[-1].v, member, floor_member,
-                                     run.accepted[-1].rows.skin)])
-            repair_stop, iteration = descend(fit, again, member, floor_member, iteration + 1,
-                                             iteration + REPAIR_ITERATIONS,
-                                             _reporter(progress, iterates),
-                                             tau=params.tau_max, settle=True, cancel=cancel,
-                                             freeze=warm is not None)
-            if repair_stop.startswith("cancelled"):
-                stop = repair_stop
-            repairs.append({"rows": len(extra.demanded), "energies": again.energies,
-                            "stop_reason": repair_stop})
-            run.extend(again)
-        keep, crossings = uncrossed(fit, [a.v for a in run.accepted])
-        if repairs:
-            stop += (f"; {len(repairs)} round(s) of rows where the surface lay deeper than the "
-                     f"margin between its vertices ({sum(r['rows'] for r in repairs)} rows)")
-        if keep < len(run.accepted) - 1:
-            stop += (f"; the surface crossed itself ({crossings} triangle pairs) after accepted "
-                     f"iterate {keep}, which is kept")
-        result = run.accepted[keep]
-        terms = terms_of(fit, result, params.tau_max if repairs or warm is not None else
-                         params.tau_max * min(1.0, max(keep - 1, 0) / TAU_RAMP))
-        terms.update(best_iteration=keep, qp_setups=fit.programme.setups - setups,
-                     rejected_steps=dict(run.rejected), stiffened_proposals=run.stiffened,
-                     repairs=repairs,
-                     largest_row_residual_m=run.residuals[keep - 1] if keep else 0.0)
-        loop = len(run.energies) - sum(len(r["energies"]) for r in repairs)
-        return FitResult(result.v, fit.faces, result.surf, fit.sub.faces, iteration, stop,
-                         run.energies[:loop],
-                         terms, time.perf_counter() - start, run.statuses, fit.sub,
-                         limit_points(fit, result.v),
-                         FitState(_state_key(fit.n0, params), fit.v0, fit.limit, member,
-                                  floor_member,
-                                  fit.points, fit.normals,
-                                  (fit.body_tree, fit.body_tree3, fit.exit_tree), fit.tree_offset,
-                                  fit.skins, fit.programme if fit.extra is None else None,
-                                  fit.neighbours, fit.quad_maps, fit.lap))
+        return _run(fit, state, warm, progress, iterates, cancel, start)
     finally:
-        claimed.release()
+        claimed.release()  # given back however the fit ends
+
+
+def _run(fit: _Fit, state: "FitState | None", warm: FitResult | None, progress, iterates,
+         cancel: Callable[[], bool] | None, start: float) -> FitResult:
+    """`fit_surface`'s loop on a prepared fit: the descent, the rounds of rows on dense samples,
+    the last uncrossed iterate as the result."""
+    params = fit.params
+    v_start = fit.v0
+    if warm is not None:  # a designer's edit of the start moves the fitted mesh as much
+        v_start = warm.control + (fit.v0 - state.start if state is not None else 0.0)
+    if state is not None and len(state.member) == fit.sub.matrix.shape[0]:
+        # the rows of the last fit (those that come near join as before): OSQP's set-up stays
+        member, floor_member = state.member.copy(), state.floor_member.copy()
+    else:
+        member = initial_rows(fit, v_start)
+        floor_member = np.zeros_like(member)
+    setups = fit.programme.setups  # a reused programme counts its earlier set-ups
+    fit.stiff = np.zeros(fit.n0)
+    run = _Descent([assess(fit, v_start.copy(), member, floor_member)])
+    stop, iteration = descend(fit, run, member, floor_member, 1, params.max_iterations,
+                              _reporter(progress, iterates),
+                              tau=None if warm is None else params.tau_max,
+                              settle=warm is not None, cancel=cancel,
+                              freeze=warm is not None)
+    repairs = []
+    for _ in range(REPAIR_ROUNDS):
+        if stop.startswith("cancelled"):
+            break
+        extra = deep_samples(fit, run.accepted[-1].v)
+        if extra is None:
+            break
+        add_extra_rows(fit, extra)
+        again = _Descent([assess(fit, run.accepted[-1].v, member, floor_member,
+                                 run.accepted[-1].rows.skin)])
+        repair_stop, iteration = descend(fit, again, member, floor_member, iteration + 1,
+                                         iteration + REPAIR_ITERATIONS,
+                                         _reporter(progress, iterates),
+                                         tau=params.tau_max, settle=True, cancel=cancel,
+                                         freeze=warm is not None)
+        if repair_stop.startswith("cancelled"):
+            stop = repair_stop
+        repairs.append({"rows": len(extra.demanded), "energies": again.energies,
+                        "stop_reason": repair_stop})
+        run.extend(again)
+    keep, crossings = uncrossed(fit, [a.v for a in run.accepted])
+    if repairs:
+        stop += (f"; {len(repairs)} round(s) of rows where the surface lay deeper than the "
+                 f"margin between its vertices ({sum(r['rows'] for r in repairs)} rows)")
+    if keep < len(run.accepted) - 1:
+        stop += (f"; the surface crossed itself ({crossings} triangle pairs) after accepted "
+                 f"iterate {keep}, which is kept")
+    result = run.accepted[keep]
+    terms = terms_of(fit, result, params.tau_max if repairs or warm is not None else
+                     params.tau_max * min(1.0, max(keep - 1, 0) / TAU_RAMP))
+    terms.update(best_iteration=keep, qp_setups=fit.programme.setups - setups,
+                 rejected_steps=dict(run.rejected), stiffened_proposals=run.stiffened,
+                 repairs=repairs,
+                 largest_row_residual_m=run.residuals[keep - 1] if keep else 0.0)
+    loop = len(run.energies) - sum(len(r["energies"]) for r in repairs)
+    return FitResult(result.v, fit.faces, result.surf, fit.sub.faces, iteration, stop,
+                     run.energies[:loop],
+                     terms, time.perf_counter() - start, run.statuses, fit.sub,
+                     limit_points(fit, result.v),
+                     FitState(_state_key(fit.n0, params), fit.v0, fit.limit, member,
+                              floor_member,
+                              fit.points, fit.normals,
+                              (fit.body_tree, fit.body_tree3, fit.exit_tree), fit.tree_offset,
+                              fit.skins, fit.programme if fit.extra is None else None,
+                              fit.neighbours, fit.quad_maps, fit.lap))
 
 
 def _warm_state(warm: FitResult | None, control: np.ndarray, faces: np.ndarray
