@@ -82,7 +82,7 @@ from scipy.spatial import cKDTree
 
 from solver.contact.supported import SupportedBody
 from solver.surface.guarantees import neighbour_faces, quad_normals
-from solver.surface.programme import Programme, ProgrammeError
+from solver.surface.programme import DenseProgramme, Programme, ProgrammeError
 from solver.surface.subdivision import Subdivision, subdivision
 from solver.threads import with_limited_threads
 
@@ -462,7 +462,8 @@ def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedB
             state.programme.slack_weight == SLACK_WEIGHT / people and state.programme.claim():
         programme = state.programme  # its set-up holds while its rows do (no other fit's now)
     else:
-        programme = Programme(sub.matrix, lap, n0, SLACK_WEIGHT / people)
+        programme = (DenseProgramme if dense else Programme)(sub.matrix, lap, n0,
+                                                             SLACK_WEIGHT / people)
         programme.claim()
     skins, at = [], 0
     for t in targets:
@@ -798,8 +799,9 @@ def add_extra_rows(fit: _Fit, extra: ExtraRows) -> None:
                           np.concatenate([fit.extra.normals, extra.normals]),
                           np.concatenate([fit.extra.demanded, extra.demanded]))
     fit.extra = extra
-    programme = Programme(sp.vstack([fit.sub.matrix, extra.points]).tocsr(), fit.lap,
-                          fit.n0, fit.programme.slack_weight)
+    programme = (DenseProgramme if fit.dense else Programme)(
+        sp.vstack([fit.sub.matrix, extra.points]).tocsr(), fit.lap, fit.n0,
+        fit.programme.slack_weight)
     programme.setups = fit.programme.setups  # the fit counts them all
     fit.programme = programme
 

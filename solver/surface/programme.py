@@ -1,5 +1,8 @@
-"""The fit's quadratic programme: the control vertices and one slack per non-penetration row,
-solved by OSQP, set up once per set of rows and updated in place otherwise."""
+"""The fit's quadratic programme: the control vertices and one slack per non-penetration row.
+
+Small meshes (a dense Hessian) are solved exactly by DAQP, a dual active-set solver, over the
+rows that could bind (`DenseProgramme`); larger ones by OSQP, set up once per set of rows and
+updated in place otherwise (`Programme`)."""
 
 from __future__ import annotations
 
@@ -10,11 +13,13 @@ import scipy.sparse as sp
 
 
 EPS_ABS, EPS_REL = 1e-5, 1e-4  # OSQP tolerances (metres for the constraints)
+NEAR_ROW = 0.01  # m: rows this close to binding at the step's start join DAQP's first try
+ROW_TOLERANCE = 1e-7  # m: a row left out that the solution breaks by more joins the next try
 LOOSE_STEPS = 2.0  # trust-region steps below a point a row that is not wanted holds it (> sqrt 3)
 
 
 class ProgrammeError(ValueError):
-    """OSQP could not solve the programme."""
+    """The solver (DAQP or OSQP) could not solve the programme."""
 
 
 class Programme:
@@ -137,3 +142,71 @@ def _coo_of(m: sp.csc_matrix) -> tuple[np.ndarray, np.ndarray]:
     """Row and column of each stored entry, in the matrix's own data order (CSC)."""
     cols = np.repeat(np.arange(m.shape[1]), np.diff(m.indptr))
     return m.indices.copy(), cols
+
+
+class DenseProgramme(Programme):
+    """The same programme on a small mesh, solved exactly by DAQP (a dual active-set method on
+    the dense Hessian; each row's slack is DAQP's soft constraint, weighted as SLACK_WEIGHT).
+
+    Only the rows that could bind take part: those within NEAR_ROW of their bound where the
+    step starts, then any other the solution breaks, until none does. A row left out is
+    inactive at the solution, so it is the optimum of the whole programme; the rows not wanted
+    now (a bound of -inf) never bind. Each try is a fresh set-up (small: the Hessian is at most
+    3 DENSE_UP_TO square and a try has tens of rows), counted in `setups`."""
+
+    def __init__(self, points: sp.spmatrix, lap: sp.csr_matrix, n0: int, slack_weight: float):
+        import daqp
+
+        self._daqp = daqp
+        self.n0 = n0
+        self.slack_weight = slack_weight
+        self.s = sp.csr_matrix(points)
+        self.setups = 0
+        self._in_use = threading.Lock()
+
+    def solve(self, p_x: np.ndarray | sp.csr_matrix, q: np.ndarray, rows: np.ndarray,
+              normals: np.ndarray, lower: np.ndarray, x0: np.ndarray, step: float
+              ) -> tuple[np.ndarray, str, float]:
+        n0, n = self.n0, 3 * self.n0
+        p_x = p_x.toarray() if sp.issparse(p_x) else np.asarray(p_x)
+        hessian = np.triu(p_x) + np.triu(p_x, 1).T  # (the caller fills the upper blocks)
+        wanted = np.flatnonzero(np.isfinite(lower))
+        s_rows = self.s[rows[wanted]].tocsr()
+        plane_normals, bounds = normals[wanted], lower[wanted]
+
+        def plane(x: np.ndarray) -> np.ndarray:  # n . (S x) of the wanted rows
+            return _normals_dot(plane_normals, s_rows @ x.reshape(3, n0).T)
+
+        taking = bounds > plane(x0) - NEAR_ROW
+        entries = s_rows.tocoo()
+        weight = 1.0 / (2.0 * self.slack_weight)  # DAQP's soft rows cost s^2 / (2 rho)
+        while True:
+            take = np.flatnonzero(taking)
+            a = np.zeros((len(take), n))
+            entry = taking[entries.row]  # the taken rows' entries of S, and their rows in a
+            row_in_a = (np.cumsum(taking) - 1)[entries.row[entry]]
+            for axis in range(3):
+                a[row_in_a, axis * n0 + entries.col[entry]] = \
+                    entries.data[entry] * plane_normals[entries.row[entry], axis]
+            model = self._daqp.Model()
+            flag = model.setup(hessian, q, a, np.concatenate([x0 + step, np.full(len(take), 1e30)]),
+                               np.concatenate([x0 - step, bounds[take]]),
+                               np.concatenate([np.zeros(n, dtype=np.int32),
+                                               np.full(len(take), 8, dtype=np.int32)]))
+            self.setups += 1
+            if isinstance(flag, tuple):
+                flag = flag[0]
+            if flag < 0:
+                raise ProgrammeError(f"The surface's quadratic programme could not be set up: "
+                                     f"DAQP says {flag}")
+            model.soft_weights(rho_l=np.full(n + len(take), weight),
+                               rho_u=np.full(n + len(take), weight))
+            x, _, flag, _ = model.solve()
+            if flag < 1:
+                raise ProgrammeError(f"The surface's quadratic programme failed: DAQP exit "
+                                     f"flag {flag}")
+            short = bounds - plane(x)
+            broken = ~taking & (short > ROW_TOLERANCE)
+            if not broken.any():
+                return np.asarray(x), "solved", float(max(short.max(initial=0.0), 0.0))
+            taking |= broken

@@ -1,0 +1,112 @@
+"""The fit's quadratic programme against an independent solver: Clarabel (an interior-point
+method) on the programme written out with its slacks as variables. Both back-ends (DAQP on the
+dense Hessian over the rows that could bind, OSQP on all rows) must find its optimum."""
+
+import clarabel
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from solver.surface.programme import DenseProgramme, Programme, ProgrammeError
+
+N0, POINTS, STEP, WEIGHT = 12, 40, 0.05, 1000.0
+
+
+def _problem(seed: int):
+    """A random programme: points as convex combinations of the control vertices (as
+    subdivision makes them), an SPD Hessian given by its upper blocks (as the fit does), rows
+    with bounds some of which the start breaks, some far, some not wanted (-inf)."""
+    rng = np.random.default_rng(seed)
+    s = rng.random((POINTS, N0)) * (rng.random((POINTS, N0)) < 0.3)
+    s[np.arange(POINTS), rng.integers(0, N0, POINTS)] += 1.0
+    s /= s.sum(axis=1, keepdims=True)
+    m = rng.normal(size=(3 * N0, 3 * N0))
+    hessian = m @ m.T / (3 * N0) + 0.05 * np.eye(3 * N0)
+    q = rng.normal(size=3 * N0) * 0.05
+    x0 = rng.normal(size=3 * N0) * 0.1
+    normals = rng.normal(size=(POINTS, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    now = np.einsum("ij,ij->i", normals, s @ x0.reshape(3, N0).T)
+    lower = now + rng.uniform(-0.08, 0.03, POINTS)  # some broken now, some far from binding
+    lower[rng.random(POINTS) < 0.2] = -np.inf
+    return sp.csr_matrix(s), np.triu(2 * hessian), q, np.arange(POINTS), normals, lower, x0
+
+
+def _clarabel(s, p_upper, q, rows, normals, lower, x0, step, weight):
+    """The programme with its slacks as variables: min 1/2 x'Px + q'x + w |slack|^2 subject to
+    n.(S x) + slack >= lower, slack >= 0, |x - x0| <= step; by Clarabel."""
+    n = 3 * N0
+    keep = np.flatnonzero(np.isfinite(lower))
+    r = len(keep)
+    dense = s[rows[keep]].toarray()
+    a = np.hstack([dense * normals[keep, axis][:, None] for axis in range(3)])
+    p = sp.block_diag([sp.csr_matrix(np.triu(p_upper) + np.triu(p_upper, 1).T),
+                       2 * weight * sp.identity(r)], format="csc")
+    # Clarabel: A z + slack = b, slack in the non-negative cone, i.e. A z <= b
+    big = sp.vstack([sp.hstack([-sp.csr_matrix(a), -sp.identity(r)]),
+                     sp.hstack([sp.csr_matrix((r, n)), -sp.identity(r)]),
+                     sp.hstack([sp.identity(n), sp.csr_matrix((n, r))]),
+                     sp.hstack([-sp.identity(n), sp.csr_matrix((n, r))])], format="csc")
+    b = np.concatenate([-lower[keep], np.zeros(r), x0 + step, -(x0 - step)])
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    settings.tol_gap_abs = settings.tol_gap_rel = settings.tol_feas = 1e-10
+    solution = clarabel.DefaultSolver(sp.triu(p, format="csc"), np.concatenate([q, np.zeros(r)]),
+                                      big, b, [clarabel.NonnegativeConeT(len(b))],
+                                      settings).solve()
+    assert str(solution.status) == "Solved"
+    z = np.asarray(solution.x)
+    return z[:n], float(max(z[n:].max(initial=0.0), 0.0))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_dense_programme_finds_the_optimum_clarabel_finds(seed):
+    s, p_upper, q, rows, normals, lower, x0 = _problem(seed)
+    programme = DenseProgramme(s, sp.identity(N0, format="csr"), N0, WEIGHT)
+    x, status, residual = programme.solve(p_upper, q, rows, normals, lower, x0, STEP)
+    expected, slack = _clarabel(s, p_upper, q, rows, normals, lower, x0, STEP, WEIGHT)
+    assert status == "solved"
+    np.testing.assert_allclose(x, expected, atol=1e-6)
+    assert residual == pytest.approx(slack, abs=1e-6)
+    assert np.all(np.abs(x - x0) <= STEP + 1e-9)  # the trust region holds exactly
+    # the case matters: some rows bind at the optimum, some coordinates sit on the box
+    now = np.einsum("ij,ij->i", normals, s @ x.reshape(3, N0).T)
+    finite = np.isfinite(lower)
+    assert np.any(np.abs(now[finite] - lower[finite]) < 1e-6) or residual > 1e-6
+    assert np.any(np.abs(np.abs(x - x0) - STEP) < 1e-9)
+
+
+def test_dense_programme_brings_in_rows_far_from_binding_at_the_start():
+    """A row more than NEAR_ROW from its bound where the step starts, which the unconstrained
+    step would break, still holds at the solution (it joins the next try)."""
+    s, p_upper, q, rows, normals, lower, x0 = _problem(7)
+    lower[:] = -np.inf
+    # the step without rows
+    free = DenseProgramme(s, sp.identity(N0, format="csr"), N0, WEIGHT)
+    x_free, _, _ = free.solve(p_upper, q, rows, normals, lower, x0, STEP)
+    now0 = np.einsum("ij,ij->i", normals, s @ x0.reshape(3, N0).T)
+    moved = np.einsum("ij,ij->i", normals, s @ x_free.reshape(3, N0).T)
+    k = int(np.argmin(moved - now0))  # the row the free step moves furthest down
+    assert moved[k] < now0[k] - 0.015
+    lower[k] = now0[k] - 0.012  # far from binding at the start, broken by the free step
+    programme = DenseProgramme(s, sp.identity(N0, format="csr"), N0, WEIGHT)
+    x, _, _ = programme.solve(p_upper, q, rows, normals, lower, x0, STEP)
+    expected, _ = _clarabel(s, p_upper, q, rows, normals, lower, x0, STEP, WEIGHT)
+    np.testing.assert_allclose(x, expected, atol=1e-6)
+    assert programme.setups == 2  # the first try left the row out, the second took it
+
+
+def test_osqp_programme_agrees_with_clarabel_to_its_tolerance():
+    s, p_upper, q, rows, normals, lower, x0 = _problem(3)
+    programme = Programme(s, sp.identity(N0, format="csr"), N0, WEIGHT)
+    x, status, _ = programme.solve(sp.csr_matrix(p_upper), q, rows, normals, lower, x0, STEP)
+    expected, _ = _clarabel(s, p_upper, q, rows, normals, lower, x0, STEP, WEIGHT)
+    assert status in ("solved", "solved inaccurate")
+    np.testing.assert_allclose(x, expected, atol=2e-3)
+
+
+def test_dense_programme_refuses_a_hessian_that_is_not_convex():
+    s, p_upper, q, rows, normals, lower, x0 = _problem(1)
+    programme = DenseProgramme(s, sp.identity(N0, format="csr"), N0, WEIGHT)
+    with pytest.raises(ProgrammeError, match="DAQP"):
+        programme.solve(-p_upper, q, rows, normals, lower, x0, STEP)
