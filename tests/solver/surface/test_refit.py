@@ -42,14 +42,14 @@ def test_a_warm_refit_after_a_move_matches_a_cold_fit_in_fewer_iterations(seated
     margin = seated[0].surface.params.margin
     assert warm.stop_reason.startswith("settled"), warm.stop_reason
     assert warm.iterations < cold.iterations
-    # (a cold fit's proposals are made stiffer where they fold, which takes it a little further
-    # than a warm refit, which holds such places still instead: 0.973 against 0.984 here)
+    # (a cold fit's proposals are made stiffer where they fold, a warm refit holds such places
+    # still instead: they may end apart; here the refit covers 0.984 against the cold fit's 0.972)
     assert warm_figures["coverage"] >= cold_figures["coverage"] - 0.015
     assert warm_figures["contact_coverage"] >= cold_figures["contact_coverage"] - 0.03
     # within the softness the fit allows (both cut the body less deeply than the margin)
     assert warm_figures["max_penetration_m"] <= max(cold_figures["max_penetration_m"], margin)
-    # a cold fit's stiffened proposals reach a lower energy than the warm refit settles at
-    # (2.3e-4 against 3.8e-4 on this move; the figures above are those that matter)
+    # the refit settles near the cold fit's energy or lower (2.6e-4 against 4.7e-4 on this
+    # move; with OSQP's inexact steps the cold fit went lower, 2.3e-4 against 3.8e-4)
     assert warm.energies[-1] <= cold.energies[-1] * 1.8
     e = np.asarray(warm.energies)
     assert np.all(e[1:] <= e[:-1])  # judged at tau_max throughout: never rises
