@@ -339,7 +339,7 @@ def solver_cases() -> list[BenchCase]:
         BenchCase("fit_six", "fit a 52x6 grid, level 3, to six seated people, to the loop's "
                   "stop", _fit_six_setup, _fit, repeats=3),
         BenchCase("refit_warm", "refit single_seated from its fit after the person moved 2 "
-                  "cm, to the loop's settling (warm: the last result, tau_max, reused set-up)",
+                  "cm, to the loop's settling (warm: the last result, tau_max, reused rows)",
                   _refit_setup, _refit_warm, repeats=15),
         BenchCase("fit_under_load", "fit_single with one busy process per core running "
                   "(speedup: idle time over loaded time, so 0.4x is 2.5x slower)",

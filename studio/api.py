@@ -411,7 +411,7 @@ def _person_routes(app: FastAPI, place, time_limit: float) -> None:
 
 class _Fits:
     """The last FITS_KEPT fits by id, for warm refits (two refits from one fit at once do not
-    share its OSQP set-up: `solver.surface.programme.Programme.claim`)."""
+    share its programme: `solver.surface.programme.Programme.claim`)."""
 
     def __init__(self):
         self._fits: OrderedDict[str, object] = OrderedDict()

@@ -6,7 +6,7 @@ smoothly, without cutting into it. Each iteration:
 
 1. subdivides (the operator S is built once) and takes the surface normals;
 2. pairs every important body vertex b_k with its closest surface vertex s(k) (a KD-tree);
-3. minimises, as a quadratic programme solved by OSQP,
+3. minimises, as a quadratic programme (DAQP on small meshes, OSQP on large ones),
 
    E = (1 / sum rho) sum_k rho_k [(1 - tau) |b_k - v_s(k)|^2 + tau (n_s(k) . (b_k - v_s(k)))^2]
        + (sigma / n0) |L V|^2 + gamma sum_fixed |v_j - v0_j|^2
@@ -38,9 +38,10 @@ smoothly, without cutting into it. Each iteration:
 The data terms are gathered per surface vertex (the weighted mean of the body points it serves),
 so the programme's size depends on the control mesh, not on the bodies. Non-penetration rows are
 kept for the surface vertices a body can reach (joined by any that come within CONSTRAINT_RADIUS
-later) and are active only within that radius; OSQP is set up again only when that set changes
-and is otherwise updated in place, warm-started from the last solution, and its status is checked
-every time.
+later) and are active only within that radius. Small meshes (up to DENSE_UP_TO control
+vertices) are solved exactly by DAQP over the rows that could bind (`DenseProgramme`); on larger
+ones OSQP is set up again only when that set changes and is otherwise updated in place,
+warm-started from the last solution. The solver's status is checked every time.
 
 A step is accepted only if it does not raise the judged energy (the programme's own objective:
 the energy with every body point at its nearest vertex of the new surface, plus the cost of the
@@ -170,7 +171,8 @@ class FitParams:
 class FitResult:
     """A fitted surface: the control mesh (n0, 3) and its quads, the level-s surface (ns, 3)
     and quads (metres), the iterations run and why the loop stopped, the judged energy per
-    iteration with the best iterate's terms, seconds, OSQP's statuses and the subdivision."""
+    iteration with the best iterate's terms, seconds, the programme's statuses and the
+    subdivision."""
 
     control: np.ndarray  # (n0, 3) fitted control vertices
     faces: np.ndarray  # (F0, 4) control quads
@@ -247,10 +249,9 @@ class _Skin:
 class FitState:
     """What a fit leaves for a warm refit of the same control mesh (`fit_surface`'s `warm`):
     the subdivision's key (control vertices, level, creases), the start and its Laplacian (kept
-    while the start stays where it was), the limit map, the
-    surface vertices that carried rows and the programme set up for them (so that OSQP is seldom
-    set up again) and the bodies with their search structures (reused while the bodies only
-    move)."""
+    while the start stays where it was), the limit map, the surface vertices that carried rows
+    and the programme set up for them (so that OSQP, on a large mesh, is seldom set up again)
+    and the bodies with their search structures (reused while the bodies only move)."""
 
     key: tuple
     start: np.ndarray  # (n0, 3) the control vertices that fit started from (its `control`)
@@ -503,8 +504,8 @@ def _quad_maps(sub: Subdivision, neighbours: np.ndarray) -> tuple:
 
 def initial_rows(fit: _Fit, v: np.ndarray) -> np.ndarray:
     """(ns,) bool: the sampled surface vertices a body could reach from control vertices v
-    (n0, 3), where the fit starts, where rows begin, so that the set (and OSQP's set-up) seldom
-    changes as the surface moves."""
+    (n0, 3), where the fit starts, where rows begin, so that the set (and a large mesh's OSQP
+    set-up) seldom changes as the surface moves."""
     member = np.zeros(fit.sub.matrix.shape[0], dtype=bool)
     reach, _ = fit.body_tree3.query((fit.sub.matrix @ v)[fit.sampled_ids] - fit.tree_offset,
                                     distance_upper_bound=REACH)
@@ -656,11 +657,11 @@ def constrain(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray, member: np.ndarra
               depths: Depths | None = None) -> Rows:
     """Non-penetration: each sampled surface vertex near a body (or inside one) stays outside
     the tangent plane at its body vertex, less the margin. Rows join `member` (updated in
-    place) and stay, inactive when not wanted, so that OSQP is set up again only when a new
-    surface vertex comes near a body. `skin`: the body vertices the sampled vertices were held
-    to before (`Rows.skin`), kept for those now inside a body. With `floor_member` ((ns,) bool, updated in place) and
-    a floor in the parameters, the floor's rows follow (`floor_rows`). `depths`: the sampled
-    vertices' `Depths` when already known."""
+    place) and stay, inactive when not wanted, so that OSQP (on a large mesh) is set up again
+    only when a new surface vertex comes near a body. `skin`: the body vertices the sampled
+    vertices were held to before (`Rows.skin`), kept for those now inside a body. With
+    `floor_member` ((ns,) bool, updated in place) and a floor in the parameters, the floor's
+    rows follow (`floor_rows`). `depths`: the sampled vertices' `Depths` when already known."""
     ids = fit.sampled_ids
     near_s, dist, inside, depth = _nearest_skin(fit, surf[ids], surf_n[ids], skin, depths)
     closest = np.zeros(len(surf), dtype=np.int64)
@@ -836,7 +837,7 @@ def _out_of_bounds(fit: _Fit, v: np.ndarray, surf: np.ndarray, surf_n: np.ndarra
     make them, for an iterate that is accepted): the sampled vertices' `Depths` and how far the
     surface is out of bounds (`Rows.beyond_m2`, the same sum). The vertices that `constrain`
     would add to `member` and `floor_member` join them (in place) all the same: a refused step
-    changes the rows (and so OSQP's set-up) as it did when it was constrained in full."""
+    changes the rows (and so OSQP's set-up, on a large mesh) as it did when constrained in full."""
     ids = fit.sampled_ids
     sv = surf[ids]
     depths = _depths(fit, sv)
@@ -1019,7 +1020,7 @@ def propose(fit: _Fit, it: Iterate, radius: float, quadratic
             ) -> tuple[np.ndarray, str, float]:
     """One step from iterate `it`: the programme at its pairing and rows, within a trust
     region of `radius` metres per coordinate. Returns the new control vertices (n0, 3),
-    OSQP's status and the largest row residual (m). `quadratic`: the (H, g) of `assemble`
+    the solver's status and the largest row residual (m). `quadratic`: the (H, g) of `assemble`
     for this iterate at the step's tau."""
     h, g = quadratic
     x0 = it.v.T.reshape(-1)
@@ -1239,8 +1240,8 @@ def _warm_state(warm: FitResult | None, control: np.ndarray, faces: np.ndarray
 
 @dataclass(eq=False)
 class _Descent:
-    """A run of accepted iterates (the first is where it starts), the judged energy, OSQP's
-    status and the largest row residual of each step, and the steps refused and why."""
+    """A run of accepted iterates (the first is where it starts), the judged energy, the
+    programme's status and the largest row residual of each step, and the steps refused and why."""
 
     accepted: list
     energies: list = field(default_factory=list)
@@ -1306,7 +1307,7 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
         except FitError:
             if not fit.stiff.any():
                 raise
-            # OSQP gave up on the stiffened programme: the programme as it is
+            # the solver gave up on the stiffened programme: the programme as it is
             run.rejected["programme"] += 1
             target, status, residual = propose(fit, it, params.step, quadratic)
         if not freeze or iteration == first:
@@ -1345,7 +1346,7 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
                     target, status, residual = propose(
                         fit, it, params.step, _stiffened(fit, quadratic, it.v if again else None))
                     continue
-                except FitError:  # OSQP gave up on it: the last proposal is shortened instead
+                except FitError:  # the solver gave up: the last proposal is shortened instead
                     run.rejected["programme"] += 1
             if freeze and why != "energy" and freezes < FREEZES:
                 # the programme knows no fold or ridge: the step is tried again, as long, with

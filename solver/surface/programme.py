@@ -97,9 +97,14 @@ class Programme:
         # no Ruiz equilibration: the variables are metres already, and equilibrating the stiff
         # slack columns against the soft control vertices left some programmes at OSQP's
         # iteration limit (thousands of iterations where 100-200 do without)
-        self.solver.setup(p, q, a, low, high, verbose=False, warm_starting=True, polishing=False,
-                          eps_abs=EPS_ABS, eps_rel=EPS_REL, max_iter=20000, adaptive_rho=True,
-                          scaling=0)
+        try:
+            self.solver.setup(p, q, a, low, high, verbose=False, warm_starting=True,
+                              polishing=False, eps_abs=EPS_ABS, eps_rel=EPS_REL, max_iter=20000,
+                              adaptive_rho=True, scaling=0)
+        except self._osqp.OSQPException as exc:  # (a programme that is not convex)
+            self.rows = None  # set up again next time
+            raise ProgrammeError(f"The surface's quadratic programme could not be set up: OSQP "
+                                 f"error {exc}") from None
         self.setups += 1
 
     def solve(self, p_x: np.ndarray | sp.csr_matrix, q: np.ndarray, rows: np.ndarray, normals: np.ndarray,
@@ -152,7 +157,10 @@ class DenseProgramme(Programme):
     step starts, then any other the solution breaks, until none does. A row left out is
     inactive at the solution, so it is the optimum of the whole programme; the rows not wanted
     now (a bound of -inf) never bind. Each try is a fresh set-up (small: the Hessian is at most
-    3 DENSE_UP_TO square and a try has tens of rows), counted in `setups`."""
+    3 DENSE_UP_TO square, a try has tens to a few hundred rows), counted in `setups` (a fit
+    reports them as `qp_setups`). Should DAQP fail (it can cycle on badly scaled programmes),
+    the step is solved by OSQP instead (`Programme`, set up on first need), counted in
+    `fallbacks`."""
 
     def __init__(self, points: sp.spmatrix, lap: sp.csr_matrix, n0: int, slack_weight: float):
         import daqp
@@ -161,12 +169,28 @@ class DenseProgramme(Programme):
         self.n0 = n0
         self.slack_weight = slack_weight
         self.s = sp.csr_matrix(points)
+        self.s.sum_duplicates()  # (the rows are written into dense rows entry by entry)
+        self.lap = lap
         self.setups = 0
+        self.fallbacks = 0
+        self._fallback: Programme | None = None
         self._in_use = threading.Lock()
 
     def solve(self, p_x: np.ndarray | sp.csr_matrix, q: np.ndarray, rows: np.ndarray,
               normals: np.ndarray, lower: np.ndarray, x0: np.ndarray, step: float
               ) -> tuple[np.ndarray, str, float]:
+        try:
+            return self._solve_daqp(p_x, q, rows, normals, lower, x0, step)
+        except ProgrammeError as daqp_failed:
+            if self._fallback is None:
+                self._fallback = Programme(self.s, self.lap, self.n0, self.slack_weight)
+            self.fallbacks += 1
+            try:
+                return self._fallback.solve(p_x, q, rows, normals, lower, x0, step)
+            except ProgrammeError as osqp_failed:
+                raise ProgrammeError(f"{daqp_failed}; {osqp_failed} (tried instead)") from None
+
+    def _solve_daqp(self, p_x, q, rows, normals, lower, x0, step):
         n0, n = self.n0, 3 * self.n0
         p_x = p_x.toarray() if sp.issparse(p_x) else np.asarray(p_x)
         hessian = np.triu(p_x) + np.triu(p_x, 1).T  # (the caller fills the upper blocks)
