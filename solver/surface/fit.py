@@ -542,7 +542,9 @@ def assemble(fit: _Fit, pairing: Pairing, surf_n: np.ndarray, tau: float
     level-s vertex depends on a few control vertices, so on large meshes the blocks stay sparse;
     on small ones dense products are quicker)."""
     n0, s, v0 = fit.n0, fit.sub.matrix, fit.v0
-    s_p = s[pairing.paired].toarray() if fit.dense else s[pairing.paired]
+    # (a small mesh's S is kept dense once: its rows are taken at every assembly)
+    s_p = fit.sub.kept("fit.dense_matrix", s.toarray)[pairing.paired] if fit.dense else \
+        s[pairing.paired]
     w_p, n_p, t_p = pairing.weight, surf_n[pairing.paired], pairing.target
     nt = np.einsum("ij,ij->i", n_p, t_p)  # n . p per paired surface vertex
     blocks = [[None] * 3 for _ in range(3)]
