@@ -169,7 +169,7 @@ class DenseProgramme(Programme):
         self.n0 = n0
         self.slack_weight = slack_weight
         self.s = sp.csr_matrix(points)
-        self.s.sum_duplicates()  # (the rows are written into dense rows entry by entry)
+        self._dense: np.ndarray | None = None  # S as a dense array, made on first need
         self.lap = lap
         self.setups = 0
         self.fallbacks = 0
@@ -195,23 +195,21 @@ class DenseProgramme(Programme):
         p_x = p_x.toarray() if sp.issparse(p_x) else np.asarray(p_x)
         hessian = np.triu(p_x) + np.triu(p_x, 1).T  # (the caller fills the upper blocks)
         wanted = np.flatnonzero(np.isfinite(lower))
-        s_rows = self.s[rows[wanted]].tocsr()
+        points = rows[wanted]
         plane_normals, bounds = normals[wanted], lower[wanted]
+        if self._dense is None:  # S's rows are taken densely at every step
+            self._dense = self.s.toarray()
 
         def plane(x: np.ndarray) -> np.ndarray:  # n . (S x) of the wanted rows
-            return _normals_dot(plane_normals, s_rows @ x.reshape(3, n0).T)
+            return _normals_dot(plane_normals, (self.s @ x.reshape(3, n0).T)[points])
 
         taking = bounds > plane(x0) - NEAR_ROW
-        entries = s_rows.tocoo()
         weight = 1.0 / (2.0 * self.slack_weight)  # DAQP's soft rows cost s^2 / (2 rho)
         while True:
             take = np.flatnonzero(taking)
-            a = np.zeros((len(take), n))
-            entry = taking[entries.row]  # the taken rows' entries of S, and their rows in a
-            row_in_a = (np.cumsum(taking) - 1)[entries.row[entry]]
-            for axis in range(3):
-                a[row_in_a, axis * n0 + entries.col[entry]] = \
-                    entries.data[entry] * plane_normals[entries.row[entry], axis]
+            dense = self._dense[points[take]]
+            a = np.concatenate([dense * plane_normals[take, axis, None] for axis in range(3)],
+                               axis=1)
             model = self._daqp.Model()
             flag = model.setup(hessian, q, a, np.concatenate([x0 + step, np.full(len(take), 1e30)]),
                                np.concatenate([x0 - step, bounds[take]]),
