@@ -15,6 +15,7 @@ import scipy.sparse as sp
 EPS_ABS, EPS_REL = 1e-5, 1e-4  # OSQP tolerances (metres for the constraints)
 NEAR_ROW = 0.01  # m: rows this close to binding at the step's start join DAQP's first try
 ROW_TOLERANCE = 1e-7  # m: a row left out that the solution breaks by more joins the next try
+BOX_TOLERANCE = 1e-9  # m: a coordinate left free that leaves its trust region by more is held
 LOOSE_STEPS = 2.0  # trust-region steps below a point a row that is not wanted holds it (> sqrt 3)
 
 
@@ -150,11 +151,13 @@ def _coo_of(m: sp.csc_matrix) -> tuple[np.ndarray, np.ndarray]:
 
 
 class DenseProgramme(Programme):
-    """The same programme on a small mesh, solved exactly by DAQP (a dual active-set method on
-    the dense Hessian; each row's slack is DAQP's soft constraint, weighted as SLACK_WEIGHT).
+    """The same programme on a small mesh, solved exactly by DAQP (a dual active-set method;
+    each row's slack is DAQP's soft constraint, weighted as SLACK_WEIGHT), in the coordinates
+    z = R x of the dense Hessian's Cholesky factor R (LAPACK), where the Hessian is the identity.
 
     Only the rows that could bind take part: those within NEAR_ROW of their bound where the
-    step starts, then any other the solution breaks, until none does. A row left out is
+    step starts, then any other the solution breaks, until none does; likewise the trust
+    region's rows, taken for the coordinates the solution moves out of it. A row left out is
     inactive at the solution, so it is the optimum of the whole programme; the rows not wanted
     now (a bound of -inf) never bind. Each try is a fresh set-up (small: the Hessian is at most
     3 DENSE_UP_TO square, a try has tens to a few hundred rows), counted in `setups` (a fit
@@ -191,9 +194,21 @@ class DenseProgramme(Programme):
                 raise ProgrammeError(f"{daqp_failed}; {osqp_failed} (tried instead)") from None
 
     def _solve_daqp(self, p_x, q, rows, normals, lower, x0, step):
+        """DAQP on the programme in the coordinates z = R x (H = R^T R, by LAPACK), where the
+        Hessian is the identity, which DAQP sets up in microseconds where it factors any other
+        itself, slowly: the rows become rows of A R^-1, the trust region rows of R^-1, taken,
+        as the rows are, only once the solution breaks them."""
+        import scipy.linalg as sl
+
         n0, n = self.n0, 3 * self.n0
         p_x = p_x.toarray() if sp.issparse(p_x) else np.asarray(p_x)
         hessian = np.triu(p_x) + np.triu(p_x, 1).T  # (the caller fills the upper blocks)
+        try:
+            r = sl.cholesky(hessian, lower=False, check_finite=False)
+        except (sl.LinAlgError, ValueError):
+            raise ProgrammeError("The surface's quadratic programme is not convex: its Hessian "
+                                 "has no Cholesky factor (DAQP needs one)") from None
+        f = sl.solve_triangular(r, q, trans="T", check_finite=False)  # q^T x = (R^-T q)^T z
         wanted = np.flatnonzero(np.isfinite(lower))
         points = rows[wanted]
         plane_normals, bounds = normals[wanted], lower[wanted]
@@ -204,31 +219,40 @@ class DenseProgramme(Programme):
             return _normals_dot(plane_normals, (self.s @ x.reshape(3, n0).T)[points])
 
         taking = bounds > plane(x0) - NEAR_ROW
+        boxed = np.zeros(n, dtype=bool)  # the coordinates whose trust-region rows are taken
         weight = 1.0 / (2.0 * self.slack_weight)  # DAQP's soft rows cost s^2 / (2 rho)
+        identity = np.eye(n)
         while True:
-            take = np.flatnonzero(taking)
+            take, box = np.flatnonzero(taking), np.flatnonzero(boxed)
             dense = self._dense[points[take]]
             a = np.concatenate([dense * plane_normals[take, axis, None] for axis in range(3)],
                                axis=1)
+            a = np.concatenate([a, identity[box]])
+            a_z = sl.solve_triangular(r, a.T, trans="T", check_finite=False).T  # A R^-1
+            m = len(a_z)
             model = self._daqp.Model()
-            flag = model.setup(hessian, q, a, np.concatenate([x0 + step, np.full(len(take), 1e30)]),
-                               np.concatenate([x0 - step, bounds[take]]),
-                               np.concatenate([np.zeros(n, dtype=np.int32),
-                                               np.full(len(take), 8, dtype=np.int32)]))
+            flag = model.setup(identity, f, np.ascontiguousarray(a_z),
+                               np.concatenate([np.full(len(take), 1e30), x0[box] + step]),
+                               np.concatenate([bounds[take], x0[box] - step]),
+                               np.concatenate([np.full(len(take), 8, dtype=np.int32),
+                                               np.zeros(len(box), dtype=np.int32)]))
             self.setups += 1
             if isinstance(flag, tuple):
                 flag = flag[0]
             if flag < 0:
                 raise ProgrammeError(f"The surface's quadratic programme could not be set up: "
                                      f"DAQP says {flag}")
-            model.soft_weights(rho_l=np.full(n + len(take), weight),
-                               rho_u=np.full(n + len(take), weight))
-            x, _, flag, _ = model.solve()
+            if m:
+                model.soft_weights(rho_l=np.full(m, weight), rho_u=np.full(m, weight))
+            z, _, flag, _ = model.solve()
             if flag < 1:
                 raise ProgrammeError(f"The surface's quadratic programme failed: DAQP exit "
                                      f"flag {flag}")
+            x = sl.solve_triangular(r, np.asarray(z), check_finite=False)
             short = bounds - plane(x)
             broken = ~taking & (short > ROW_TOLERANCE)
-            if not broken.any():
-                return np.asarray(x), "solved", float(max(short.max(initial=0.0), 0.0))
+            outside = ~boxed & (np.abs(x - x0) > step + BOX_TOLERANCE)
+            if not broken.any() and not outside.any():
+                return x, "solved", float(max(short.max(initial=0.0), 0.0))
             taking |= broken
+            boxed |= outside
