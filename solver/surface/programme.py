@@ -182,33 +182,43 @@ class DenseProgramme(Programme):
     def solve(self, p_x: np.ndarray | sp.csr_matrix, q: np.ndarray, rows: np.ndarray,
               normals: np.ndarray, lower: np.ndarray, x0: np.ndarray, step: float
               ) -> tuple[np.ndarray, str, float]:
-        try:
-            return self._solve_daqp(p_x, q, rows, normals, lower, x0, step)
-        except ProgrammeError as daqp_failed:
-            if self._fallback is None:
-                self._fallback = Programme(self.s, self.lap, self.n0, self.slack_weight)
-            self.fallbacks += 1
+        failures = []
+        for factored in (True, False):
             try:
-                return self._fallback.solve(p_x, q, rows, normals, lower, x0, step)
-            except ProgrammeError as osqp_failed:
-                raise ProgrammeError(f"{daqp_failed}; {osqp_failed} (tried instead)") from None
+                return self._solve_daqp(p_x, q, rows, normals, lower, x0, step, factored)
+            except ProgrammeError as exc:
+                failures.append(str(exc))
+        if self._fallback is None:
+            self._fallback = Programme(self.s, self.lap, self.n0, self.slack_weight)
+        self.fallbacks += 1
+        try:
+            return self._fallback.solve(p_x, q, rows, normals, lower, x0, step)
+        except ProgrammeError as osqp_failed:
+            raise ProgrammeError(f"{'; '.join(failures)}; {osqp_failed} (tried instead)"
+                                 ) from None
 
-    def _solve_daqp(self, p_x, q, rows, normals, lower, x0, step):
-        """DAQP on the programme in the coordinates z = R x (H = R^T R, by LAPACK), where the
-        Hessian is the identity, which DAQP sets up in microseconds where it factors any other
-        itself, slowly: the rows become rows of A R^-1, the trust region rows of R^-1, taken,
-        as the rows are, only once the solution breaks them."""
+    def _solve_daqp(self, p_x, q, rows, normals, lower, x0, step, factored: bool):
+        """DAQP on the programme. `factored`: in the coordinates z = R x (H = R^T R, by LAPACK),
+        where the Hessian is the identity, which DAQP sets up in microseconds where it factors
+        any other itself, slowly: the rows become rows of A R^-1, the trust region rows of R^-1,
+        taken, as the rows are, only once the solution breaks them. Otherwise (DAQP drops a
+        row it finds too short, as e_i R^-1 is for a coordinate some 1e11 times stiffer than a
+        metre) in x, with the trust region as DAQP's simple bounds."""
         import scipy.linalg as sl
 
         n0, n = self.n0, 3 * self.n0
         p_x = p_x.toarray() if sp.issparse(p_x) else np.asarray(p_x)
         hessian = np.triu(p_x) + np.triu(p_x, 1).T  # (the caller fills the upper blocks)
-        try:
-            r = sl.cholesky(hessian, lower=False, check_finite=False)
-        except (sl.LinAlgError, ValueError):
-            raise ProgrammeError("The surface's quadratic programme is not convex: its Hessian "
-                                 "has no Cholesky factor (DAQP needs one)") from None
-        f = sl.solve_triangular(r, q, trans="T", check_finite=False)  # q^T x = (R^-T q)^T z
+        if not (np.all(np.isfinite(hessian)) and np.all(np.isfinite(q))):
+            raise ProgrammeError("The surface's quadratic programme has a value that is not a "
+                                 "number in its objective")
+        if factored:
+            try:
+                r = sl.cholesky(hessian, lower=False, check_finite=False)
+            except (sl.LinAlgError, ValueError):
+                raise ProgrammeError("The surface's quadratic programme is not convex: its "
+                                     "Hessian has no Cholesky factor") from None
+            f = sl.solve_triangular(r, q, trans="T", check_finite=False)  # q^T x = (R^-T q)^T z
         wanted = np.flatnonzero(np.isfinite(lower))
         points = rows[wanted]
         plane_normals, bounds = normals[wanted], lower[wanted]
@@ -227,31 +237,45 @@ class DenseProgramme(Programme):
             dense = self._dense[points[take]]
             a = np.concatenate([dense * plane_normals[take, axis, None] for axis in range(3)],
                                axis=1)
-            a = np.concatenate([a, identity[box]])
-            a_z = sl.solve_triangular(r, a.T, trans="T", check_finite=False).T  # A R^-1
-            m = len(a_z)
+            high, low = np.full(len(take), 1e30), bounds[take]
+            sense = np.full(len(take), 8, dtype=np.int32)
+            if factored:  # the held coordinates' rows of R^-1, hard, after the soft rows
+                a = np.concatenate([a, identity[box]])
+                a = np.ascontiguousarray(
+                    sl.solve_triangular(r, a.T, trans="T", check_finite=False).T)  # A R^-1
+                high = np.concatenate([high, x0[box] + step])
+                low = np.concatenate([low, x0[box] - step])
+                sense = np.concatenate([sense, np.zeros(len(box), dtype=np.int32)])
+            else:  # the trust region as simple bounds, before the rows
+                high = np.concatenate([x0 + step, high])
+                low = np.concatenate([x0 - step, low])
+                sense = np.concatenate([np.zeros(n, dtype=np.int32), sense])
             model = self._daqp.Model()
-            flag = model.setup(identity, f, np.ascontiguousarray(a_z),
-                               np.concatenate([np.full(len(take), 1e30), x0[box] + step]),
-                               np.concatenate([bounds[take], x0[box] - step]),
-                               np.concatenate([np.full(len(take), 8, dtype=np.int32),
-                                               np.zeros(len(box), dtype=np.int32)]))
+            flag = model.setup(identity if factored else hessian, f if factored else q, a,
+                               high, low, sense)
             self.setups += 1
             if isinstance(flag, tuple):
                 flag = flag[0]
             if flag < 0:
                 raise ProgrammeError(f"The surface's quadratic programme could not be set up: "
                                      f"DAQP says {flag}")
-            if m:
-                model.soft_weights(rho_l=np.full(m, weight), rho_u=np.full(m, weight))
+            if len(sense):
+                model.soft_weights(rho_l=np.full(len(sense), weight),
+                                   rho_u=np.full(len(sense), weight))
             z, _, flag, _ = model.solve()
             if flag < 1:
                 raise ProgrammeError(f"The surface's quadratic programme failed: DAQP exit "
                                      f"flag {flag}")
-            x = sl.solve_triangular(r, np.asarray(z), check_finite=False)
+            x = sl.solve_triangular(r, np.asarray(z), check_finite=False) if factored else \
+                np.asarray(z)
             short = bounds - plane(x)
             broken = ~taking & (short > ROW_TOLERANCE)
-            outside = ~boxed & (np.abs(x - x0) > step + BOX_TOLERANCE)
+            outside = np.abs(x - x0) > step + BOX_TOLERANCE
+            if factored and np.any(outside & boxed):
+                raise ProgrammeError("DAQP left the trust region of a coordinate it held (it "
+                                     "drops a row it finds too short: too stiff a Hessian)")
+            if not factored:
+                outside[:] = False  # (simple bounds: held to DAQP's own tolerance)
             if not broken.any() and not outside.any():
                 return x, "solved", float(max(short.max(initial=0.0), 0.0))
             taking |= broken

@@ -1,6 +1,7 @@
 """The fit's quadratic programme against an independent solver: Clarabel (an interior-point
-method) on the programme written out with its slacks as variables. Both back-ends (DAQP on the
-dense Hessian over the rows that could bind, OSQP on all rows) must find its optimum."""
+method) on the programme written out with its slacks as variables. Both back-ends (DAQP in the
+coordinates of the Hessian's Cholesky factor over the rows that could bind, OSQP on all rows)
+must find its optimum."""
 
 import clarabel
 import numpy as np
@@ -130,3 +131,19 @@ def test_dense_programme_falls_back_to_osqp_when_daqp_fails():
     expected, _ = _clarabel(s, p_upper, q, rows, normals, lower, x0, STEP, WEIGHT)
     assert status in ("solved", "solved inaccurate") and programme.fallbacks == 1
     np.testing.assert_allclose(x, expected, atol=2e-3)
+
+
+def test_a_coordinate_far_stiffer_than_the_rest_stays_in_its_trust_region():
+    """A fixed vertex held 1e12 times harder than the rest, its start 20 cm away: the step may
+    still move it only 5 cm (DAQP drops the trust region's row of so stiff a coordinate, which
+    the programme notices and hands to OSQP)."""
+    s, p_upper, q, rows, normals, lower, x0 = _problem(4)
+    stiff = 1e12
+    p_upper = p_upper.copy()
+    p_upper[0, 0] += 2 * stiff
+    q = q.copy()
+    q[0] -= 2 * stiff * (x0[0] + 0.2)  # pulled towards x0 + 20 cm
+    programme = DenseProgramme(s, sp.identity(N0, format="csr"), N0, WEIGHT)
+    x, _, _ = programme.solve(p_upper, q, rows, normals, lower, x0, STEP)
+    assert abs(x[0] - x0[0]) <= STEP + 1e-6
+    assert x[0] - x0[0] == pytest.approx(STEP, abs=1e-4)  # pulled as far as it may go
