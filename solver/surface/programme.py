@@ -161,9 +161,11 @@ class DenseProgramme(Programme):
     inactive at the solution, so it is the optimum of the whole programme; the rows not wanted
     now (a bound of -inf) never bind. Each try is a fresh set-up (small: the Hessian is at most
     3 DENSE_UP_TO square, a try has tens to a few hundred rows), counted in `setups` (a fit
-    reports them as `qp_setups`). Should DAQP fail (it can cycle on badly scaled programmes),
-    the step is solved by OSQP instead (`Programme`, set up on first need), counted in
-    `fallbacks`."""
+    reports them as `qp_setups`). Should DAQP fail there (it drops the trust-region row of a
+    coordinate some 1e11 times stiffer than a metre; it can cycle on badly scaled programmes),
+    DAQP tries again factoring the Hessian itself, with the trust region as simple bounds, and
+    failing that OSQP solves the step (`Programme`, set up on first need; counted in
+    `fallbacks`)."""
 
     def __init__(self, points: sp.spmatrix, lap: sp.csr_matrix, n0: int, slack_weight: float):
         import daqp
