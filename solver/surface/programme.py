@@ -23,7 +23,28 @@ class ProgrammeError(ValueError):
     """The solver (DAQP or OSQP) could not solve the programme."""
 
 
-class Programme:
+class _Claimed:
+    """What both programmes share: the control vertex count, the cost of an unmet row, the
+    set-ups made, and the claim a fit holds while it solves one (a warm refit reuses the last
+    fit's: one held by another fit running now is not shared, the refit sets up its own)."""
+
+    def __init__(self, points: sp.spmatrix, n0: int, slack_weight: float):
+        self.n0 = n0
+        self.slack_weight = slack_weight
+        self.s = sp.csr_matrix(points)
+        self.setups = 0
+        self._in_use = threading.Lock()
+
+    def claim(self) -> bool:
+        """Whether this programme is now the caller's alone (False: another fit solves it)."""
+        return self._in_use.acquire(blocking=False)
+
+    def release(self) -> None:
+        """Gives the claimed programme back (a later warm refit may claim it)."""
+        self._in_use.release()
+
+
+class Programme(_Claimed):
     """The QP over the control vertices x (3 n0) and one slack per non-penetration row.
 
     Rows are soft: n . (S x)_r + slack_r >= lower_r with slack_r >= 0 costing SLACK_WEIGHT
@@ -39,11 +60,9 @@ class Programme:
         vertices (the level-s vertices, then any more); lap: (n0, n0) the control Laplacian."""
         import osqp
 
+        super().__init__(points, n0, slack_weight)
         self._osqp = osqp
-        self.n0 = n0
-        self.slack_weight = slack_weight
-        s = sp.csr_matrix(points)
-        self.s = s
+        s = self.s
         coupling = (s.T @ s).tocsr() + (lap.T @ lap) + sp.identity(n0)
         coupling.data[:] = 1.0
         block = sp.kron(sp.csr_matrix(np.ones((3, 3))), coupling).tocsc()
@@ -51,16 +70,6 @@ class Programme:
         self.x_pattern.sort_indices()
         self.rows: np.ndarray | None = None
         self.solver = None
-        self.setups = 0
-        self._in_use = threading.Lock()
-
-    def claim(self) -> bool:
-        """Whether this programme is now the caller's alone (False: another fit solves it)."""
-        return self._in_use.acquire(blocking=False)
-
-    def release(self) -> None:
-        """Gives the claimed programme back (a later warm refit may claim it)."""
-        self._in_use.release()
 
     def _setup_patterns(self, rows: np.ndarray) -> None:
         n, r = 3 * self.n0, len(rows)
@@ -150,7 +159,7 @@ def _coo_of(m: sp.csc_matrix) -> tuple[np.ndarray, np.ndarray]:
     return m.indices.copy(), cols
 
 
-class DenseProgramme(Programme):
+class DenseProgramme(_Claimed):
     """The same programme on a small mesh, solved exactly by DAQP (a dual active-set method;
     each row's slack is DAQP's soft constraint, weighted as SLACK_WEIGHT), in the coordinates
     z = R x of the dense Hessian's Cholesky factor R (LAPACK), where the Hessian is the identity.
@@ -170,16 +179,12 @@ class DenseProgramme(Programme):
     def __init__(self, points: sp.spmatrix, lap: sp.csr_matrix, n0: int, slack_weight: float):
         import daqp
 
+        super().__init__(points, n0, slack_weight)
         self._daqp = daqp
-        self.n0 = n0
-        self.slack_weight = slack_weight
-        self.s = sp.csr_matrix(points)
         self._dense: np.ndarray | None = None  # S as a dense array, made on first need
         self.lap = lap
-        self.setups = 0
         self.fallbacks = 0
         self._fallback: Programme | None = None
-        self._in_use = threading.Lock()
 
     def solve(self, p_x: np.ndarray | sp.csr_matrix, q: np.ndarray, rows: np.ndarray,
               normals: np.ndarray, lower: np.ndarray, x0: np.ndarray, step: float
@@ -253,11 +258,9 @@ class DenseProgramme(Programme):
                 low = np.concatenate([x0 - step, low])
                 sense = np.concatenate([np.zeros(n, dtype=np.int32), sense])
             model = self._daqp.Model()
-            flag = model.setup(identity if factored else hessian, f if factored else q, a,
-                               high, low, sense)
+            flag, _ = model.setup(identity if factored else hessian, f if factored else q, a,
+                                  high, low, sense)  # (exit flag, set-up seconds)
             self.setups += 1
-            if isinstance(flag, tuple):
-                flag = flag[0]
             if flag < 0:
                 raise ProgrammeError(f"The surface's quadratic programme could not be set up: "
                                      f"DAQP says {flag}")
