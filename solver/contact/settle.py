@@ -40,6 +40,9 @@ FORCE_TOL = 3e-3  # the settle stops when the net force is below this share of t
 MOMENT_TOL = 0.3  # ... and the net moment below this, N m
 LEVER = 0.5  # metres: the moment scale for the Newton's residual
 STILL = 1e-6  # metres (at LEVER for a turn): a step this small makes no progress
+SIDEWAYS = -2 * BAND  # the depth given a vertex beside a surface's border (its closest point on
+                      # the border, the offset running sideways off it): not in its foam, which
+                      # lies behind the surface only
 STEP = 0.03  # metres (at LEVER for a turn): the most the body moves between fresh contacts
 
 
@@ -196,12 +199,12 @@ def _candidates(support: Support, k: int, vertices: np.ndarray, subset: np.ndarr
         n, point, face = prev.normal.copy(), prev.point.copy(), prev.face.copy()
         depth = prev.depth - np.einsum("ij,ij->i", n, x - prev_x)
         close = np.flatnonzero(depth > -0.5 * BAND)
-        _, signed, _, face[close], point[close] = support.mesh.closest(x[close])
-        depth[close] = -signed
+        _, signed, over, face[close], point[close] = support.mesh.closest(x[close])
+        depth[close] = np.where(over, -signed, SIDEWAYS)
         n[close] = support.mesh.face_normals[face[close]]
     else:
-        _, signed, _, face, point = support.mesh.closest(x)
-        depth = -signed
+        _, signed, over, face, point = support.mesh.closest(x)
+        depth = np.where(over, -signed, SIDEWAYS)
         n = support.mesh.face_normals[face]
     keep = np.flatnonzero(depth > -BAND)
     return _Candidates(k, subset[keep], depth[keep], np.array(n[keep]), point[keep], face[keep])

@@ -42,6 +42,7 @@ CLEARANCE = 0.01  # metres between the starting surface and the skin it supports
 SIDE_MARGIN = 0.04  # metres of seat beyond the outermost hip or thigh, each side
 KNEE_PIT = 0.11  # metres from the knee joint back to where a seat's front edge ends
 BED_MARGIN = 0.08  # metres of bed around a lying body
+MIN_DEPTH = 0.2  # metres: no stool seat shallower
 MIN_TOP = 0.03  # metres: a cushion or bed top lower than this is no furniture
 
 
@@ -177,6 +178,24 @@ def _width(seat: np.ndarray) -> tuple[float, float]:
     return float((lo + hi) / 2), float(hi - lo)
 
 
+def _calves_front(skin: _Skin, seat: np.ndarray, x0: float, half: float) -> float:
+    """The z where a seat under the `seat` points must end to keep its rim clear of the
+    calves: the rearmost calf skin over the seat's width that lies in the seat's foam or just
+    above it (within the fit's RIM_SLAB below the lowest seat point and RIM_FRONT above it),
+    less the rim's clearance there (`solver.surface.fit.RIM_CLEARANCE`, and RIM_SLANT of
+    how far below the seat's top the skin lies); inf without such calves."""
+    from solver.surface.fit import RIM_CLEARANCE, RIM_FRONT, RIM_SLAB, RIM_SLANT
+
+    top = float(seat[:, 1].min())
+    calves = skin.region("calves")
+    near = calves[(calves[:, 1] >= top - RIM_SLAB) & (calves[:, 1] <= top + RIM_FRONT) &
+                  (np.abs(calves[:, 0] - x0) <= half)]
+    if not len(near):
+        return math.inf
+    return float(np.min(near[:, 2] - RIM_CLEARANCE - RIM_SLANT * np.maximum(top - near[:, 1],
+                                                                            0.0)))
+
+
 def _trunk_angle(skin: _Skin) -> float:
     """Degrees from vertical the trunks lean back (hips' middle to neck, mean over people)."""
     trunk = skin.joint("Neck") - skin.pair("LeftUpLeg", "RightUpLeg")
@@ -264,6 +283,10 @@ def _stool_measures(kind: str, given: dict, people: Sequence, frame: _Local) -> 
     depth = given.get("seat_depth", TEMPLATE_PARAMS[kind]().seat_depth)
     buttocks = skin.region("pelvis")
     z_mid = float(buttocks[np.argmin(buttocks[:, 1]), 2]) + 0.04
+    if "seat_depth" not in given:  # the front stops short of calves tucked under the seat
+        front = min(z_mid + depth / 2, _calves_front(skin, seat, x0, width / 2))
+        depth = max(front - (z_mid - depth / 2), MIN_DEPTH)
+        z_mid = front - depth / 2
     height, tilt = _seat_plane(seat, z_mid - depth / 2, z_mid + depth / 2, width / 2, x0,
                                given.get("seat_tilt_deg"), given.get("seat_height"))
     return {"seat_height": height, "seat_tilt_deg": tilt, "seat_width": width,

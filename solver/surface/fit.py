@@ -123,6 +123,18 @@ FREEZES = 2  # times a warm refit's step that folds or ridges too far is retried
              # are not: held vertices next to moving ones leave kinks that a thin solid's
              # offset folds over)
 TREE_LEAF = 32  # points per leaf of the search trees (of the bodies, of the surface)
+RIM_CLEARANCE = 0.03  # metres the surface's rim may come no nearer to the unsupported skin in
+                      # its foam (the calves that hang under a seat's front edge, a spread knee
+                      # under its side): `rim_rows`
+RIM_SLANT = 0.33  # ... and this much more per metre the skin lies behind the surface (beside a
+                  # border, skin that far out runs sideways off it: not in the foam)
+RIM_SLAB = 0.12  # metres behind the surface the foam reaches (the evaluation's 0.1 m and more)
+RIM_FRONT = 0.03  # metres in front of the surface unsupported skin still counts (it sinks)
+RIM_INNER = 0.04  # metres under the surface, inside its rim, skin still counts (deeper in, a
+                  # surface over it clears it by its own shape, or does not)
+RIM_FADE = 0.03  # metres over which a skin point's row fades out at the edges of that region
+RIM_REACH = 0.15  # metres: the search radius round each rim vertex (covers that region)
+RIM_SPAN = 0.4  # metres: skin farther from the start's rim is left out (a fit moves the rim less)
 FLOOR_REACH = 2.0  # steps: a surface vertex this near the floor gets a floor row (it moves at
                    # most one step per iteration, so none gets under unseen)
 
@@ -331,6 +343,7 @@ class _Fit:
     stiff_matrix: tuple | None = None  # (stiff, L^T diag(stiff) L and its dense block): built
                                        # once per raise of `stiff`, not per proposal
     extra: "ExtraRows | None" = None  # rows on dense samples found too deep (`deep_samples`)
+    rim: "_Rim | None" = None  # the surface's rim and the unsupported skin it keeps clear of
 
     @property
     def n0(self) -> int:
@@ -483,7 +496,8 @@ def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedB
                 rho[important], *trees,
                 fixed, smooth, diagonal.toarray() if dense else diagonal, proximal, dense,
                 programme, sampled, neighbours, quad_maps,
-                skins, offset, state.limit if same else None)
+                skins, offset, state.limit if same else None,
+                rim=_make_rim(sub, sampled, targets, v0) if RIM_CLEARANCE > 0 else None)
 
 
 def _quad_maps(sub: Subdivision, neighbours: np.ndarray) -> tuple:
@@ -684,13 +698,16 @@ def constrain(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray, member: np.ndarra
     body = _rows(rows, cn, demanded, surf, held, _beyond_margin(fit, depth))
     outside = ~inside_row[rows]
     body.demanded[outside] = np.minimum(body.demanded[outside], body.now[outside])
-    if floor_member is None or fit.params.floor is None:
+    more = [floor_rows(fit, surf, floor_member)] if floor_member is not None and \
+        fit.params.floor is not None else []
+    if fit.rim is not None:
+        more.append(rim_rows(fit, surf, surf_n))
+    if not more:
         return body
-    floor = floor_rows(fit, surf, floor_member)
-    return Rows(*(np.concatenate([a, b]) for a, b in
-                  zip((body.rows, body.normals, body.demanded, body.now),
-                      (floor.rows, floor.normals, floor.demanded, floor.now))), held,
-                body.beyond_m2 + floor.beyond_m2)
+    parts = [body] + more
+    return Rows(*(np.concatenate([getattr(r, name) for r in parts])
+                  for name in ("rows", "normals", "demanded", "now")), held,
+                sum(r.beyond_m2 for r in parts))
 
 
 def floor_rows(fit: _Fit, surf: np.ndarray, member: np.ndarray) -> Rows:
@@ -705,6 +722,124 @@ def floor_rows(fit: _Fit, surf: np.ndarray, member: np.ndarray) -> Rows:
     normals = np.tile([0.0, 1.0, 0.0], (len(rows), 1))
     return _rows(rows, normals, np.full(len(rows), floor), surf,
                  beyond_m2=float(np.sum(np.maximum(0.0, floor - surf[rows, 1]) ** 2)))
+
+
+@dataclass(eq=False)
+class _Rim:
+    """The level-s surface's rim and the unsupported skin it is kept clear of.
+
+    ids : (k,) the sampled surface vertices on the surface's border; `before`, `after` (k,)
+    their neighbours along it; `centres` (k, ns) maps the surface to the mean of the quads
+    round each (inside the border: which way is out). `points` (U, 3): the body vertices of
+    the parts no one asked support for that lie within RIM_SPAN of the rim where the fit
+    starts; `member` (k,) bool: the rim vertices that have had rows (they keep them, inactive
+    when not wanted, as the body's rows do)."""
+
+    ids: np.ndarray
+    before: np.ndarray
+    after: np.ndarray
+    centres: sp.csr_matrix
+    points: np.ndarray
+    member: np.ndarray
+
+
+def _rim_topology(faces: np.ndarray, sampled: np.ndarray, ns: int) -> tuple:
+    """(ids, before, after, centres) of `_Rim` from the level-s quads: the sampled vertices on
+    edges that only one quad has, their two neighbours along those edges and the mean of their
+    quads' corners."""
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 3]],
+                            faces[:, [3, 0]]])
+    key = np.sort(edges, axis=1)
+    unique, count = np.unique(key, axis=0, return_counts=True)
+    border = unique[count == 1]
+    if not len(border):
+        return np.zeros(0, dtype=np.int64), None, None, None
+    ends = np.concatenate([border, border[:, ::-1]])
+    ends = ends[np.lexsort((ends[:, 1], ends[:, 0]))]
+    on, first = np.unique(ends[:, 0], return_index=True)
+    two = np.diff(np.append(first, len(ends))) == 2  # a vertex where the border pinches has
+    keep = np.isin(on, sampled) & two                 # more than two: left out
+    ids = on[keep]
+    before, after = ends[first[keep], 1], ends[first[keep] + 1, 1]
+    rows = np.repeat(np.arange(len(faces)), 4)
+    incidence = sp.csr_matrix((np.ones(len(rows)), (faces.ravel(), rows)),
+                              shape=(ns, len(faces)))
+    around = incidence[ids]
+    corners = sp.csr_matrix((np.full(4 * len(faces), 0.25), (rows, faces.ravel())),
+                            shape=(len(faces), ns))
+    centres = sp.diags(1.0 / np.maximum(around.sum(axis=1).A.ravel(), 1.0)) @ around @ corners
+    return ids, before, after, centres.tocsr()
+
+
+def _make_rim(sub: Subdivision, sampled: np.ndarray, targets: Sequence[SupportedBody],
+              control: np.ndarray) -> "_Rim | None":
+    """The fit's `_Rim`, None when every body part is to be supported or the surface has no
+    border."""
+    free = [t.vertices[~np.asarray(t.supported, dtype=bool)] for t in targets
+            if t.supported is not None]
+    points = np.concatenate(free) if free else np.zeros((0, 3))
+    if not len(points):
+        return None
+    ids, before, after, centres = sub.kept(
+        "fit.rim", lambda: _rim_topology(sub.faces, sampled, sub.matrix.shape[0]))
+    if not len(ids):
+        return None
+    near, _ = cKDTree((sub.matrix @ control)[ids]).query(points, distance_upper_bound=RIM_SPAN)
+    return _Rim(ids, before, after, centres, points[np.isfinite(near)],
+                np.zeros(len(ids), dtype=bool))
+
+
+def rim_rows(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray) -> Rows:
+    """The rim: no rim vertex (`_Rim`) comes nearer than RIM_CLEARANCE (plus RIM_SLANT of how
+    deep the skin lies) to unsupported skin that lies in the surface's foam (up to RIM_SLAB
+    behind it) or just in front of it (RIM_FRONT), from outside or up to RIM_INNER inside
+    the rim: e . v <= e . b - clearance, for the skin point b of each rim vertex that asks the
+    most of it (among the points that have it as their nearest rim vertex: skin is sampled
+    about as densely as the rim, 1-2 cm apart), e the rim's outward direction (in the
+    surface's tangent plane, across the border). A row already
+    broken holds the rim where it is (like a body row outside every body: nothing more is
+    demanded), so the rows only keep the rim from advancing over the calves, and the fit is
+    judged as without them. The rows fade (scaled by a weight, 0 to 1) at the edges of the
+    region so that they do not jump as the surface moves; they join `fit.rim.member` and stay
+    (inactive when not wanted), as the body's rows do."""
+    rim = fit.rim
+    p, n = surf[rim.ids], surf_n[rim.ids]
+    e = np.cross(surf[rim.after] - surf[rim.before], n)
+    e /= np.maximum(np.linalg.norm(e, axis=1, keepdims=True), 1e-300)
+    e *= np.where(np.einsum("ij,ij->i", e, p - rim.centres @ surf) < 0, -1.0, 1.0)[:, None]
+    # each skin point to its nearest rim vertex within reach
+    dist, owner = cKDTree(p).query(rim.points, distance_upper_bound=RIM_REACH)
+    point = np.flatnonzero(np.isfinite(dist))
+    demanded = np.full(len(rim.ids), -np.inf)
+    scale = np.ones(len(rim.ids))
+    if len(point):
+        owner = owner[point]
+        d = rim.points[point] - p[owner]
+        behind = -np.einsum("ij,ij->i", d, n[owner])
+        out = np.einsum("ij,ij->i", d, e[owner])
+        # how much each point counts, fading to nothing at the edges of the region the rim
+        # answers for (so that its row does not jump as the surface moves)
+        weight = np.clip((behind + RIM_FRONT) / RIM_FRONT, 0.0, 1.0) * \
+            np.clip((RIM_SLAB - behind) / RIM_FADE, 0.0, 1.0) * \
+            np.clip((out + RIM_INNER) / (RIM_INNER / 2), 0.0, 1.0)
+        clear = RIM_CLEARANCE + RIM_SLANT * np.maximum(behind, 0.0)
+        short = weight * (clear - out)
+        wanted = weight > 0
+        if wanted.any():
+            # per rim vertex its point of largest weighted shortfall: the row
+            # w (-e . v) >= w (clearance - e . b)
+            owner, short, weight, point, clear = owner[wanted], short[wanted], weight[wanted], \
+                point[wanted], clear[wanted]
+            order = np.lexsort((-short, owner))
+            top = order[np.r_[True, owner[order][1:] != owner[order][:-1]]]
+            scale[owner[top]] = weight[top]
+            demanded[owner[top]] = weight[top] * (
+                clear[top] - np.einsum("ij,ij->i", e[owner[top]], rim.points[point[top]]))
+    rim.member |= np.isfinite(demanded)
+    normals = -scale[:, None] * e
+    now = np.einsum("ij,ij->i", normals, p)
+    keep = rim.member
+    return Rows(rim.ids[keep], normals[keep], np.minimum(demanded, now)[keep], now[keep])
 
 
 @dataclass(frozen=True, eq=False)

@@ -256,25 +256,18 @@ def test_fit_without_pictures_writes_no_png_and_says_so(tmp_path, capsys):
 EXAMPLES = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios"
 
 
-# The seated examples support a seat (pelvis and thighs). Their poses lean back, and on a surface
-# under the pelvis and thighs alone some tip back off it (as they do off a flat seat at its
-# height): facing_pair's north and seat_for_thin. Those that rest slide back and down a little
-# as they settle until the backs of their upper calves catch the seat's front edge, which then
-# carries the peak (single_seated: the settle moves the body 30 mm back and 19 mm down).
-# six_overlapping's surface cuts 31.9 mm into its second person between the surface's vertices,
-# 0.9 mm past the margin plus 1 mm. Measured after the fit's guards, the anatomical supports, the
-# sink and the stiffened proposals; a strict xfail fails the run once its example meets the bar.
+# The seated examples support a seat (pelvis and thighs); each grid's front edge ends 3 cm short
+# of the calves' skin (the person placed so), and the fit's rim rows keep it from advancing over
+# them. facing_pair's one surface runs on under both people's calves, and its north person (the
+# pose leans back) tips back off a seat under the pelvis and thighs alone, as off a flat seat at
+# its height. six_overlapping's rims, held off six people's calves, leave three of them just
+# short of the coverage bar (0.941-0.946). Measured after the rim rows; a strict xfail fails the
+# run once its example meets the bar.
 NO_REST = "tips back off a seat under the pelvis and thighs alone (the pose leans back)"
-CALF_PEAK = "the peak presses the unsupported calves, where the seat's front edge meets them"
+SIX_COVERAGE = "three of the six cover 0.941-0.946 of their support (bar 0.95)"
 _EXAMPLE_MARKS = {
-    "single_seated": {"rest": CALF_PEAK},
-    "seat_for_thin": {"rest": NO_REST},
     "facing_pair": {"rest": NO_REST},
-    "six_overlapping": {"rest": CALF_PEAK,
-                        "surface": "the limit surface cuts 31.9 mm into the second person "
-                                   "between its vertices (bar 31.0): five rounds of rows on "
-                                   "dense samples lift it from 33 mm, the fold guard stops "
-                                   "the rest"},
+    "six_overlapping": {"surface": SIX_COVERAGE},
 }
 _REPORTS: dict = {}
 
@@ -370,10 +363,17 @@ def test_example_people_rest_on_their_surfaces(name, tmp_path_factory):
         share = {r: regions.get(r, {}).get("load_share", 0.0) for r in ("pelvis", "thighs",
                                                                           "calves")}
         assert share["pelvis"] + share["thighs"] >= 0.6 and share["calves"] < 0.1, share
-    if name == "single_seated":  # feet on the floor: a fifth of the weight or so on it
-        supports = report["persons"][0]["equilibrium"]["supports"]
-        assert 0.1 <= supports["floor"]["load_share"] <= 0.3, supports
-        assert supports["seat"]["load_share"] >= 0.5, supports
+
+
+@pytest.mark.xfail(strict=True, reason="the feet barely touch the floor: it carries 2 % of the "
+                   "weight (published: about a fifth), the seat 90 %")
+def test_single_seated_puts_a_fifth_of_the_weight_on_the_floor(tmp_path_factory):
+    """Seated with the feet on the floor, the floor carries 10-30 % of the weight (19 % in an
+    upright posture, Collins 2001; 20-30 % across three postures, Mbada et al. 2016)."""
+    report = _example_report("single_seated", tmp_path_factory)
+    supports = report["persons"][0]["equilibrium"]["supports"]
+    assert supports["seat"]["load_share"] >= 0.5, supports
+    assert 0.1 <= supports["floor"]["load_share"] <= 0.3, supports
 
 
 def _check_exported_surface(out: Path, report: dict) -> None:

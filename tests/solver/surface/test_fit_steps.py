@@ -362,3 +362,63 @@ def test_cancel_is_polled_within_an_iteration_between_its_tries(ball, monkeypatc
         result.stop_reason
     assert k == len(accepted) and polls.count(k) == 1  # stopped before its second try
     assert all(polls.count(j) == 1 for j in range(k))  # the earlier ones took their first
+
+
+def test_rim_rows_keep_the_edge_clear_of_unsupported_skin_in_its_foam(ball):
+    """Three unsupported skin points beside a flat 1.2 x 0.8 m grid (rim at x = +-0.6, z =
+    +-0.4, y = 0.45, facing up): 2 cm beyond the +z rim and 5 cm below it (in the foam,
+    nearer than its clearance of 3 cm + 0.33 x 5 cm: the row holds the rim where it is), 10 cm
+    beyond the -x rim, 5 cm below (clear: the rim may come up to its clearance), and 20 cm
+    below the +x rim (below the foam: no row). Worked out by hand on the grid's own edges."""
+    v, t, normals, areas, importance = ball
+    free = np.array([[0.0, 0.40, 0.42], [-0.70, 0.40, 0.0], [0.62, 0.25, 0.0]])
+    body = SupportedBody(np.concatenate([v, free]),
+                         np.concatenate([normals, np.tile([0.0, 0.0, 1.0], (3, 1))]),
+                         np.concatenate([importance, np.zeros(3)]), "ball",
+                         supported=np.r_[np.ones(len(v), bool), np.zeros(3, bool)])
+    grid_v, grid_f = grid_mesh((1.2, 0.8), (8, 6), 0.45)
+    fit = F.prepare(grid_v, grid_f, [body], F.FitParams())
+    surf = fit.sub.matrix @ fit.v0
+    rows = F.rim_rows(fit, surf, fit.sub.normals(surf))
+    assert len(rows.rows) == 2  # the third point lies below the foam
+    slant = F.RIM_CLEARANCE + F.RIM_SLANT * 0.05
+    for which, out in ((0, [0.0, 0.0, 1.0]), (1, [-1.0, 0.0, 0.0])):
+        point = free[which]
+        mine = np.flatnonzero(np.linalg.norm(surf[rows.rows] - point, axis=1) ==
+                              np.linalg.norm(surf[fit.rim.ids] - point, axis=1).min())
+        assert len(mine) == 1
+        k = mine[0]
+        np.testing.assert_allclose(rows.normals[k], -np.asarray(out), atol=1e-9)
+        edge = surf[rows.rows[k]] @ np.asarray(out)  # 0.4 or 0.6
+        if which == 0:  # within its clearance: held where it is
+            np.testing.assert_allclose(rows.demanded[k], rows.now[k])
+            assert edge > point @ np.asarray(out) - slant
+        else:  # clear: it may advance up to its clearance, no further
+            np.testing.assert_allclose(rows.demanded[k], slant - point @ np.asarray(out),
+                                       atol=1e-9)
+            assert rows.demanded[k] < rows.now[k]
+    assert rows.beyond_m2 == 0.0  # the rows judge nothing: they only hold
+
+
+def test_a_fit_keeps_its_rim_off_unsupported_skin_beyond_it():
+    """Supported skin facing down 1 cm above a 0.3 m grid reaches 10 cm past its front rim (z
+    = 0.15) and pulls the rim forwards; unsupported skin just beyond it (z = 0.26), 2 cm below
+    the grid (in its foam): the fitted rim stays its clearance (3 cm + 0.33 x 2 cm) short of
+    that skin, where without it the rim goes past that line."""
+    x, z = np.meshgrid(np.linspace(-0.14, 0.14, 15), np.linspace(-0.14, 0.25, 27))
+    skin = np.stack([x.ravel(), np.full(x.size, 0.46), z.ravel()], axis=1)
+    wall = np.array([[x, 0.43, 0.26] for x in np.linspace(-0.15, 0.15, 31)])
+    line = 0.26 - F.RIM_CLEARANCE - F.RIM_SLANT * 0.02
+
+    def front(with_wall: bool) -> float:
+        extra = len(wall) if with_wall else 0
+        body = SupportedBody(np.concatenate([skin, wall[:extra]]),
+                             np.tile([0.0, -1.0, 0.0], (len(skin) + extra, 1)),
+                             np.r_[np.ones(len(skin)), np.zeros(extra)], "slab",
+                             supported=np.r_[np.ones(len(skin), bool), np.zeros(extra, bool)])
+        grid_v, grid_f = grid_mesh((0.3, 0.3), (6, 6), 0.45)
+        s = F.fit_surface(grid_v, grid_f, [body], F.FitParams(sigma=0.001)).surface
+        return float(s[np.abs(s[:, 0]) <= 0.15, 2].max())
+
+    assert front(False) > line + 0.01  # the pull takes the rim past the line unheld
+    assert front(True) <= line + 1e-3

