@@ -266,7 +266,8 @@ EXAMPLES = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios"
 NO_REST = "tips back off a seat under the pelvis and thighs alone (the pose leans back)"
 SIX_COVERAGE = "three of the six cover 0.941-0.946 of their support (bar 0.95)"
 _EXAMPLE_MARKS = {
-    "facing_pair": {"rest": NO_REST},
+    "facing_pair": {"rest": NO_REST + "; the south person's peak (15.6 kPa) is on a calf "
+                                     "under the surface that runs on to the north person"},
     "six_overlapping": {"surface": SIX_COVERAGE},
 }
 _REPORTS: dict = {}
