@@ -729,46 +729,33 @@ class _Rim:
     """The level-s surface's rim and the unsupported skin it is kept clear of.
 
     ids : (k,) the sampled surface vertices on the surface's border; `before`, `after` (k,)
-    their neighbours along it; `centres` (k, ns) maps the surface to the mean of the quads
-    round each (inside the border: which way is out). `points` (U, 3): the body vertices of
-    the parts no one asked support for that lie within RIM_SPAN of the rim where the fit
-    starts; `member` (k,) bool: the rim vertices that have had rows (they keep them, inactive
-    when not wanted, as the body's rows do)."""
+    their neighbours along it, in the direction the quads run it. `points` (U, 3): the body
+    vertices of the parts no one asked support for that lie within RIM_SPAN of the rim where
+    the fit starts; `member` (k,) bool: the rim vertices that have had rows (they keep them,
+    inactive when not wanted, as the body's rows do)."""
 
     ids: np.ndarray
     before: np.ndarray
     after: np.ndarray
-    centres: sp.csr_matrix
     points: np.ndarray
     member: np.ndarray
 
 
-def _rim_topology(faces: np.ndarray, sampled: np.ndarray, ns: int) -> tuple:
-    """(ids, before, after, centres) of `_Rim` from the level-s quads: the sampled vertices on
-    edges that only one quad has, their two neighbours along those edges and the mean of their
-    quads' corners."""
-    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 3]],
-                            faces[:, [3, 0]]])
-    key = np.sort(edges, axis=1)
-    unique, count = np.unique(key, axis=0, return_counts=True)
-    border = unique[count == 1]
-    if not len(border):
-        return np.zeros(0, dtype=np.int64), None, None, None
-    ends = np.concatenate([border, border[:, ::-1]])
-    ends = ends[np.lexsort((ends[:, 1], ends[:, 0]))]
-    on, first = np.unique(ends[:, 0], return_index=True)
-    two = np.diff(np.append(first, len(ends))) == 2  # a vertex where the border pinches has
-    keep = np.isin(on, sampled) & two                 # more than two: left out
-    ids = on[keep]
-    before, after = ends[first[keep], 1], ends[first[keep] + 1, 1]
-    rows = np.repeat(np.arange(len(faces)), 4)
-    incidence = sp.csr_matrix((np.ones(len(rows)), (faces.ravel(), rows)),
-                              shape=(ns, len(faces)))
-    around = incidence[ids]
-    corners = sp.csr_matrix((np.full(4 * len(faces), 0.25), (rows, faces.ravel())),
-                            shape=(len(faces), ns))
-    centres = sp.diags(1.0 / np.maximum(around.sum(axis=1).A.ravel(), 1.0)) @ around @ corners
-    return ids, before, after, centres.tocsr()
+def _rim_topology(faces: np.ndarray, sampled: np.ndarray) -> tuple:
+    """(ids, before, after) of `_Rim` from the level-s quads: the sampled vertices on the
+    border (`solver.io.solid.boundary_edges`, run as the quads run it), the border vertex
+    before each and the one after (a vertex where the border pinches, with more than one of
+    each, is left out). The quads wind counter-clockwise seen from their normal, so the
+    surface lies left of the border's direction: outwards is (after - before) x n."""
+    from solver.io.solid import boundary_edges
+
+    edges = boundary_edges(faces)
+    n = int(faces.max()) + 1
+    start, end = np.bincount(edges[:, 0], minlength=n), np.bincount(edges[:, 1], minlength=n)
+    after, before = np.full(n, -1), np.full(n, -1)
+    after[edges[:, 0]], before[edges[:, 1]] = edges[:, 1], edges[:, 0]
+    ids = np.intersect1d(np.flatnonzero((start == 1) & (end == 1)), sampled)
+    return ids, before[ids], after[ids]
 
 
 def _make_rim(sub: Subdivision, sampled: np.ndarray, targets: Sequence[SupportedBody],
@@ -780,12 +767,11 @@ def _make_rim(sub: Subdivision, sampled: np.ndarray, targets: Sequence[Supported
     points = np.concatenate(free) if free else np.zeros((0, 3))
     if not len(points):
         return None
-    ids, before, after, centres = sub.kept(
-        "fit.rim", lambda: _rim_topology(sub.faces, sampled, sub.matrix.shape[0]))
+    ids, before, after = sub.kept("fit.rim", lambda: _rim_topology(sub.faces, sampled))
     if not len(ids):
         return None
     near, _ = cKDTree((sub.matrix @ control)[ids]).query(points, distance_upper_bound=RIM_SPAN)
-    return _Rim(ids, before, after, centres, points[np.isfinite(near)],
+    return _Rim(ids, before, after, points[np.isfinite(near)],
                 np.zeros(len(ids), dtype=bool))
 
 
@@ -804,9 +790,8 @@ def rim_rows(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray) -> Rows:
     (inactive when not wanted), as the body's rows do."""
     rim = fit.rim
     p, n = surf[rim.ids], surf_n[rim.ids]
-    e = np.cross(surf[rim.after] - surf[rim.before], n)
+    e = np.cross(surf[rim.after] - surf[rim.before], n)  # outwards (`_rim_topology`)
     e /= np.maximum(np.linalg.norm(e, axis=1, keepdims=True), 1e-300)
-    e *= np.where(np.einsum("ij,ij->i", e, p - rim.centres @ surf) < 0, -1.0, 1.0)[:, None]
     # each skin point to its nearest rim vertex within reach
     dist, owner = cKDTree(p).query(rim.points, distance_upper_bound=RIM_REACH)
     point = np.flatnonzero(np.isfinite(dist))

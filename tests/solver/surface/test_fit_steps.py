@@ -369,7 +369,8 @@ def test_rim_rows_keep_the_edge_clear_of_unsupported_skin_in_its_foam(ball):
     +-0.4, y = 0.45, facing up): 2 cm beyond the +z rim and 5 cm below it (in the foam,
     nearer than its clearance of 3 cm + 0.33 x 5 cm: the row holds the rim where it is), 10 cm
     beyond the -x rim, 5 cm below (clear: the rim may come up to its clearance), and 13 cm
-    below the +x rim, 2 cm beside it (within reach of it, but below the 12 cm of foam: no row). Worked out by hand on the grid's own edges."""
+    below the +x rim, 2 cm beside it (within reach of it, but below the 12 cm of foam: no
+    row). Worked out by hand on the grid's own edges."""
     v, t, normals, areas, importance = ball
     free = np.array([[0.0, 0.40, 0.42], [-0.70, 0.40, 0.0], [0.62, 0.32, 0.0]])
     body = SupportedBody(np.concatenate([v, free]),
@@ -392,7 +393,7 @@ def test_rim_rows_keep_the_edge_clear_of_unsupported_skin_in_its_foam(ball):
         edge = surf[rows.rows[k]] @ np.asarray(out)  # 0.4 or 0.6
         if which == 0:  # within its clearance: held where it is
             np.testing.assert_allclose(rows.demanded[k], rows.now[k])
-            assert edge > point @ np.asarray(out) - slant
+            assert edge > point @ np.asarray(out) - slant  # (the premise: it is too near)
         else:  # clear: it may advance up to its clearance, no further
             np.testing.assert_allclose(rows.demanded[k], slant - point @ np.asarray(out),
                                        atol=1e-9)
