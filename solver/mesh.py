@@ -349,6 +349,44 @@ def _no_axis_parts(p: np.ndarray, q: np.ndarray, gap: float) -> np.ndarray:
     return ~(apart > gap).any(axis=1)
 
 
+class MeshOrientationError(ValueError):
+    """A surface that is no orientable manifold (an edge of three faces, or run one way twice)."""
+
+
+def boundary_edges(faces: np.ndarray) -> np.ndarray:
+    """The border's edges of a surface, each as its one face runs it.
+
+    Parameters
+    ----------
+    faces : (F, 3) or (F, 4) int
+
+    Returns
+    -------
+    (B, 2) int
+        Vertex pairs (a, b) with the face running a -> b.
+
+    Raises
+    ------
+    MeshOrientationError
+        If an edge is shared by more than two faces or run the same way twice (not an
+        orientable manifold surface).
+    """
+    faces = np.asarray(faces, dtype=np.int64)
+    edges = np.stack([faces, np.roll(faces, -1, axis=1)], axis=-1).reshape(-1, 2)
+    # an edge as one integer (a sort of integers, not of rows): either way, and as run
+    n = int(edges.max(initial=0)) + 1
+    _, inverse, counts = np.unique(edges.min(axis=1) * n + edges.max(axis=1),
+                                   return_inverse=True, return_counts=True)
+    if counts.max(initial=0) > 2:
+        raise MeshOrientationError(f"Expected a manifold surface, got an edge shared by "
+                         f"{int(counts.max())} faces")
+    _, directed = np.unique(edges[:, 0] * n + edges[:, 1], return_counts=True)
+    if directed.max(initial=0) > 1:
+        raise MeshOrientationError("Expected consistently oriented faces, got an edge run the same "
+                         "way by two faces")
+    return edges[counts[inverse] == 1]
+
+
 class MeshSplitError(ValueError):
     """A quad that cannot be split (out of range, an edge shared by more than two quads)."""
 

@@ -34,9 +34,9 @@ from pathlib import Path
 import numpy as np
 
 from capture.files import write_atomic
-
-from solver.mesh import SurfaceMesh, enclosed_volume, face_cross, face_normals, \
-    quad_triangles, self_intersections, vertex_normals
+from solver.mesh import MeshOrientationError, SurfaceMesh, enclosed_volume, face_cross, \
+    face_normals, quad_triangles, self_intersections, vertex_normals
+from solver.mesh import boundary_edges as mesh_boundary_edges
 
 THICKNESS_TOLERANCE = 1e-4  # m: the offset's vertices may miss the thickness by this much
 # Between vertices, flat faces cut the chords of tight bends, so the two sheets come nearer
@@ -139,37 +139,11 @@ def _edges_of(triangles: np.ndarray) -> np.ndarray:
 
 
 def boundary_edges(faces: np.ndarray) -> np.ndarray:
-    """The border's edges of a surface, each as its one face runs it.
-
-    Parameters
-    ----------
-    faces : (F, 3) or (F, 4) int
-
-    Returns
-    -------
-    (B, 2) int
-        Vertex pairs (a, b) with the face running a -> b.
-
-    Raises
-    ------
-    SolidError
-        If an edge is shared by more than two faces or run the same way twice (not an
-        orientable manifold surface).
-    """
-    faces = np.asarray(faces, dtype=np.int64)
-    edges = np.stack([faces, np.roll(faces, -1, axis=1)], axis=-1).reshape(-1, 2)
-    # an edge as one integer (a sort of integers, not of rows): either way, and as run
-    n = int(edges.max(initial=0)) + 1
-    _, inverse, counts = np.unique(edges.min(axis=1) * n + edges.max(axis=1),
-                                   return_inverse=True, return_counts=True)
-    if counts.max(initial=0) > 2:
-        raise SolidError(f"Expected a manifold surface, got an edge shared by "
-                         f"{int(counts.max())} faces")
-    _, directed = np.unique(edges[:, 0] * n + edges[:, 1], return_counts=True)
-    if directed.max(initial=0) > 1:
-        raise SolidError("Expected consistently oriented faces, got an edge run the same "
-                         "way by two faces")
-    return edges[counts[inverse] == 1]
+    """`solver.mesh.boundary_edges`, a surface that is no orientable manifold a SolidError."""
+    try:
+        return mesh_boundary_edges(faces)
+    except MeshOrientationError as exc:
+        raise SolidError(str(exc)) from None
 
 
 def _validate(vertices, faces) -> tuple[np.ndarray, np.ndarray]:

@@ -82,6 +82,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from solver.contact.supported import SupportedBody
+from solver.mesh import boundary_edges
 from solver.surface.guarantees import neighbour_faces, quad_normals
 from solver.surface.programme import DenseProgramme, Programme, ProgrammeError
 from solver.surface.subdivision import Subdivision, subdivision
@@ -743,12 +744,10 @@ class _Rim:
 
 def _rim_topology(faces: np.ndarray, sampled: np.ndarray) -> tuple:
     """(ids, before, after) of `_Rim` from the level-s quads: the sampled vertices on the
-    border (`solver.io.solid.boundary_edges`, run as the quads run it), the border vertex
+    border (`solver.mesh.boundary_edges`, run as the quads run it), the border vertex
     before each and the one after (a vertex where the border pinches, with more than one of
     each, is left out). The quads wind counter-clockwise seen from their normal, so the
     surface lies left of the border's direction: outwards is (after - before) x n."""
-    from solver.io.solid import boundary_edges
-
     edges = boundary_edges(faces)
     n = int(faces.max()) + 1
     start, end = np.bincount(edges[:, 0], minlength=n), np.bincount(edges[:, 1], minlength=n)
