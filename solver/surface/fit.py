@@ -135,6 +135,7 @@ RIM_INNER = 0.04  # metres under the surface, inside its rim, skin still counts 
                   # surface over it clears it by its own shape, or does not)
 RIM_FADE = 0.03  # metres over which a skin point's row fades out at the edges of that region
 RIM_REACH = 0.15  # metres: the search radius round each rim vertex (covers that region)
+RIM_SLACK = 0.05  # metres a rim vertex may move before the skin near the rim is sought again
 RIM_SPAN = 0.4  # metres: skin farther from the start's rim is left out (a fit moves the rim less)
 FLOOR_REACH = 2.0  # steps: a surface vertex this near the floor gets a floor row (it moves at
                    # most one step per iteration, so none gets under unseen)
@@ -280,6 +281,7 @@ class FitState:
     neighbours: np.ndarray  # `_Fit.neighbours`
     quad_maps: tuple  # `_Fit.quad_maps`
     lap: sp.csr_matrix | None = None  # `_Fit.lap`, the start's Laplacian
+    rim_member: np.ndarray | None = None  # `_Rim.member`: the rim vertices that had rows
 
 
 def _search_trees(points: np.ndarray, normals: np.ndarray) -> tuple:
@@ -498,7 +500,8 @@ def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedB
                 fixed, smooth, diagonal.toarray() if dense else diagonal, proximal, dense,
                 programme, sampled, neighbours, quad_maps,
                 skins, offset, state.limit if same else None,
-                rim=_make_rim(sub, sampled, targets, v0) if RIM_CLEARANCE > 0 else None)
+                rim=_make_rim(sub, sampled, targets, v0,
+                              state.rim_member if same else None) if RIM_CLEARANCE > 0 else None)
 
 
 def _quad_maps(sub: Subdivision, neighbours: np.ndarray) -> tuple:
@@ -740,6 +743,19 @@ class _Rim:
     after: np.ndarray
     points: np.ndarray
     member: np.ndarray
+    near: np.ndarray | None = None  # the points within RIM_REACH + RIM_SLACK of the rim ...
+    where: np.ndarray | None = None  # ... where it lay when they were found (k, 3)
+
+    def candidates(self, p: np.ndarray) -> np.ndarray:
+        """The indices of `points` that may lie within RIM_REACH of the rim at p (k, 3): those
+        within RIM_REACH + RIM_SLACK of where it lay when last sought, sought again once a rim
+        vertex has moved farther than RIM_SLACK (a point within reach of a vertex now lay
+        within reach + slack of it then)."""
+        if self.where is None or \
+                np.max(np.einsum("ij,ij->i", p - self.where, p - self.where)) > RIM_SLACK ** 2:
+            dist, _ = cKDTree(p).query(self.points, distance_upper_bound=RIM_REACH + RIM_SLACK)
+            self.near, self.where = np.flatnonzero(np.isfinite(dist)), p.copy()
+        return self.near
 
 
 def _rim_topology(faces: np.ndarray, sampled: np.ndarray) -> tuple:
@@ -758,9 +774,10 @@ def _rim_topology(faces: np.ndarray, sampled: np.ndarray) -> tuple:
 
 
 def _make_rim(sub: Subdivision, sampled: np.ndarray, targets: Sequence[SupportedBody],
-              control: np.ndarray) -> "_Rim | None":
+              control: np.ndarray, member: np.ndarray | None = None) -> "_Rim | None":
     """The fit's `_Rim`, None when every body part is to be supported or the surface has no
-    border."""
+    border; `member`: the rim vertices that had rows in a fit before (of the same quads),
+    which keep them (so that OSQP, on a large mesh, is not set up again for them)."""
     free = [t.vertices[~np.asarray(t.supported, dtype=bool)] for t in targets
             if t.supported is not None]
     points = np.concatenate(free) if free else np.zeros((0, 3))
@@ -771,6 +788,7 @@ def _make_rim(sub: Subdivision, sampled: np.ndarray, targets: Sequence[Supported
         return None
     near, _ = cKDTree((sub.matrix @ control)[ids]).query(points, distance_upper_bound=RIM_SPAN)
     return _Rim(ids, before, after, points[np.isfinite(near)],
+                member.copy() if member is not None and len(member) == len(ids) else
                 np.zeros(len(ids), dtype=bool))
 
 
@@ -792,12 +810,12 @@ def rim_rows(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray) -> Rows:
     e = np.cross(surf[rim.after] - surf[rim.before], n)  # outwards (`_rim_topology`)
     e /= np.maximum(np.linalg.norm(e, axis=1, keepdims=True), 1e-300)
     # each skin point to its nearest rim vertex within reach
-    dist, owner = cKDTree(p).query(rim.points, distance_upper_bound=RIM_REACH)
-    point = np.flatnonzero(np.isfinite(dist))
+    near = rim.candidates(p)
+    dist, owner = cKDTree(p).query(rim.points[near], distance_upper_bound=RIM_REACH)
+    point, owner = near[np.isfinite(dist)], owner[np.isfinite(dist)]
     demanded = np.full(len(rim.ids), -np.inf)
     scale = np.ones(len(rim.ids))
     if len(point):
-        owner = owner[point]
         d = rim.points[point] - p[owner]
         behind = -np.einsum("ij,ij->i", d, n[owner])
         out = np.einsum("ij,ij->i", d, e[owner])
@@ -1341,7 +1359,8 @@ def _run(fit: _Fit, state: "FitState | None", warm: FitResult | None, progress, 
                               fit.points, fit.normals,
                               (fit.body_tree, fit.body_tree3, fit.exit_tree), fit.tree_offset,
                               fit.skins, fit.programme if fit.extra is None else None,
-                              fit.neighbours, fit.quad_maps, fit.lap))
+                              fit.neighbours, fit.quad_maps, fit.lap,
+                              None if fit.rim is None else fit.rim.member.copy()))
 
 
 def _warm_state(warm: FitResult | None, control: np.ndarray, faces: np.ndarray
@@ -1411,20 +1430,27 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
     (`_settled_ahead`); `cancel` is polled before each iteration and before
     each try after the first. A full step refused for a fold or a ridge is proposed again with
     the surface stiffer where it folded (`_stiffened`, up to STIFFEN_ROUNDS times), and one then
-    refused for its energy once more as a step that bends less there; with `freeze` (a warm
+    refused for its energy once more as a step that bends less there (or, when the step that
+    bends less was the one refused, as the smoother one); the next iteration proposes first
+    the kind the last one took (a fit that creeps on with steps that bend less makes no
+    smoother proposal, refused every time, before each); with `freeze` (a warm
     refit) such a step is instead tried again with the control vertices that shape the
     offending quads held still. Returns why it stopped and the last iteration."""
     params = fit.params
     it = run.accepted[-1]
     iteration = first - 1
     gains: list[float] = []  # how much each accepted step lowered the energy
+    bend_less = False  # the proposals' stiffening: smoother (False) or bending less (True);
+    # an iteration starts with the kind the last one took
     for iteration in range(first, last + 1):
         if cancel is not None and cancel():
             return _cancelled(iteration - first), iteration - 1
         t = params.tau_max * min(1.0, (iteration - 1) / TAU_RAMP) if tau is None else tau
         quadratic = assemble(fit, it.pairing, it.surf_n, t)
+        bend_less = bend_less and bool(fit.stiff.any())
         try:
-            target, status, residual = propose(fit, it, params.step, _stiffened(fit, quadratic))
+            target, status, residual = propose(
+                fit, it, params.step, _stiffened(fit, quadratic, it.v if bend_less else None))
         except FitError:
             if not fit.stiff.any():
                 raise
@@ -1434,9 +1460,9 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
         if not freeze or iteration == first:
             moving = np.ones((fit.n0, 1))
         halving = freezes = stiffened = 0
-        bend_less = False  # the proposals' stiffening: smoother (False) or bending less (True)
+        switched = False  # whether the other kind of proposal has been tried
         while halving <= MAX_HALVINGS:
-            if cancel is not None and (halving or stiffened or freezes or bend_less) and \
+            if cancel is not None and (halving or stiffened or freezes or switched) and \
                     cancel():  # (a large programme's tries take seconds each)
                 return _cancelled(iteration - first), iteration - 1
             v = it.v + 0.5 ** halving * moving * (target - it.v)
@@ -1456,12 +1482,13 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
                         fit.stiff[bent] = np.maximum(fit.stiff[bent] * STIFFEN_FACTOR, least)
                         stiffened += 1
                         run.stiffened += 1
-                        again = False
-                elif why == "energy" and not bend_less and fit.stiff.any():
+                        bend_less = again = False
+                elif why == "energy" and not switched and fit.stiff.any():
                     # a smoother surface costs more than it gains: a step that only bends
                     # less where proposals folded (staying costs nothing, so it lowers the
-                    # programme's objective)
-                    bend_less = again = True
+                    # programme's objective); or, when that was the one refused, the smoother
+                    bend_less = again = not bend_less
+                    switched = True
             if again is not None:
                 try:
                     target, status, residual = propose(

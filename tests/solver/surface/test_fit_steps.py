@@ -422,3 +422,96 @@ def test_a_fit_keeps_its_rim_off_unsupported_skin_beyond_it():
 
     assert front(False) > line + 0.01  # the pull takes the rim past the line unheld
     assert front(True) <= line + 1e-3
+
+
+def test_an_iteration_first_proposes_the_kind_of_step_the_last_one_took(ball, monkeypatch):
+    """Once proposals fold (the fold guard at 8 degrees, as above), each is either smoother
+    where they folded or bends less there; an iteration proposes first the kind its
+    predecessor's accepted step was, and the other only when that one is refused for its
+    energy. Recorded through the proposals' quadratic and the judgement of each try."""
+    v, t, normals, areas, importance = ball
+    grid_v, grid_f = grid_mesh((1.2, 0.8), (8, 6), 0.45)
+    body = [SupportedBody(v, normals, importance, "ball", t)]
+    monkeypatch.setattr(F, "FOLD_GUARD_DEG", 8.0)
+    log = []  # ("propose", bends_less) and ("judged", why) in the order they happen
+    stiffened, acceptable = F._stiffened, F.acceptable
+
+    def recording_stiffened(fit, quadratic, v=None):
+        log.append(("propose", v is not None))
+        return stiffened(fit, quadratic, v)
+
+    def recording_acceptable(fit, it, candidate, tau):
+        why = acceptable(fit, it, candidate, tau)
+        log.append(("judged", why))
+        return why
+
+    monkeypatch.setattr(F, "_stiffened", recording_stiffened)
+    monkeypatch.setattr(F, "acceptable", recording_acceptable)
+    F.fit_surface(grid_v, grid_f, body, F.FitParams(margin=0.02, sigma=0.01, max_iterations=25))
+    # each try is judged after the last proposal before it: the kind a step had is that one's
+    taken, kind, firsts = [], None, []
+    after_accept = True
+    for what, value in log:
+        if what == "propose":
+            if after_accept:
+                firsts.append((value, taken[-1] if taken else False))
+            kind, after_accept = value, False
+        elif value is None:
+            taken.append(kind)
+            after_accept = True
+    bending_less = [k for k in taken if k]
+    assert bending_less, "the premise: some accepted steps bend less"
+    # an iteration's first proposal is of its predecessor's kind (the first of all smoother)
+    assert all(first == before for first, before in firsts[1:]), firsts
+
+
+def _ring_body(ball):
+    """The ball (supported) and unsupported skin 5 cm under the level of a 1.2 x 0.8 m grid
+    at y = 0.45, on lines 0-25 cm beyond its +z rim and its -x rim."""
+    v, t, normals, areas, importance = ball
+    steps = np.linspace(0.0, 0.25, 26)
+    free = np.concatenate([
+        np.stack([np.linspace(-0.5, 0.5, 26), np.full(26, 0.40), 0.4 + steps], axis=1),
+        np.stack([-0.6 - steps, np.full(26, 0.40), np.linspace(-0.3, 0.3, 26)], axis=1)])
+    return SupportedBody(np.concatenate([v, free]),
+                         np.concatenate([normals, np.tile([0.0, 0.0, 1.0], (len(free), 1))]),
+                         np.concatenate([importance, np.zeros(len(free))]), "ball",
+                         supported=np.r_[np.ones(len(v), bool), np.zeros(len(free), bool)])
+
+
+@pytest.mark.parametrize("shift", [0.0, 0.03, 0.12])
+def test_rim_rows_are_those_of_a_rim_that_seeks_its_skin_afresh(ball, shift):
+    """The rim keeps the skin near where it lay and seeks it again only once it has moved
+    farther than RIM_SLACK: its rows are those of a rim that seeks all the skin each time, and
+    the skin it keeps holds all within its reach, for a surface moved towards the skin by less
+    than the slack (4.2 cm) and by more (17 cm; skin out of reach before comes within it)."""
+    grid_v, grid_f = grid_mesh((1.2, 0.8), (8, 6), 0.45)
+    fit = F.prepare(grid_v, grid_f, [_ring_body(ball)], F.FitParams())
+    surf = fit.sub.matrix @ fit.v0
+    F.rim_rows(fit, surf, fit.sub.normals(surf))  # the rim keeps the skin near it here
+    moved = surf + np.array([-shift, 0.0, shift])
+    fresh = dataclasses.replace(fit, rim=dataclasses.replace(
+        fit.rim, member=fit.rim.member.copy(), near=None, where=None))
+    kept = F.rim_rows(fit, moved, fit.sub.normals(moved))
+    sought = F.rim_rows(fresh, moved, fit.sub.normals(moved))
+    for name in ("rows", "normals", "demanded", "now"):
+        np.testing.assert_array_equal(getattr(kept, name), getattr(sought, name))
+    # and the skin it keeps holds every point within reach of it now (brute force)
+    reach = np.linalg.norm(fit.rim.points[:, None] - surf[fit.rim.ids][None], axis=2).min(1)
+    now = np.linalg.norm(fit.rim.points[:, None] - moved[fit.rim.ids][None], axis=2).min(1)
+    assert set(np.flatnonzero(now <= F.RIM_REACH)) <= set(fit.rim.near)
+    if shift:  # the premise: skin out of reach where the rim was is within it now
+        assert np.any((reach > F.RIM_REACH) & (now <= F.RIM_REACH))
+
+
+def test_a_warm_refit_keeps_the_rim_rows_of_the_fit_before(ball):
+    """The rim vertices that had rows in a fit keep them in a warm refit of it (as the body's
+    rows do), so that a large mesh's OSQP is not set up again for them."""
+    grid_v, grid_f = grid_mesh((1.2, 0.8), (8, 6), 0.45)
+    body = [_ring_body(ball)]
+    first = F.fit_surface(grid_v, grid_f, body, F.FitParams(max_iterations=4))
+    assert first.state.rim_member.any()
+    again = F.prepare(grid_v, grid_f, body, F.FitParams(max_iterations=4), first.state)
+    np.testing.assert_array_equal(again.rim.member, first.state.rim_member)
+    cold = F.prepare(grid_v, grid_f, body, F.FitParams(max_iterations=4))
+    assert not cold.rim.member.any()
