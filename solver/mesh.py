@@ -245,10 +245,16 @@ def self_intersections(vertices: np.ndarray, triangles: np.ndarray,
     v = np.asarray(vertices, dtype=np.float64)
     t = np.asarray(triangles, dtype=np.int64)
     corners = v[t]
-    lo, hi = corners.min(axis=1), corners.max(axis=1)
-    pairs = _box_pairs(lo, hi)
+    return meeting_pairs(corners, t, box_pairs(corners.min(axis=1), corners.max(axis=1)),
+                         chunk, depth)
+
+
+def meeting_pairs(corners: np.ndarray, triangles: np.ndarray, pairs: np.ndarray,
+                  chunk: int = 200_000, depth: float = 0.0) -> np.ndarray:
+    """The `pairs` (P, 2) of triangles (corners (F, 3, 3), vertex indices (F, 3)) that share no
+    vertex and yet meet (`self_intersections`' narrow phase, on candidate pairs)."""
     a, b = pairs[:, 0], pairs[:, 1]
-    ta, tb = t[a], t[b]
+    ta, tb = triangles[a], triangles[b]
     shared = np.zeros(len(a), dtype=bool)
     for i in range(3):  # nine comparisons of columns: no (P, 3, 3) array
         for j in range(3):
@@ -263,7 +269,7 @@ def self_intersections(vertices: np.ndarray, triangles: np.ndarray,
     return np.concatenate(hits)
 
 
-def _box_pairs(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+def box_pairs(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """(P, 2) pairs i < j of boxes (lo, hi: (F, 3)) that overlap.
 
     Boxes of about one size (a surface's triangles): two boxes overlap only where their
@@ -286,7 +292,7 @@ def _box_pairs(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 
 
 def _grid_box_pairs(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """`_box_pairs` by binning the boxes on a uniform grid (cells twice the median box)."""
+    """`box_pairs` by binning the boxes on a uniform grid (cells twice the median box)."""
     size = 2.0 * np.median((hi - lo).max(axis=1)) + 1e-12
     first = np.floor((lo - lo.min(axis=0)) / size).astype(np.int64)
     span = np.floor((hi - lo.min(axis=0)) / size).astype(np.int64) - first + 1

@@ -1188,15 +1188,14 @@ def acceptable(fit: _Fit, it: Iterate, candidate: Iterate, tau: float) -> str | 
 def _crossings(fit: _Fit, v: np.ndarray) -> int:
     """Crossing triangle pairs of the limit surface of control vertices v (what `surface.*`
     holds): none for a disk that lies one-to-one over a plane (`one_to_one_over_plane`, a seat
-    or a bench), else as `self_intersections` counts them."""
-    from solver.mesh import self_intersections
-    from solver.surface.guarantees import disk_border, one_to_one_over_plane
+    or a bench), else as `crossing_pairs` counts them (by pieces that are)."""
+    from solver.surface.guarantees import crossing_pairs, disk_border, one_to_one_over_plane
 
     limit = limit_points(fit, v)
     border = fit.sub.kept("disk_border", lambda: disk_border(fit.sub.faces, len(limit)))
     if border is not None and one_to_one_over_plane(limit, fit.sub.triangles, border):
         return 0
-    return len(self_intersections(limit, fit.sub.triangles))
+    return len(crossing_pairs(limit, fit.sub.triangles, whole_tried=True))
 
 
 def uncrossed(fit: _Fit, accepted: Sequence[np.ndarray]) -> tuple[int, int]:

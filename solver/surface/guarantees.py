@@ -24,7 +24,7 @@ from typing import Sequence
 
 import numpy as np
 
-from solver.mesh import quad_triangles, self_intersections
+from solver.mesh import box_pairs, meeting_pairs, quad_triangles, self_intersections
 
 FOLD_LIMIT_DEG = 60.0  # neighbouring faces further apart than this are a fold
 FLOOR_TOLERANCE = 1e-3  # m the surface may sit below the floor before it counts as under it
@@ -33,6 +33,7 @@ SAMPLE_DIVISIONS = 4  # each triangle's edges in this many parts: 15 barycentric
 ONE_TO_ONE_MARGIN = 1e-9  # relative: how clearly `one_to_one_over_plane` must see its signs
 ONE_TO_ONE_TURNS = 16  # times it may turn its plane towards the triangle facing it least
 ONE_TO_ONE_NUDGE = 0.05  # how far each such triangle is turned to face the plane (a cosine)
+CROSSING_LEAF = 512  # triangles: a piece this small is searched for crossings pair by pair
 
 
 def quad_normals(vertices: np.ndarray, quads: np.ndarray) -> np.ndarray:
@@ -174,6 +175,68 @@ def one_to_one_over_plane(vertices: np.ndarray, triangles: np.ndarray, border: n
         return ((s > margin) & (t > margin)) | ((s < -margin) & (t < -margin))
 
     return bool(np.all(beside(i, j) | beside(j, i)))
+
+
+def crossing_pairs(vertices: np.ndarray, triangles: np.ndarray, whole_tried: bool = False
+                   ) -> np.ndarray:
+    """(P, 2) the pairs of triangles that share no vertex and yet meet, as
+    `solver.mesh.self_intersections` finds them (the same pairs, i < j, in another order),
+    quicker on a surface that is mostly a height field over some plane: a piece that is a disk
+    and one-to-one over a plane (`one_to_one_over_plane`) cannot cross itself, so the surface is
+    cut in two (at the median of its triangles' centres along its longest side) until each piece
+    is such a disk or has at most CROSSING_LEAF triangles (searched pair by pair), and only the
+    triangles of each half that reach into the other half's box are tried against each other.
+    `whole_tried`: the caller knows the whole surface is no such disk (it is not tried again).
+
+    Parameters
+    ----------
+    vertices : (V, 3) float
+    triangles : (F, 3) int
+        Consistently oriented (a piece of another orientation is never certified).
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.asarray(triangles, dtype=np.int64)
+    corners = v[t]
+    lo, hi, centre = corners.min(axis=1), corners.max(axis=1), corners.mean(axis=1)
+    found = [np.zeros((0, 2), dtype=np.int64)]
+
+    def among(ids: np.ndarray, other: np.ndarray | None = None) -> None:
+        """The meeting pairs within ids, or (other given) between ids and other."""
+        both = ids if other is None else np.concatenate([ids, other])
+        pairs = box_pairs(lo[both], hi[both])
+        if other is not None:
+            pairs = pairs[(pairs[:, 0] < len(ids)) != (pairs[:, 1] < len(ids))]
+        hits = both[meeting_pairs(corners[both], t[both], pairs)]
+        found.append(np.sort(hits, axis=1))
+
+    def disk_over_plane(ids: np.ndarray) -> bool:
+        used, local = np.unique(t[ids], return_inverse=True)
+        local = local.reshape(-1, 3)
+        border = disk_border(local, len(used))
+        return border is not None and one_to_one_over_plane(v[used], local, border)
+
+    stack = [(np.arange(len(t)), whole_tried)]
+    while stack:
+        ids, tried = stack.pop()
+        if len(ids) <= CROSSING_LEAF:
+            among(ids)
+            continue
+        if not tried and disk_over_plane(ids):
+            continue
+        axis = int(np.argmax(hi[ids].max(axis=0) - lo[ids].min(axis=0)))
+        first = centre[ids, axis] <= np.median(centre[ids, axis])
+        if first.all() or not first.any():  # (every centre on the median: no cut there)
+            among(ids)
+            continue
+        a, b = ids[first], ids[~first]
+        # the triangles of each half whose boxes reach into the other half's box
+        a_near = a[np.all((lo[a] <= hi[b].max(axis=0)) & (hi[a] >= lo[b].min(axis=0)), axis=1)]
+        b_near = b[np.all((lo[b] <= hi[a].max(axis=0)) & (hi[b] >= lo[a].min(axis=0)), axis=1)]
+        if len(a_near) and len(b_near):
+            among(a_near, b_near)
+        stack += [(a, False), (b, False)]
+    pairs = np.concatenate(found)
+    return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
 
 
 def barycentric_weights(divisions: int = SAMPLE_DIVISIONS) -> np.ndarray:

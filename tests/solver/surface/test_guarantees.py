@@ -6,8 +6,9 @@ import trimesh
 
 from solver.contact.evaluate import penetration_depth
 from solver.mesh import quad_triangles, self_intersections
-from solver.surface.guarantees import barycentric_samples, disk_border, fold_angles, \
-    one_to_one_over_plane, quad_normals, surface_guarantees
+from solver.surface import guarantees
+from solver.surface.guarantees import barycentric_samples, crossing_pairs, disk_border, \
+    fold_angles, one_to_one_over_plane, quad_normals, surface_guarantees
 
 
 def grid(n: int = 4, size: float = 2.0, height: float = 0.5, offset=(0.0, 0.0)):
@@ -139,3 +140,49 @@ def test_one_to_one_over_a_plane_means_no_crossing():
                      radius * np.sin(angle)], axis=-1).reshape(-1, 3)
     assert len(self_intersections(ramp, triangles)) == 0
     assert not one_to_one_over_plane(ramp, triangles, border)
+
+
+def _figure_eight(n: int = 60, m: int = 12):
+    """A strip swept along a figure of eight (x, y) = (cos t, sin t cos t) and across z: it
+    passes through itself along the line x = y = 0. n x m quads."""
+    t = np.linspace(0.15, 2 * np.pi - 0.15, n + 1)[:, None]
+    z = np.linspace(-0.5, 0.5, m + 1)[None, :]
+    v = np.stack([np.cos(t) + 0 * z, np.sin(t) * np.cos(t) + 0 * z, z + 0 * t],
+                 axis=-1).reshape(-1, 3)
+    k = np.arange((n + 1) * (m + 1)).reshape(n + 1, m + 1)
+    quads = np.stack([k[:-1, :-1], k[:-1, 1:], k[1:, 1:], k[1:, :-1]], axis=-1).reshape(-1, 4)
+    return v, quads
+
+
+@pytest.mark.parametrize("leaf", [8, 64, 512])
+def test_crossing_pairs_are_the_exact_tests_pairs(monkeypatch, leaf):
+    """The search by pieces finds the very pairs that the exact test over all pairs finds: on a
+    strip swept along a figure of eight (it passes through itself), a bumpy sheet folded back
+    over itself and pierced by its own flap, two sheets crossing each other (no disk) and
+    bumpy sheets that cross nowhere (each piece one-to-one over a plane); with small pieces,
+    so that cuts pass through the crossings, and large."""
+    monkeypatch.setattr(guarantees, "CROSSING_LEAF", leaf)
+    rng = np.random.default_rng(7)
+    cases = []
+    v, q = _figure_eight()
+    cases.append((v, quad_triangles(q), 1))
+    v, q = grid(n=24)
+    folded = v + rng.normal(scale=[0.0, 0.01, 0.0], size=v.shape)
+    back = v[:, 0] > 0.3  # the last columns laid back over the others, dipping through them
+    folded[back, 0] = 0.6 - v[back, 0]
+    folded[back, 1] += 0.05 - 0.3 * (v[back, 0] - 0.3)
+    cases.append((folded, quad_triangles(q), 1))
+    a, qa = grid(n=10, height=0.5)
+    b = a[:, [1, 0, 2]] + [-0.25, 0.5, 0.0]  # upright, crossing the first along x = 0.25
+    cases.append((np.concatenate([a, b]), quad_triangles(np.concatenate([qa, qa + len(a)])), 1))
+    for _ in range(3):
+        cases.append((v + rng.normal(scale=[0.01, 0.1, 0.01], size=v.shape), quad_triangles(q),
+                      0))
+    for vertices, triangles, crossing in cases:
+        exact = self_intersections(vertices, triangles)
+        exact = np.sort(exact, axis=1)
+        exact = exact[np.lexsort((exact[:, 1], exact[:, 0]))]
+        assert (len(exact) > 0) == bool(crossing)  # the premise
+        np.testing.assert_array_equal(crossing_pairs(vertices, triangles), exact)
+        np.testing.assert_array_equal(crossing_pairs(vertices, triangles, whole_tried=True),
+                                      exact)
