@@ -75,6 +75,13 @@ TRUNK_FACING = {"upper_back": 0.0, "lower_back": 0.0, "pelvis": 0.5}
 # (`solver.scene.furnish.KNEE_PIT`); at 8 cm the gallery's bench and lounger put their peaks on
 # the calves, at 11 cm on the thighs and the head
 POPLITEAL_CLEARANCE = 0.11
+# metres from the calves' skin, in the pose, within which a support of the thighs without the
+# calves leaves the thighs' skin free as well: where the knee bends further than a right angle
+# the back of the thigh comes down beside the calf, and a seat's rim kept clear of the calves
+# (the fit's rim rows keep 3 cm, `solver.surface.fit.RIM_CLEARANCE`, and more where the calf
+# lies deeper in the foam) cannot reach the thigh's skin there. 4 cm: that clearance and a
+# centimetre; at 3 cm a deep-kneed sitter of six_overlapping still missed 0.05 of its support
+KNEE_CREASE = 0.04
 
 
 class BodyShapeError(ValueError):
@@ -305,7 +312,7 @@ class Body:
         per_region[region_part[None, :] != self.parts[:, None]] = -1.0
         return per_region.argmax(axis=1).astype(np.int8)
 
-    def part_mask(self, names) -> np.ndarray:
+    def part_mask(self, names, posed: np.ndarray | None = None) -> np.ndarray:
         """(V,) bool: the vertices of the body regions a support names.
 
         Parameters
@@ -313,6 +320,9 @@ class Body:
         names : str or iterable of str
             Regions, coarse parts (torso, arms, legs) or uses (seat, chair, ...), as
             `posedb.regions.support_regions` reads them.
+        posed : (V, 3) float, optional
+            The skin in the pose it is supported in: a support of the thighs without the
+            calves then also leaves free the thighs' skin within KNEE_CREASE of the calves'.
 
         Returns
         -------
@@ -342,7 +352,23 @@ class Body:
                 mask[(self.regions == BODY_REGIONS.index(region)) & (facing > most)] = False
         if "thighs" in regions and "calves" not in regions:
             mask[self.popliteal] = False
+            if posed is not None:
+                mask[self.knee_crease(posed)] = False
         return mask
+
+    def knee_crease(self, posed: np.ndarray) -> np.ndarray:
+        """(V,) bool: the thighs' skin within KNEE_CREASE of the calves' skin, on the skin
+        `posed` (V, 3) in metres."""
+        from scipy.spatial import cKDTree
+
+        posed = np.asarray(posed, dtype=np.float64)
+        thighs = np.flatnonzero(self.regions == BODY_REGIONS.index("thighs"))
+        calves = posed[self.regions == BODY_REGIONS.index("calves")]
+        near = np.zeros(len(posed), dtype=bool)
+        if len(thighs) and len(calves):
+            dist, _ = cKDTree(calves).query(posed[thighs], distance_upper_bound=KNEE_CREASE)
+            near[thighs[np.isfinite(dist)]] = True
+        return near
 
     @cached_property
     def popliteal(self) -> np.ndarray:

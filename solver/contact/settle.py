@@ -44,6 +44,7 @@ SIDEWAYS = -2 * BAND  # the depth given a vertex beside a surface's border (its 
                       # the border, the offset running sideways off it): not in its foam, which
                       # lies behind the surface only
 STEP = 0.03  # metres (at LEVER for a turn): the most the body moves between fresh contacts
+SHRINKS = 8  # times the share of Newton's step taken may be halved, after steps that overshot
 
 
 @dataclass(frozen=True)
@@ -327,6 +328,7 @@ def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangl
     rot, shift = np.eye(3), np.zeros(3)
     scale = np.array([1.0] * 3 + [1.0 / LEVER] * 3) / np.linalg.norm(weight)
     x_found = x0  # where the candidates were last looked for on the whole body
+    damping, last = 1.0, np.inf  # the share of Newton's step taken, the imbalance a step ago
     for outer in range(1, MAX_OUTER + 1):
         x = (x0 - c0) @ rot.T + c0 + shift
         c = c0 + shift
@@ -354,7 +356,14 @@ def settle(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray, triangl
         # later steps move little: only what was near contact stays a candidate
         near = [np.concatenate([g[0].index for g in groups if g[0].support == k] + [near[k][:0]])
                 for k in range(len(supports))]
-        q, reason = _motion(groups, weight, scale, residual, jac)
+        # a step after which the imbalance did not shrink overshot (the contacts it found
+        # push back as hard the other way): the next takes half as much of Newton's step; one
+        # that shrank it lets the next take half as much again as it did (so that a body
+        # rocking across its rest takes ever shorter steps, three quarters as long every two)
+        size = float(np.linalg.norm(residual * scale))
+        damping = max(damping / 2, 0.5 ** SHRINKS) if size >= last else min(1.0, 1.5 * damping)
+        last = size
+        q, reason = _motion(groups, weight, scale, residual, jac, damping)
         if reason:
             return _unsettled(reason, x, c0, shift, rot, weight)
         rot = Rotation.from_rotvec(q[3:]).as_matrix() @ rot
@@ -385,9 +394,11 @@ def _weight(mass_kg: float, gravity) -> np.ndarray:
     return mass_kg * G * g / np.linalg.norm(g)
 
 
-def _motion(groups, weight, scale, residual, jac) -> tuple[np.ndarray | None, str | None]:
+def _motion(groups, weight, scale, residual, jac, damping: float = 1.0
+            ) -> tuple[np.ndarray | None, str | None]:
     """The next step of the body (6,), at most STEP, or why there is none: a hovering body
-    drops onto its nearest support, a touching one takes Newton's way to balance."""
+    drops onto its nearest support, a touching one takes Newton's way to balance, that step
+    times `damping` (1 or less)."""
     if not any((g[0].depth > 0).any() for g in groups):  # hovering: drop onto the nearest
         gap = min(-g[0].depth.max() for g in groups)
         return np.concatenate([(gap + 1e-3) * weight / np.linalg.norm(weight), np.zeros(3)]), None
@@ -397,7 +408,7 @@ def _motion(groups, weight, scale, residual, jac) -> tuple[np.ndarray | None, st
     size = _size(q)
     if size < STILL:  # no motion brings the imbalance down: no balance within reach
         return None, "finds no balance (it tips over or slides off)"
-    return q * min(1.0, STEP / size), None
+    return damping * q * min(1.0, STEP / size), None
 
 
 def _new_contact(supports, x, nrm, first, groups) -> bool:

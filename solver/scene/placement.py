@@ -134,9 +134,12 @@ def place_person(spec: PersonSpec, db: str | os.PathLike | None = None,
     to_scene[:3, 3] = m[:3, 3] - m[:3, :3] @ centre
     areas, normals = triangle_mesh(body.triangles, len(placed)).measures(placed)
     parts = body.part_mask(spec.support)
+    # the importance asks for none of the thighs' skin beside the calves in this pose (the
+    # rim stays clear of the calves), though it is part of the thighs that may be touched
+    asked = body.part_mask(spec.support, placed)
     # a support can only reach skin whose outward normal does not run back into the body
-    reach = parts & reachable(placed, body.triangles, normals,
-                              parts & (normals @ [0.0, -1.0, 0.0] > 0))
+    reach = asked & reachable(placed, body.triangles, normals,
+                              asked & (normals @ [0.0, -1.0, 0.0] > 0))
     field = pressure_field(placed, body.triangles, mask=reach, normals=normals, areas=areas)
     label = spec.name or f"person {index + 1}"
     return PlacedPerson(placed, normals, field.importance, f"{label} ({captured.label})",

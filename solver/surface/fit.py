@@ -83,7 +83,7 @@ from scipy.spatial import cKDTree
 
 from solver.contact.supported import SupportedBody
 from solver.mesh import boundary_edges
-from solver.surface.guarantees import neighbour_faces, quad_normals
+from solver.surface.guarantees import FOLD_LIMIT_DEG, neighbour_faces, quad_normals
 from solver.surface.programme import DenseProgramme, Programme, ProgrammeError
 from solver.surface.subdivision import Subdivision, subdivision
 from solver.threads import with_limited_threads
@@ -1185,13 +1185,37 @@ def acceptable(fit: _Fit, it: Iterate, candidate: Iterate, tau: float) -> str | 
     return None
 
 
-def _crossings(fit: _Fit, v: np.ndarray) -> int:
-    """Crossing triangle pairs of the limit surface of control vertices v (what `surface.*`
-    holds): none for a disk that lies one-to-one over a plane (`one_to_one_over_plane`, a seat
-    or a bench), else as `crossing_pairs` counts them (by pieces that are)."""
+def _flaws(fit: _Fit, v: np.ndarray) -> int:
+    """What would keep the limit surface of control vertices v (what `surface.*` holds) from
+    being furniture: its pairs of triangles that cross (`_crossings`) and its neighbouring
+    triangles that fold further apart than the guarantees' FOLD_LIMIT_DEG (`_triangle_folds`:
+    the loop's own guard measures the level-s quads, between whose corners the limit surface
+    can bend further)."""
+    limit = limit_points(fit, v)
+    return _crossings(fit, limit) + _triangle_folds(fit, limit)
+
+
+def _triangle_folds(fit: _Fit, limit: np.ndarray) -> int:
+    """Pairs of triangles of the limit surface `limit` (ns, 3) (the quads split as
+    `surface.*` is) that share an edge that is no crease, with normals further apart than
+    FOLD_LIMIT_DEG."""
+    from solver.mesh import face_normals
+
+    sub, creases = fit.sub, fit.params.creases
+    pairs = sub.kept("fit.triangle_neighbours", lambda: neighbour_faces(
+        sub.triangles, sub.steps[-1].creases if sub.steps else
+        (np.asarray(creases).reshape(-1, 2) if creases else None)))
+    n = face_normals(limit, sub.triangles)
+    dots = np.einsum("ij,ij->i", n[pairs[:, 0]], n[pairs[:, 1]])
+    return int(np.sum(dots < np.cos(np.radians(FOLD_LIMIT_DEG))))
+
+
+def _crossings(fit: _Fit, limit: np.ndarray) -> int:
+    """Crossing triangle pairs of the limit surface `limit` (ns, 3): none for a disk that lies
+    one-to-one over a plane (`one_to_one_over_plane`, a seat or a bench), else as
+    `crossing_pairs` counts them (by pieces that are)."""
     from solver.surface.guarantees import crossing_pairs, disk_border, one_to_one_over_plane
 
-    limit = limit_points(fit, v)
     border = fit.sub.kept("disk_border", lambda: disk_border(fit.sub.faces, len(limit)))
     if border is not None and one_to_one_over_plane(limit, fit.sub.triangles, border):
         return 0
@@ -1204,13 +1228,13 @@ def uncrossed(fit: _Fit, accepted: Sequence[np.ndarray]) -> tuple[int, int]:
     last one. Returns (index, crossings of the last); the last index when it is clean, and 0
     when even the start crosses."""
     last = len(accepted) - 1
-    crossings = _crossings(fit, accepted[last])
-    if crossings == 0 or last == 0 or _crossings(fit, accepted[0]):
+    crossings = _flaws(fit, accepted[last])
+    if crossings == 0 or last == 0 or _flaws(fit, accepted[0]):
         return (last if crossings == 0 else 0), crossings
     good, bad = 0, last
     while bad - good > 1:
         mid = (good + bad) // 2
-        if _crossings(fit, accepted[mid]):
+        if _flaws(fit, accepted[mid]):
             bad = mid
         else:
             good = mid
@@ -1339,8 +1363,8 @@ def _run(fit: _Fit, state: "FitState | None", warm: FitResult | None, progress, 
         stop += (f"; {len(repairs)} round(s) of rows where the surface lay deeper than the "
                  f"margin between its vertices ({sum(r['rows'] for r in repairs)} rows)")
     if keep < len(run.accepted) - 1:
-        stop += (f"; the surface crossed itself ({crossings} triangle pairs) after accepted "
-                 f"iterate {keep}, which is kept")
+        stop += (f"; the surface crossed itself or folded past {FOLD_LIMIT_DEG:g} degrees "
+                 f"({crossings} triangle pairs) after accepted iterate {keep}, which is kept")
     result = run.accepted[keep]
     terms = terms_of(fit, result, params.tau_max if repairs or warm is not None else
                      params.tau_max * min(1.0, max(keep - 1, 0) / TAU_RAMP))

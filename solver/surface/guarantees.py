@@ -45,17 +45,18 @@ def quad_normals(vertices: np.ndarray, quads: np.ndarray) -> np.ndarray:
 
 
 def neighbour_faces(quads: np.ndarray, sharp_edges: np.ndarray | None = None) -> np.ndarray:
-    """(E, 2) the two quads on each edge shared by exactly two quads, sharp edges left out.
+    """(E, 2) the two faces on each edge shared by exactly two faces, sharp edges left out.
 
     Parameters
     ----------
-    quads : (F, 4) int
+    quads : (F, k) int
+        Quads (k = 4), or triangles (k = 3), or any faces of k corners.
     sharp_edges : (K, 2) int, optional
         Edges (vertex pairs, either order) left out: creases, folds by design.
     """
     q = np.asarray(quads, dtype=np.int64)
     edges = np.sort(np.stack([q, np.roll(q, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
-    face = np.repeat(np.arange(len(q)), 4)
+    face = np.repeat(np.arange(len(q)), q.shape[1])
     order = np.lexsort((edges[:, 1], edges[:, 0]))
     edges, face = edges[order], face[order]
     keep = np.flatnonzero(np.all(edges[1:] == edges[:-1], axis=1))

@@ -262,3 +262,29 @@ def test_thighs_without_the_calves_leave_the_back_of_the_knee_free(body):
         assert past[mine & free].min() > -POPLITEAL_CLEARANCE - 1e-9
         assert past[mine & ~free].max() <= -POPLITEAL_CLEARANCE + 1e-9
         assert 60 < (mine & free).sum() < 0.4 * mine.sum()
+
+
+def test_a_deep_knee_bend_leaves_the_thighs_skin_beside_the_calves_free(body):
+    """Knees bent 130 degrees (the calves folded up under the thighs): a seat's thighs leave
+    free, besides the back of the knee, every thigh vertex within KNEE_CREASE of a calf vertex
+    in that pose (found here by brute force), and no other; a support of the calves too keeps
+    them all."""
+    from solver.body.model import KNEE_CREASE
+
+    n = len(body.joint_names)
+    local = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+    for side in ("Left", "Right"):
+        local[body.joint_index(f"{side}Leg")] = Rotation.from_euler("x", 130, degrees=True
+                                                                    ).as_matrix()
+    posed, _ = skin(body, rig_pose(body, local, body.joints[0]))
+    thighs = np.flatnonzero(body.regions == BODY_REGIONS.index("thighs"))
+    calves = posed[body.regions == BODY_REGIONS.index("calves")]
+    nearest = np.array([np.min(np.linalg.norm(calves - p, axis=1)) for p in posed[thighs]])
+    seat = body.part_mask("seat", posed)
+    rest = body.part_mask("seat")
+    crease = np.zeros(len(posed), dtype=bool)
+    crease[thighs[nearest <= KNEE_CREASE]] = True
+    np.testing.assert_array_equal(seat, rest & ~crease)
+    assert (rest & crease).sum() > 20  # the premise: the bend brings thigh beside calf (40)
+    np.testing.assert_array_equal(body.part_mask(["thighs", "calves"], posed),
+                                  body.part_mask(["thighs", "calves"]))

@@ -239,3 +239,21 @@ def test_skin_beside_a_border_below_the_surface_is_not_in_its_foam():
     again = s._candidates(support, 0, x, prev.index, prev, before[prev.index])
     assert list(again.index) == [1, 2]
     np.testing.assert_allclose(again.depth, 0.05)
+
+
+def test_steps_that_overshoot_are_followed_by_shorter_ones(monkeypatch):
+    """A settle whose every step overshoots its balance twice over (Newton's step
+    made twice as long: the body rocks across its rest, as on contacts that come and go)
+    still comes to the rest of the box on foam above (within 0.3 mm): after a step that did not
+    shrink the imbalance the next goes half as far. Without that it rocks until its steps run
+    out."""
+    from solver.contact import settle as S
+
+    v, n, a, t = _box((0.4, 0.2, 0.3), [0, 0.1, 0], pitch=0.025)
+    foam = Foam(200e3, thickness=0.1)
+    plain = settle(v, n, a, t, 20.0, [Support("seat", foam, _plane())])
+    newton = S._newton
+    monkeypatch.setattr(S, "_newton", lambda *args: 2.0 * newton(*args))
+    rocked = settle(v, n, a, t, 20.0, [Support("seat", foam, _plane())])
+    assert plain.stable and rocked.stable, rocked.reason
+    np.testing.assert_allclose(rocked.translation, plain.translation, atol=3e-4)

@@ -260,15 +260,12 @@ EXAMPLES = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios"
 # of the calves' skin (the person placed so), and the fit's rim rows keep it from advancing over
 # them. facing_pair's one surface runs on under both people's calves, and its north person (the
 # pose leans back) tips back off a seat under the pelvis and thighs alone, as off a flat seat at
-# its height. six_overlapping's rims, held off six people's calves, leave three of them just
-# short of the coverage bar (0.941-0.946). Measured after the rim rows; a strict xfail fails the
-# run once its example meets the bar.
+# its height. Measured after the rim rows and the knee crease; a strict xfail fails the run once
+# its example meets the bar.
 NO_REST = "tips back off a seat under the pelvis and thighs alone (the pose leans back)"
-SIX_COVERAGE = "three of the six cover 0.941-0.946 of their support (bar 0.95)"
 _EXAMPLE_MARKS = {
-    "facing_pair": {"rest": NO_REST + "; the south person's peak (15.6 kPa) is on a calf "
+    "facing_pair": {"rest": NO_REST + "; the south person's peak (12.1 kPa) is on a calf "
                                      "under the surface that runs on to the north person"},
-    "six_overlapping": {"surface": SIX_COVERAGE},
 }
 _REPORTS: dict = {}
 

@@ -189,12 +189,12 @@ def test_crossing_iterates_are_backed_out_of_by_bisection(ball_fit, monkeypatch)
         checked.append(int(v[0, 0]))
         return 12 if v[0, 0] >= 13 else 0  # iterates from 13 on cross themselves
 
-    monkeypatch.setattr(F, "_crossings", crossings)
+    monkeypatch.setattr(F, "_flaws", crossings)
     accepted = [np.full((2, 3), float(k)) for k in range(40)]
     assert F.uncrossed(ball_fit, accepted) == (12, 12)
     assert len(checked) <= 2 + int(np.ceil(np.log2(40)))
     assert F.uncrossed(ball_fit, accepted[:10]) == (9, 0)
-    monkeypatch.setattr(F, "_crossings", lambda fit, v: 3)  # the start crosses already
+    monkeypatch.setattr(F, "_flaws", lambda fit, v: 3)  # the start crosses already
     assert F.uncrossed(ball_fit, accepted) == (0, 3)
 
 
@@ -515,3 +515,22 @@ def test_a_warm_refit_keeps_the_rim_rows_of_the_fit_before(ball):
     np.testing.assert_array_equal(again.rim.member, first.state.rim_member)
     cold = F.prepare(grid_v, grid_f, body, F.FitParams(max_iterations=4))
     assert not cold.rim.member.any()
+
+
+def test_triangle_folds_are_trimesh_s_angles_past_the_limit(ball_fit):
+    """The fit's last check counts the limit surface's neighbouring triangles (as surface.obj
+    splits its quads) further apart than 60 degrees, as trimesh measures them: none on the flat
+    start, some once control vertices are pulled into a spike and a pit (between level-s quads that
+    the loop's own guard may pass)."""
+    import trimesh
+
+    v = ball_fit.v0.copy()
+    assert F._triangle_folds(ball_fit, F.limit_points(ball_fit, v)) == 0
+    v[24, 1] += 1.5  # a spike in the middle of the grid, a pit beside it
+    v[25, 1] -= 1.5
+    limit = F.limit_points(ball_fit, v)
+    mesh = trimesh.Trimesh(limit, ball_fit.sub.triangles, process=False)
+    expected = int(np.sum(np.degrees(mesh.face_adjacency_angles) > 60.0))
+    assert expected > 0  # the premise
+    assert F._triangle_folds(ball_fit, limit) == expected
+    assert F._flaws(ball_fit, v) == expected  # (it crosses nowhere)

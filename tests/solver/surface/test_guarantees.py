@@ -8,7 +8,7 @@ from solver.contact.evaluate import penetration_depth
 from solver.mesh import quad_triangles, self_intersections
 from solver.surface import guarantees
 from solver.surface.guarantees import barycentric_samples, crossing_pairs, disk_border, \
-    fold_angles, one_to_one_over_plane, quad_normals, surface_guarantees
+    fold_angles, neighbour_faces, one_to_one_over_plane, quad_normals, surface_guarantees
 
 
 def grid(n: int = 4, size: float = 2.0, height: float = 0.5, offset=(0.0, 0.0)):
@@ -186,3 +186,14 @@ def test_crossing_pairs_are_the_exact_tests_pairs(monkeypatch, leaf):
         np.testing.assert_array_equal(crossing_pairs(vertices, triangles), exact)
         np.testing.assert_array_equal(crossing_pairs(vertices, triangles, whole_tried=True),
                                       exact)
+
+
+def test_neighbour_faces_of_triangles_are_trimesh_s_face_adjacency():
+    """Triangles (a bumpy sheet's quads split) give the neighbour pairs trimesh finds."""
+    rng = np.random.default_rng(3)
+    v, q = grid(n=6)
+    v = v + rng.normal(scale=[0.0, 0.05, 0.0], size=v.shape)
+    t = quad_triangles(q)
+    mine = {tuple(sorted(p)) for p in neighbour_faces(t)}
+    theirs = {tuple(sorted(p)) for p in trimesh.Trimesh(v, t, process=False).face_adjacency}
+    assert mine == theirs and len(mine) == 2 * 6 * 5 + 36  # inner edges, and each diagonal
