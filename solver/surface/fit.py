@@ -39,9 +39,8 @@ The data terms are gathered per surface vertex (the weighted mean of the body po
 so the programme's size depends on the control mesh, not on the bodies. Non-penetration rows are
 kept for the surface vertices a body can reach (joined by any that come within CONSTRAINT_RADIUS
 later) and are active only within that radius. Small meshes (up to DENSE_UP_TO control
-vertices) are solved exactly by DAQP over the rows that could bind (`DenseProgramme`); on larger
-ones OSQP is set up again only when that set changes and is otherwise updated in place,
-warm-started from the last solution. The solver's status is checked every time.
+vertices) are solved exactly by DAQP, larger ones by OSQP warm-started from the last solution;
+both over the rows that could bind (`solver.surface.programme`). The solver's status is checked every time.
 
 A step is accepted only if it does not raise the judged energy (the programme's own objective:
 the energy with every body point at its nearest vertex of the new surface, plus the cost of the
@@ -264,8 +263,7 @@ class FitState:
     """What a fit leaves for a warm refit of the same control mesh (`fit_surface`'s `warm`):
     the subdivision's key (control vertices, level, creases), the start and its Laplacian (kept
     while the start stays where it was), the limit map, the surface vertices that carried rows
-    and the programme set up for them (so that OSQP, on a large mesh, is seldom set up again)
-    and the bodies with their search structures (reused while the bodies only move)."""
+    and the programme set up for them, and the bodies with their search structures (reused while the bodies only move)."""
 
     key: tuple
     start: np.ndarray  # (n0, 3) the control vertices that fit started from (its `control`)
@@ -677,8 +675,7 @@ def constrain(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray, member: np.ndarra
               depths: Depths | None = None) -> Rows:
     """Non-penetration: each sampled surface vertex near a body (or inside one) stays outside
     the tangent plane at its body vertex, less the margin. Rows join `member` (updated in
-    place) and stay, inactive when not wanted, so that OSQP (on a large mesh) is set up again
-    only when a new surface vertex comes near a body. `skin`: the body vertices the sampled
+    place) and stay, inactive when not wanted (the programme leaves those out). `skin`: the body vertices the sampled
     vertices were held to before (`Rows.skin`), kept for those now inside a body. With
     `floor_member` ((ns,) bool, updated in place) and a floor in the parameters, the floor's
     rows follow (`floor_rows`). `depths`: the sampled vertices' `Depths` when already known."""
@@ -717,7 +714,7 @@ def constrain(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray, member: np.ndarra
 def floor_rows(fit: _Fit, surf: np.ndarray, member: np.ndarray) -> Rows:
     """The floor: each level-s surface vertex within `FLOOR_REACH` steps of the floor (or
     under it) stays at y >= floor, the y row of S being linear in the control vertices. Rows
-    join `member` (updated in place) and stay, so that OSQP is seldom set up again. Limit
+    join `member` (updated in place) and stay, inactive when not wanted. Limit
     points are convex combinations of level-s vertices, so the limit surface stays above the
     floor too."""
     floor = float(fit.params.floor)
@@ -777,7 +774,7 @@ def _make_rim(sub: Subdivision, sampled: np.ndarray, targets: Sequence[Supported
               control: np.ndarray, member: np.ndarray | None = None) -> "_Rim | None":
     """The fit's `_Rim`, None when every body part is to be supported or the surface has no
     border; `member`: the rim vertices that had rows in a fit before (of the same quads),
-    which keep them (so that OSQP, on a large mesh, is not set up again for them)."""
+    which keep them."""
     free = [t.vertices[~np.asarray(t.supported, dtype=bool)] for t in targets
             if t.supported is not None]
     points = np.concatenate(free) if free else np.zeros((0, 3))

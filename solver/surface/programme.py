@@ -1,8 +1,9 @@
 """The fit's quadratic programme: the control vertices and one slack per non-penetration row.
 
-Small meshes (a dense Hessian) are solved exactly by DAQP, a dual active-set solver, over the
-rows that could bind (`DenseProgramme`); larger ones by OSQP, set up once per set of rows and
-updated in place otherwise (`Programme`)."""
+Both take only the rows that could bind (within NEAR_ROW of their bound where the step starts,
+then any other the solution breaks, until none does). Small meshes (a dense Hessian) are solved
+exactly by DAQP, a dual active-set solver (`DenseProgramme`); larger ones by OSQP, set up again
+when the rows taken change and updated in place otherwise (`Programme`)."""
 
 from __future__ import annotations
 
@@ -16,7 +17,6 @@ EPS_ABS, EPS_REL = 1e-5, 1e-4  # OSQP tolerances (metres for the constraints)
 NEAR_ROW = 0.01  # m: rows this close to binding at the step's start join DAQP's first try
 ROW_TOLERANCE = 1e-7  # m: a row left out that the solution breaks by more joins the next try
 BOX_TOLERANCE = 1e-9  # m: a coordinate left free that leaves its trust region by more is held
-LOOSE_STEPS = 2.0  # trust-region steps below a point a row that is not wanted holds it (> sqrt 3)
 
 
 class ProgrammeError(ValueError):
@@ -72,31 +72,41 @@ class Programme(_Claimed):
         self.solver = None
 
     def _setup_patterns(self, rows: np.ndarray) -> None:
-        n, r = 3 * self.n0, len(rows)
-        # objective: [P_x 0; 0 2 w I_r]
-        p = sp.block_diag([self.x_pattern, sp.identity(r)], format="csc")
-        p.sort_indices()
-        self.p_pattern = p
-        self.p_rows, self.p_cols = _coo_of(p)
-        self.p_is_x = self.p_cols < n
-        self.p_xr, self.p_xc = self.p_rows[self.p_is_x], self.p_cols[self.p_is_x]
-        # constraints: [n.S  I_r; I_x 0; 0 I_r]
-        sub = self.s[rows]
-        self.s_rows = sub
-        a = sp.vstack([
-            sp.hstack([sub, sub, sub, sp.identity(r)]),
-            sp.hstack([sp.identity(n), sp.csr_matrix((n, r))]),
-            sp.hstack([sp.csr_matrix((r, n)), sp.identity(r)]),
-        ], format="csc")
-        a.sort_indices()
-        self.a_pattern = a
-        ar, ac = _coo_of(a)
-        plane = (ar < r) & (ac < n)
+        """The programme's matrices for these rows, in OSQP's CSC layout, written directly:
+        the objective [P_x 0; 0 2 w I_r] and the constraints [n.S I_r; I_x 0; 0 I_r], with
+        where each stored constraint value comes from (row, axis, S's weight)."""
+        n, r, n0 = 3 * self.n0, len(rows), self.n0
+        x = self.x_pattern
+        span = np.arange(r)
+        self.p_pattern = sp.csc_matrix(
+            (np.ones(x.nnz + r), np.concatenate([x.indices, n + span]),
+             np.concatenate([x.indptr, x.nnz + 1 + span])), shape=(n + r, n + r))
+        if not hasattr(self, "p_xr"):  # the control vertices' entries come first, always
+            self.p_xr, self.p_xc = _coo_of(x)
+        self.p_is_x = np.arange(x.nnz + r) < x.nnz
+        sub = self.s[rows].tocoo()
+        sub.sum_duplicates()
+        self.s_rows = sub.tocsr()
+        k = len(sub.data)
+        coordinates = np.arange(n)
+        row = np.concatenate([np.tile(sub.row, 3), r + coordinates, span, r + n + span])
+        col = np.concatenate([(np.arange(3)[:, None] * n0 + sub.col).ravel(), coordinates,
+                              n + span, n + span])
+        order = np.lexsort((row, col))
+        plane = np.zeros(len(row), dtype=bool)
+        plane[:3 * k] = True
+        axis = np.zeros(len(row), dtype=np.int64)
+        axis[:3 * k] = np.repeat(np.arange(3), k)
+        weight = np.ones(len(row))
+        weight[:3 * k] = np.tile(sub.data, 3)
+        row, plane, axis, weight = row[order], plane[order], axis[order], weight[order]
+        indptr = np.concatenate([[0], np.cumsum(np.bincount(col, minlength=n + r))])
+        self.a_pattern = sp.csc_matrix((np.ones(len(row)), row, indptr),
+                                       shape=(2 * r + n, n + r))
         self.a_plane = plane
-        self.a_row = np.where(plane, ar, 0)
-        self.a_axis = np.where(plane, ac // self.n0, 0)
-        self.a_s = np.ones(len(ar))
-        self.a_s[plane] = np.asarray(sub[ar[plane], ac[plane] % self.n0]).ravel()
+        self.a_row = np.where(plane, row, 0)
+        self.a_axis = axis
+        self.a_s = weight
 
     def _set_up(self, p_values, q, a_values, low, high) -> None:
         p = self.p_pattern.copy()
@@ -119,20 +129,41 @@ class Programme(_Claimed):
 
     def solve(self, p_x: np.ndarray | sp.csr_matrix, q: np.ndarray, rows: np.ndarray, normals: np.ndarray,
               lower: np.ndarray, x0: np.ndarray, step: float) -> tuple[np.ndarray, str, float]:
+        """The step over the rows that could bind: those within NEAR_ROW of their bound where
+        it starts, then any other the solution breaks by more than ROW_TOLERANCE, until none
+        does (a row left out is inactive at the solution, which is so the optimum of the whole
+        programme; the rows not wanted now, a bound of -inf, never bind). OSQP is set up again
+        when the rows taken change and updated in place otherwise."""
+        n0 = self.n0
+        wanted = np.flatnonzero(np.isfinite(lower))
+        points, plane_normals, bounds = rows[wanted], normals[wanted], lower[wanted]
+
+        def plane(x: np.ndarray) -> np.ndarray:  # n . (S x) of the wanted rows
+            return _normals_dot(plane_normals, self.s[points] @ x.reshape(3, n0).T)
+
+        now = plane(x0)
+        taking = bounds > now - NEAR_ROW
+        while True:
+            take = np.flatnonzero(taking)
+            x, status, residual = self._solve_rows(
+                p_x, q, points[take], plane_normals[take], bounds[take], now[take], x0, step)
+            broken = ~taking & (plane(x) < bounds - ROW_TOLERANCE)
+            if not broken.any():
+                return x, status, residual
+            taking |= broken
+
+    def _solve_rows(self, p_x, q, rows, normals, lower, now, x0, step):
+        """OSQP on the programme with these rows (every one wanted)."""
         n, r = 3 * self.n0, len(rows)
         fresh = self.rows is None or not np.array_equal(rows, self.rows)
         if fresh:
             self.rows = rows
             self._setup_patterns(rows)
-        p_values = np.full(len(self.p_rows), 2 * self.slack_weight)
+        p_values = np.full(len(self.p_is_x), 2 * self.slack_weight)
         p_values[self.p_is_x] = np.asarray(p_x[self.p_xr, self.p_xc]).ravel()
-        a_values = np.where(self.a_plane, self.a_s * normals[self.a_row, self.a_axis], 1.0)
+        a_values = self.a_s.copy()
+        a_values[self.a_plane] *= normals[self.a_row[self.a_plane], self.a_axis[self.a_plane]]
         q_full = np.concatenate([q, np.zeros(r)])
-        now = _normals_dot(normals, self.s_rows @ x0.reshape(3, -1).T)
-        # a row not wanted now gets a bound the trust region keeps it clear of (a surface point
-        # moves at most sqrt(3) step along a unit normal) instead of -inf: OSQP then sees the
-        # same kind of constraint every time, and an update refactors its matrix only once
-        lower = np.where(np.isfinite(lower), lower, now - LOOSE_STEPS * step)
         low = np.concatenate([lower, x0 - step, np.zeros(r)])
         high = np.concatenate([np.full(r, np.inf), x0 + step, np.full(r, np.inf)])
         if fresh:
