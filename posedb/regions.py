@@ -45,8 +45,9 @@ SUPPORT_USES = {
     "stool": ("pelvis",),                         # a perch: the thighs slope off its edge
     "chair": _BACK + ("pelvis", "thighs"),        # a seat with a backrest
     "lounger": ("head",) + _BACK + ("pelvis", "thighs"),  # reclined, knees bent
-    "bed": ("head",) + _BACK + ("pelvis", "thighs", "calves", "feet"),  # the whole body but
-    # the arms, which move freely in bed: a raised hand pulled a 0.3 m hump out of the mattress
+    "bed": ("head", "upper_arms") + _BACK + ("pelvis", "thighs", "calves", "feet"),  # all
+    # but the forearms and hands, which move freely in bed (a raised hand pulled a 0.3 m hump
+    # out of the mattress); the upper arms of a person lying on the back lie on it
     "floor": ("pelvis", "thighs", "calves", "feet"),  # a floor cushion: legs on it too
 }
 DEFAULT_SUPPORT = "seat"  # what a person of a scenario or a new pose needs supported, unless told

@@ -40,7 +40,8 @@ so the programme's size depends on the control mesh, not on the bodies. Non-pene
 kept for the surface vertices a body can reach (joined by any that come within CONSTRAINT_RADIUS
 later) and are active only within that radius. Small meshes (up to DENSE_UP_TO control
 vertices) are solved exactly by DAQP, larger ones by OSQP warm-started from the last solution;
-both over the rows that could bind (`solver.surface.programme`). The solver's status is checked every time.
+both over the rows that could bind (`solver.surface.programme`). The solver's status is checked
+every time.
 
 A step is accepted only if it does not raise the judged energy (the programme's own objective:
 the energy with every body point at its nearest vertex of the new surface, plus the cost of the
@@ -263,7 +264,8 @@ class FitState:
     """What a fit leaves for a warm refit of the same control mesh (`fit_surface`'s `warm`):
     the subdivision's key (control vertices, level, creases), the start and its Laplacian (kept
     while the start stays where it was), the limit map, the surface vertices that carried rows
-    and the programme set up for them, and the bodies with their search structures (reused while the bodies only move)."""
+    and the programme set up for them, and the bodies with their search structures (reused while
+    the bodies only move)."""
 
     key: tuple
     start: np.ndarray  # (n0, 3) the control vertices that fit started from (its `control`)
@@ -675,10 +677,10 @@ def constrain(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray, member: np.ndarra
               depths: Depths | None = None) -> Rows:
     """Non-penetration: each sampled surface vertex near a body (or inside one) stays outside
     the tangent plane at its body vertex, less the margin. Rows join `member` (updated in
-    place) and stay, inactive when not wanted (the programme leaves those out). `skin`: the body vertices the sampled
-    vertices were held to before (`Rows.skin`), kept for those now inside a body. With
-    `floor_member` ((ns,) bool, updated in place) and a floor in the parameters, the floor's
-    rows follow (`floor_rows`). `depths`: the sampled vertices' `Depths` when already known."""
+    place) and stay, inactive when not wanted (the programme leaves those out). `skin`: the
+    body vertices the sampled vertices were held to before (`Rows.skin`), kept for those now
+    inside a body. With `floor_member` ((ns,) bool, updated in place) and a floor in the
+    parameters, the floor's rows follow (`floor_rows`). `depths`: the sampled vertices' `Depths` when already known."""
     ids = fit.sampled_ids
     near_s, dist, inside, depth = _nearest_skin(fit, surf[ids], surf_n[ids], skin, depths)
     closest = np.zeros(len(surf), dtype=np.int64)

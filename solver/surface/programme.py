@@ -50,7 +50,9 @@ class Programme(_Claimed):
     Rows are soft: n . (S x)_r + slack_r >= lower_r with slack_r >= 0 costing SLACK_WEIGHT
     slack^2, so overlapping bodies that no surface can clear at once leave a measured residual
     instead of an infeasible programme. The objective's pattern for x is fixed for the whole
-    fit; OSQP is set up again only when the set of rows changes, and updated in place otherwise.
+    fit; OSQP takes the rows that could bind (`solve`), is set up again only when they change and
+    updated in place otherwise, and starts from the last solve: its solution, its duals (a row
+    on the same surface point takes that row's) and its adapted step size rho.
     A fit `claim`s the programme it solves (a warm refit reuses the last fit's): one held by
     another fit running now is not shared, the refit sets up its own.
     """
@@ -70,6 +72,7 @@ class Programme(_Claimed):
         self.x_pattern.sort_indices()
         self.rows: np.ndarray | None = None
         self.solver = None
+        self._duals: tuple | None = None  # the last solve's rows, duals and OSQP's rho
 
     def _setup_patterns(self, rows: np.ndarray) -> None:
         """The programme's matrices for these rows, in OSQP's CSC layout, written directly:
@@ -118,7 +121,9 @@ class Programme(_Claimed):
         # slack columns against the soft control vertices left some programmes at OSQP's
         # iteration limit (thousands of iterations where 100-200 do without)
         try:
-            self.solver.setup(p, q, a, low, high, verbose=False, warm_starting=True,
+            # OSQP's step size as the last solve adapted it (a fresh set-up starts from 0.1)
+            rho = {"rho": self._duals[2]} if self._duals is not None else {}
+            self.solver.setup(p, q, a, low, high, verbose=False, warm_starting=True, **rho,
                               polishing=False, eps_abs=EPS_ABS, eps_rel=EPS_REL, max_iter=20000,
                               adaptive_rho=True, scaling=0)
         except self._osqp.OSQPException as exc:  # (a programme that is not convex)
@@ -152,6 +157,22 @@ class Programme(_Claimed):
                 return x, status, residual
             taking |= broken
 
+    def _warm_duals(self, rows: np.ndarray) -> np.ndarray | None:
+        """OSQP's duals to start from: each row's from the last solve where that solve held a
+        row on the same surface point (0 for a new one), the trust region's as they were."""
+        if self._duals is None:
+            return None
+        before, y, _ = self._duals
+        n, r, b = 3 * self.n0, len(rows), len(before)
+        plane, slack = np.zeros(r), np.zeros(r)
+        if b:
+            order = np.argsort(before, kind="stable")
+            at = np.minimum(np.searchsorted(before[order], rows), b - 1)
+            found = before[order][at] == rows
+            match = order[at][found]
+            plane[found], slack[found] = y[match], y[b + n + match]
+        return np.concatenate([plane, y[b:b + n], slack])
+
     def _solve_rows(self, p_x, q, rows, normals, lower, now, x0, step):
         """OSQP on the programme with these rows (every one wanted)."""
         n, r = 3 * self.n0, len(rows)
@@ -171,12 +192,16 @@ class Programme(_Claimed):
         else:
             self.solver.update(Px=p_values, q=q_full, Ax=a_values, l=low, u=high)
         slack0 = np.maximum(0.0, lower - now)
-        self.solver.warm_start(x=np.concatenate([x0, slack0]))
+        self.solver.warm_start(x=np.concatenate([x0, slack0]), y=self._warm_duals(rows))
         res = self.solver.solve(raise_error=False)
         status = str(res.info.status)
         if status not in ("solved", "solved inaccurate"):
+            self._duals = None
             raise ProgrammeError(f"The surface's quadratic programme failed: OSQP says "
                                  f"{status!r}")
+        rho = float(res.info.rho_estimate)
+        if np.all(np.isfinite(res.y)) and np.isfinite(rho) and rho > 0:
+            self._duals = (rows.copy(), res.y.copy(), rho)
         return res.x[:n], status, float(res.x[n:].max(initial=0.0))
 
 

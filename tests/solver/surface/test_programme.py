@@ -153,3 +153,29 @@ def test_a_coordinate_far_stiffer_than_the_rest_stays_in_its_trust_region():
     x, _, _ = programme.solve(p_upper, q, rows, normals, lower, x0, STEP)
     assert abs(x[0] - x0[0]) <= STEP + 1e-6
     assert x[0] - x0[0] == pytest.approx(STEP, abs=1e-4)  # pulled as far as it may go
+
+
+def test_osqp_starts_from_the_duals_of_the_rows_on_the_same_points():
+    """After a solve, the duals offered to the next are the last solve's, row by row, for rows
+    on the same surface points in another order (a new row: 0), the trust region's as they
+    were; a solve started so finds the same optimum."""
+    s, p_upper, q, rows, normals, lower, x0 = _problem(5)
+    lower[:] = np.where(np.isfinite(lower), lower, 0.0)  # every row taken
+    lower = np.maximum(lower, np.einsum("ij,ij->i", normals, s[rows] @ x0.reshape(3, N0).T) - 0.005)
+    programme = Programme(s, sp.identity(N0, format="csr"), N0, WEIGHT)
+    x, _, _ = programme.solve(sp.csr_matrix(p_upper), q, rows, normals, lower, x0, STEP)
+    before, y, rho = programme._duals
+    r, n = len(before), 3 * N0
+    assert np.any(np.abs(y[:r]) > 1e-6)  # some rows bind: their duals matter
+    perm = np.random.default_rng(0).permutation(r)
+    new = np.concatenate([before[perm], [POINTS + 7]])  # a point no row held before
+    warm = programme._warm_duals(new)
+    np.testing.assert_array_equal(warm[:r], y[:r][perm])
+    assert warm[r] == 0.0
+    np.testing.assert_array_equal(warm[r + 1:r + 1 + n], y[r:r + n])
+    np.testing.assert_array_equal(warm[r + 1 + n:r + 1 + n + r], y[r + n:][perm])
+    again, _, _ = programme.solve(sp.csr_matrix(p_upper), q * 1.01, rows, normals, lower, x0,
+                                  STEP)
+    expected, _ = _clarabel(s, p_upper, q * 1.01, rows, normals, lower, x0, STEP, WEIGHT)
+    np.testing.assert_allclose(again, expected, atol=2e-3)
+    assert rho > 0
