@@ -64,9 +64,6 @@ LIFT = {"floor": 0.13, "lying": 0.46,  # metres people are raised: cushion / bed
         "seated": 0.02, "perched": 0.02}  # a seat: the feet rest on a floor 150 times
         # stiffer than its foam, so the seat's share of the weight hinges on how deep it sits
         # in the skin against them (captured as they are, the floor takes 40-45 %)
-HELD_FRONT = ("chair",)  # templates whose seat's front edge is held (`fixed`): free, it rises
-                         # along the thighs to the knees and presses the calves (a bench's held
-                         # edge stopped its fit after two steps: coverage 0.48 and 0.30)
 RECLINED_PELVIS = 0.4  # metres: a reclined person is raised until the pelvis is this high
 GAP = 0.04  # metres between neighbours' skin, side by side
 
@@ -148,10 +145,6 @@ def design_scenario(poses: Sequence[str], db: str | os.PathLike | None = None,
             person["position"][0] = float(x - c)
     built, _ = place_scene(parse_scenario(data, "design", base), db)
     data["surface"]["template"] = template_table(built.surface.template)
-    if kind in HELD_FRONT:  # the seat's front edge: the control vertices farthest forward
-        v = built.surface.vertices
-        data["surface"]["fixed"] = [int(j) for j in
-                                    np.flatnonzero(v[:, 2] > v[:, 2].max() - 1e-6)]
     return data, {"postures": postures, "posture": posture, "template": kind,
                   "figures": [r[1].__dict__ for r in read]}
 
