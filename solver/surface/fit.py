@@ -1189,15 +1189,19 @@ def _flaws(fit: _Fit, v: np.ndarray) -> int:
     being furniture: its pairs of triangles that cross (`_crossings`) and its neighbouring
     triangles that fold further apart than the guarantees' FOLD_LIMIT_DEG (`_triangle_folds`:
     the loop's own guard measures the level-s quads, between whose corners the limit surface
-    can bend further)."""
+    can bend further). A surface with a coordinate that is not a number is all flaw (one per
+    triangle): no test can clear it."""
     limit = limit_points(fit, v)
+    if not np.all(np.isfinite(limit)):
+        return len(fit.sub.triangles)
     return _crossings(fit, limit) + _triangle_folds(fit, limit)
 
 
 def _triangle_folds(fit: _Fit, limit: np.ndarray) -> int:
     """Pairs of triangles of the limit surface `limit` (ns, 3) (the quads split as
     `surface.*` is) that share an edge that is no crease, with normals further apart than
-    FOLD_LIMIT_DEG."""
+    FOLD_LIMIT_DEG, or with a normal that is not a number (a triangle shrunk to a point's
+    normal is zero, which counts as a right angle)."""
     from solver.mesh import face_normals
 
     sub, creases = fit.sub, fit.params.creases
@@ -1206,7 +1210,7 @@ def _triangle_folds(fit: _Fit, limit: np.ndarray) -> int:
         (np.asarray(creases).reshape(-1, 2) if creases else None)))
     n = face_normals(limit, sub.triangles)
     dots = np.einsum("ij,ij->i", n[pairs[:, 0]], n[pairs[:, 1]])
-    return int(np.sum(dots < np.cos(np.radians(FOLD_LIMIT_DEG))))
+    return int(np.sum(~(dots >= np.cos(np.radians(FOLD_LIMIT_DEG)))))
 
 
 def _crossings(fit: _Fit, limit: np.ndarray) -> int:

@@ -506,7 +506,7 @@ def test_rim_rows_are_those_of_a_rim_that_seeks_its_skin_afresh(ball, shift):
 
 def test_a_warm_refit_keeps_the_rim_rows_of_the_fit_before(ball):
     """The rim vertices that had rows in a fit keep them in a warm refit of it (as the body's
-    rows do), so that a large mesh's OSQP is not set up again for them."""
+    rows do)."""
     grid_v, grid_f = grid_mesh((1.2, 0.8), (8, 6), 0.45)
     body = [_ring_body(ball)]
     first = F.fit_surface(grid_v, grid_f, body, F.FitParams(max_iterations=4))
@@ -534,3 +534,33 @@ def test_triangle_folds_are_trimesh_s_angles_past_the_limit(ball_fit):
     assert expected > 0  # the premise
     assert F._triangle_folds(ball_fit, limit) == expected
     assert F._flaws(ball_fit, v) == expected  # (it crosses nowhere)
+
+
+def test_the_folds_of_a_crease_are_not_flaws_and_a_surface_that_is_not_a_number_is(ball):
+    """A chair's seams (creases where the seat meets the back) turn the limit surface by more
+    than 60 degrees, as a designer means them to: the last check does not count them, while
+    trimesh finds such angles across the seam; a limit surface with a coordinate that is not a
+    number is all flaw (no test can clear it)."""
+    import trimesh
+
+    from solver.surface.templates import make_template
+
+    chair = make_template("chair", seat_height=0.45, seams=True)
+    v, t, normals, areas, importance = ball
+    body = SupportedBody(v + [0.0, 0.9, 0.0], normals, importance, "ball", t)
+    params = F.FitParams(creases=tuple(map(tuple, chair.creases)))
+    fit = F.prepare(chair.vertices, chair.quads, [body], params)
+    limit = F.limit_points(fit, fit.v0)
+    mesh = trimesh.Trimesh(limit, fit.sub.triangles, process=False)
+    assert np.degrees(mesh.face_adjacency_angles).max() > 60.0  # the premise: the seam
+    assert F._triangle_folds(fit, limit) == 0
+    assert F._flaws(fit, fit.v0) == 0
+    broken = fit.v0.copy()
+    broken[3, 1] = np.nan
+    assert F._flaws(fit, broken) == len(fit.sub.triangles)
+    flat = limit.copy()
+    flat[fit.sub.triangles[0]] = limit[fit.sub.triangles[0][0]]  # a triangle shrunk to a point
+    assert F._triangle_folds(fit, flat) >= 1
+    unknown = limit.copy()
+    unknown[fit.sub.triangles[0][0]] = np.nan  # its triangles' normals are not numbers
+    assert F._triangle_folds(fit, unknown) >= 1
