@@ -613,8 +613,8 @@ def _lengthen(vertices: np.ndarray, triangles: np.ndarray, p: int, q: int,
     """An edge p-q shorter than `TINY_EDGE` that no collapse may take (its ends share a
     neighbour besides the edge's opposite corners) lengthened: the end with fewer triangles
     (not a `fixed` one) moves `TINY_EDGE` / 4 along the sheet, towards the middle of its
-    neighbours that are not the other end's, unless that turns one of its faces over. In place;
-    returns `vertices`."""
+    neighbours that are not the other end's, or else off the sheet along its normal (inwards,
+    then outwards), unless that turns one of its faces over. In place; returns `vertices`."""
     rings = [triangles[(triangles == k).any(axis=1)] for k in (p, q)]
     if fixed[p] or (not fixed[q] and len(rings[1]) < len(rings[0])):
         p, q = q, p
@@ -624,18 +624,23 @@ def _lengthen(vertices: np.ndarray, triangles: np.ndarray, p: int, q: int,
     own = np.setdiff1d(rings[0], np.concatenate([rings[1].ravel(), [p]]))
     if len(own) == 0:
         own = np.setdiff1d(rings[0], [p, q])
-    away = vertices[own].mean(axis=0) - vertices[p]
-    size = np.linalg.norm(away)
-    if not size > 0:
-        return vertices
-    moved = vertices.copy()
-    moved[p] += 0.25 * TINY_EDGE * away / size
-    before, after = face_cross(vertices, rings[0]), face_cross(moved, rings[0])
+    # along the sheet first; where that turns a face over (a corner inside its neighbour's
+    # fan, every face of it a sliver), off the sheet along its normal, either way
+    with np.errstate(invalid="ignore", divide="ignore"):
+        normal = np.nan_to_num(vertex_normals(vertices, rings[0])[p])
+    before = face_cross(vertices, rings[0])
     big = np.linalg.norm(before, axis=1) > 0
-    if np.any(np.einsum("ij,ij->i", before[big], after[big]) <= 0):
-        return vertices  # a face would turn over: the edge stays
-    vertices[p] = moved[p]
-    return vertices
+    for away in (vertices[own].mean(axis=0) - vertices[p], -normal, normal):
+        size = np.linalg.norm(away)
+        if not size > 0:
+            continue
+        moved = vertices.copy()
+        moved[p] += 0.25 * TINY_EDGE * away / size
+        after = face_cross(moved, rings[0])
+        if np.all(np.einsum("ij,ij->i", before[big], after[big]) > 0):
+            vertices[p] = moved[p]
+            return vertices
+    return vertices  # every move turns a face over: the edge stays
 
 
 def _snap(vertices: np.ndarray, triangles: np.ndarray, target: np.ndarray,

@@ -38,21 +38,9 @@ def fitted():
     return surfaces
 
 
-# reclining's 3 cm shell: where the trimmed offset's pieces meet, an edge of 1e-12 m is left that
-# no collapse may take and that moving either end by 2.5 um would turn a face over; written in
-# single precision its ends fuse and the STL is not closed (`check_solid` refuses it). Since the
-# rim rows changed the reclining surface.
-FUSED = {("reclining", WORKSHOP): "two underside corners 1e-12 m apart fuse in single precision"}
-
-
-def _examples_and_thicknesses() -> list:
-    return [pytest.param(name, thickness, marks=[pytest.mark.xfail(
-        strict=True, reason=FUSED[(name, thickness)])] if (name, thickness) in FUSED else [])
-        for name in EXAMPLES for thickness in (THIN, WORKSHOP)]
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize("name, thickness", _examples_and_thicknesses())
+@pytest.mark.parametrize("name", EXAMPLES)
+@pytest.mark.parametrize("thickness", [THIN, WORKSHOP])
 def test_every_example_thickens_to_a_closed_manifold(fitted, name, thickness, tmp_path):
     """The 1 cm and the 3 cm solid of every example's surface: watertight and consistently
     wound by trimesh, a manifold by manifold3d, no crossing triangles, as thick as asked

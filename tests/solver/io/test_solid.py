@@ -295,12 +295,21 @@ def test_an_edge_too_short_for_single_precision_is_lengthened_along_the_sheet():
 
 def test_lengthening_never_turns_a_sliver_over():
     """Where the move towards its own neighbours would take the end across a sliver's far
-    edge (2 um away), the edge is left as it is."""
-    from solver.io.solid import _lengthen
+    edge (2 um away), the end moves off the sheet along its normal instead (as far, a quarter
+    of `TINY_EDGE`), which turns no face over."""
+    from solver.io.solid import TINY_EDGE, _lengthen
+    from solver.mesh import face_cross
 
     p, q = [0.0, 2e-6, 0.0], [0.0, 2.04e-6, 0.0]
     v = np.array([p, q, [1e-3, 0, 0], [-1e-3, 0, 0], [0, 1e-3, 0], [1e-3, 1e-3, 0],
                   [-1e-3, 1e-3, 0]])
     t = np.array([[0, 3, 2], [1, 0, 4], [1, 4, 5], [1, 6, 4]])
     out = _lengthen(v.copy(), t, 0, 1, np.zeros(len(v), dtype=bool))
-    np.testing.assert_array_equal(out, v)
+    moved = np.flatnonzero(np.any(out != v, axis=1))
+    assert len(moved) == 1
+    shift = out[moved[0]] - v[moved[0]]
+    np.testing.assert_allclose(shift[:2], 0.0, atol=1e-15)  # off the sheet (z), not along it
+    assert abs(shift[2]) == pytest.approx(0.25 * TINY_EDGE)
+    before, after = face_cross(v, t), face_cross(out, t)
+    big = np.linalg.norm(before, axis=1) > 0
+    assert np.all(np.einsum("ij,ij->i", before[big], after[big]) > 0)
