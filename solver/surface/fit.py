@@ -680,7 +680,8 @@ def constrain(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray, member: np.ndarra
     place) and stay, inactive when not wanted (the programme leaves those out). `skin`: the
     body vertices the sampled vertices were held to before (`Rows.skin`), kept for those now
     inside a body. With `floor_member` ((ns,) bool, updated in place) and a floor in the
-    parameters, the floor's rows follow (`floor_rows`). `depths`: the sampled vertices' `Depths` when already known."""
+    parameters, the floor's rows follow (`floor_rows`). `depths`: the sampled vertices'
+    `Depths` when already known."""
     ids = fit.sampled_ids
     near_s, dist, inside, depth = _nearest_skin(fit, surf[ids], surf_n[ids], skin, depths)
     closest = np.zeros(len(surf), dtype=np.int64)

@@ -14,7 +14,7 @@ import scipy.sparse as sp
 
 
 EPS_ABS, EPS_REL = 1e-5, 1e-4  # OSQP tolerances (metres for the constraints)
-NEAR_ROW = 0.01  # m: rows this close to binding at the step's start join DAQP's first try
+NEAR_ROW = 0.01  # m: rows this close to binding at the step's start join the first try
 ROW_TOLERANCE = 1e-7  # m: a row left out that the solution breaks by more joins the next try
 BOX_TOLERANCE = 1e-9  # m: a coordinate left free that leaves its trust region by more is held
 
@@ -70,6 +70,7 @@ class Programme(_Claimed):
         block = sp.kron(sp.csr_matrix(np.ones((3, 3))), coupling).tocsc()
         self.x_pattern = sp.triu(block, format="csc")
         self.x_pattern.sort_indices()
+        self.p_xr, self.p_xc = _coo_of(self.x_pattern)  # the objective's entries for x (first)
         self.rows: np.ndarray | None = None
         self.solver = None
         self._duals: tuple | None = None  # the last solve's rows, duals and OSQP's rho
@@ -84,12 +85,9 @@ class Programme(_Claimed):
         self.p_pattern = sp.csc_matrix(
             (np.ones(x.nnz + r), np.concatenate([x.indices, n + span]),
              np.concatenate([x.indptr, x.nnz + 1 + span])), shape=(n + r, n + r))
-        if not hasattr(self, "p_xr"):  # the control vertices' entries come first, always
-            self.p_xr, self.p_xc = _coo_of(x)
         self.p_is_x = np.arange(x.nnz + r) < x.nnz
         sub = self.s[rows].tocoo()
         sub.sum_duplicates()
-        self.s_rows = sub.tocsr()
         k = len(sub.data)
         coordinates = np.arange(n)
         row = np.concatenate([np.tile(sub.row, 3), r + coordinates, span, r + n + span])
@@ -132,8 +130,9 @@ class Programme(_Claimed):
                                  f"error {exc}") from None
         self.setups += 1
 
-    def solve(self, p_x: np.ndarray | sp.csr_matrix, q: np.ndarray, rows: np.ndarray, normals: np.ndarray,
-              lower: np.ndarray, x0: np.ndarray, step: float) -> tuple[np.ndarray, str, float]:
+    def solve(self, p_x: np.ndarray | sp.csr_matrix, q: np.ndarray, rows: np.ndarray,
+              normals: np.ndarray, lower: np.ndarray, x0: np.ndarray, step: float
+              ) -> tuple[np.ndarray, str, float]:
         """The step over the rows that could bind: those within NEAR_ROW of their bound where
         it starts, then any other the solution breaks by more than ROW_TOLERANCE, until none
         does (a row left out is inactive at the solution, which is so the optimum of the whole
