@@ -626,9 +626,8 @@ def _lengthen(vertices: np.ndarray, triangles: np.ndarray, p: int, q: int,
         own = np.setdiff1d(rings[0], [p, q])
     # along the sheet first; where that turns a face over (a corner inside its neighbour's
     # fan, every face of it a sliver), off the sheet along its normal, either way
-    with np.errstate(invalid="ignore", divide="ignore"):
-        normal = np.nan_to_num(vertex_normals(vertices, rings[0])[p])
     before = face_cross(vertices, rings[0])
+    normal = before.sum(axis=0)  # p's area-weighted normal (its ring's faces)
     big = np.linalg.norm(before, axis=1) > 0
     for away in (vertices[own].mean(axis=0) - vertices[p], -normal, normal):
         size = np.linalg.norm(away)

@@ -43,6 +43,18 @@ class _Claimed:
         """Gives the claimed programme back (a later warm refit may claim it)."""
         self._in_use.release()
 
+    def _wanted(self, rows: np.ndarray, normals: np.ndarray, lower: np.ndarray):
+        """The rows wanted now (a finite bound; the others never bind): their points, normals
+        and bounds, and n . (S x) of them as a function of x (3 n0), from one product with
+        all of S."""
+        wanted = np.flatnonzero(np.isfinite(lower))
+        points, plane_normals = rows[wanted], normals[wanted]
+
+        def plane(x: np.ndarray) -> np.ndarray:
+            return _normals_dot(plane_normals, (self.s @ x.reshape(3, self.n0).T)[points])
+
+        return points, plane_normals, lower[wanted], plane
+
 
 class Programme(_Claimed):
     """The QP over the control vertices x (3 n0) and one slack per non-penetration row.
@@ -138,13 +150,7 @@ class Programme(_Claimed):
         does (a row left out is inactive at the solution, which is so the optimum of the whole
         programme; the rows not wanted now, a bound of -inf, never bind). OSQP is set up again
         when the rows taken change and updated in place otherwise."""
-        n0 = self.n0
-        wanted = np.flatnonzero(np.isfinite(lower))
-        points, plane_normals, bounds = rows[wanted], normals[wanted], lower[wanted]
-
-        def plane(x: np.ndarray) -> np.ndarray:  # n . (S x) of the wanted rows
-            return _normals_dot(plane_normals, self.s[points] @ x.reshape(3, n0).T)
-
+        points, plane_normals, bounds, plane = self._wanted(rows, normals, lower)
         now = plane(x0)
         taking = bounds > now - NEAR_ROW
         while True:
@@ -281,15 +287,9 @@ class DenseProgramme(_Claimed):
                 raise ProgrammeError("The surface's quadratic programme is not convex: its "
                                      "Hessian has no Cholesky factor") from None
             f = sl.solve_triangular(r, q, trans="T", check_finite=False)  # q^T x = (R^-T q)^T z
-        wanted = np.flatnonzero(np.isfinite(lower))
-        points = rows[wanted]
-        plane_normals, bounds = normals[wanted], lower[wanted]
+        points, plane_normals, bounds, plane = self._wanted(rows, normals, lower)
         if self._dense is None:  # S's rows are taken densely at every step
             self._dense = self.s.toarray()
-
-        def plane(x: np.ndarray) -> np.ndarray:  # n . (S x) of the wanted rows
-            return _normals_dot(plane_normals, (self.s @ x.reshape(3, n0).T)[points])
-
         taking = bounds > plane(x0) - NEAR_ROW
         boxed = np.zeros(n, dtype=bool)  # the coordinates whose trust-region rows are taken
         weight = 1.0 / (2.0 * self.slack_weight)  # DAQP's soft rows cost s^2 / (2 rho)
