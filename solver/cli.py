@@ -119,7 +119,7 @@ def _roles_report(skeleton) -> dict:
 def _cmd_fit(args: argparse.Namespace) -> int:
     import sys
 
-    from solver.contact.evaluate import peak_text
+    from solver.contact.evaluate import flat_text, peak_text
     from solver.scene.run import run_fit
 
     def progress(message: str) -> None:
@@ -137,12 +137,11 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     print(f"{report['iterations']} iterations in {report['timing']['total_s']:.2f} s: "
           f"{report['stop_reason']}")
     for p in report["persons"]:
-        flat = p["flat"]
         loads = ", ".join(f"{name} {v['load_share'] * 100:.0f} %" for name, v in
                           p["equilibrium"]["supports"].items())
         print(f"{p['name']}: coverage {p['coverage']:.2f}, penetration "
               f"{p['max_penetration_m'] * 1000:.0f} mm, peak {peak_text(p)} "
-              f"(flat seat {peak_text(flat)}), contact {p['contact_area_m2']:.3f} m^2"
+              f"(flat seat {flat_text(p)}), contact {p['contact_area_m2']:.3f} m^2"
               + (f"; load on {loads}" if loads else ""))
     print(f"wrote {args.out}/report.json and the surface, control mesh, bodies"
           + (" and pictures" if report["pictures"] else " (pictures skipped: --no-pictures)"))

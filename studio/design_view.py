@@ -32,7 +32,7 @@ from scipy.spatial.transform import Rotation
 
 from posedb.regions import support_regions
 from solver.body.model import BODY_REGIONS, SHAPE_KEYS, BodyShape
-from solver.contact.evaluate import peak_text
+from solver.contact.evaluate import flat_text, peak_text
 from solver.io.render import SKIN, SURFACE
 from solver.mesh import quad_triangles
 from solver.scene import schema
@@ -920,7 +920,7 @@ class DesignView:
         """The last fit's figures per person, as a markdown table."""
         rows = "\n".join(
             f"| {p['name'].split(' (')[0]} | {p['coverage']:.2f} | "
-            f"{peak_text(p)} / {peak_text(p['flat'])} | "
+            f"{peak_text(p)} / {flat_text(p)} | "
             f"{1000 * p['max_penetration_m']:.0f} |" for p in self.design.last.persons)
         return ("| person | coverage | peak kPa (flat) | into skin mm |\n|---|---|---|---|\n"
                 f"{rows}")

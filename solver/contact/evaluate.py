@@ -16,7 +16,10 @@
   figures.
 
 The flat-seat baseline evaluates the same body on a horizontal plane at the height of the
-fitted surface under the body's most important points.
+fitted surface under the body's most important points; a seated body seldom rests on it (it tips
+back), so the peak pressure a shaped surface is judged against is the flat seat's at the same
+load (`flat_at_same_load`): the plane pressed up under the body, held as it rests on the fitted
+surface, until it carries what that surface carries.
 """
 
 from __future__ import annotations
@@ -24,9 +27,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-from solver.contact.mat import contact_figures, mat_figures
-from solver.contact.settle import Foam, Settled, Support, reach_depth, settle
+from solver.contact.mat import SupportContact, contact_figures, mat_figures
+from solver.contact.settle import UP, Foam, Settled, Support, reach_depth, settle
 from solver.contact.skins import body_winding, vertex_tree
 from solver.contact.supported import SupportedBody
 from solver.mesh import SurfaceMesh
@@ -117,6 +121,18 @@ def peak_text(figures: dict) -> str:
     if figures.get("peak_pressure_kpa") is None:
         return "0 kPa (rests elsewhere)"
     return f"{figures['peak_pressure_kpa']:.1f} kPa"
+
+
+def flat_text(person: dict) -> str:
+    """A person's flat-seat baseline for people: the peak at the same load and the fitted
+    peak's share of it ("10.4 kPa at the same load, 0.74 of it"), or the flat seat's own
+    settle (`peak_text`) where there is no same-load figure."""
+    flat = person.get("flat") or {}
+    same = (flat.get("same_load") or {}).get("peak_pressure_kpa")
+    if same is None:
+        return peak_text(flat)
+    ratio = person.get("peak_of_flat")
+    return f"{same:.1f} kPa at the same load" + (f", {ratio:.2f} of it" if ratio else "")
 
 
 def equilibrium_figures(settled: Settled) -> dict:
@@ -424,6 +440,75 @@ def flat_seat_height(surface: SurfaceMesh, person: SupportedBody) -> float:
         else np.ones(len(importance), dtype=bool)
     closest = surface.closest(vertices[top])[4]  # on the surface's own tree (kept)
     return float(np.median(closest[:, 1]))
+
+
+def flat_at_same_load(person: SupportedBody, settled: Settled, foam: Foam) -> dict | None:
+    """The flat-seat baseline of a body at rest on a fitted surface: a horizontal plane of the
+    same foam pressed up under the body, held as it rests there (no turn, no slide: a seated
+    body tips back off a flat seat, which a person prevents with their muscles), until it carries
+    the vertical load the fitted surface carries. Only the supported skin that faces down presses
+    it (the plane ends where the supported parts do: calves hanging or tucked under a seat do not
+    reach it). Pressure is the settle's law: stiffness times depth, `bottom_factor` times
+    stiffer past the foam's thickness, over each vertex's Voronoi area projected on the plane.
+
+    Parameters
+    ----------
+    person : SupportedBody
+        The posed body, with its areas (and `supported`; all its skin when None).
+    settled : Settled
+        The body's settle on the fitted surface (and the floor).
+    foam : Foam
+        The fitted surface's foam, which the plane gets too.
+
+    Returns
+    -------
+    dict or None
+        ``height_m`` (the plane), ``load_n`` and ``load_share`` (of m g) it carries, and
+        ``peak_pressure_kpa``, ``peak_pressure_index_kpa``, ``mean_pressure_kpa``,
+        ``contact_area_m2`` as `surface_figures` gives them; None when the body does not rest
+        on the fitted surface, that surface carries no vertical load or no supported skin faces
+        down.
+    """
+    if not settled.stable:
+        return None
+    load = float(sum(c.force[1] for c in settled.contacts if c.name in SURFACE_PARTS))
+    normals = person.normals @ Rotation.from_rotvec(settled.rotation).as_matrix().T
+    pressing = normals[:, 1] < 0
+    if person.supported is not None:
+        pressing &= person.supported
+    index = np.flatnonzero(pressing)
+    if load <= 0 or not index.size:
+        return None
+    y = settled.vertices[index, 1]
+    footprint = person.areas[index] * -normals[index, 1]
+    extra = (foam.bottom_factor - 1.0) * foam.stiffness
+
+    def pressure(height: float) -> np.ndarray:  # Pa
+        depth = np.maximum(height - y, 0.0)
+        return foam.stiffness * depth + extra * np.maximum(depth - foam.thickness, 0.0)
+
+    def short(height: float) -> float:  # N the plane at `height` carries less than `load`
+        return load - float(footprint @ pressure(height))
+
+    low, high = float(y.min()), float(y.min()) + 0.01
+    while short(high) > 0:  # (the load grows without bound as the plane rises)
+        high += high - low
+    from scipy.optimize import brentq
+
+    height = brentq(short, low, high, xtol=1e-9)
+    p = pressure(height)
+    on = p > 0
+    contact = SupportContact("flat seat", index[on], p[on] * footprint[on],
+                             np.zeros((int(on.sum()), 3)), np.tile(UP, (int(on.sum()), 1)),
+                             settled.vertices[index[on]], np.full(int(on.sum()), -1),
+                             footprint[on])
+    areas = np.zeros(len(settled.vertices))
+    areas[index[on]] = footprint[on]
+    f = contact_figures([contact], areas, settled.weight_n)
+    return {"height_m": height, "load_n": load, "load_share": load / settled.weight_n,
+            "peak_pressure_kpa": f["peak_kpa"],
+            "peak_pressure_index_kpa": f["peak_pressure_index_kpa"],
+            "mean_pressure_kpa": f["mean_kpa"], "contact_area_m2": f["contact_area_cm2"] / 1e4}
 
 
 def flat_surface(height: float, centre: np.ndarray, half: float = 5.0) -> SurfaceMesh:

@@ -15,8 +15,8 @@ from capture.files import write_atomic
 
 from solver.mesh import SurfaceMesh
 from solver.contact.evaluate import (FLOOR, SUPPORT_FIGURES, SupportGate, body_winding,
-                                     cut_vertices, evaluate_person, flat_seat_height, flat_surface,
-                                     support_inside)
+                                     cut_vertices, evaluate_person, flat_at_same_load,
+                                     flat_seat_height, flat_surface, support_inside)
 from solver.contact.evaluate import PressureMap, contact_footprint, surface_pressure
 from solver.contact.mat import PressureGrid, pressure_grid, write_pressure_csv
 from solver.contact.settle import Foam, reach_depth
@@ -47,8 +47,9 @@ def foams(evaluation) -> tuple[Foam, Foam | None]:
 
 def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.ndarray,
                    faces: np.ndarray) -> tuple[list[dict], list[np.ndarray]]:
-    """Per person: the fitted surface's figures (with `flat`, the flat-seat baseline, and
-    `support_inside_others`, the share of the person's importance inside other people's bodies)
+    """Per person: the fitted surface's figures (with `flat`, the flat-seat baseline and under
+    its `same_load` that seat at the fitted surface's load (`flat_at_same_load`), `peak_of_flat`,
+    the fitted peak pressure over that seat's, and `support_inside_others`, the share of the person's importance inside other people's bodies)
     and the settle's `PressureMap` (the pressure in kPa per body vertex, the contacts)."""
     mesh = SurfaceMesh.from_quads(surface, faces)
     margin, (foam, floor) = scenario.surface.params.margin, foams(scenario.evaluation)
@@ -60,6 +61,11 @@ def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.n
         flat, _ = evaluate_person(flat_surface(height, p.vertices.mean(axis=0)), p, margin,
                                   foam, floor, winding)
         flat["height_m"] = height
+        # what a shaped surface's peak is judged against: the flat seat at the same load
+        flat["same_load"] = flat_at_same_load(p, pm.settled, foam)
+        same = (flat["same_load"] or {}).get("peak_pressure_kpa")
+        figures["peak_of_flat"] = figures["peak_pressure_kpa"] / same \
+            if figures["peak_pressure_kpa"] is not None and same else None
         others = [(q.vertices, q.triangles) for j, q in enumerate(people) if j != k]
         rows.append({"name": p.label, "body": p.spec.body.as_dict(),
                      "height_m": p.body.height_m, "mass_kg": p.body.mass_kg,
