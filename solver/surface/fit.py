@@ -1227,15 +1227,20 @@ def _crossings(fit: _Fit, limit: np.ndarray) -> int:
 
 
 def uncrossed(fit: _Fit, accepted: Sequence[np.ndarray]) -> tuple[int, int]:
-    """The last of the accepted control meshes whose limit surface does not cross itself, by
-    bisection (a surface that starts crossing itself seldom stops), and the crossings of the
-    last one. Returns (index, crossings of the last); the last index when it is clean, and 0
-    when even the start crosses."""
+    """The last of the accepted control meshes whose limit surface does not cross itself (nor
+    folds past FOLD_LIMIT_DEG), and the flaws of the last one: the one before the last when
+    that is clean (the last step is most often the only one that crossed), else by bisection
+    (a surface that starts crossing itself seldom stops). Returns (index, flaws of the last);
+    the last index when it is clean, and 0 when even the start crosses."""
     last = len(accepted) - 1
     crossings = _flaws(fit, accepted[last])
-    if crossings == 0 or last == 0 or _flaws(fit, accepted[0]):
+    if crossings == 0 or last == 0:
         return (last if crossings == 0 else 0), crossings
-    good, bad = 0, last
+    if _flaws(fit, accepted[last - 1]) == 0:
+        return last - 1, crossings
+    if last == 1 or _flaws(fit, accepted[0]):
+        return 0, crossings
+    good, bad = 0, last - 1
     while bad - good > 1:
         mid = (good + bad) // 2
         if _flaws(fit, accepted[mid]):

@@ -192,8 +192,11 @@ def test_crossing_iterates_are_backed_out_of_by_bisection(ball_fit, monkeypatch)
     monkeypatch.setattr(F, "_flaws", crossings)
     accepted = [np.full((2, 3), float(k)) for k in range(40)]
     assert F.uncrossed(ball_fit, accepted) == (12, 12)
-    assert len(checked) <= 2 + int(np.ceil(np.log2(40)))
+    assert len(checked) <= 3 + int(np.ceil(np.log2(40)))  # the last two, the start, bisection
     assert F.uncrossed(ball_fit, accepted[:10]) == (9, 0)
+    checked.clear()  # only the last crosses: two looks
+    assert F.uncrossed(ball_fit, accepted[:14]) == (12, 12)
+    assert checked == [13, 12]
     monkeypatch.setattr(F, "_flaws", lambda fit, v: 3)  # the start crosses already
     assert F.uncrossed(ball_fit, accepted) == (0, 3)
 
