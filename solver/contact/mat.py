@@ -347,7 +347,28 @@ def mat_figures(contacts: Sequence[SupportContact], areas: np.ndarray, mass_kg: 
     return {"body_weight_n": weight_n, "supports": supports, "total": total}
 
 
+_GRIDS: dict[tuple, tuple[np.ndarray, np.ndarray] | None] = {}  # by the quads' content
+KEPT_GRIDS = 8
+
+
 def surface_grid(quads: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """`_surface_grid` of the quads, kept by their content (each support and each person of a
+    fit asks for the same surface's; the grid is found in Python, face by face). The arrays
+    are shared: not to be written to."""
+    q = np.asarray(quads)
+    key = (q.shape, str(q.dtype), hash(q.tobytes()))
+    if key not in _GRIDS:
+        while len(_GRIDS) >= KEPT_GRIDS:
+            del _GRIDS[next(iter(_GRIDS))]
+        grid = _surface_grid(q)
+        if grid is not None:
+            for a in grid:
+                a.setflags(write=False)
+        _GRIDS[key] = grid
+    return _GRIDS[key]
+
+
+def _surface_grid(quads: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """The (i, j) grid a quad mesh's faces form, if they form one.
 
     A Catmull-Clark surface of a regular R x C control grid is a regular grid of quads again
@@ -374,7 +395,8 @@ def surface_grid(quads: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     edge_faces: dict[tuple[int, int], list[int]] = {}
     for f, quad in enumerate(q.tolist()):
         for k in range(4):
-            edge_faces.setdefault(tuple(sorted((quad[k], quad[k - 3]))), []).append(f)
+            a, b = quad[k], quad[k - 3]
+            edge_faces.setdefault((a, b) if a < b else (b, a), []).append(f)
     if max(len(fs) for fs in edge_faces.values()) > 2:
         return None
     counts = np.bincount(q.ravel())
@@ -390,7 +412,7 @@ def surface_grid(quads: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         return quad[k - 3] if quad[k - 1] == y else quad[k - 1]
 
     def across(face: int, x: int, y: int) -> int | None:
-        others = [g for g in edge_faces.get(tuple(sorted((x, y))), ()) if g != face]
+        others = [g for g in edge_faces.get((x, y) if x < y else (y, x), ()) if g != face]
         return others[0] if others else None
 
     first = int(np.flatnonzero((q == corners[0]).any(axis=1))[0])

@@ -187,6 +187,9 @@ def test_surface_grid_recovers_the_rows_and_columns(seat):
     ell = np.array([[0, 1, 4, 3], [1, 2, 5, 4], [3, 4, 7, 6]])  # three quads in an L
     assert surface_grid(ell) is None
     assert surface_grid(np.array([[0, 1, 2, 3]]))[1].tolist() == [[0]]
+    again = surface_grid(faces.copy())  # the same quads again: the grid found before, kept
+    assert again[0] is vertex_grid and not again[0].flags.writeable
+    assert surface_grid(faces[::-1].copy())[1] is not face_grid  # other quads: found afresh
 
 
 def test_pressure_grid_conserves_force_and_finds_the_box(seat):
