@@ -31,7 +31,7 @@ from scipy.spatial.transform import Rotation
 
 from solver.contact.mat import SupportContact, contact_figures, mat_figures
 from solver.contact.settle import UP, Foam, Settled, Support, reach_depth, settle
-from solver.contact.skins import body_winding, vertex_tree
+from solver.contact.skins import body_closest, body_winding, vertex_tree
 from solver.contact.supported import SupportedBody
 from solver.mesh import SurfaceMesh
 from solver.threads import with_limited_threads
@@ -167,11 +167,8 @@ def penetration_depth(surface_points: np.ndarray, body_vertices: np.ndarray,
 
     A point's distance to its nearest body vertex bounds its depth from above, so the points
     are taken largest bound first, tested for inside in batches of `DEPTH_BATCH` and measured
-    in smaller ones, until no bound left exceeds the deepest depth found; each measured against
-    the skin triangles that can hold its closest point (a triangle within that bound has a
-    vertex within it plus the triangle's longest edge)."""
-    import igl
-
+    in smaller ones (on the skin's kept bounding-box tree), until no bound left exceeds the
+    deepest depth found."""
     points = np.asarray(surface_points, dtype=np.float64)
     if not len(points):
         return 0.0
@@ -179,15 +176,9 @@ def penetration_depth(surface_points: np.ndarray, body_vertices: np.ndarray,
     triangles = np.asarray(body_triangles, dtype=np.int64)
     if winding is None:
         winding = body_winding(vertices, triangles)
-    tree = vertex_tree(vertices)
-    bound, _ = tree.query(points)
+    bound, _ = vertex_tree(vertices).query(points)
     order = np.argsort(-bound)
-    a, b, c = (vertices[triangles[:, k]] for k in range(3))
-    longest = np.sqrt(np.maximum(np.maximum(np.einsum("ij,ij->i", a - b, a - b),
-                                            np.einsum("ij,ij->i", b - c, b - c)),
-                                 np.einsum("ij,ij->i", c - a, c - a)))
-    reach = float(np.quantile(longest, 0.99))  # longer triangles are few: always measured
-    long = triangles[longest > reach]
+    skin = body_closest(vertices, triangles)
     deepest = 0.0
     for start in range(0, len(order), DEPTH_BATCH):
         batch = order[start:start + DEPTH_BATCH]
@@ -200,12 +191,7 @@ def penetration_depth(surface_points: np.ndarray, body_vertices: np.ndarray,
             measured = measured[bound[measured] > deepest]
             if not measured.size:
                 break
-            near = np.zeros(len(vertices), dtype=bool)
-            for ids in tree.query_ball_point(points[measured], bound[measured] + reach):
-                near[ids] = True
-            candidates = np.concatenate([triangles[near[triangles].any(axis=1)], long])
-            squared, _, _ = igl.point_mesh_squared_distance(points[measured], vertices,
-                                                            candidates)
+            squared, _, _ = skin.squared_distance(vertices, triangles, points[measured])
             deepest = max(deepest, float(np.sqrt(squared.max())))
     return deepest
 
