@@ -45,7 +45,9 @@ def quad_normals(vertices: np.ndarray, quads: np.ndarray) -> np.ndarray:
 
 
 def neighbour_faces(quads: np.ndarray, sharp_edges: np.ndarray | None = None) -> np.ndarray:
-    """(E, 2) the two faces on each edge shared by exactly two faces, sharp edges left out.
+    """(E, 2) the faces that share each edge, sharp edges left out: one pair on an edge of two
+    faces (a manifold surface's every inner edge), consecutive pairs in face order on one of
+    more (three faces on an edge give two pairs).
 
     Parameters
     ----------
