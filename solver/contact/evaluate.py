@@ -430,12 +430,15 @@ def flat_seat_height(surface: SurfaceMesh, person: SupportedBody) -> float:
 
 def flat_at_same_load(person: SupportedBody, settled: Settled, foam: Foam) -> dict | None:
     """The flat-seat baseline of a body at rest on a fitted surface: a horizontal plane of the
-    same foam pressed up under the body, held as it rests there (no turn, no slide: a seated
-    body tips back off a flat seat, which a person prevents with their muscles), until it carries
-    the vertical load the fitted surface carries. Only the supported skin that faces down presses
-    it (the plane ends where the supported parts do: calves hanging or tucked under a seat do not
-    reach it). Pressure is the settle's law: stiffness times depth, `bottom_factor` times
-    stiffer past the foam's thickness, over each vertex's Voronoi area projected on the plane.
+    same foam in place of the surface's seat (its part within 45 degrees of level,
+    `surface_parts`), pressed up under the body, held as it rests on the fitted surface (no
+    turn, no slide: a seated body tips back off a flat seat, which a person prevents with their
+    muscles), until it carries the vertical load the seat carries. Only the supported skin that
+    faces down presses it (the plane ends where the supported parts do: calves hanging or tucked
+    under a seat do not reach it). Pressure is the settle's law: stiffness times depth,
+    `bottom_factor` times stiffer past the foam's thickness, over each vertex's Voronoi area
+    projected on the plane. A back or a leg rest keeps its load: the flat seat takes the seat's
+    place only, so the fitted seat's own peak is what it is compared with (`fitted_peak_kpa`).
 
     Parameters
     ----------
@@ -449,24 +452,25 @@ def flat_at_same_load(person: SupportedBody, settled: Settled, foam: Foam) -> di
     Returns
     -------
     dict or None
-        ``height_m`` (the plane), ``load_n`` and ``load_share`` (of m g) it carries, and
+        ``height_m`` (the plane), ``load_n`` and ``load_share`` (of m g) it carries,
         ``peak_pressure_kpa``, ``peak_pressure_index_kpa``, ``mean_pressure_kpa``,
-        ``contact_area_m2`` as `surface_figures` gives them; None when the body does not rest
-        on the fitted surface, that surface carries no vertical load or no supported skin faces
-        down.
+        ``contact_area_m2`` as `surface_figures` gives them, and ``fitted_peak_kpa``, the fitted
+        seat's peak; None when the body does not rest on the fitted surface, its seat carries
+        no vertical load or no supported skin faces down.
     """
     if not settled.stable:
         return None
-    load = float(sum(c.force[1] for c in settled.contacts if c.name in SURFACE_PARTS))
+    seat = [c for c in settled.contacts if c.name == "seat"]
+    load = float(sum(c.force[1] for c in seat))
     normals = person.normals @ Rotation.from_rotvec(settled.rotation).as_matrix().T
-    pressing = normals[:, 1] < 0
+    footprint = person.areas * np.maximum(-normals[:, 1], 0.0)
+    pressing = footprint > 0  # (facing down, with an area)
     if person.supported is not None:
         pressing &= person.supported
     index = np.flatnonzero(pressing)
     if load <= 0 or not index.size:
         return None
-    y = settled.vertices[index, 1]
-    footprint = person.areas[index] * -normals[index, 1]
+    y, footprint = settled.vertices[index, 1], footprint[index]
     extra = (foam.bottom_factor - 1.0) * foam.stiffness
 
     def pressure(height: float) -> np.ndarray:  # Pa
@@ -484,17 +488,20 @@ def flat_at_same_load(person: SupportedBody, settled: Settled, foam: Foam) -> di
     height = brentq(short, low, high, xtol=1e-9)
     p = pressure(height)
     on = p > 0
-    contact = SupportContact("flat seat", index[on], p[on] * footprint[on],
-                             np.zeros((int(on.sum()), 3)), np.tile(UP, (int(on.sum()), 1)),
-                             settled.vertices[index[on]], np.full(int(on.sum()), -1),
-                             footprint[on])
+    k = int(on.sum())
+    points = settled.vertices[index[on]].copy()
+    points[:, 1] = height  # on the plane, as the settle's contact points lie on the support
+    contact = SupportContact("flat seat", index[on], p[on] * footprint[on], np.zeros((k, 3)),
+                             np.tile(UP, (k, 1)), points, np.full(k, -1), footprint[on])
     areas = np.zeros(len(settled.vertices))
     areas[index[on]] = footprint[on]
     f = contact_figures([contact], areas, settled.weight_n)
+    fitted = surface_figures(settled, ("seat",))["peak_pressure_kpa"]
     return {"height_m": height, "load_n": load, "load_share": load / settled.weight_n,
             "peak_pressure_kpa": f["peak_kpa"],
             "peak_pressure_index_kpa": f["peak_pressure_index_kpa"],
-            "mean_pressure_kpa": f["mean_kpa"], "contact_area_m2": f["contact_area_cm2"] / 1e4}
+            "mean_pressure_kpa": f["mean_kpa"], "contact_area_m2": f["contact_area_cm2"] / 1e4,
+            "fitted_peak_kpa": fitted}
 
 
 def flat_surface(height: float, centre: np.ndarray, half: float = 5.0) -> SurfaceMesh:

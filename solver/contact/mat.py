@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import io
 import os
+import threading
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -348,6 +349,7 @@ def mat_figures(contacts: Sequence[SupportContact], areas: np.ndarray, mass_kg: 
 
 
 _GRIDS: dict[tuple, tuple[np.ndarray, np.ndarray] | None] = {}  # by the quads' content
+_GRIDS_LOCK = threading.Lock()
 KEPT_GRIDS = 8
 
 
@@ -357,15 +359,18 @@ def surface_grid(quads: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     are shared: not to be written to."""
     q = np.asarray(quads)
     key = (q.shape, str(q.dtype), hash(q.tobytes()))
-    if key not in _GRIDS:
+    with _GRIDS_LOCK:  # (the studio evaluates from several threads)
+        if key in _GRIDS:
+            return _GRIDS[key]
+    grid = _surface_grid(q)
+    if grid is not None:
+        for a in grid:
+            a.setflags(write=False)
+    with _GRIDS_LOCK:
         while len(_GRIDS) >= KEPT_GRIDS:
             del _GRIDS[next(iter(_GRIDS))]
-        grid = _surface_grid(q)
-        if grid is not None:
-            for a in grid:
-                a.setflags(write=False)
         _GRIDS[key] = grid
-    return _GRIDS[key]
+    return grid
 
 
 def _surface_grid(quads: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:

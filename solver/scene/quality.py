@@ -10,10 +10,10 @@ the floor, no body point deeper than the margin (plus 1 mm) on a dense sampling.
     peak               the highest pressure on the surface lies on a region asked to be supported
     seated             a person seated upright carries >= 60 % of the weight on the pelvis and
                        thighs and < 10 % on the calves (`solver.body.posture`)
-    flat seat          the peak pressure on the surface is at most 0.6 of a flat seat's at the
-                       same load (what a shaped surface is for; report.json's `peak_of_flat`,
-                       `solver.contact.evaluate.flat_at_same_load`); not for a person standing,
-                       who leans on a surface and sits on none
+    flat seat          the peak pressure on the surface's seat is at most 0.6 of a flat seat's
+                       at the same load (what a shaped surface is for; report.json's
+                       `peak_of_flat`, `solver.contact.evaluate.flat_at_same_load`); not for a
+                       person standing, who leans on a surface and sits on none
 
 A design in progress is held to one more (`design_misses`): no point of the person's skin cut
 deeper than the margin.
@@ -110,9 +110,9 @@ def person_misses(person: dict) -> list[str]:
     if ratio is not None and ratio > PEAK_OF_FLAT_MAX and \
             person.get("posture") not in NO_SEAT_POSTURES:
         same = person["flat"]["same_load"]
-        misses.append(f"{name}: peak pressure {loads['peak_kpa']:.1f} kPa, {ratio:.2f} of a flat "
-                      f"seat's at the same load ({same['peak_pressure_kpa']:.1f} kPa; bar "
-                      f"{PEAK_OF_FLAT_MAX})")
+        misses.append(f"{name}: peak pressure on the seat {same['fitted_peak_kpa']:.1f} kPa, "
+                      f"{ratio:.2f} of a flat seat's at the same load "
+                      f"({same['peak_pressure_kpa']:.1f} kPa; bar {PEAK_OF_FLAT_MAX})")
     if person.get("posture") in SEATED_POSTURES:
         if loads["pelvis_thighs_share"] < SEATED_LOAD_MIN:
             misses.append(f"{name}: {100 * loads['pelvis_thighs_share']:.0f} % of the weight "

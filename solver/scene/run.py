@@ -48,9 +48,10 @@ def foams(evaluation) -> tuple[Foam, Foam | None]:
 def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.ndarray,
                    faces: np.ndarray) -> tuple[list[dict], list[np.ndarray]]:
     """Per person: the fitted surface's figures (with `flat`, the flat-seat baseline and under
-    its `same_load` that seat at the fitted surface's load (`flat_at_same_load`), `peak_of_flat`,
-    the fitted peak pressure over that seat's, and `support_inside_others`, the share of the person's importance inside other people's bodies)
-    and the settle's `PressureMap` (the pressure in kPa per body vertex, the contacts)."""
+    its `same_load` that seat at the fitted seat's load (`flat_at_same_load`), `peak_of_flat`,
+    the fitted seat's peak pressure over that flat seat's, and `support_inside_others`, the
+    share of the person's importance inside other people's bodies) and the settle's
+    `PressureMap` (the pressure in kPa per body vertex, the contacts)."""
     mesh = SurfaceMesh.from_quads(surface, faces)
     margin, (foam, floor) = scenario.surface.params.margin, foams(scenario.evaluation)
     rows, maps = [], []
@@ -63,9 +64,10 @@ def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.n
         flat["height_m"] = height
         # what a shaped surface's peak is judged against: the flat seat at the same load
         flat["same_load"] = flat_at_same_load(p, pm.settled, foam)
-        same = (flat["same_load"] or {}).get("peak_pressure_kpa")
-        figures["peak_of_flat"] = figures["peak_pressure_kpa"] / same \
-            if figures["peak_pressure_kpa"] is not None and same else None
+        same = flat["same_load"] or {}
+        figures["peak_of_flat"] = same["fitted_peak_kpa"] / same["peak_pressure_kpa"] \
+            if same.get("fitted_peak_kpa") is not None and same.get("peak_pressure_kpa") \
+            else None
         others = [(q.vertices, q.triangles) for j, q in enumerate(people) if j != k]
         rows.append({"name": p.label, "body": p.spec.body.as_dict(),
                      "height_m": p.body.height_m, "mass_kg": p.body.mass_kg,

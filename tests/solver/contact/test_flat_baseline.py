@@ -102,11 +102,63 @@ def test_the_plane_is_pressed_by_the_supported_skin_that_faces_down_only():
     s = _rested(both, 20.0, foam)
     whole = flat_at_same_load(both, s, foam)
     right_only = flat_at_same_load(replace(both, supported=np.arange(2 * n) >= n), s, foam)
+    weight = 20.0 * G
     assert whole["contact_area_m2"] == pytest.approx(0.12, rel=0.03)
+    assert whole["mean_pressure_kpa"] == pytest.approx(weight / 0.12 / 1e3, rel=0.03)
     assert right_only["contact_area_m2"] == pytest.approx(0.06, rel=0.03)
-    assert right_only["load_n"] == pytest.approx(whole["load_n"])
-    assert right_only["mean_pressure_kpa"] == pytest.approx(2 * whole["mean_pressure_kpa"],
-                                                            rel=0.03)
+    assert right_only["mean_pressure_kpa"] == pytest.approx(weight / 0.06 / 1e3, rel=0.03)
+    assert right_only["height_m"] - whole["height_m"] == pytest.approx(
+        weight / 0.06 / 200e3 - weight / 0.12 / 200e3, rel=0.05)  # pressed twice as deep
     facing_up = both.normals[:, 1] > 0
     assert flat_at_same_load(replace(both, supported=facing_up), s, foam) is None
     assert flat_at_same_load(both, replace(s, stable=False), foam) is None
+
+
+def test_the_flat_seat_takes_the_seat_s_load_and_leaves_the_back_its_own():
+    """A plank 0.8 m long resting on two pads, one the surface's seat and one its back (by
+    name): by the lever rule each carries half its weight, and the flat seat, in the seat's
+    place under the whole plank, carries that half, not the weight; it is compared with the
+    seat's own peak."""
+    from solver.mesh import SurfaceMesh
+
+    plank = _box((0.8, 0.1, 0.2), [0.0, 0.05, 0.0])
+    foam = Foam(200e3, thickness=0.1)
+
+    def pad(x0: float, x1: float) -> SurfaceMesh:
+        v = np.array([[x0, 0, -0.3], [x0, 0, 0.3], [x1, 0, 0.3], [x1, 0, -0.3]], float)
+        return SurfaceMesh.from_quads(v, np.array([[0, 1, 2, 3]]))
+
+    s = settle(plank.vertices, plank.normals, plank.areas, plank.triangles, 20.0,
+               [Support("seat", foam, pad(0.2, 0.45)), Support("back", foam, pad(-0.45, -0.2))])
+    assert s.stable, s.reason
+    flat = flat_at_same_load(plank, s, foam)
+    half = 20.0 * G / 2
+    assert flat["load_n"] == pytest.approx(half, rel=0.02)
+    assert flat["mean_pressure_kpa"] == pytest.approx(half / 0.16 / 1e3, rel=0.03)
+    seat = next(c for c in s.contacts if c.name == "seat")
+    assert flat["fitted_peak_kpa"] == pytest.approx((seat.normal_force / seat.areas).max() / 1e3)
+
+
+def test_the_skin_that_presses_is_the_skin_that_faces_down_as_the_body_rests():
+    """A box turned a quarter about z by its settle (made here): the face whose normal was +x
+    now faces down and alone presses the flat seat, uniformly, at the load over its area."""
+    from solver.contact.mat import SupportContact
+    from solver.contact.settle import Settled
+
+    box = _box((0.2, 0.4, 0.3), [0.0, 0.0, 0.0])
+    turn = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # +x -> -y
+    rested = box.vertices @ turn.T + [0.0, 0.1, 0.0]
+    load = 150.0
+    bottom = np.flatnonzero(np.isclose(rested[:, 1], 0.0))
+    contact = SupportContact("seat", bottom, np.full(len(bottom), load / len(bottom)),
+                             np.zeros((len(bottom), 3)), np.tile([0.0, 1.0, 0.0],
+                                                                 (len(bottom), 1)),
+                             rested[bottom], np.zeros(len(bottom), dtype=int),
+                             np.full(len(bottom), 0.12 / len(bottom)))
+    s = Settled(True, None, rested, np.array([0.0, 0.1, 0.0]), np.array([0.0, 0.0, -np.pi / 2]),
+                np.zeros(3), [contact], np.zeros(3), np.zeros(3), 200.0)
+    flat = flat_at_same_load(box, s, Foam(200e3))
+    assert flat["load_n"] == pytest.approx(load)
+    assert flat["contact_area_m2"] == pytest.approx(0.4 * 0.3, rel=0.03)
+    assert flat["mean_pressure_kpa"] == pytest.approx(load / 0.12 / 1e3, rel=0.03)
+    assert flat["peak_pressure_kpa"] == pytest.approx(load / 0.12 / 1e3, rel=0.05)
