@@ -347,8 +347,13 @@ def test_example_people_rest_on_their_surfaces(name, tmp_path_factory):
         assert flat["supported"] == flat["equilibrium"]["stable"]
         if not flat["supported"]:
             assert flat["peak_pressure_kpa"] is None and flat["equilibrium"]["reason"], person
-        same = flat["same_load"]  # the flat seat at the surface's load, held as the body rests
+        same = flat["same_load"]  # the flat seat at the seat's load, held as the body rests
         assert 0.3 < same["load_share"] <= 1.01 and same["peak_pressure_kpa"] > 0, same
+        seat = person["mat"]["supports"]["seat"]  # the seat's figures by the mat's own path
+        assert same["load_n"] == pytest.approx(seat["vertical_load_n"], rel=1e-9)
+        assert same["fitted_peak_kpa"] == pytest.approx(seat["peak_kpa"], rel=1e-9)
+        assert person["peak_of_flat"] == pytest.approx(same["fitted_peak_kpa"] /
+                                                       same["peak_pressure_kpa"])
         on_surface = {region: f for support, figures in person["mat"]["supports"].items()
                       if support != "floor" for region, f in figures["regions"].items()}
         peak_region = max(on_surface, key=lambda r: on_surface[r]["peak_kpa"])
