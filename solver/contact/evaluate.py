@@ -17,9 +17,9 @@
 
 The flat-seat baseline evaluates the same body on a horizontal plane at the height of the
 fitted surface under the body's most important points; a seated body seldom rests on it (it tips
-back), so the peak pressure a shaped surface is judged against is the flat seat's at the same
-load (`flat_at_same_load`): the plane pressed up under the body, held as it rests on the fitted
-surface, until it carries what that surface carries.
+back), so the peak pressure a shaped seat is judged against is the flat seat's at the same
+load (`flat_at_same_load`): the plane in the fitted seat's place, pressed up under the body held
+as it rests on the fitted surface, until it carries what that seat carries.
 """
 
 from __future__ import annotations
@@ -124,9 +124,9 @@ def peak_text(figures: dict) -> str:
 
 
 def flat_text(person: dict) -> str:
-    """A person's flat-seat baseline for people: the peak at the same load and the fitted
-    peak's share of it ("10.4 kPa at the same load, 0.74 of it"), or the flat seat's own
-    settle (`peak_text`) where there is no same-load figure."""
+    """A person's flat-seat baseline for people: its peak at the same load and the fitted
+    seat's peak as a share of it ("10.4 kPa at the same load, 0.74 of it"), or the flat seat's
+    own settle (`peak_text`) where there is no same-load figure."""
     flat = person.get("flat") or {}
     same = (flat.get("same_load") or {}).get("peak_pressure_kpa")
     if same is None:
