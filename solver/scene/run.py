@@ -64,10 +64,9 @@ def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.n
         flat["height_m"] = height
         # what a shaped surface's peak is judged against: the flat seat at the same load
         flat["same_load"] = flat_at_same_load(p, pm.settled, foam)
-        same = flat["same_load"] or {}
+        same = flat["same_load"]  # (its seat carries load: both peaks are positive)
         figures["peak_of_flat"] = same["fitted_peak_kpa"] / same["peak_pressure_kpa"] \
-            if same.get("fitted_peak_kpa") is not None and same.get("peak_pressure_kpa") \
-            else None
+            if same else None
         others = [(q.vertices, q.triangles) for j, q in enumerate(people) if j != k]
         rows.append({"name": p.label, "body": p.spec.body.as_dict(),
                      "height_m": p.body.height_m, "mass_kg": p.body.mass_kg,
