@@ -203,7 +203,7 @@ def _run_here(job: Job, db: str | None, out_root: str) -> dict:
         if job.problem:
             raise BatchError(job.problem)
         scenario = parse_scenario(copy.deepcopy(job.data), job.scenario, Path(job.base))
-        report = run_fit(scenario, folder, db=db)
+        report = run_fit(scenario, folder, db=db, beside=False)  # (a worker per core)
     except Exception as exc:  # recorded; the batch goes on
         row.update(status="failed", seconds=time.perf_counter() - start,
                    error=f"{type(exc).__name__}: {exc}")

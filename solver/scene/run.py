@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
@@ -29,6 +31,7 @@ from solver.scene.scenario import Scenario, load_scenario
 from solver.scene.schema import Evaluation
 from solver.scene.placement import PlacedPerson, place_scene, scene_posture
 from solver.mesh import quad_triangles
+from solver.threads import limited_threads
 
 if TYPE_CHECKING:
     from solver.body.relax import RelaxProblem  # the relaxation loads when a pose is relaxed
@@ -290,7 +293,8 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
             db: str | os.PathLike | None = None,
             progress: Callable[[str], None] | None = None, formats=("obj", "ply", "glb"),
             unit: str | None = None, up: str | None = None,
-            workshop: WorkshopOptions | None = None, pictures: bool = True) -> dict:
+            workshop: WorkshopOptions | None = None, pictures: bool = True,
+            beside: bool = True) -> dict:
     """Fits a scenario and writes everything into `out_dir` (`sitrelax fit`).
 
     Parameters
@@ -308,6 +312,8 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         None: m and Y up for OBJ and PLY, mm and Z up for .3dm (GLB: always m and Y up).
     pictures : False skips scene.png, pressure.png and pressure_map.png (the report's
         "pictures" says so); the workshop's pictures are made when asked for.
+    beside : the guarantees' check on a second thread, beside the evaluation and the exports
+        (False: after them, in this thread, as a batch's workers run it: one per core).
 
     Returns
     -------
@@ -331,19 +337,28 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     scenario, people = place_scene(scenario, db)
     timing["pose_s"] = time.perf_counter() - t
     say(f"posed {len(people)} person(s) in {timing['pose_s']:.2f} s")
-    result, persons, maps = fit_scene(
-        scenario, people, lambda i, e, tau: say(f"iteration {i}: energy {e:.6g} (tau {tau:.2f})"),
-        timing)
+    t = time.perf_counter()
+    result = fit_people(scenario, people, lambda i, e, tau: say(
+        f"iteration {i}: energy {e:.6g} (tau {tau:.2f})"))
+    timing["fit_s"] = time.perf_counter() - t
     say(f"fitted in {result.iterations} iterations, {timing['fit_s']:.2f} s: {result.stop_reason}")
-    t = time.perf_counter()
-    files = export_scene(out, result, people, maps, formats=tuple(formats), unit=unit, up=up,
-                         creases=scenario.surface.params.creases, pictures=pictures)
-    timing["export_s"] = time.perf_counter() - t
-    fabrication = _workshop(out, result, people, workshop, files, timing, say,
-                            scenario.surface.params.creases)
-    t = time.perf_counter()
-    guarantees = fit_guarantees(result, people, scenario.surface.params)
-    timing["guarantees_s"] = time.perf_counter() - t
+    # the guarantees (a dense check against the bodies, mostly in libigl and numpy, which let
+    # go of the interpreter) run beside the evaluation and the exports, on the other core; one
+    # thread limit for both threads, so neither restores the other's count when it ends
+    with limited_threads(), ThreadPoolExecutor(1, "sitrelax-guarantees") as pool:
+        check = functools.partial(_timed, fit_guarantees, result, people,
+                                  scenario.surface.params)
+        checking = pool.submit(check) if beside else None
+        t = time.perf_counter()
+        _, persons, maps = evaluate_fit(scenario, people, result)
+        timing["evaluate_s"] = time.perf_counter() - t
+        t = time.perf_counter()
+        files = export_scene(out, result, people, maps, formats=tuple(formats), unit=unit,
+                             up=up, creases=scenario.surface.params.creases, pictures=pictures)
+        timing["export_s"] = time.perf_counter() - t
+        fabrication = _workshop(out, result, people, workshop, files, timing, say,
+                                scenario.surface.params.creases)
+        guarantees, timing["guarantees_s"] = checking.result() if beside else check()
     if pictures:
         from solver.scene.sheet import write_design_sheet
 
@@ -379,6 +394,12 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
 
 
 SURFACE_FORMATS = ("obj", "ply", "glb", "3dm")
+
+
+def _timed(func: Callable, *args):
+    """func(*args) and the seconds it took."""
+    t = time.perf_counter()
+    return func(*args), time.perf_counter() - t
 
 
 def fit_guarantees(result: FitResult, people: list[PlacedPerson], params) -> dict:
