@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
-import functools
 import json
 import os
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
@@ -312,8 +311,9 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         None: m and Y up for OBJ and PLY, mm and Z up for .3dm (GLB: always m and Y up).
     pictures : False skips scene.png, pressure.png and pressure_map.png (the report's
         "pictures" says so); the workshop's pictures are made when asked for.
-    beside : the guarantees' check on a second thread, beside the evaluation and the exports
-        (False: after them, in this thread, as a batch's workers run it: one per core).
+    beside : the guarantees' check and the design sheet on a second thread, beside the
+        evaluation and the exports (False: in this thread, in turn, as a batch's workers run
+        them: one per core).
 
     Returns
     -------
@@ -342,34 +342,29 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         f"iteration {i}: energy {e:.6g} (tau {tau:.2f})"))
     timing["fit_s"] = time.perf_counter() - t
     say(f"fitted in {result.iterations} iterations, {timing['fit_s']:.2f} s: {result.stop_reason}")
-    # the guarantees (a dense check against the bodies, mostly in libigl and numpy, which let
-    # go of the interpreter) run beside the evaluation and the exports, on the other core; one
-    # thread limit for both threads, so neither restores the other's count when it ends
-    with limited_threads(), ThreadPoolExecutor(1, "sitrelax-guarantees") as pool:
-        check = functools.partial(_timed, fit_guarantees, result, people,
-                                  scenario.surface.params)
-        checking = pool.submit(check) if beside else None
+    # the guarantees' check (dense, against the bodies: mostly libigl and numpy, which let go
+    # of the interpreter) and then the design sheet run on a second thread, beside the
+    # evaluation and the exports; one BLAS limit around both threads, so that neither restores
+    # the other's count when it ends
+    with limited_threads(), ThreadPoolExecutor(1, "sitrelax-beside") as pool:
+        submit = pool.submit if beside else _now
+        checking = submit(_timed, fit_guarantees, result, people, scenario.surface.params)
         t = time.perf_counter()
         _, persons, maps = evaluate_fit(scenario, people, result)
         timing["evaluate_s"] = time.perf_counter() - t
+        if pictures:  # (after the check on the one thread beside: it waits for no one)
+            title = Path(scenario_path).stem if scenario_path else "scenario"
+            sheet = submit(_timed, _design_sheet, out / "sheet.png", title, result, people,
+                           maps, checking, persons, dict(timing), scenario.surface.params.creases)
         t = time.perf_counter()
         files = export_scene(out, result, people, maps, formats=tuple(formats), unit=unit,
                              up=up, creases=scenario.surface.params.creases, pictures=pictures)
         timing["export_s"] = time.perf_counter() - t
         fabrication = _workshop(out, result, people, workshop, files, timing, say,
                                 scenario.surface.params.creases)
-        guarantees, timing["guarantees_s"] = checking.result() if beside else check()
-    if pictures:
-        from solver.scene.sheet import write_design_sheet
-
-        t = time.perf_counter()
-        title = Path(scenario_path).stem if scenario_path else "scenario"
-        limit = result.limit_surface(scenario.surface.params.creases)
-        write_design_sheet(out / "sheet.png", title, limit, result.surface_faces, people, maps,
-                           {"guarantees": guarantees, "persons": persons, "timing": timing,
-                            "iterations": result.iterations})
-        files["sheet_png"] = "sheet.png"
-        timing["sheet_s"] = time.perf_counter() - t
+        guarantees, timing["guarantees_s"] = checking.result()
+        if pictures:
+            files["sheet_png"], timing["sheet_s"] = sheet.result()
     timing["total_s"] = time.perf_counter() - start
     report = {
         "scenario": str(scenario_path),
@@ -400,6 +395,26 @@ def _timed(func: Callable, *args):
     """func(*args) and the seconds it took."""
     t = time.perf_counter()
     return func(*args), time.perf_counter() - t
+
+
+def _now(func: Callable, *args) -> Future:
+    """func(*args) called now, as a finished future (`run_fit`'s work in turn)."""
+    done = Future()
+    done.set_result(func(*args))
+    return done
+
+
+def _design_sheet(path: Path, title: str, result: FitResult, people: list[PlacedPerson],
+                  maps: list, checking: Future, persons: list[dict], timing: dict,
+                  creases=()) -> str:
+    """`run_fit`'s sheet.png once the guarantees' check (`checking`) is done; its name."""
+    from solver.scene.sheet import write_design_sheet
+
+    guarantees, _ = checking.result()
+    write_design_sheet(path, title, result.limit_surface(creases), result.surface_faces, people,
+                       maps, {"guarantees": guarantees, "persons": persons, "timing": timing,
+                              "iterations": result.iterations})
+    return path.name
 
 
 def fit_guarantees(result: FitResult, people: list[PlacedPerson], params) -> dict:
