@@ -293,7 +293,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
             progress: Callable[[str], None] | None = None, formats=("obj", "ply", "glb"),
             unit: str | None = None, up: str | None = None,
             workshop: WorkshopOptions | None = None, pictures: bool = True,
-            beside: bool = True) -> dict:
+            beside: bool | None = None) -> dict:
     """Fits a scenario and writes everything into `out_dir` (`sitrelax fit`).
 
     Parameters
@@ -311,9 +311,9 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         None: m and Y up for OBJ and PLY, mm and Z up for .3dm (GLB: always m and Y up).
     pictures : False skips scene.png, pressure.png and pressure_map.png (the report's
         "pictures" says so); the workshop's pictures are made when asked for.
-    beside : the guarantees' check and the design sheet on a second thread, beside the
-        evaluation and the exports (False: in this thread, in turn, as a batch's workers run
-        them: one per core).
+    beside : the guarantees' check on a second thread beside the evaluation, then the design
+        sheet there beside the exports; None (the default): when the machine has more than one
+        core; False: all in this thread, in turn (a batch's workers, one per core).
 
     Returns
     -------
@@ -342,10 +342,12 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         f"iteration {i}: energy {e:.6g} (tau {tau:.2f})"))
     timing["fit_s"] = time.perf_counter() - t
     say(f"fitted in {result.iterations} iterations, {timing['fit_s']:.2f} s: {result.stop_reason}")
-    # the guarantees' check (dense, against the bodies: mostly libigl and numpy, which let go
-    # of the interpreter) and then the design sheet run on a second thread, beside the
-    # evaluation and the exports; one BLAS limit around both threads, so that neither restores
-    # the other's count when it ends
+    # the guarantees' check, then the design sheet, on a second thread: the check beside the
+    # evaluation, the sheet beside the exports (their numpy, PNG compression and file writes
+    # let go of the interpreter; libigl's queries do not); the BLAS limit is held around both,
+    # so the second thread's stays at the solver's count while the evaluation's own limits
+    # come and go
+    beside = (os.cpu_count() or 1) > 1 if beside is None else beside
     with limited_threads(), ThreadPoolExecutor(1, "sitrelax-beside") as pool:
         submit = pool.submit if beside else _now
         checking = submit(_timed, fit_guarantees, result, people, scenario.surface.params)
