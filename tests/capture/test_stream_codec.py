@@ -169,6 +169,7 @@ def _check_damage(n, seed, ops, splits, strict):
     blobs = _encode(values)
     damaged = set()
     shortened = set()  # frames cut short at some point
+    recounted = set()  # frames whose DataCount took a flipped bit, with no skeleton to check it
     # floats in front of the first payload byte any op changed, per frame damaged there
     untouched = {}
     prefix = [b""] * n  # stray bytes in front of each frame
@@ -212,6 +213,8 @@ def _check_damage(n, seed, ops, splits, strict):
             if pos < len(body[k]):
                 body[k][pos] ^= 1 << (param // 12 % 8)
                 damaged.add(k)
+                if pos in (6, 7) and not strict:
+                    recounted.add(k)
         else:  # interleave: part of another avatar's next frame lands in front of this one
             index = 7 + interleaved
             interleaved += 1
@@ -224,6 +227,10 @@ def _check_damage(n, seed, ops, splits, strict):
     # format has no checksum): only its header and the values no op changed still hold. That
     # includes a cut made up for by stray bytes inserted or appended to the same frame: those
     # can restore its length exactly (cut to 99 bytes, then 36 stray bytes after the header).
+    # So does a frame whose DataCount took a flipped bit, without a skeleton to give the count,
+    # when stray bytes or a cut make its payload that long (9 -> 11 values, then 8 stray bytes
+    # after the header: 11 values, the first two stray).
+    shortened |= recounted & set(untouched)
     kept_floats = {k: untouched[k] for k in shortened}
     pieces = [p + bytes(b) for p, b in zip(prefix, body)]
     stream = b"".join(pieces)
@@ -288,6 +295,24 @@ def test_a_cut_made_up_by_inserted_bytes_keeps_only_the_values_before_them():
                                                   ("insert", 0, b"\x00", 0)],
                                 splits=[], strict=True)
     np.testing.assert_array_equal(frame.values, np.r_[np.float32(0), _frames(1, 0)[0][:8]])
+
+
+def test_a_flipped_count_made_up_by_inserted_bytes_is_a_whole_frame_without_a_skeleton():
+    # Found by the property test: DataCount 9 -> 11 by a flipped bit, then twice 4 stray bytes
+    # after the header: a frame of 11 values, as consistent as any; with the skeleton's count
+    # (strict) the reader knows there are 9 and rejects it
+    sent = _frames(1, 0)[0]
+    frame = bytearray(_encode([sent])[0])
+    frame[6] ^= 2
+    frame[64:64] = bytes(8)
+    (got,), _ = decode_all(bytes(frame))
+    assert got.frame_index == 100
+    np.testing.assert_array_equal(got.values, np.r_[np.zeros(2, np.float32), sent])
+    out, stats = decode_all(bytes(frame), counts=COUNTS)
+    assert out == [] and stats.corrupt >= 1
+    _check_damage(n=1, seed=0, ops=[("header_flip", 0, b"\x00", 596),
+                                    ("insert", 0, b"\x00", 0), ("insert", 0, b"\x00", 0)],
+                  splits=[], strict=False)
 
 
 def test_a_fragment_of_a_header_inside_a_frame_means_it_was_cut_short():
