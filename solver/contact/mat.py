@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import io
 import os
-import threading
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -33,6 +32,7 @@ import numpy as np
 
 from capture.files import write_atomic
 from solver.body.model import BODY_REGIONS
+from solver.kept import KeptByContent
 
 # seat pressure distribution bands, kPa: [0, 2), [2, 4), ... [10, inf)
 PRESSURE_BANDS_KPA = (0.0, 2.0, 4.0, 6.0, 8.0, 10.0)
@@ -348,9 +348,8 @@ def mat_figures(contacts: Sequence[SupportContact], areas: np.ndarray, mass_kg: 
     return {"body_weight_n": weight_n, "supports": supports, "total": total}
 
 
-_GRIDS: dict[tuple, tuple[np.ndarray, np.ndarray] | None] = {}  # by the quads' content
-_GRIDS_LOCK = threading.Lock()
 KEPT_GRIDS = 8
+_GRIDS = KeptByContent(KEPT_GRIDS)  # by the quads' content
 
 
 def surface_grid(quads: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
@@ -358,19 +357,14 @@ def surface_grid(quads: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     fit asks for the same surface's; the grid is found in Python, face by face). The arrays
     are shared: not to be written to."""
     q = np.asarray(quads)
-    key = (q.shape, str(q.dtype), hash(q.tobytes()))
-    with _GRIDS_LOCK:  # (the studio evaluates from several threads)
-        if key in _GRIDS:
-            return _GRIDS[key]
-    grid = _surface_grid(q)
-    if grid is not None:
-        for a in grid:
-            a.setflags(write=False)
-    with _GRIDS_LOCK:
-        while len(_GRIDS) >= KEPT_GRIDS:
-            del _GRIDS[next(iter(_GRIDS))]
-        _GRIDS[key] = grid
-    return grid
+    kept = _GRIDS.entry(q)
+    if "grid" not in kept:
+        grid = _surface_grid(q)
+        if grid is not None:
+            for a in grid:
+                a.setflags(write=False)
+        kept["grid"] = grid
+    return kept["grid"]
 
 
 def _surface_grid(quads: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:

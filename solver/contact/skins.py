@@ -10,30 +10,19 @@ many of them ask.
 
 from __future__ import annotations
 
-import threading
-
 import numpy as np
 
 import solver.threads  # noqa: F401  (libigl's thread count, set before libigl first runs)
+from solver.kept import KeptByContent
 
 KEPT_SKINS = 16  # skins whose structures are kept (a scene of several people asks for each)
-_SKINS: dict[tuple, dict] = {}
-_LOCK = threading.Lock()  # the studio evaluates from several threads
+_SKINS = KeptByContent(KEPT_SKINS)
 
 
 def _kept(vertices: np.ndarray, triangles: np.ndarray | None) -> dict:
     """The structures kept for a skin (vertices (V, 3) float64, triangles (F, 3) int64 or None
     for the vertices alone), by content."""
-    key = (vertices.shape, hash(vertices.tobytes()),
-           None if triangles is None else (triangles.shape, hash(triangles.tobytes())))
-    with _LOCK:
-        kept = _SKINS.pop(key, None)
-        if kept is None:
-            kept = {}
-            while len(_SKINS) >= KEPT_SKINS:
-                del _SKINS[next(iter(_SKINS))]
-        _SKINS[key] = kept  # the last asked for last: the least recently asked go first
-    return kept
+    return _SKINS.entry(vertices, triangles)
 
 
 def _skin_tree(vertices: np.ndarray, triangles: np.ndarray, kind: str):

@@ -34,7 +34,7 @@ def test_kept_winding_numbers_are_libigls():
 
 
 def test_the_skins_asked_for_least_recently_go_first(monkeypatch):
-    monkeypatch.setattr(skins, "_SKINS", {})
+    monkeypatch.setattr(skins, "_SKINS", skins.KeptByContent(KEPT_SKINS))
     first, second = _ball(), _ball((0.5, 0.0, 0.0))
     winding, other = body_winding(*first), body_winding(*second)
     for k in range(1, KEPT_SKINS):
