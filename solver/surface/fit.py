@@ -131,6 +131,15 @@ RIM_SLANT = 0.33  # ... and this much more per metre the skin lies behind the su
                   # border, skin that far out runs sideways off it: not in the foam)
 RIM_SLAB = 0.12  # metres behind the surface the foam reaches (the evaluation's 0.1 m and more)
 RIM_FRONT = 0.03  # metres in front of the surface unsupported skin still counts (it sinks)
+LID_FRONT = 0.08  # metres in front of the rim, skin of a region no one asked support for holds
+                  # the rim behind it (more than a step's 5 cm: a rim that rises or swings
+                  # towards such skin meets its row before it could pass over it in one step
+                  # and leave it in the foam behind the surface, as a stool's rising front
+                  # corner passed over a calf and pressed it at 13 kPa)
+LID_OUT = 0.03  # metres beyond the rim such skin still holds it (farther out, the rim's
+                # clearance rows keep it off)
+LID_CLEAR = 0.02  # metres the rim stays behind such skin along the rim's normal (the body
+                  # sinks as it settles)
 RIM_INNER = 0.04  # metres under the surface, inside its rim, skin still counts (deeper in, a
                   # surface over it clears it by its own shape, or does not)
 RIM_FADE = 0.03  # metres over which a skin point's row fades out at the edges of that region
@@ -735,13 +744,17 @@ class _Rim:
     ids : (k,) the sampled surface vertices on the surface's border; `before`, `after` (k,)
     their neighbours along it, in the direction the quads run it. `points` (U, 3): the body
     vertices of the parts no one asked support for that lie within RIM_SPAN of the rim where
-    the fit starts; `member` (k,) bool: the rim vertices that have had rows (they keep them,
-    inactive when not wanted, as the body's rows do)."""
+    the fit starts; `unnamed` (U,) bool: those of a body region the support does not name at
+    all (a calf under a seat; not the skin a named region leaves free, as the thighs' knee
+    crease, which may be touched); `member` (2k,) bool: the rim vertices that have had
+    clearance rows (the first k) and lid rows (the last k) (they keep them, inactive when not
+    wanted, as the body's rows do)."""
 
     ids: np.ndarray
     before: np.ndarray
     after: np.ndarray
     points: np.ndarray
+    unnamed: np.ndarray
     member: np.ndarray
     near: np.ndarray | None = None  # the points within RIM_REACH + RIM_SLACK of the rim ...
     where: np.ndarray | None = None  # ... where it lay when they were found (k, 3)
@@ -778,8 +791,14 @@ def _make_rim(sub: Subdivision, sampled: np.ndarray, targets: Sequence[Supported
     """The fit's `_Rim`, None when every body part is to be supported or the surface has no
     border; `member`: the rim vertices that had rows in a fit before (of the same quads),
     which keep them."""
-    free = [t.vertices[~np.asarray(t.supported, dtype=bool)] for t in targets
-            if t.supported is not None]
+    free, unnamed = [], []
+    for t in targets:
+        if t.supported is None:
+            continue
+        supported = np.asarray(t.supported, dtype=bool)
+        free.append(t.vertices[~supported])
+        unnamed.append(np.ones(len(free[-1]), dtype=bool) if t.regions is None else
+                       ~np.isin(t.regions[~supported], t.regions[supported]))
     points = np.concatenate(free) if free else np.zeros((0, 3))
     if not len(points):
         return None
@@ -787,9 +806,10 @@ def _make_rim(sub: Subdivision, sampled: np.ndarray, targets: Sequence[Supported
     if not len(ids):
         return None
     near, _ = cKDTree((sub.matrix @ control)[ids]).query(points, distance_upper_bound=RIM_SPAN)
-    return _Rim(ids, before, after, points[np.isfinite(near)],
-                member.copy() if member is not None and len(member) == len(ids) else
-                np.zeros(len(ids), dtype=bool))
+    kept = np.isfinite(near)
+    return _Rim(ids, before, after, points[kept], np.concatenate(unnamed)[kept],
+                member.copy() if member is not None and len(member) == 2 * len(ids) else
+                np.zeros(2 * len(ids), dtype=bool))
 
 
 def rim_rows(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray) -> Rows:
@@ -803,8 +823,15 @@ def rim_rows(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray) -> Rows:
     broken holds the rim where it is (like a body row outside every body: nothing more is
     demanded), so the rows only keep the rim from advancing over the calves, and the fit is
     judged as without them. The rows fade (scaled by a weight, 0 to 1) at the edges of the
-    region so that they do not jump as the surface moves; they join `fit.rim.member` and stay
-    (inactive when not wanted), as the body's rows do."""
+    region so that they do not jump as the surface moves.
+
+    Those rows hold the rim beside the skin, not under it: a rim that rises or swings can pass
+    over skin in front of it within one step and leave it in the foam. So skin of a region the
+    support does not name (`_Rim.unnamed`) that lies up to LID_FRONT in front of the surface,
+    from RIM_INNER inside the rim to LID_OUT beyond it, also gets a lid row on its nearest rim
+    vertex: n . v <= n . b - LID_CLEAR (the rim stays behind it along the rim's normal n), the
+    nearest such point's; a lid row already broken holds the rim where it is. Both kinds join
+    `fit.rim.member` and stay (inactive when not wanted), as the body's rows do."""
     rim = fit.rim
     p, n = surf[rim.ids], surf_n[rim.ids]
     e = np.cross(surf[rim.after] - surf[rim.before], n)  # outwards (`_rim_topology`)
@@ -813,12 +840,18 @@ def rim_rows(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray) -> Rows:
     near = rim.candidates(p)
     dist, owner = cKDTree(p).query(rim.points[near], distance_upper_bound=RIM_REACH)
     point, owner = near[np.isfinite(dist)], owner[np.isfinite(dist)]
-    demanded = np.full(len(rim.ids), -np.inf)
-    scale = np.ones(len(rim.ids))
+    k = len(rim.ids)
+    demanded, lid = np.full(k, -np.inf), np.full(k, -np.inf)
+    scale = np.ones(k)
     if len(point):
         d = rim.points[point] - p[owner]
         behind = -np.einsum("ij,ij->i", d, n[owner])
         out = np.einsum("ij,ij->i", d, e[owner])
+        over = rim.unnamed[point] & (behind < 0) & (behind > -LID_FRONT) & \
+            (out > -RIM_INNER) & (out < LID_OUT)
+        if over.any():  # the row -n . v >= -n . b + LID_CLEAR of the point nearest in front
+            np.maximum.at(lid, owner[over], LID_CLEAR - np.einsum(
+                "ij,ij->i", n[owner[over]], rim.points[point[over]]))
         # how much each point counts, fading to nothing at the edges of the region the rim
         # answers for (so that its row does not jump as the surface moves)
         weight = np.clip((behind + RIM_FRONT) / RIM_FRONT, 0.0, 1.0) * \
@@ -837,11 +870,13 @@ def rim_rows(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray) -> Rows:
             scale[owner[top]] = weight[top]
             demanded[owner[top]] = weight[top] * (
                 clear[top] - np.einsum("ij,ij->i", e[owner[top]], rim.points[point[top]]))
+    demanded = np.concatenate([demanded, lid])
     rim.member |= np.isfinite(demanded)
-    normals = -scale[:, None] * e
-    now = np.einsum("ij,ij->i", normals, p)
+    normals = np.concatenate([-scale[:, None] * e, -n])
+    now = np.einsum("ij,ij->i", normals, np.concatenate([p, p]))
     keep = rim.member
-    return Rows(rim.ids[keep], normals[keep], np.minimum(demanded, now)[keep], now[keep])
+    return Rows(np.tile(rim.ids, 2)[keep], normals[keep], np.minimum(demanded, now)[keep],
+                now[keep])
 
 
 @dataclass(frozen=True, eq=False)

@@ -403,6 +403,48 @@ def test_rim_rows_keep_the_edge_clear_of_unsupported_skin_in_its_foam(ball):
             assert rows.demanded[k] < rows.now[k]
 
 
+def test_lid_rows_keep_the_rim_behind_skin_of_unnamed_regions_in_front_of_it(ball):
+    """Unsupported skin in front of a flat 1.2 x 0.8 m grid (y = 0.45, facing up), 1 cm inside
+    its +z rim (z = 0.4): a calf point 5 cm above the grid holds its nearest rim vertex 2 cm
+    under it (n . v <= n . b - LID_CLEAR, as the row -n . v >= LID_CLEAR - n . b); a calf
+    point 1 cm above it, nearer than that already, holds the rim where it is (and also gets
+    the clearance row of skin just in front of the rim, faded by its height); none comes from a calf point 10 cm above
+    (beyond LID_FRONT), one 5 cm beyond the rim (beyond LID_OUT), or the free skin of a
+    supported region (a thigh's knee crease, which may be touched). Worked out by hand."""
+    from solver.body.model import BODY_REGIONS
+
+    v, t, normals, areas, importance = ball
+    thighs, calves = BODY_REGIONS.index("thighs"), BODY_REGIONS.index("calves")
+    free = np.array([[0.0, 0.50, 0.39],  # calf, 5 cm in front: a lid row
+                     [-0.4, 0.46, 0.39],  # calf, 1 cm in front: a lid row holding the rim
+                     [0.2, 0.55, 0.39],  # calf, 10 cm in front: none
+                     [0.4, 0.50, 0.45],  # calf, 5 cm beyond the rim: none
+                     [-0.2, 0.50, 0.39]])  # a thigh's unsupported skin: none
+    region = np.array([calves, calves, calves, calves, thighs])
+    body = SupportedBody(np.concatenate([v, free]),
+                         np.concatenate([normals, np.tile([0.0, 0.0, 1.0], (len(free), 1))]),
+                         np.concatenate([importance, np.zeros(len(free))]), "ball",
+                         supported=np.r_[np.ones(len(v), bool), np.zeros(len(free), bool)],
+                         regions=np.r_[np.full(len(v), thighs), region])
+    grid_v, grid_f = grid_mesh((1.2, 0.8), (8, 6), 0.45)
+    fit = F.prepare(grid_v, grid_f, [body], F.FitParams())
+    surf = fit.sub.matrix @ fit.v0
+    rows = F.rim_rows(fit, surf, fit.sub.normals(surf))
+    lid = np.flatnonzero(np.abs(rows.normals @ [0.0, -1.0, 0.0] - 1.0) < 1e-9)
+    rim_of = [fit.rim.ids[np.argmin(np.linalg.norm(surf[fit.rim.ids] - p, axis=1))]
+              for p in free]
+    assert sorted(rows.rows[lid]) == sorted(rim_of[:2])
+    first, second = (lid[rows.rows[lid] == rim_of[j]][0] for j in range(2))
+    np.testing.assert_allclose(rows.now[first], -0.45, atol=1e-9)
+    np.testing.assert_allclose(rows.demanded[first], F.LID_CLEAR - 0.50, atol=1e-9)
+    np.testing.assert_allclose(rows.demanded[second], rows.now[second])  # held where it is
+    assert F.LID_CLEAR - 0.46 > rows.now[second]  # (the premise: it is too near)
+    clearance = np.setdiff1d(np.arange(len(rows.rows)), lid)
+    assert list(rows.rows[clearance]) == [rim_of[1]]
+    fade = (F.RIM_FRONT - 0.01) / F.RIM_FRONT  # its weight, 1 cm in front of the surface
+    np.testing.assert_allclose(rows.normals[clearance[0]], [0.0, 0.0, -fade], atol=1e-9)
+
+
 def test_a_fit_keeps_its_rim_off_unsupported_skin_beyond_it():
     """Supported skin facing down 1 cm above a 0.3 m grid reaches 10 cm past its front rim (z
     = 0.15) and pulls the rim forwards; unsupported skin just beyond it (z = 0.26), 2 cm below
