@@ -132,10 +132,11 @@ RIM_SLANT = 0.33  # ... and this much more per metre the skin lies behind the su
 RIM_SLAB = 0.12  # metres behind the surface the foam reaches (the evaluation's 0.1 m and more)
 RIM_FRONT = 0.03  # metres in front of the surface unsupported skin still counts (it sinks)
 LID_FRONT = 0.08  # metres in front of the rim, skin of a region no one asked support for holds
-                  # the rim behind it (more than a step's 5 cm: a rim that rises or swings
-                  # towards such skin meets its row before it could pass over it in one step
-                  # and leave it in the foam behind the surface, as a stool's rising front
-                  # corner passed over a calf and pressed it at 13 kPa)
+                  # the rim behind it (more than a step's 5 cm along an axis: a rim that rises
+                  # or swings towards such skin meets its row before it passes over it and
+                  # leaves it in the foam behind the surface, as a stool's rising front corner
+                  # passed over a calf and pressed it at 13 kPa; the row is linear in the step,
+                  # so a corner whose normal turns fast can still pass)
 LID_OUT = 0.03  # metres beyond the rim such skin still holds it (farther out, the rim's
                 # clearance rows keep it off)
 LID_CLEAR = 0.02  # metres the rim stays behind such skin along the rim's normal (the body
@@ -290,7 +291,8 @@ class FitState:
     neighbours: np.ndarray  # `_Fit.neighbours`
     quad_maps: tuple  # `_Fit.quad_maps`
     lap: sp.csr_matrix | None = None  # `_Fit.lap`, the start's Laplacian
-    rim_member: np.ndarray | None = None  # `_Rim.member`: the rim vertices that had rows
+    rim_member: np.ndarray | None = None  # `_Rim.member`: the rim vertices that had clearance
+    # rows, then those that had lid rows
 
 
 def _search_trees(points: np.ndarray, normals: np.ndarray) -> tuple:

@@ -408,9 +408,10 @@ def test_lid_rows_keep_the_rim_behind_skin_of_unnamed_regions_in_front_of_it(bal
     its +z rim (z = 0.4): a calf point 5 cm above the grid holds its nearest rim vertex 2 cm
     under it (n . v <= n . b - LID_CLEAR, as the row -n . v >= LID_CLEAR - n . b); a calf
     point 1 cm above it, nearer than that already, holds the rim where it is (and also gets
-    the clearance row of skin just in front of the rim, faded by its height); none comes from a calf point 10 cm above
-    (beyond LID_FRONT), one 5 cm beyond the rim (beyond LID_OUT), or the free skin of a
-    supported region (a thigh's knee crease, which may be touched). Worked out by hand."""
+    the clearance row of skin just in front of the rim, faded by its height); none comes from
+    a calf point 10 cm above (beyond LID_FRONT), one 5 cm beyond the rim (beyond LID_OUT), or
+    the free skin of a supported region (a thigh's knee crease, which may be touched). Worked
+    out by hand."""
     from solver.body.model import BODY_REGIONS
 
     v, t, normals, areas, importance = ball
