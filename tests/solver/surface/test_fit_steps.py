@@ -410,8 +410,9 @@ def test_lid_rows_keep_the_rim_behind_skin_of_unnamed_regions_in_front_of_it(bal
     point 1 cm above it, nearer than that already, holds the rim where it is (and also gets
     the clearance row of skin just in front of the rim, faded by its height); none comes from
     a calf point 10 cm above (beyond LID_FRONT), one 5 cm beyond the rim (beyond LID_OUT), or
-    the free skin of a supported region (a thigh's knee crease, which may be touched). Worked
-    out by hand."""
+    the free skin of a supported region (a thigh's knee crease, which may be touched), or
+    one 6 cm inside the rim (beyond RIM_INNER); of two calf points before one rim vertex, the
+    nearer in front sets its row. Worked out by hand."""
     from solver.body.model import BODY_REGIONS
 
     v, t, normals, areas, importance = ball
@@ -420,8 +421,10 @@ def test_lid_rows_keep_the_rim_behind_skin_of_unnamed_regions_in_front_of_it(bal
                      [-0.4, 0.46, 0.39],  # calf, 1 cm in front: a lid row holding the rim
                      [0.2, 0.55, 0.39],  # calf, 10 cm in front: none
                      [0.4, 0.50, 0.45],  # calf, 5 cm beyond the rim: none
-                     [-0.2, 0.50, 0.39]])  # a thigh's unsupported skin: none
-    region = np.array([calves, calves, calves, calves, thighs])
+                     [-0.2, 0.50, 0.39],  # a thigh's unsupported skin: none
+                     [0.3, 0.50, 0.34],  # calf, 6 cm inside the rim: none
+                     [0.0, 0.52, 0.392]])  # calf, 7 cm in front of the first one's vertex
+    region = np.array([calves, calves, calves, calves, thighs, calves, calves])
     body = SupportedBody(np.concatenate([v, free]),
                          np.concatenate([normals, np.tile([0.0, 0.0, 1.0], (len(free), 1))]),
                          np.concatenate([importance, np.zeros(len(free))]), "ball",
@@ -434,6 +437,7 @@ def test_lid_rows_keep_the_rim_behind_skin_of_unnamed_regions_in_front_of_it(bal
     lid = np.flatnonzero(np.abs(rows.normals @ [0.0, -1.0, 0.0] - 1.0) < 1e-9)
     rim_of = [fit.rim.ids[np.argmin(np.linalg.norm(surf[fit.rim.ids] - p, axis=1))]
               for p in free]
+    assert rim_of[6] == rim_of[0]  # (the premise: two points before one rim vertex)
     assert sorted(rows.rows[lid]) == sorted(rim_of[:2])
     first, second = (lid[rows.rows[lid] == rim_of[j]][0] for j in range(2))
     np.testing.assert_allclose(rows.now[first], -0.45, atol=1e-9)
