@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
@@ -83,13 +85,16 @@ def pose_posture(pose: str, db: str | os.PathLike | None = None
 
 
 def design_scenario(poses: Sequence[str], db: str | os.PathLike | None = None,
-                    base: Path | None = None) -> tuple[dict, dict]:
+                    base: Path | None = None, *, waterfall: bool = False
+                    ) -> tuple[dict, dict]:
     """The scenario data a designer would start from for the poses, and what was decided.
 
     Parameters
     ----------
     poses : pose references, as a scenario's `pose` (relative BVH paths relative to `base`).
     db : the pose library for `db:` poses.
+    waterfall : a chair's or bench's front edge dropped where calves tuck under it
+        (`solver.scene.furnish.furnish`'s `waterfall`; `front_drop` then in the template).
 
     Returns
     -------
@@ -143,6 +148,13 @@ def design_scenario(poses: Sequence[str], db: str | os.PathLike | None = None,
         pitch -= pitch[-1] / 2
         for person, x, c in zip(people, pitch, centres):
             person["position"][0] = float(x - c)
+    if waterfall and kind in ("chair", "bench"):  # calves tucked under the seat's front
+        from solver.scene.furnish import furnish
+
+        _, placed = place_scene(parse_scenario(data, "design", base), db)
+        drop = furnish(kind, given, placed, waterfall=True).params.front_drop
+        if drop > 0:
+            data["surface"]["template"]["front_drop"] = drop
     built, _ = place_scene(parse_scenario(data, "design", base), db)
     data["surface"]["template"] = template_table(built.surface.template)
     return data, {"postures": postures, "posture": posture, "template": kind,
@@ -156,9 +168,14 @@ def run_design(poses: Sequence[str], out_dir: str | os.PathLike, *,
     (the scenario used, loadable by `sitrelax fit`) and everything `sitrelax fit` writes into
     `out_dir`; report.json gains "design" (the postures, their figures, the template).
 
+    A chair or bench whose fit puts a person's peak pressure on the calves (the seat's front
+    edge, held clear of calves tucked under it, can still swing up beside one) is designed
+    again with a waterfall front (`solver.scene.furnish.furnish`'s `waterfall`), fitted
+    beside in a folder of its own, and kept in its place only if it misses fewer of the bars
+    (`solver.scene.quality`); "design" says what was tried (`waterfall`).
+
     Returns the report as written. Raises DesignError (see `design_scenario`)."""
     from solver.scene.run import run_fit
-    from solver.scene.scenario import scenario_toml
 
     say = progress or (lambda message: None)
     out = Path(out_dir)
@@ -166,14 +183,58 @@ def run_design(poses: Sequence[str], out_dir: str | os.PathLike, *,
     absolute = [_absolute(p) for p in poses]
     data, decisions = design_scenario(absolute, db)
     say(f"{', '.join(decisions['postures'])}: a {decisions['template']}")
-    path = out / "scenario.toml"
     header = (f"# sitrelax design {' '.join(poses)}\n# postures: "
               f"{', '.join(decisions['postures'])}; template: {decisions['template']}\n")
-    write_atomic(path, (header + scenario_toml(data)).encode())
-    report = run_fit(path, out, db=db, progress=say, pictures=pictures)
-    report["design"] = {**decisions, "poses": list(poses), "scenario_file": "scenario.toml"}
+    report = _fit_design(out, header, data, db, say, pictures, run_fit)
+    tried = None
+    if decisions["template"] in ("chair", "bench") and _on_calves(report):
+        trial, _ = design_scenario(absolute, db, waterfall=True)
+        drop = trial["surface"]["template"].get("front_drop", 0.0)
+        tried = {"front_drop_m": drop, "misses_before": _misses(report), "kept": False}
+        if drop > 0:
+            say(f"a peak on the calves: the {decisions['template']} again, its front edge "
+                f"dropped {100 * drop:.0f} cm (a waterfall front)")
+            stage = Path(tempfile.mkdtemp(prefix=".waterfall-", dir=out))
+            try:
+                again = _fit_design(stage, header, trial, db, say, pictures, run_fit)
+                tried["misses_after"] = _misses(again)
+                if tried["misses_after"] < tried["misses_before"]:
+                    for made in stage.iterdir():  # (the same files, each replaced whole)
+                        os.replace(made, out / made.name)
+                    report, tried["kept"] = again, True
+                    report["scenario"] = str(out / "scenario.toml")
+            finally:
+                shutil.rmtree(stage, ignore_errors=True)
+            say("kept the waterfall front" if tried["kept"] else
+                "kept the straight front: the waterfall front missed as many bars or more")
+    report["design"] = {**decisions, "poses": list(poses), "scenario_file": "scenario.toml",
+                        "waterfall": tried}
     write_atomic(out / "report.json", json.dumps(report, indent=2, allow_nan=False).encode())
     return report
+
+
+def _fit_design(out: Path, header: str, data: dict, db, say, pictures: bool, run_fit) -> dict:
+    """Writes a designed scenario into `out` as scenario.toml and fits it there."""
+    from solver.scene.scenario import scenario_toml
+
+    path = out / "scenario.toml"
+    write_atomic(path, (header + scenario_toml(data)).encode())
+    return run_fit(path, out, db=db, progress=say, pictures=pictures)
+
+
+def _on_calves(report: dict) -> bool:
+    """Whether a person's peak pressure lies on the calves and their support leaves them out."""
+    return any(p.get("peak_region") == "calves" and "calves" not in p["support"]
+               for p in report["persons"])
+
+
+def _misses(report: dict) -> int:
+    """How many bars a fitted design misses (`solver.scene.quality`): its surface's and its
+    people's."""
+    from solver.scene.quality import person_misses, surface_misses
+
+    return len(surface_misses(report["guarantees"])) + \
+        sum(len(person_misses(p)) for p in report["persons"])
 
 
 def _absolute(pose: str) -> str:

@@ -13,7 +13,8 @@ into contact (it may sink up to its margin into the skin), so it never starts in
                    short of the knee pits; width over every sitter's hips and thighs plus
                    SIDE_MARGIN each side; the back leaning as the trunk (hips to neck), behind
                    the back's skin, up to the shoulder blades; arms (if asked for) under the
-                   elbows; a bench has a seat per sitter
+                   elbows; a bench has a seat per sitter; asked for (`furnish`'s
+                   `waterfall`), a front edge rounded down where calves tuck under it
     stool          the seat under the buttocks, centred on them
     floor_cushion  under the buttocks, thighs and feet of a floor sitter; its back (if asked
                    for) as a chair's
@@ -41,6 +42,7 @@ from solver.surface.templates import (TEMPLATE_PARAMS, TemplateError, TemplateMe
 CLEARANCE = 0.01  # metres between the starting surface and the skin it supports
 SIDE_MARGIN = 0.04  # metres of seat beyond the outermost hip or thigh, each side
 KNEE_PIT = 0.11  # metres from the knee joint back to where a seat's front edge ends
+WATERFALL = 0.08  # metres a chair's or bench's front edge drops where calves tuck under it
 BED_MARGIN = 0.08  # metres of bed around a lying body
 MIN_DEPTH = 0.2  # metres: no stool seat shallower
 MIN_TOP = 0.03  # metres: a cushion or bed top lower than this is no furniture
@@ -104,7 +106,8 @@ def people_heading(people: Sequence, lying: bool = False) -> float:
     return float(np.degrees(np.arctan2(f[0], f[2])))
 
 
-def furnish(kind: str, given: dict, people: Sequence) -> TemplateMesh:
+def furnish(kind: str, given: dict, people: Sequence, *, waterfall: bool = False
+            ) -> TemplateMesh:
     """The template of `kind` around the people: the parameters in `given` as they are, the
     rest measured on the people (see the module docstring).
 
@@ -114,6 +117,11 @@ def furnish(kind: str, given: dict, people: Sequence) -> TemplateMesh:
     given : parameter name -> value, those the scenario sets (lists for tuples).
     people : the placed people (`PlacedPerson`: skin vertices (V, 3) metres, body regions, the
         posed rig and its placement).
+    waterfall : a chair's or bench's `front_drop`, when not given, measured too: WATERFALL
+        (at most a quarter of the seat's depth) where calves tucked under the seat come nearer
+        its front edge than the fit's rim clearance, else none. It adds a row of quads, so a
+        scenario's template never gets it (its topology is read before the people are
+        placed): `sitrelax design` asks for it and writes the drop into the scenario.
 
     Returns
     -------
@@ -132,7 +140,8 @@ def furnish(kind: str, given: dict, people: Sequence) -> TemplateMesh:
     measure = {"chair": _seat_measures, "bench": _seat_measures, "stool": _stool_measures,
                "floor_cushion": _cushion_measures, "lounger": _lounger_measures,
                "bed": _bed_measures}[kind]
-    values = measure(kind, given, people, frame)
+    values = measure(kind, given, people, frame, waterfall) if measure is _seat_measures \
+        else measure(kind, given, people, frame)
     values = {k: float(v) if isinstance(v, (float, np.floating)) else v
               for k, v in values.items()}
     values.update(given)
@@ -237,7 +246,8 @@ def _back_line(skin: _Skin, z_rear: float, seat_y: float, angle_deg: float, top:
     return float(min(z_rear, (back[:, 2] + (back[:, 1] - seat_y) * lean).min() - CLEARANCE))
 
 
-def _seat_measures(kind: str, given: dict, people: Sequence, frame: _Local) -> dict:
+def _seat_measures(kind: str, given: dict, people: Sequence, frame: _Local,
+                   waterfall: bool = False) -> dict:
     skin = _Skin(people, frame)
     defaults = TEMPLATE_PARAMS[kind]()
     seat = skin.region("pelvis", "thighs")
@@ -263,6 +273,11 @@ def _seat_measures(kind: str, given: dict, people: Sequence, frame: _Local) -> d
     out = {"seat_height": height, "seat_tilt_deg": tilt, "seat_depth": z_front - z_rear,
            "seat_width": width / seats, "back": back, "back_angle_deg": angle,
            "position": frame.position(x0, z_rear)}
+    if waterfall and "front_drop" not in given and \
+            _calves_front(skin, _under(seat, z_rear, z_front, half, x0), x0, half) < z_front:
+        # calves tucked under the seat would meet its front edge: a waterfall front, as deep
+        # as the template allows, takes the edge down and away from them
+        out["front_drop"] = min(WATERFALL, (z_front - z_rear) / 4)
     if kind == "bench":
         out["seats"] = seats
     rear_y = height - (z_front - z_rear) * math.tan(math.radians(tilt))

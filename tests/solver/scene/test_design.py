@@ -150,7 +150,7 @@ def test_seated_people_sit_2_cm_up_at_one_height_with_every_control_vertex_free(
 
 @pytest.mark.slow
 @pytest.mark.parametrize("which, template, over_flat, calf", [
-    ("high", "chair", 0, 0), ("medium", "chair", 1, 1), ("high+medium", "bench", 2, 0),
+    ("high", "chair", 0, 0), ("medium", "chair", 1, 0), ("high+medium", "bench", 2, 0),
     ("floor", "floor_cushion", 0, 0), ("reclined", "lounger", 0, 0), ("lying", "bed", 0, 0),
     ("lying+lying", "bed", 0, 0),
 ])
@@ -161,10 +161,9 @@ def test_every_design_meets_the_bars_of_a_finished_piece(tmp_path, which, templa
     meets every bar `solver.scene.quality` reads (the surface's guarantees checked on its
     limit surface; each person's coverage, contact, rest, peak region and seated load, and the
     seat's peak against a flat seat's at the same load), but for the known misses of that last
-    bar (`over_flat` people: the medium-sit chair, the bench at 0.69 and 0.70; README,
-    "Gallery") and of the peak's region (`calf` people: the medium-sit chair, whose front
-    corner swings up beside a calf since the lid rows, 19.0 kPa on one vertex, which is also
-    the peak its flat-seat miss is of: 1.78 of the flat seat's, 0.66 before): one more, or one
+    bar (`over_flat` people: the medium-sit chair at 0.63, kept with a waterfall front after
+    its straight front's corner swung up beside a calf, 19.0 kPa; the bench at 0.68 and 0.69;
+    README, "Gallery") and of the peak's region (`calf` people: none now): one more, or one
     fewer, fails the test, so that the counts are kept true."""
     from solver.scene.design import run_design
     from solver.scene.quality import person_misses, surface_misses
@@ -175,6 +174,8 @@ def test_every_design_meets_the_bars_of_a_finished_piece(tmp_path, which, templa
     report = run_design([made[name] for name in which.split("+")], tmp_path / "out",
                         pictures=False)
     assert report["design"]["template"] == template
+    tried = report["design"]["waterfall"]
+    assert (tried is not None and tried["kept"]) == (which == "medium"), tried
     misses = surface_misses(report["guarantees"]) + \
         [m for person in report["persons"] for m in person_misses(person)]
     flat = [m for m in misses if "of a flat seat's at the same load" in m]
@@ -182,3 +183,58 @@ def test_every_design_meets_the_bars_of_a_finished_piece(tmp_path, which, templa
     assert [m for m in misses if m not in flat and m not in on_calf] == []
     assert len(flat) == over_flat, flat
     assert len(on_calf) == calf, on_calf
+
+
+@pytest.mark.parametrize("misses_after, kept", [(1, True), (2, False), (3, False)])
+def test_a_seat_with_a_peak_on_the_calves_is_tried_again_with_a_waterfall_front(
+        tmp_path, monkeypatch, misses_after, kept):
+    """run_design's second try, its fits stood in for (each writes its scenario's front drop
+    into a file of the folder it fits in, and reports misses as told): the straight front puts
+    the peak on a calf (2 misses); the waterfall front, fitted in a folder of its own, replaces
+    the first design's files only if it misses fewer bars, and its folder is gone after."""
+    import tomllib
+
+    import solver.scene.design as design
+    import solver.scene.run as run
+
+    def fake_fit(path, out, **_):
+        drop = tomllib.loads(path.read_text())["surface"]["template"].get("front_drop", 0.0)
+        (out / "surface.obj").write_text(f"drop {drop}\n")
+        (out / "report.json").write_text("{}")
+        return {"scenario": str(path), "guarantees": {}, "misses": 2 if drop == 0 else
+                misses_after,
+                "persons": [{"peak_region": "calves" if drop == 0 else "thighs",
+                             "support": ["pelvis", "thighs", "lower_back", "upper_back"]}]}
+
+    monkeypatch.setattr(run, "run_fit", fake_fit)
+    monkeypatch.setattr(design, "_misses", lambda report: report["misses"])
+    report = design.run_design([MEDIUM.format(200)], tmp_path / "out", pictures=False)
+    out = tmp_path / "out"
+    tried = report["design"]["waterfall"]
+    assert tried["front_drop_m"] > 0 and tried["misses_before"] == 2
+    assert tried["misses_after"] == misses_after and tried["kept"] is kept
+    drop = tomllib.loads((out / "scenario.toml").read_text())["surface"]["template"][
+        "front_drop"]
+    assert (drop > 0) is kept
+    assert (out / "surface.obj").read_text() == f"drop {drop}\n"
+    assert report["scenario"] == str(out / "scenario.toml")
+    assert json.loads((out / "report.json").read_text())["design"]["waterfall"] == tried
+    assert sorted(p.name for p in out.iterdir()) == ["report.json", "scenario.toml",
+                                                      "surface.obj"]
+
+
+def test_a_seat_whose_peak_is_not_on_the_calves_is_fitted_once(tmp_path, monkeypatch):
+    import solver.scene.design as design
+    import solver.scene.run as run
+
+    fits = []
+
+    def fake_fit(path, out, **_):
+        fits.append(path)
+        return {"scenario": str(path), "guarantees": {},
+                "persons": [{"peak_region": "pelvis", "support": ["pelvis", "thighs"]}]}
+
+    monkeypatch.setattr(run, "run_fit", fake_fit)
+    monkeypatch.setattr(design, "_misses", lambda report: 1)
+    report = design.run_design([MEDIUM.format(200)], tmp_path / "out", pictures=False)
+    assert len(fits) == 1 and report["design"]["waterfall"] is None

@@ -86,3 +86,27 @@ def test_a_chair_scenario_fits_through_run_fit(tmp_path):
     assert report["parameters"]["control_mesh"] == "chair template, 6 x 7 quads"
     assert report["persons"][0]["coverage"] > 0.5
     assert report["guarantees"]["self_intersections"] == 0
+
+
+def test_a_waterfall_front_is_measured_only_when_asked_and_only_over_tucked_calves():
+    """`furnish`'s waterfall: the medium-sit sitter's calves tuck under the seat's measured
+    front edge, so it drops by WATERFALL (at most a quarter of the depth); a seat 25 cm deep
+    ends well short of them and gets none; a given drop is kept; without the flag nothing
+    is measured (a scenario's template keeps the topology it was read with)."""
+    from solver.scene.furnish import WATERFALL, furnish
+
+    medium = "bvh:bundled:cmu_75_17_medium_sit.bvh#frame=200"
+
+    def built(given, waterfall=True):
+        _, people = place_scene(_scenario({"kind": "chair", **given}, persons=(medium,)))
+        return furnish("chair", given, people, waterfall=waterfall)
+
+    deep = built({})
+    assert deep.params.front_drop == pytest.approx(min(WATERFALL, deep.params.seat_depth / 4))
+    assert built({}, waterfall=False).params.front_drop == 0.0
+    assert built({"seat_depth": 0.3}).params.front_drop == pytest.approx(0.075)
+    short = built({"seat_depth": 0.25})
+    assert short.params.front_drop == 0.0
+    assert built({"front_drop": 0.02}).params.front_drop == 0.02
+    # the drop adds a row of quads along the front (the topology a scenario must say)
+    assert len(deep.quads) == len(short.quads) + 8
