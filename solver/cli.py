@@ -163,7 +163,8 @@ def _cmd_design(args: argparse.Namespace) -> int:
         print(json.dumps(report, indent=2))
         return 0
     design, g = report["design"], report["guarantees"]
-    print(f"{', '.join(design['postures'])}: {design['template']}, fitted in "
+    waterfall = " with a waterfall front" if (design["waterfall"] or {}).get("kept") else ""
+    print(f"{', '.join(design['postures'])}: {design['template']}{waterfall}, fitted in "
           f"{report['timing']['fit_s']:.2f} s ({report['iterations']} iterations)")
     for p in report["persons"]:
         print(f"{p['name']}: coverage {p['coverage']:.2f}, penetration "

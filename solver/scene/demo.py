@@ -26,7 +26,9 @@ STANDING_SECONDS = 3.0  # how much of the long standing recording is streamed
 SCENARIO = """\
 # Written by `sitrelax demo`: two people of different build on one seated pose from the library.
 [surface]
-template = {{ kind = "bench", back = true }}  # a seat with a back for both, built around them
+# a seat with a back for both, built around them; its front edge dropped 8 cm (a waterfall
+# front): the slighter person's calves tuck under it, and a straight front put her peak there
+template = {{ kind = "bench", back = true, front_drop = 0.08 }}
 level = 3
 sigma = 0.003
 tau_max = 0.5

@@ -16,8 +16,9 @@ regions that kind of furniture carries), so the scenario says `support = "chair"
 People sitting on the floor or lying are lifted by the cushion's or the bed's height (`LIFT`),
 a reclined person until the pelvis is `RECLINED_PELVIS` high, so there is furniture under them;
 seated and perched people 2 cm (so the seat, not the floor under the feet, takes most of the
-weight), several of them each to the highest pelvis (one seat height serves them all). A chair's
-seat front edge is held (`fixed`). Standing poses and poses of different postures stop with a
+weight), several of them each to the highest pelvis (one seat height serves them all). Every
+control vertex is free. A chair or bench whose fit puts a peak on the calves is tried again with
+a waterfall front (`run_design`). Standing poses and poses of different postures stop with a
 `DesignError`: there is nothing to sit on, or no one piece for them all.
 """
 

@@ -30,9 +30,14 @@ def test_demo_makes_everything(tmp_path, capsys):
     assert len(fit["persons"]) == 2
     control = trimesh.load(out / "fit" / "control.obj", process=False)
     surface = trimesh.load(out / "fit" / "surface.obj", process=False)
-    # the bench template: a regular grid of 16 x 11 quads (seat and back), level 3
-    assert len(control.vertices) == fit["control_vertices"] == 17 * 12
-    assert len(surface.vertices) == fit["surface_vertices"] == (16 * 8 + 1) * (11 * 8 + 1)
+    # the bench template: a regular grid of 16 x 12 quads (seat, waterfall front and back),
+    # level 3
+    assert fit["parameters"]["template"]["front_drop"] == 0.08
+    assert len(control.vertices) == fit["control_vertices"] == 17 * 13
+    assert len(surface.vertices) == fit["surface_vertices"] == (16 * 8 + 1) * (12 * 8 + 1)
+    # the waterfall front keeps the peak off the slighter person's calves (a straight front
+    # put 16.7 kPa there)
+    assert all(p["peak_region"] not in (None, "calves") for p in fit["persons"])
     for k in (1, 2):
         body = trimesh.load(out / "fit" / f"person_{k}.ply", process=False)
         assert len(body.vertices) == 13380
