@@ -189,14 +189,19 @@ def run_design(poses: Sequence[str], out_dir: str | os.PathLike, *,
     report = _fit_design(out, header, data, db, say, pictures, run_fit)
     tried = None
     if decisions["template"] in ("chair", "bench") and _on_calves(report):
-        trial, _ = design_scenario(absolute, db, waterfall=True)
-        drop = trial["surface"]["template"].get("front_drop", 0.0)
-        tried = {"front_drop_m": drop, "misses_before": _misses(report), "kept": False}
-        if drop > 0:
-            say(f"a peak on the calves: the {decisions['template']} again, its front edge "
-                f"dropped {100 * drop:.0f} cm (a waterfall front)")
-            stage = Path(tempfile.mkdtemp(prefix=".waterfall-", dir=out))
-            try:
+        from solver.scene.scenario import ScenarioError
+        from solver.surface.fit import FitError
+        from solver.surface.templates import TemplateError
+
+        tried = {"front_drop_m": 0.0, "misses_before": _misses(report), "kept": False}
+        stage = None
+        try:  # (the straight front's design stands whatever becomes of the waterfall's)
+            trial, _ = design_scenario(absolute, db, waterfall=True)
+            tried["front_drop_m"] = trial["surface"]["template"].get("front_drop", 0.0)
+            if tried["front_drop_m"] > 0:
+                say(f"a peak on the calves: the {decisions['template']} again, its front edge "
+                    f"dropped {100 * tried['front_drop_m']:.0f} cm (a waterfall front)")
+                stage = Path(tempfile.mkdtemp(prefix=".waterfall-", dir=out))
                 again = _fit_design(stage, header, trial, db, say, pictures, run_fit)
                 tried["misses_after"] = _misses(again)
                 if tried["misses_after"] < tried["misses_before"]:
@@ -204,10 +209,14 @@ def run_design(poses: Sequence[str], out_dir: str | os.PathLike, *,
                         os.replace(made, out / made.name)
                     report, tried["kept"] = again, True
                     report["scenario"] = str(out / "scenario.toml")
-            finally:
+                say("kept the waterfall front" if tried["kept"] else
+                    "kept the straight front: the waterfall front missed as many bars or more")
+        except (ScenarioError, TemplateError, FitError) as exc:
+            tried["error"] = str(exc)
+            say(f"kept the straight front: the waterfall front failed: {exc}")
+        finally:
+            if stage is not None:
                 shutil.rmtree(stage, ignore_errors=True)
-            say("kept the waterfall front" if tried["kept"] else
-                "kept the straight front: the waterfall front missed as many bars or more")
     report["design"] = {**decisions, "poses": list(poses), "scenario_file": "scenario.toml",
                         "waterfall": tried}
     write_atomic(out / "report.json", json.dumps(report, indent=2, allow_nan=False).encode())

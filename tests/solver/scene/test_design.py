@@ -238,3 +238,30 @@ def test_a_seat_whose_peak_is_not_on_the_calves_is_fitted_once(tmp_path, monkeyp
     monkeypatch.setattr(design, "_misses", lambda report: 1)
     report = design.run_design([MEDIUM.format(200)], tmp_path / "out", pictures=False)
     assert len(fits) == 1 and report["design"]["waterfall"] is None
+
+
+def test_a_waterfall_front_that_fails_leaves_the_straight_front_as_it_was(tmp_path,
+                                                                          monkeypatch):
+    """The second try's fit fails (a FitError): the first design's files and report stand,
+    "design" says why, and the try's folder is gone."""
+    import solver.scene.design as design
+    import solver.scene.run as run
+    from solver.surface.fit import FitError
+
+    def fake_fit(path, out, **_):
+        if out.name.startswith(".waterfall-"):
+            raise FitError("no step")
+        (out / "surface.obj").write_text("straight\n")
+        return {"scenario": str(path), "guarantees": {}, "misses": 2,
+                "persons": [{"peak_region": "calves", "support": ["pelvis", "thighs"]}]}
+
+    monkeypatch.setattr(run, "run_fit", fake_fit)
+    monkeypatch.setattr(design, "_misses", lambda report: report["misses"])
+    report = design.run_design([MEDIUM.format(200)], tmp_path / "out", pictures=False)
+    out = tmp_path / "out"
+    assert report["design"]["waterfall"]["kept"] is False
+    assert report["design"]["waterfall"]["error"] == "no step"
+    assert (out / "surface.obj").read_text() == "straight\n"
+    assert "front_drop = 0.0\n" in (out / "scenario.toml").read_text()
+    assert sorted(p.name for p in out.iterdir()) == ["report.json", "scenario.toml",
+                                                      "surface.obj"]
