@@ -163,9 +163,12 @@ def _cmd_design(args: argparse.Namespace) -> int:
         print(json.dumps(report, indent=2))
         return 0
     design, g = report["design"], report["guarantees"]
-    waterfall = " with a waterfall front" if (design["waterfall"] or {}).get("kept") else ""
+    tried = design["waterfall"] or {}
+    waterfall = " with a waterfall front" if tried.get("kept") else ""
+    before = f"; after the straight front's fit, {tried['straight_fit_s']:.2f} s" if \
+        tried.get("kept") and tried.get("straight_fit_s") is not None else ""
     print(f"{', '.join(design['postures'])}: {design['template']}{waterfall}, fitted in "
-          f"{report['timing']['fit_s']:.2f} s ({report['iterations']} iterations)")
+          f"{report['timing']['fit_s']:.2f} s ({report['iterations']} iterations{before})")
     for p in report["persons"]:
         print(f"{p['name']}: coverage {p['coverage']:.2f}, penetration "
               f"{p['max_penetration_m'] * 1000:.0f} mm, peak {peak_text(p)}")

@@ -186,41 +186,94 @@ def run_design(poses: Sequence[str], out_dir: str | os.PathLike, *,
     say(f"{', '.join(decisions['postures'])}: a {decisions['template']}")
     header = (f"# sitrelax design {' '.join(poses)}\n# postures: "
               f"{', '.join(decisions['postures'])}; template: {decisions['template']}\n")
+    for stale in out.glob(".waterfall-*"):  # a second try an earlier run did not finish
+        shutil.rmtree(stale, ignore_errors=True)
     report = _fit_design(out, header, data, db, say, pictures, run_fit)
-    tried = None
+    designed = {**decisions, "poses": list(poses), "scenario_file": "scenario.toml",
+                "waterfall": None}
+    report["design"] = designed
+    _write_report(out, report)  # (complete before any second try: it may not finish)
     if decisions["template"] in ("chair", "bench") and _on_calves(report):
-        from solver.scene.scenario import ScenarioError
-        from solver.surface.fit import FitError
-        from solver.surface.templates import TemplateError
-
-        tried = {"front_drop_m": 0.0, "misses_before": _misses(report), "kept": False}
-        stage = None
-        try:  # (the straight front's design stands whatever becomes of the waterfall's)
-            trial, _ = design_scenario(absolute, db, waterfall=True)
-            tried["front_drop_m"] = trial["surface"]["template"].get("front_drop", 0.0)
-            if tried["front_drop_m"] > 0:
-                say(f"a peak on the calves: the {decisions['template']} again, its front edge "
-                    f"dropped {100 * tried['front_drop_m']:.0f} cm (a waterfall front)")
-                stage = Path(tempfile.mkdtemp(prefix=".waterfall-", dir=out))
-                again = _fit_design(stage, header, trial, db, say, pictures, run_fit)
-                tried["misses_after"] = _misses(again)
-                if tried["misses_after"] < tried["misses_before"]:
-                    for made in stage.iterdir():  # (the same files, each replaced whole)
-                        os.replace(made, out / made.name)
-                    report, tried["kept"] = again, True
-                    report["scenario"] = str(out / "scenario.toml")
-                say("kept the waterfall front" if tried["kept"] else
-                    "kept the straight front: the waterfall front missed as many bars or more")
-        except (ScenarioError, TemplateError, FitError) as exc:
-            tried["error"] = str(exc)
-            say(f"kept the straight front: the waterfall front failed: {exc}")
-        finally:
-            if stage is not None:
-                shutil.rmtree(stage, ignore_errors=True)
-    report["design"] = {**decisions, "poses": list(poses), "scenario_file": "scenario.toml",
-                        "waterfall": tried}
-    write_atomic(out / "report.json", json.dumps(report, indent=2, allow_nan=False).encode())
+        tried, kept = _try_waterfall(out, header, absolute, db, report, designed, say,
+                                     pictures, run_fit)
+        if kept is not None:  # (in place, with its report, already)
+            return kept
+        report["design"] = {**designed, "waterfall": tried}
+        _write_report(out, report)
     return report
+
+
+def _write_report(out: Path, report: dict) -> None:
+    write_atomic(out / "report.json", json.dumps(report, indent=2, allow_nan=False).encode())
+
+
+def _try_waterfall(out: Path, header: str, poses: Sequence[str], db, report: dict,
+                   designed: dict, say, pictures: bool, run_fit) -> tuple[dict, dict | None]:
+    """`run_design`'s second try, after a chair or bench put a peak on the calves: the design
+    again with a waterfall front, fitted in a folder of its own inside `out` and moved into
+    `out` with its report (`designed` and what was tried as its "design") only if it misses
+    fewer bars than `report` (the straight front's, written there already).
+
+    Returns what was tried and the waterfall front's report if it was kept (else None). What
+    was tried: `front_drop_m` (0 when no calves tuck under the seat's front: nothing is
+    fitted), the bars missed before and after, whether the waterfall front was `kept`, the
+    straight front's fit time (`straight_fit_s`) and the `error` that stopped the try, if any
+    (the straight front's design then stands)."""
+    from solver.scene.scenario import ScenarioError
+    from solver.surface.fit import FitError
+    from solver.surface.templates import TemplateError
+
+    tried = {"front_drop_m": 0.0, "misses_before": _misses(report), "kept": False,
+             "straight_fit_s": report.get("timing", {}).get("fit_s")}
+    stage = None
+    try:
+        trial, _ = design_scenario(poses, db, waterfall=True)
+        tried["front_drop_m"] = trial["surface"]["template"].get("front_drop", 0.0)
+        if tried["front_drop_m"] > 0:
+            say(f"a peak on the calves: the design again, its front edge dropped "
+                f"{100 * tried['front_drop_m']:.0f} cm (a waterfall front)")
+            stage = Path(tempfile.mkdtemp(prefix=".waterfall-", dir=out))
+            again = _fit_design(stage, header, trial, db, say, pictures, run_fit)
+            tried["misses_after"] = _misses(again)
+            if tried["misses_after"] < tried["misses_before"]:
+                tried["kept"] = True
+                again["scenario"] = str(out / "scenario.toml")
+                again["design"] = {**designed, "waterfall": tried}
+                _write_report(stage, again)
+                _replace_all(stage, out)
+                say("kept the waterfall front")
+                return tried, again
+            say("kept the straight front: the waterfall front missed as many bars or more")
+    except (ScenarioError, TemplateError, FitError) as exc:
+        tried["error"] = str(exc)
+        say(f"kept the straight front: the waterfall front failed: {exc}")
+    finally:
+        if stage is not None:
+            shutil.rmtree(stage, ignore_errors=True)
+    return tried, None
+
+
+def _replace_all(stage: Path, out: Path) -> None:
+    """Moves every file of `stage` into `out`, in place of the file of the same name; should
+    a move fail, every file moved so far goes back where it was, in `stage` or in `out` (and
+    the error is raised)."""
+    backup = Path(tempfile.mkdtemp(prefix=".straight-", dir=out))
+    done = []  # the names moved (out's own file of that name, if any, now in backup)
+    try:
+        for made in sorted(stage.iterdir()):
+            if (out / made.name).exists():
+                os.replace(out / made.name, backup / made.name)
+            done.append(made.name)
+            os.replace(made, out / made.name)
+    except OSError:
+        for name in reversed(done):
+            if not (stage / name).exists() and (out / name).exists():
+                os.replace(out / name, stage / name)
+            if (backup / name).exists():
+                os.replace(backup / name, out / name)
+        raise
+    finally:
+        shutil.rmtree(backup, ignore_errors=True)
 
 
 def _fit_design(out: Path, header: str, data: dict, db, say, pictures: bool, run_fit) -> dict:

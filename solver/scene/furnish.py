@@ -275,8 +275,8 @@ def _seat_measures(kind: str, given: dict, people: Sequence, frame: _Local,
            "position": frame.position(x0, z_rear)}
     if waterfall and "front_drop" not in given and \
             _calves_front(skin, _under(seat, z_rear, z_front, half, x0), x0, half) < z_front:
-        # calves tucked under the seat would meet its front edge: a waterfall front, as deep
-        # as the template allows, takes the edge down and away from them
+        # calves tucked under the seat would meet its front edge: a waterfall front (8 cm, at
+        # most a quarter of the depth) takes the edge down and away from them
         out["front_drop"] = min(WATERFALL, (z_front - z_rear) / 4)
     if kind == "bench":
         out["seats"] = seats

@@ -265,3 +265,92 @@ def test_a_waterfall_front_that_fails_leaves_the_straight_front_as_it_was(tmp_pa
     assert "front_drop = 0.0\n" in (out / "scenario.toml").read_text()
     assert sorted(p.name for p in out.iterdir()) == ["report.json", "scenario.toml",
                                                       "surface.obj"]
+
+
+def _calf_peak_fit(fits):
+    """A stand-in for run_fit whose straight front puts the peak on a calf (2 misses)."""
+    def fake_fit(path, out, **_):
+        fits.append(out.name)
+        (out / "surface.obj").write_text(f"{out.name}\n")
+        return {"scenario": str(path), "guarantees": {}, "misses": 2,
+                "persons": [{"peak_region": "calves", "support": ["pelvis", "thighs"]}]}
+    return fake_fit
+
+
+def test_no_second_fit_when_no_calves_tuck_under_the_front(tmp_path, monkeypatch):
+    import solver.scene.design as design
+    import solver.scene.run as run
+
+    fits = []
+    straight = design.design_scenario
+    monkeypatch.setattr(run, "run_fit", _calf_peak_fit(fits))
+    monkeypatch.setattr(design, "_misses", lambda report: report["misses"])
+    monkeypatch.setattr(design, "design_scenario",  # (the measure finds no tucked calves)
+                        lambda poses, db=None, base=None, waterfall=False:
+                        straight(poses, db, base))
+    report = design.run_design([MEDIUM.format(200)], tmp_path / "out", pictures=False)
+    assert fits == ["out"]
+    assert report["design"]["waterfall"] == {"front_drop_m": 0.0, "misses_before": 2,
+                                             "kept": False, "straight_fit_s": None}
+
+
+def test_the_first_design_is_complete_before_the_second_try(tmp_path, monkeypatch):
+    """The second try is stopped from outside (an interrupt in its fit): the straight front's
+    report already says what was designed, and the try's folder is gone."""
+    import solver.scene.design as design
+    import solver.scene.run as run
+
+    fits = []
+    first = _calf_peak_fit(fits)
+
+    def fake_fit(path, out, **kw):
+        if out.name.startswith(".waterfall-"):
+            raise KeyboardInterrupt
+        return first(path, out, **kw)
+
+    monkeypatch.setattr(run, "run_fit", fake_fit)
+    monkeypatch.setattr(design, "_misses", lambda report: report["misses"])
+    (tmp_path / "out" / ".waterfall-stale").mkdir(parents=True)  # an earlier run's, unfinished
+    with pytest.raises(KeyboardInterrupt):
+        design.run_design([MEDIUM.format(200)], tmp_path / "out", pictures=False)
+    out = tmp_path / "out"
+    saved = json.loads((out / "report.json").read_text())
+    assert saved["design"]["template"] == "chair" and saved["design"]["waterfall"] is None
+    assert sorted(p.name for p in out.iterdir()) == ["report.json", "scenario.toml",
+                                                      "surface.obj"]
+
+
+def test_replacing_the_design_s_files_is_undone_when_a_move_fails(tmp_path, monkeypatch):
+    """`_replace_all` with its fourth move failing: `out` is as it was (the user's own file
+    untouched), the new files are back in the stage, and a second go moves them all."""
+    import os
+
+    import solver.scene.design as design
+
+    stage, out = tmp_path / "stage", tmp_path / "out"
+    stage.mkdir()
+    out.mkdir()
+    for name in ("a.obj", "b.obj", "report.json"):
+        (stage / name).write_text("new")
+    (out / "a.obj").write_text("old")
+    (out / "report.json").write_text("old")
+    (out / "notes.txt").write_text("the user's")
+    real, moves = os.replace, []
+
+    def failing(src, dst):
+        moves.append(src)
+        if len(moves) == 4:  # a.obj out and in, b.obj in, then report.json's first move
+            raise OSError("disk full")
+        real(src, dst)
+
+    monkeypatch.setattr(design.os, "replace", failing)
+    with pytest.raises(OSError, match="disk full"):
+        design._replace_all(stage, out)
+    monkeypatch.setattr(design.os, "replace", real)
+    assert {p.name: p.read_text() for p in out.iterdir()} == {
+        "a.obj": "old", "report.json": "old", "notes.txt": "the user's"}
+    assert sorted(p.name for p in stage.iterdir()) == ["a.obj", "b.obj", "report.json"]
+    assert not [p for p in out.iterdir() if p.name.startswith(".straight-")]
+    design._replace_all(stage, out)
+    assert {p.name: p.read_text() for p in out.iterdir()} == {
+        "a.obj": "new", "b.obj": "new", "report.json": "new", "notes.txt": "the user's"}
