@@ -807,8 +807,13 @@ def _make_rim(sub: Subdivision, sampled: np.ndarray, targets: Sequence[Supported
     ids, before, after = sub.kept("fit.rim", lambda: _rim_topology(sub.faces, sampled))
     if not len(ids):
         return None
-    near, _ = cKDTree((sub.matrix @ control)[ids]).query(points, distance_upper_bound=RIM_SPAN)
-    kept = np.isfinite(near)
+    rim = (sub.matrix @ control)[ids]
+    # (only the skin within the rim's box, RIM_SPAN wider, can lie within RIM_SPAN of it)
+    boxed = np.flatnonzero(np.all((points >= rim.min(axis=0) - RIM_SPAN) &
+                                  (points <= rim.max(axis=0) + RIM_SPAN), axis=1))
+    near, _ = cKDTree(rim).query(points[boxed], distance_upper_bound=RIM_SPAN)
+    kept = np.zeros(len(points), dtype=bool)
+    kept[boxed[np.isfinite(near)]] = True
     return _Rim(ids, before, after, points[kept], np.concatenate(unnamed)[kept],
                 member.copy() if member is not None and len(member) == 2 * len(ids) else
                 np.zeros(2 * len(ids), dtype=bool))
@@ -1260,7 +1265,10 @@ def _crossings(fit: _Fit, limit: np.ndarray) -> int:
     border = fit.sub.kept("disk_border", lambda: disk_border(fit.sub.faces, len(limit)))
     if border is not None and one_to_one_over_plane(limit, fit.sub.triangles, border):
         return 0
-    return len(crossing_pairs(limit, fit.sub.triangles, whole_tried=True))
+    # (the one thing kept with the operator that is written to: a cache of the pieces'
+    # topology, `crossing_pairs`' own, which it bounds)
+    return len(crossing_pairs(limit, fit.sub.triangles, whole_tried=True,
+                              pieces=fit.sub.kept("fit.crossing_pieces", dict)))
 
 
 def uncrossed(fit: _Fit, accepted: Sequence[np.ndarray]) -> tuple[int, int]:

@@ -34,6 +34,7 @@ ONE_TO_ONE_MARGIN = 1e-9  # relative: how clearly `one_to_one_over_plane` must s
 ONE_TO_ONE_TURNS = 16  # times it may turn its plane towards the triangle facing it least
 ONE_TO_ONE_NUDGE = 0.05  # how far each such triangle is turned to face the plane (a cosine)
 CROSSING_LEAF = 512  # triangles: a piece this small is searched for crossings pair by pair
+PIECES_KEPT = 256  # pieces whose topology `crossing_pairs` keeps for its caller
 
 
 def quad_normals(vertices: np.ndarray, quads: np.ndarray) -> np.ndarray:
@@ -180,8 +181,8 @@ def one_to_one_over_plane(vertices: np.ndarray, triangles: np.ndarray, border: n
     return bool(np.all(beside(i, j) | beside(j, i)))
 
 
-def crossing_pairs(vertices: np.ndarray, triangles: np.ndarray, whole_tried: bool = False
-                   ) -> np.ndarray:
+def crossing_pairs(vertices: np.ndarray, triangles: np.ndarray, whole_tried: bool = False,
+                   pieces: dict | None = None) -> np.ndarray:
     """(P, 2) the pairs of triangles that share no vertex and yet meet, as
     `solver.mesh.self_intersections` finds them (the same pairs, i < j, in another order),
     quicker on a surface that is mostly a height field over some plane: a piece that is a disk
@@ -190,6 +191,10 @@ def crossing_pairs(vertices: np.ndarray, triangles: np.ndarray, whole_tried: boo
     is such a disk or has at most CROSSING_LEAF triangles (searched pair by pair), and only the
     triangles of each half that reach into the other half's box are tried against each other.
     `whole_tried`: the caller knows the whole surface is no such disk (it is not tried again).
+    `pieces`: a dict the caller keeps for one triangulation, where each piece's topology (its
+    vertices, its triangles over them and its border, which depend on its triangles alone) is
+    kept between calls: the surfaces of one fit, and of its warm refits, are mostly cut into
+    the same pieces (at most PIECES_KEPT are kept).
 
     Parameters
     ----------
@@ -213,9 +218,17 @@ def crossing_pairs(vertices: np.ndarray, triangles: np.ndarray, whole_tried: boo
         found.append(np.sort(hits, axis=1))
 
     def disk_over_plane(ids: np.ndarray) -> bool:
-        used, local = np.unique(t[ids], return_inverse=True)
-        local = local.reshape(-1, 3)
-        border = disk_border(local, len(used))
+        key = ids.tobytes()
+        known = None if pieces is None else pieces.get(key)
+        if known is None:
+            used, local = np.unique(t[ids], return_inverse=True)
+            local = local.reshape(-1, 3)
+            known = (used, local, disk_border(local, len(used)))
+            if pieces is not None:
+                if len(pieces) >= PIECES_KEPT:
+                    pieces.clear()
+                pieces[key] = known
+        used, local, border = known
         return border is not None and one_to_one_over_plane(v[used], local, border)
 
     stack = [(np.arange(len(t)), whole_tried)]

@@ -178,6 +178,7 @@ def test_crossing_pairs_are_the_exact_tests_pairs(monkeypatch, leaf):
     for _ in range(3):
         cases.append((v + rng.normal(scale=[0.01, 0.1, 0.01], size=v.shape), quad_triangles(q),
                       0))
+    kept = {}  # the pieces' topology, kept per triangulation across the cases and calls
     for vertices, triangles, crossing in cases:
         exact = self_intersections(vertices, triangles)
         exact = np.sort(exact, axis=1)
@@ -186,6 +187,26 @@ def test_crossing_pairs_are_the_exact_tests_pairs(monkeypatch, leaf):
         np.testing.assert_array_equal(crossing_pairs(vertices, triangles), exact)
         np.testing.assert_array_equal(crossing_pairs(vertices, triangles, whole_tried=True),
                                       exact)
+        pieces = kept.setdefault(triangles.tobytes(), {})
+        for _ in range(2):  # filling the cache, then from it (other geometry, same pieces)
+            np.testing.assert_array_equal(crossing_pairs(vertices, triangles, pieces=pieces),
+                                          exact)
+    # the four sheets of one grid share their pieces' topology: the cache served them
+    assert len(kept) == 3 and all(len(p) <= guarantees.PIECES_KEPT for p in kept.values())
+
+
+def test_the_pieces_kept_are_bounded(monkeypatch):
+    """With room for two pieces the cache is emptied when full, and the pairs stay exact."""
+    monkeypatch.setattr(guarantees, "CROSSING_LEAF", 8)
+    monkeypatch.setattr(guarantees, "PIECES_KEPT", 2)
+    v, q = _figure_eight()
+    triangles = quad_triangles(q)
+    exact = np.sort(self_intersections(v, triangles), axis=1)
+    exact = exact[np.lexsort((exact[:, 1], exact[:, 0]))]
+    pieces = {}
+    for _ in range(2):
+        np.testing.assert_array_equal(crossing_pairs(v, triangles, pieces=pieces), exact)
+        assert 1 <= len(pieces) <= 2
 
 
 def test_neighbour_faces_of_triangles_are_trimesh_s_face_adjacency():
