@@ -186,8 +186,8 @@ def run_design(poses: Sequence[str], out_dir: str | os.PathLike, *,
     say(f"{', '.join(decisions['postures'])}: a {decisions['template']}")
     header = (f"# sitrelax design {' '.join(poses)}\n# postures: "
               f"{', '.join(decisions['postures'])}; template: {decisions['template']}\n")
-    for stale in out.glob(".waterfall-*"):  # a second try an earlier run did not finish
-        shutil.rmtree(stale, ignore_errors=True)
+    for stale in [*out.glob(".waterfall-*"), *out.glob(".straight-*")]:
+        shutil.rmtree(stale, ignore_errors=True)  # an earlier run's unfinished second try
     report = _fit_design(out, header, data, db, say, pictures, run_fit)
     designed = {**decisions, "poses": list(poses), "scenario_file": "scenario.toml",
                 "waterfall": None}

@@ -311,6 +311,7 @@ def test_the_first_design_is_complete_before_the_second_try(tmp_path, monkeypatc
     monkeypatch.setattr(run, "run_fit", fake_fit)
     monkeypatch.setattr(design, "_misses", lambda report: report["misses"])
     (tmp_path / "out" / ".waterfall-stale").mkdir(parents=True)  # an earlier run's, unfinished
+    (tmp_path / "out" / ".straight-stale").mkdir()
     with pytest.raises(KeyboardInterrupt):
         design.run_design([MEDIUM.format(200)], tmp_path / "out", pictures=False)
     out = tmp_path / "out"
