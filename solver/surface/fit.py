@@ -807,13 +807,8 @@ def _make_rim(sub: Subdivision, sampled: np.ndarray, targets: Sequence[Supported
     ids, before, after = sub.kept("fit.rim", lambda: _rim_topology(sub.faces, sampled))
     if not len(ids):
         return None
-    rim = (sub.matrix @ control)[ids]
-    # (only the skin within the rim's box, RIM_SPAN wider, can lie within RIM_SPAN of it)
-    boxed = np.flatnonzero(np.all((points >= rim.min(axis=0) - RIM_SPAN) &
-                                  (points <= rim.max(axis=0) + RIM_SPAN), axis=1))
-    near, _ = cKDTree(rim).query(points[boxed], distance_upper_bound=RIM_SPAN)
-    kept = np.zeros(len(points), dtype=bool)
-    kept[boxed[np.isfinite(near)]] = True
+    near, _ = cKDTree((sub.matrix @ control)[ids]).query(points, distance_upper_bound=RIM_SPAN)
+    kept = np.isfinite(near)
     return _Rim(ids, before, after, points[kept], np.concatenate(unnamed)[kept],
                 member.copy() if member is not None and len(member) == 2 * len(ids) else
                 np.zeros(2 * len(ids), dtype=bool))
