@@ -86,16 +86,13 @@ def pose_posture(pose: str, db: str | os.PathLike | None = None
 
 
 def design_scenario(poses: Sequence[str], db: str | os.PathLike | None = None,
-                    base: Path | None = None, *, waterfall: bool = False
-                    ) -> tuple[dict, dict]:
+                    base: Path | None = None) -> tuple[dict, dict]:
     """The scenario data a designer would start from for the poses, and what was decided.
 
     Parameters
     ----------
     poses : pose references, as a scenario's `pose` (relative BVH paths relative to `base`).
     db : the pose library for `db:` poses.
-    waterfall : a chair's or bench's front edge dropped where calves tuck under it
-        (`solver.scene.furnish.furnish`'s `waterfall`; `front_drop` then in the template).
 
     Returns
     -------
@@ -149,13 +146,6 @@ def design_scenario(poses: Sequence[str], db: str | os.PathLike | None = None,
         pitch -= pitch[-1] / 2
         for person, x, c in zip(people, pitch, centres):
             person["position"][0] = float(x - c)
-    if waterfall and kind in ("chair", "bench"):  # calves tucked under the seat's front
-        from solver.scene.furnish import furnish
-
-        _, placed = place_scene(parse_scenario(data, "design", base), db)
-        drop = furnish(kind, given, placed, waterfall=True).params.front_drop
-        if drop > 0:
-            data["surface"]["template"]["front_drop"] = drop
     built, _ = place_scene(parse_scenario(data, "design", base), db)
     data["surface"]["template"] = template_table(built.surface.template)
     return data, {"postures": postures, "posture": posture, "template": kind,
@@ -176,8 +166,6 @@ def run_design(poses: Sequence[str], out_dir: str | os.PathLike, *,
     (`solver.scene.quality`); "design" says what was tried (`waterfall`).
 
     Returns the report as written. Raises DesignError (see `design_scenario`)."""
-    from solver.scene.run import run_fit
-
     say = progress or (lambda message: None)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -188,14 +176,13 @@ def run_design(poses: Sequence[str], out_dir: str | os.PathLike, *,
               f"{', '.join(decisions['postures'])}; template: {decisions['template']}\n")
     for stale in [*out.glob(".waterfall-*"), *out.glob(".straight-*")]:
         shutil.rmtree(stale, ignore_errors=True)  # an earlier run's unfinished second try
-    report = _fit_design(out, header, data, db, say, pictures, run_fit)
+    report = _fit_design(out, header, data, db, say, pictures)
     designed = {**decisions, "poses": list(poses), "scenario_file": "scenario.toml",
                 "waterfall": None}
     report["design"] = designed
     _write_report(out, report)  # (complete before any second try: it may not finish)
     if decisions["template"] in ("chair", "bench") and _on_calves(report):
-        tried, kept = _try_waterfall(out, header, absolute, db, report, designed, say,
-                                     pictures, run_fit)
+        tried, kept = _try_waterfall(out, header, data, db, report, designed, say, pictures)
         if kept is not None:  # (in place, with its report, already)
             return kept
         report["design"] = {**designed, "waterfall": tried}
@@ -207,10 +194,12 @@ def _write_report(out: Path, report: dict) -> None:
     write_atomic(out / "report.json", json.dumps(report, indent=2, allow_nan=False).encode())
 
 
-def _try_waterfall(out: Path, header: str, poses: Sequence[str], db, report: dict,
-                   designed: dict, say, pictures: bool, run_fit) -> tuple[dict, dict | None]:
+def _try_waterfall(out: Path, header: str, data: dict, db, report: dict, designed: dict,
+                   say, pictures: bool) -> tuple[dict, dict | None]:
     """`run_design`'s second try, after a chair or bench put a peak on the calves: the design
-    again with a waterfall front, fitted in a folder of its own inside `out` and moved into
+    `data` again with a waterfall front (its template's measures as they are, the front drop
+    measured by `solver.scene.furnish.furnish`'s `waterfall` on the people placed as `data`
+    places them), fitted in a folder of its own inside `out` and moved into
     `out` with its report (`designed` and what was tried as its "design") only if it misses
     fewer bars than `report` (the straight front's, written there already).
 
@@ -219,7 +208,9 @@ def _try_waterfall(out: Path, header: str, poses: Sequence[str], db, report: dic
     fitted), the bars missed before and after, whether the waterfall front was `kept`, the
     straight front's fit time (`straight_fit_s`) and the `error` that stopped the try, if any
     (the straight front's design then stands)."""
-    from solver.scene.scenario import ScenarioError
+    from solver.scene.furnish import furnish
+    from solver.scene.placement import place_scene
+    from solver.scene.scenario import ScenarioError, parse_scenario
     from solver.surface.fit import FitError
     from solver.surface.templates import TemplateError
 
@@ -227,13 +218,18 @@ def _try_waterfall(out: Path, header: str, poses: Sequence[str], db, report: dic
              "straight_fit_s": report.get("timing", {}).get("fit_s")}
     stage = None
     try:
-        trial, _ = design_scenario(poses, db, waterfall=True)
-        tried["front_drop_m"] = trial["surface"]["template"].get("front_drop", 0.0)
+        template = data["surface"]["template"]
+        given = {k: v for k, v in template.items() if k not in ("kind", "front_drop")}
+        _, placed = place_scene(parse_scenario(data, "design"), db)
+        tried["front_drop_m"] = furnish(template["kind"], given, placed,
+                                        waterfall=True).params.front_drop
         if tried["front_drop_m"] > 0:
+            trial = {**data, "surface": {**data["surface"], "template": {
+                **template, "front_drop": tried["front_drop_m"]}}}
             say(f"a peak on the calves: the design again, its front edge dropped "
                 f"{100 * tried['front_drop_m']:.0f} cm (a waterfall front)")
             stage = Path(tempfile.mkdtemp(prefix=".waterfall-", dir=out))
-            again = _fit_design(stage, header, trial, db, say, pictures, run_fit)
+            again = _fit_design(stage, header, trial, db, say, pictures)
             tried["misses_after"] = _misses(again)
             if tried["misses_after"] < tried["misses_before"]:
                 tried["kept"] = True
@@ -276,8 +272,9 @@ def _replace_all(stage: Path, out: Path) -> None:
         shutil.rmtree(backup, ignore_errors=True)
 
 
-def _fit_design(out: Path, header: str, data: dict, db, say, pictures: bool, run_fit) -> dict:
+def _fit_design(out: Path, header: str, data: dict, db, say, pictures: bool) -> dict:
     """Writes a designed scenario into `out` as scenario.toml and fits it there."""
+    from solver.scene.run import run_fit
     from solver.scene.scenario import scenario_toml
 
     path = out / "scenario.toml"

@@ -281,13 +281,12 @@ def test_no_second_fit_when_no_calves_tuck_under_the_front(tmp_path, monkeypatch
     import solver.scene.design as design
     import solver.scene.run as run
 
+    import solver.scene.furnish as furnish
+
     fits = []
-    straight = design.design_scenario
     monkeypatch.setattr(run, "run_fit", _calf_peak_fit(fits))
     monkeypatch.setattr(design, "_misses", lambda report: report["misses"])
-    monkeypatch.setattr(design, "design_scenario",  # (the measure finds no tucked calves)
-                        lambda poses, db=None, base=None, waterfall=False:
-                        straight(poses, db, base))
+    monkeypatch.setattr(furnish, "WATERFALL", 0.0)  # (the measure gives no drop)
     report = design.run_design([MEDIUM.format(200)], tmp_path / "out", pictures=False)
     assert fits == ["out"]
     assert report["design"]["waterfall"] == {"front_drop_m": 0.0, "misses_before": 2,
