@@ -14,6 +14,13 @@ this module (as `solver.mesh` does, below every use of libigl) sets it to `blas_
 the environment already says.
 
 A fit gives the same surface with one thread or several (tested to 1e-12).
+
+Apart from BLAS, a fit overlaps its two independent halves of judging a step (the pairing,
+energy and folds; the depths and rows against the bodies, nearest-point searches that run
+outside Python's lock) on a second thread when `overlapped()` says so: when the machine gives
+this process at least two cores and `SITRELAX_THREADS` is unset, or when it says ``all`` or
+a count of two or more. `SITRELAX_THREADS=1` (what batch workers get) keeps every fit on one
+thread. The surface is the same either way (tested bit for bit).
 """
 
 from __future__ import annotations
@@ -63,6 +70,33 @@ def blas_threads() -> int | None:
     if count < 1:
         raise ThreadsError(f"Expected {ENV} to be a positive integer or 'all', got {value!r}")
     return count
+
+
+def _cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # (not every platform has affinity)
+        return os.cpu_count() or 1
+
+
+def overlapped() -> bool:
+    """Whether a fit overlaps its independent searches on a second thread.
+
+    Returns
+    -------
+    bool
+        True when this process may use at least two cores and `SITRELAX_THREADS` is unset,
+        empty or ``all``, or is a count of two or more; False for a count of one.
+
+    Raises
+    ------
+    ThreadsError
+        If `SITRELAX_THREADS` is neither a positive integer nor ``all``.
+    """
+    count = blas_threads()
+    if os.environ.get(ENV, "").strip() and count is not None:
+        return count >= 2
+    return _cores() >= 2
 
 
 @functools.lru_cache(maxsize=1)

@@ -73,7 +73,9 @@ once its steps shrink so fast that the rest of them would not add up to `toleran
 
 from __future__ import annotations
 
+import threading
 import time
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
 
@@ -86,7 +88,7 @@ from solver.mesh import boundary_edges
 from solver.surface.guarantees import FOLD_LIMIT_DEG, neighbour_faces, quad_normals
 from solver.surface.programme import DenseProgramme, Programme, ProgrammeError
 from solver.surface.subdivision import Subdivision, subdivision
-from solver.threads import with_limited_threads
+from solver.threads import overlapped, with_limited_threads
 
 REACH = 0.5  # metres: a person whose supported points are all farther from the surface is an error
 CONSTRAINT_RADIUS = 0.12  # metres: surface vertices this close to a body get a non-penetration row
@@ -358,6 +360,7 @@ class _Fit:
                                        # once per raise of `stiff`, not per proposal
     extra: "ExtraRows | None" = None  # rows on dense samples found too deep (`deep_samples`)
     rim: "_Rim | None" = None  # the surface's rim and the unsupported skin it keeps clear of
+    pool: Executor | None = None  # the second thread `assess` overlaps its searches on
 
     @property
     def n0(self) -> int:
@@ -1024,12 +1027,20 @@ def _out_of_bounds(fit: _Fit, v: np.ndarray, surf: np.ndarray, surf_n: np.ndarra
     if len(joining):
         _, dist = _facing(fit, sv[joining], surf_n[ids[joining]])
         member[ids[joining[dist <= CONSTRAINT_RADIUS]]] = True
+    return depths, _beyond(fit, v, surf, depths, floor_member)
+
+
+def _beyond(fit: _Fit, v: np.ndarray, surf: np.ndarray, depths: Depths,
+            floor_member: np.ndarray | None) -> float:
+    """m^2: how far control vertices v (n0, 3) with level-s surface `surf` and its sampled
+    vertices' `depths` are out of bounds (`Rows.beyond_m2`); the vertices near the floor join
+    `floor_member` (in place)."""
     beyond = _beyond_margin(fit, depths.depth)
     if floor_member is not None and fit.params.floor is not None:
         beyond = beyond + floor_rows(fit, surf, floor_member).beyond_m2
     if fit.extra is not None:
         beyond = beyond + _extra_now(fit, v)[1]
-    return depths, beyond
+    return beyond
 
 
 @dataclass(frozen=True, eq=False)
@@ -1058,6 +1069,8 @@ class Iterate:
     min_ridge: float  # metres, the tightest radius where the surface bends away from bodies
     slack_weight: float
     depths: Depths | None = None  # the sampled vertices' (the rows start from them)
+    ahead: tuple | None = None  # (tau, `assemble` at it): the next step's quadratic, when made
+    # while the rows were (`assess`; the loop takes it and drops it)
 
     def energy(self, tau: float) -> float:
         return (1 - tau) * self.point + tau * self.plane + self.rest + \
@@ -1066,25 +1079,77 @@ class Iterate:
 
 def assess(fit: _Fit, v: np.ndarray, member: np.ndarray,
            floor_member: np.ndarray | None = None, skin: np.ndarray | None = None,
-           rows: bool = True) -> Iterate:
+           rows: bool = True, ceiling: tuple[float, float] | None = None,
+           ahead: float | None = None) -> Iterate:
     """The `Iterate` of control vertices v (n0, 3): subdivides, pairs, constrains (rows join
     `member` and `floor_member` in place; `skin` as `constrain` takes it) and measures the
     energy's parts and the folds. Without `rows`, the iterate is judged without its rows (the
-    loop's candidates: most are refused), which `with_rows` adds."""
+    loop's candidates: most are accepted), which `with_rows` adds. With `ceiling` (tau, energy),
+    a candidate whose energy at tau exceeds that energy before its depths are counted (they
+    only add to it) is refused then: its `unmet` is inf and its bends are not measured (the
+    floor's rows it reaches join `floor_member` all the same; the body rows it adds are not
+    wanted once a later iterate is constrained, as `constrain` makes them).
+
+    With the fit's `pool` (`overlapped`), the depths and rows (`_body_side`) are made on the
+    pool's thread while this one pairs, measures and, given `ahead` (the next step's tau),
+    assembles the next step's quadratic (`Iterate.ahead`): the iterate comes with its rows
+    whatever `rows` says (the loop accepts most candidates), and is the same as made in turn."""
     surf = fit.sub.matrix @ v
     surf_n = fit.sub.normals(surf)
-    pairing = pair(fit, surf)
-    depths, unmet = _out_of_bounds(fit, v, surf, surf_n, member, floor_member)
-    diff = fit.b_imp - surf[pairing.pair]
-    total = max(fit.w_imp.sum(), 1e-300)
-    point = float(fit.w_imp @ np.einsum("ij,ij->i", diff, diff) / total)
-    plane = float(fit.w_imp @ np.einsum("ij,ij->i", diff, surf_n[pairing.pair]) ** 2 / total)
-    smooth = float(sum(v[:, a] @ (fit.smooth @ v[:, a]) for a in range(3)))
-    pulls = float(np.sum(fit.fixed[:, None] * (v - fit.v0) ** 2))
-    fold, ridge = _bends(fit, surf)
-    it = Iterate(v, surf, surf_n, pairing, None, point, plane, smooth + pulls, unmet, fold,
-                 ridge, fit.programme.slack_weight, depths)
-    return with_rows(fit, it, member, floor_member, skin) if rows else it
+    side, refused = None, None
+    if fit.pool is not None:
+        refused = threading.Event()
+        side = fit.pool.submit(_body_side, fit, v, surf, surf_n, member, floor_member, skin,
+                               refused)
+    try:
+        pairing = pair(fit, surf)
+        diff = fit.b_imp - surf[pairing.pair]
+        total = max(fit.w_imp.sum(), 1e-300)
+        point = float(fit.w_imp @ np.einsum("ij,ij->i", diff, diff) / total)
+        plane = float(fit.w_imp @ np.einsum("ij,ij->i", diff, surf_n[pairing.pair]) ** 2 /
+                      total)
+        smooth = float(sum(v[:, a] @ (fit.smooth @ v[:, a]) for a in range(3)))
+        pulls = float(np.sum(fit.fixed[:, None] * (v - fit.v0) ** 2))
+        if ceiling is not None and not rows:
+            tau, most = ceiling
+            if (1 - tau) * point + tau * plane + smooth + pulls > most:
+                if side is not None:
+                    refused.set()
+                    side.result()  # (its floor rows join as below)
+                elif floor_member is not None and fit.params.floor is not None:
+                    floor_rows(fit, surf, floor_member)
+                return Iterate(v, surf, surf_n, pairing, None, point, plane, smooth + pulls,
+                               np.inf, 0.0, np.inf, fit.programme.slack_weight)
+        fold, ridge = _bends(fit, surf)
+        if side is None:
+            depths, unmet = _out_of_bounds(fit, v, surf, surf_n, member, floor_member)
+            it = Iterate(v, surf, surf_n, pairing, None, point, plane, smooth + pulls, unmet,
+                         fold, ridge, fit.programme.slack_weight, depths)
+            return with_rows(fit, it, member, floor_member, skin) if rows else it
+        quadratic = None if ahead is None else (ahead, assemble(fit, pairing, surf_n, ahead))
+    except BaseException:
+        if side is not None:  # (it writes to the rows' members: done before they are read)
+            refused.set()
+            side.result()
+        raise
+    depths, unmet, body_rows = side.result()
+    return Iterate(v, surf, surf_n, pairing, body_rows, point, plane, smooth + pulls, unmet,
+                   fold, ridge, fit.programme.slack_weight, depths, quadratic)
+
+
+def _body_side(fit: _Fit, v: np.ndarray, surf: np.ndarray, surf_n: np.ndarray,
+               member: np.ndarray, floor_member: np.ndarray | None, skin: np.ndarray | None,
+               refused: threading.Event) -> tuple[Depths, float, Rows | None]:
+    """What `assess` makes on the pool's thread: the sampled vertices' `Depths`, how far the
+    surface is out of bounds (`_beyond`) and its rows (`with_rows`, whose members include
+    those `_out_of_bounds` adds), these last unless `refused` is set once the depths are known
+    (None then)."""
+    depths = _depths(fit, surf[fit.sampled_ids])
+    unmet = _beyond(fit, v, surf, depths, floor_member)
+    if refused.is_set():
+        return depths, unmet, None
+    return depths, unmet, _with_extra(fit, v, constrain(fit, surf, surf_n, member,
+                                                        floor_member, skin, depths))
 
 
 def with_rows(fit: _Fit, it: Iterate, member: np.ndarray,
@@ -1100,11 +1165,32 @@ def with_rows(fit: _Fit, it: Iterate, member: np.ndarray,
 def _bends(fit: _Fit, surf: np.ndarray) -> tuple[float, float]:
     """The largest angle (degrees) between neighbouring level-s quads of surface `surf`
     (ns, 3), creases left out, and the tightest radius (m) of its ridges (inf without a ridge):
-    the extremes of `_bend_pairs`."""
+    the extremes of `_bend_pairs`, with the angles taken only where they are needed (the
+    largest angle is that of the least cosine)."""
     if not len(fit.neighbours):
         return 0.0, np.inf
-    angle, radius = _bend_pairs(fit, surf)
-    return float(np.degrees(angle.max())), float(radius.min())
+    cosine, gap, ridge = _bend_parts(fit, surf)
+    fold = float(np.degrees(np.arccos(np.clip(cosine.min(), -1.0, 1.0))))
+    angle = np.arccos(np.clip(cosine[ridge], -1.0, 1.0))
+    bent = angle > 1e-6
+    if not bent.any():
+        return fold, np.inf
+    return fold, float((np.linalg.norm(gap[ridge][bent], axis=1) / angle[bent]).min())
+
+
+def _bend_parts(fit: _Fit, surf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per pair of neighbouring level-s quads (`fit.neighbours`) of surface `surf` (ns, 3):
+    the cosine of the angle between their normals (`quad_normals`: the cross product of their
+    diagonals, which `fit.quad_maps` gives), the gap between their centres and whether they
+    may make a ridge (each quad's centre lies behind its neighbour's plane; `_bend_pairs`)."""
+    diagonals, centre_map = fit.quad_maps
+    both = diagonals @ surf
+    n = np.cross(both[:len(both) // 2], both[len(both) // 2:])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    n_a, n_b = n[fit.neighbours[:, 0]], n[fit.neighbours[:, 1]]
+    gap = centre_map @ surf
+    ridge = (np.einsum("ij,ij->i", gap, n_a) < 0) & (np.einsum("ij,ij->i", gap, n_b) > 0)
+    return np.einsum("ij,ij->i", n_a, n_b), gap, ridge
 
 
 def _bend_pairs(fit: _Fit, surf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -1112,17 +1198,10 @@ def _bend_pairs(fit: _Fit, surf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     the angle (radians) between them and the radius (m) of the ridge they
     make where the surface bends away from the bodies (each quad's centre lies behind its
     neighbour's plane), the distance between their centres over that angle (inf where they
-    make no ridge). The quads' normals (`quad_normals`: the cross product of their diagonals)
-    and centres' gaps come from `fit.quad_maps`."""
-    diagonals, centre_map = fit.quad_maps
-    both = diagonals @ surf
-    n = np.cross(both[:len(both) // 2], both[len(both) // 2:])
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-    n_a, n_b = n[fit.neighbours[:, 0]], n[fit.neighbours[:, 1]]
-    angle = np.arccos(np.clip(np.einsum("ij,ij->i", n_a, n_b), -1.0, 1.0))
-    gap = centre_map @ surf
-    ridge = (np.einsum("ij,ij->i", gap, n_a) < 0) & (np.einsum("ij,ij->i", gap, n_b) > 0) & \
-        (angle > 1e-6)
+    make no ridge)."""
+    cosine, gap, ridge = _bend_parts(fit, surf)
+    angle = np.arccos(np.clip(cosine, -1.0, 1.0))
+    ridge &= angle > 1e-6
     radius = np.full(len(angle), np.inf)
     radius[ridge] = np.linalg.norm(gap[ridge], axis=1) / angle[ridge]
     return angle, radius
@@ -1360,8 +1439,12 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
     fit = prepare(control, faces, targets, params, state)
     claimed = fit.programme  # claimed in `prepare` (rounds of rows on samples replace it)
     try:
+        if overlapped():
+            fit.pool = ThreadPoolExecutor(1, thread_name_prefix="sitrelax-fit")
         return _run(fit, state, warm, progress, iterates, cancel, start)
     finally:
+        if fit.pool is not None:
+            fit.pool.shutdown()
         claimed.release()  # given back however the fit ends
 
 
@@ -1512,13 +1595,17 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
     it = run.accepted[-1]
     iteration = first - 1
     gains: list[float] = []  # how much each accepted step lowered the energy
+    ahead = None  # (tau, quadratic) of the next step, made with the last accepted iterate
     bend_less = False  # the proposals' stiffening: smoother (False) or bending less (True);
     # an iteration starts with the kind the last one took
     for iteration in range(first, last + 1):
         if cancel is not None and cancel():
             return _cancelled(iteration - first), iteration - 1
         t = params.tau_max * min(1.0, (iteration - 1) / TAU_RAMP) if tau is None else tau
-        quadratic = assemble(fit, it.pairing, it.surf_n, t)
+        next_tau = params.tau_max * min(1.0, iteration / TAU_RAMP) if tau is None else tau
+        quadratic = ahead[1] if ahead is not None and ahead[0] == t else \
+            assemble(fit, it.pairing, it.surf_n, t)
+        ahead = None
         bend_less = bend_less and bool(fit.stiff.any())
         try:
             target, status, residual = propose(
@@ -1538,7 +1625,8 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
                     cancel():  # (a large programme's tries take seconds each)
                 return _cancelled(iteration - first), iteration - 1
             v = it.v + 0.5 ** halving * moving * (target - it.v)
-            candidate = assess(fit, v, member, floor_member, rows=False)
+            candidate = assess(fit, v, member, floor_member, it.rows.skin, rows=False,
+                               ceiling=(t, it.energy(t)), ahead=next_tau)
             why = acceptable(fit, it, candidate, t)
             if why is None:
                 break
@@ -1582,7 +1670,9 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
                     f"1/{2 ** MAX_HALVINGS} of it) lowers the energy without folding (energy "
                     f"{it.energy(t):.6g})"), iteration
         before = it.energy(t)
-        it = with_rows(fit, candidate, member, floor_member, it.rows.skin)
+        ahead = candidate.ahead
+        it = with_rows(fit, candidate, member, floor_member, it.rows.skin) \
+            if candidate.rows is None else replace(candidate, ahead=None)
         run.accepted.append(it)
         run.energies.append(it.energy(t))
         run.statuses.append(status)

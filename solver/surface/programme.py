@@ -7,6 +7,7 @@ when the rows taken change and updated in place otherwise (`Programme`)."""
 
 from __future__ import annotations
 
+import functools
 import threading
 
 import numpy as np
@@ -210,6 +211,12 @@ class Programme(_Claimed):
         return res.x[:n], status, float(res.x[n:].max(initial=0.0))
 
 
+@functools.lru_cache(maxsize=8)
+def _lower(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The indices of an (n, n) matrix's entries below its diagonal."""
+    return np.tril_indices(n, -1)
+
+
 def _normals_dot(normals: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", normals, points)
 
@@ -276,7 +283,9 @@ class DenseProgramme(_Claimed):
 
         n0, n = self.n0, 3 * self.n0
         p_x = p_x.toarray() if sp.issparse(p_x) else np.asarray(p_x)
-        hessian = np.triu(p_x) + np.triu(p_x, 1).T  # (the caller fills the upper blocks)
+        hessian = p_x.copy()  # the caller fills the upper blocks: mirrored below
+        below = _lower(n)
+        hessian[below] = p_x.T[below]
         if not (np.all(np.isfinite(hessian)) and np.all(np.isfinite(q))):
             raise ProgrammeError("The surface's quadratic programme has a value that is not a "
                                  "number in its objective")

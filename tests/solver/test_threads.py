@@ -1,4 +1,4 @@
-"""BLAS thread control (solver.threads): the count from SITRELAX_THREADS, the limit applied and
+"""Thread control (solver.threads): the count from SITRELAX_THREADS, the limit applied and
 restored, and a fit that gives the same surface with one BLAS thread or all of them."""
 
 import numpy as np
@@ -87,3 +87,28 @@ def test_libigl_gets_the_count_before_it_first_runs():
                           env={**base, "IGL_NUM_THREADS": "2"}, capture_output=True, text=True,
                           check=True).stdout.split()[-1]
     assert kept == "2"
+
+
+@pytest.mark.parametrize("value, cores, overlap", [
+    (None, 2, True), ("", 4, True), (None, 1, False), ("all", 2, True), ("all", 1, False),
+    ("1", 2, False), ("2", 2, True), ("2", 1, True)])
+def test_a_fit_overlaps_its_searches_unless_told_one_thread(monkeypatch, value, cores,
+                                                             overlap):
+    """Two threads when the process has two cores and the count is unset (or `all`), or when
+    the count is two or more; one when it says 1 (what batch workers get)."""
+    import solver.threads as threads
+
+    monkeypatch.setattr(threads, "_cores", lambda: cores)
+    if value is None:
+        monkeypatch.delenv(ENV, raising=False)
+    else:
+        monkeypatch.setenv(ENV, value)
+    assert threads.overlapped() is overlap
+
+
+def test_workers_do_not_overlap(monkeypatch):
+    import solver.threads as threads
+
+    for name, value in worker_environment().items():
+        monkeypatch.setenv(name, value)
+    assert threads.overlapped() is False
