@@ -440,9 +440,11 @@ def _check_bodies(surface0: np.ndarray, surface_normals: np.ndarray,
 
 
 def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedBody],
-            params: FitParams, state: FitState | None = None) -> _Fit:
+            params: FitParams, state: FitState | None = None, pool: Executor | None = None
+            ) -> _Fit:
     """Checks the inputs and builds what stays fixed over the fit (see `_Fit`), reusing what
-    `state` (a fit of the same control mesh) built where it still holds."""
+    `state` (a fit of the same control mesh) built where it still holds. With a `pool` (the
+    fit's second thread, which it keeps), the bodies' search trees are built there meanwhile."""
     v0 = np.asarray(control, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     n0 = len(v0)
@@ -487,8 +489,13 @@ def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedB
         if np.allclose(points - shift, state.points, rtol=0.0, atol=1e-12):
             # the bodies only moved (or not at all): their trees hold, queried moved back
             trees, offset = state.trees, state.tree_offset + shift
+    building = None
     if trees is None:
-        trees, offset = _search_trees(points, normals), np.zeros(3)
+        offset = np.zeros(3)
+        if pool is None:
+            trees = _search_trees(points, normals)
+        else:
+            building = pool.submit(_search_trees, points, normals)
     if same and state.programme is not None and \
             state.programme.slack_weight == SLACK_WEIGHT / people and state.programme.claim():
         programme = state.programme  # its set-up holds while its rows do (no other fit's now)
@@ -506,6 +513,10 @@ def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedB
             len(skins) < len(state.skins) else None
         skins.append(old.moved(t.vertices, t.triangles, stack) if old is not None else
                      _Skin(t.vertices, t.triangles, stack))
+    rim = _make_rim(sub, sampled, targets, v0, state.rim_member if same else None) \
+        if RIM_CLEARANCE > 0 else None
+    if building is not None:
+        trees = building.result()
     # the data terms aim `sink` into the skin: the foam is pressed that far where it carries
     # the body at rest, so the skin touches it there rather than grazing it
     return _Fit(v0, faces, params, sub, lap, points, normals,
@@ -513,9 +524,7 @@ def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedB
                 rho[important], *trees,
                 fixed, smooth, diagonal.toarray() if dense else diagonal, proximal, dense,
                 programme, sampled, neighbours, quad_maps,
-                skins, offset, state.limit if same else None,
-                rim=_make_rim(sub, sampled, targets, v0,
-                              state.rim_member if same else None) if RIM_CLEARANCE > 0 else None)
+                skins, offset, state.limit if same else None, rim=rim, pool=pool)
 
 
 def _quad_maps(sub: Subdivision, neighbours: np.ndarray) -> tuple:
@@ -1092,7 +1101,8 @@ def assess(fit: _Fit, v: np.ndarray, member: np.ndarray,
 
     With the fit's `pool` (`overlapped`), the depths and rows (`_body_side`) are made on the
     pool's thread while this one pairs, measures and, given `ahead` (the next step's tau),
-    assembles the next step's quadratic (`Iterate.ahead`): the iterate comes with its rows
+    assembles the next step's quadratic (`Iterate.ahead`) and has the programme factor it
+    (`DenseProgramme.prepare`): the iterate comes with its rows
     whatever `rows` says (the loop accepts most candidates), and is the same as made in turn."""
     surf = fit.sub.matrix @ v
     surf_n = fit.sub.normals(surf)
@@ -1126,7 +1136,12 @@ def assess(fit: _Fit, v: np.ndarray, member: np.ndarray,
             it = Iterate(v, surf, surf_n, pairing, None, point, plane, smooth + pulls, unmet,
                          fold, ridge, fit.programme.slack_weight, depths)
             return with_rows(fit, it, member, floor_member, skin) if rows else it
-        quadratic = None if ahead is None else (ahead, assemble(fit, pairing, surf_n, ahead))
+        quadratic = None
+        if ahead is not None:
+            quadratic = (ahead, assemble(fit, pairing, surf_n, ahead))
+            if fit.dense:  # the next step's programme factored too (a step that stiffens it
+                # factors its own)
+                fit.programme.prepare(2 * _stiffer(fit, quadratic[1][0]))
     except BaseException:
         if side is not None:  # (it writes to the rows' members: done before they are read)
             refused.set()
@@ -1257,18 +1272,32 @@ def _stiffened(fit: _Fit, quadratic: tuple, v: np.ndarray | None = None) -> tupl
     if fit.stiff is None or not fit.stiff.any():
         return quadratic
     h, g = quadratic
+    if v is not None:
+        g = g + (_stiffness(fit)[0] @ v).T.reshape(-1)  # x^T K x - 2 (K v)^T x: the bending
+    return _stiffer(fit, h), g
+
+
+def _stiffness(fit: _Fit) -> tuple:
+    """K = L^T diag(stiff) L (sparse) and, for a dense Hessian, K as an array: made once per
+    raise of `fit.stiff`."""
     if fit.stiff_matrix is None or not np.array_equal(fit.stiff_matrix[0], fit.stiff):
         extra = (fit.lap.T @ sp.diags(fit.stiff) @ fit.lap).tocsr()
         fit.stiff_matrix = (fit.stiff.copy(), extra, extra.toarray() if fit.dense else None)
-    _, extra, block = fit.stiff_matrix
-    if v is not None:
-        g = g + (extra @ v).T.reshape(-1)  # x^T K x - 2 (K v)^T x: the step's bending
+    return fit.stiff_matrix[1:]
+
+
+def _stiffer(fit: _Fit, h):
+    """`_stiffened`'s Hessian: `assemble`'s h with K on each coordinate block (h itself
+    without stiffness)."""
+    if fit.stiff is None or not fit.stiff.any():
+        return h
+    extra, block = _stiffness(fit)
     if fit.dense:
         h, n0 = h.copy(), fit.n0
         for a in range(3):
             h[a * n0:(a + 1) * n0, a * n0:(a + 1) * n0] += block
-        return h, g
-    return (h + sp.kron(sp.identity(3), extra)).tocsr(), g
+        return h
+    return (h + sp.kron(sp.identity(3), extra)).tocsr()
 
 
 def propose(fit: _Fit, it: Iterate, radius: float, quadratic
@@ -1436,16 +1465,17 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
     """
     start = time.perf_counter()
     state = _warm_state(warm, control, faces)
-    fit = prepare(control, faces, targets, params, state)
-    claimed = fit.programme  # claimed in `prepare` (rounds of rows on samples replace it)
+    pool = ThreadPoolExecutor(1, thread_name_prefix="sitrelax-fit") if overlapped() else None
     try:
-        if overlapped():
-            fit.pool = ThreadPoolExecutor(1, thread_name_prefix="sitrelax-fit")
-        return _run(fit, state, warm, progress, iterates, cancel, start)
+        fit = prepare(control, faces, targets, params, state, pool)
+        claimed = fit.programme  # claimed in `prepare` (rounds of rows on samples replace it)
+        try:
+            return _run(fit, state, warm, progress, iterates, cancel, start)
+        finally:
+            claimed.release()  # given back however the fit ends
     finally:
-        if fit.pool is not None:
-            fit.pool.shutdown()
-        claimed.release()  # given back however the fit ends
+        if pool is not None:
+            pool.shutdown()
 
 
 def _run(fit: _Fit, state: "FitState | None", warm: FitResult | None, progress, iterates,

@@ -20,6 +20,10 @@ ROW_TOLERANCE = 1e-7  # m: a row left out that the solution breaks by more joins
 BOX_TOLERANCE = 1e-9  # m: a coordinate left free that leaves its trust region by more is held
 
 
+NOT_A_NUMBER = ("The surface's quadratic programme has a value that is not a number in its "
+                "objective")
+
+
 class ProgrammeError(ValueError):
     """The solver (DAQP or OSQP) could not solve the programme."""
 
@@ -253,6 +257,7 @@ class DenseProgramme(_Claimed):
         self.lap = lap
         self.fallbacks = 0
         self._fallback: Programme | None = None
+        self._ahead: tuple | None = None  # (P, Hessian, its factor) made by `prepare`
 
     def solve(self, p_x: np.ndarray | sp.csr_matrix, q: np.ndarray, rows: np.ndarray,
               normals: np.ndarray, lower: np.ndarray, x0: np.ndarray, step: float
@@ -272,6 +277,38 @@ class DenseProgramme(_Claimed):
             raise ProgrammeError(f"{'; '.join(failures)}; {osqp_failed} (tried instead)"
                                  ) from None
 
+    def prepare(self, p_x: np.ndarray) -> None:
+        """Mirrors and factors the objective's matrix `p_x` (upper blocks filled) ahead of the
+        next `solve`, which uses them if its own matrix is the same, entry for entry (else it
+        makes its own, as without). Nothing is kept of one that has no factor: its solve says
+        why."""
+        try:
+            hessian = self._mirrored(np.asarray(p_x))
+            self._ahead = (np.array(p_x), hessian, self._factor(hessian))
+        except ProgrammeError:
+            self._ahead = None
+
+    def _mirrored(self, p_x: np.ndarray) -> np.ndarray:
+        """The symmetric Hessian whose upper triangle `p_x`'s is (the caller fills the upper
+        blocks), checked for values that are not numbers."""
+        hessian = p_x.copy()
+        below = _lower(3 * self.n0)
+        hessian[below] = p_x.T[below]
+        if not np.all(np.isfinite(hessian)):
+            raise ProgrammeError(NOT_A_NUMBER)
+        return hessian
+
+    @staticmethod
+    def _factor(hessian: np.ndarray) -> np.ndarray:
+        """The upper Cholesky factor R of `hessian` (H = R^T R, LAPACK)."""
+        import scipy.linalg as sl
+
+        try:
+            return sl.cholesky(hessian, lower=False, check_finite=False)
+        except (sl.LinAlgError, ValueError):
+            raise ProgrammeError("The surface's quadratic programme is not convex: its "
+                                 "Hessian has no Cholesky factor") from None
+
     def _solve_daqp(self, p_x, q, rows, normals, lower, x0, step, factored: bool):
         """DAQP on the programme. `factored`: in the coordinates z = R x (H = R^T R, by LAPACK),
         where the Hessian is the identity, which DAQP sets up in microseconds where it factors
@@ -283,18 +320,16 @@ class DenseProgramme(_Claimed):
 
         n0, n = self.n0, 3 * self.n0
         p_x = p_x.toarray() if sp.issparse(p_x) else np.asarray(p_x)
-        hessian = p_x.copy()  # the caller fills the upper blocks: mirrored below
-        below = _lower(n)
-        hessian[below] = p_x.T[below]
-        if not (np.all(np.isfinite(hessian)) and np.all(np.isfinite(q))):
-            raise ProgrammeError("The surface's quadratic programme has a value that is not a "
-                                 "number in its objective")
+        if not np.all(np.isfinite(q)):
+            raise ProgrammeError(NOT_A_NUMBER)
+        ahead, self._ahead = self._ahead, None
+        if ahead is not None and np.array_equal(ahead[0], p_x):
+            hessian, r = ahead[1], ahead[2]  # (`prepare`: factored while the rows were made)
+        else:
+            hessian, r = self._mirrored(p_x), None
         if factored:
-            try:
-                r = sl.cholesky(hessian, lower=False, check_finite=False)
-            except (sl.LinAlgError, ValueError):
-                raise ProgrammeError("The surface's quadratic programme is not convex: its "
-                                     "Hessian has no Cholesky factor") from None
+            if r is None:
+                r = self._factor(hessian)
             f = sl.solve_triangular(r, q, trans="T", check_finite=False)  # q^T x = (R^-T q)^T z
         points, plane_normals, bounds, plane = self._wanted(rows, normals, lower)
         if self._dense is None:  # S's rows are taken densely at every step

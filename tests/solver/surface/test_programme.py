@@ -121,6 +121,37 @@ def test_dense_programme_refuses_a_hessian_that_is_not_convex():
         programme.solve(-p_upper, q, rows, normals, lower, x0, STEP)
 
 
+def test_a_factor_made_ahead_serves_only_the_same_matrix(monkeypatch):
+    """`prepare` factors the next step's matrix while the fit makes its rows: the solve of that
+    matrix uses the factor (one Cholesky factorisation in all, the same step bit for bit); the
+    solve of another matrix factors its own; a matrix without a factor still fails in its
+    solve, with the reason."""
+    import scipy.linalg as sl
+
+    s, p_upper, q, rows, normals, lower, x0 = _problem(3)
+    factored = []
+    cholesky = sl.cholesky
+    monkeypatch.setattr(sl, "cholesky", lambda *a, **k: factored.append(1) or cholesky(*a, **k))
+    plain = DenseProgramme(s, sp.identity(N0, format="csr"), N0, WEIGHT).solve(
+        p_upper, q, rows, normals, lower, x0, STEP)
+    programme = DenseProgramme(s, sp.identity(N0, format="csr"), N0, WEIGHT)
+    factored.clear()
+    programme.prepare(p_upper.copy())
+    ahead = programme.solve(p_upper, q, rows, normals, lower, x0, STEP)
+    assert len(factored) == 1
+    np.testing.assert_array_equal(ahead[0], plain[0])
+    assert ahead[1:] == plain[1:]
+    # prepared for another matrix: the solve factors its own and finds its own optimum
+    other = p_upper * 1.5
+    programme.prepare(p_upper)
+    x, _, _ = programme.solve(other, q, rows, normals, lower, x0, STEP)
+    expected, _ = _clarabel(s, other, q, rows, normals, lower, x0, STEP, WEIGHT)
+    np.testing.assert_allclose(x, expected, atol=1e-6)
+    programme.prepare(-p_upper)  # no factor: nothing kept, the solve says why
+    with pytest.raises(ProgrammeError, match="not convex"):
+        programme.solve(-p_upper, q, rows, normals, lower, x0, STEP)
+
+
 class _Failing:
     """A DAQP whose every set-up fails (as a cycling or badly scaled programme makes it)."""
 
