@@ -124,10 +124,7 @@ class StoolParams:
     seat_width: float = 0.40
     seat_tilt_deg: float = 0.0
     edge_drop: float = 0.03
-    # 8 across, as a chair's seat: under the bundled medium sitter (frames 170-230, nine of
-    # them) 6 x 6 quads covered 0.90-0.94 of the pelvis and thighs (mean 0.924, peak 0.73 of
-    # the flat seat's), 8 x 6 0.92-0.96 (mean 0.944, peak 0.68); 10 x 6 and 10 x 8 no better
-    seat_quads: tuple[int, int] = (8, 6)
+    seat_quads: tuple[int, int] = (6, 6)
     position: tuple[float, float] = (0.0, 0.0)
     heading_deg: float = 0.0
 
