@@ -630,7 +630,8 @@ def _depths(fit: _Fit, sv: np.ndarray) -> Depths:
     gap, nearest = fit.body_tree3.query(sv - fit.tree_offset, distance_upper_bound=INSIDE_REACH)
     outside = nearest == len(points)
     nearest[outside] = 0
-    ahead = np.einsum("ij,ij->i", sv - points[nearest], normals[nearest])
+    ahead = np.einsum("ij,ij->i", sv - np.take(points, nearest, axis=0),
+                      np.take(normals, nearest, axis=0))
     inside = ~outside & (ahead < 0)
     return Depths(gap, nearest, inside, np.where(inside, -ahead, 0.0))
 
@@ -706,15 +707,17 @@ def constrain(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray, member: np.ndarra
     parameters, the floor's rows follow (`floor_rows`). `depths`: the sampled vertices'
     `Depths` when already known."""
     ids = fit.sampled_ids
-    near_s, dist, inside, depth = _nearest_skin(fit, surf[ids], surf_n[ids], skin, depths)
+    near_s, dist, inside, depth = _nearest_skin(fit, np.take(surf, ids, axis=0),
+                                                np.take(surf_n, ids, axis=0), skin, depths)
     closest = np.zeros(len(surf), dtype=np.int64)
     closest[ids] = near_s
     wanted = np.zeros(len(surf), dtype=bool)
     wanted[ids] = (dist <= CONSTRAINT_RADIUS) | inside
     member |= wanted
     rows = np.flatnonzero(member)
-    cn = fit.normals[closest[rows]]
-    demanded = np.einsum("ij,ij->i", cn, fit.points[closest[rows]]) - fit.params.margin
+    cn = np.take(fit.normals, closest[rows], axis=0)
+    demanded = np.einsum("ij,ij->i", cn, np.take(fit.points, closest[rows], axis=0)) - \
+        fit.params.margin
     demanded[~wanted[rows]] = -np.inf
     # a vertex outside every body is in no body, whatever the tangent plane of the skin it
     # faces says (a body is not convex: the plane of a calf's back cuts through the space under
@@ -847,18 +850,20 @@ def rim_rows(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray) -> Rows:
     nearest such point's; a lid row already broken holds the rim where it is. Both kinds join
     `fit.rim.member` and stay (inactive when not wanted), as the body's rows do."""
     rim = fit.rim
-    p, n = surf[rim.ids], surf_n[rim.ids]
-    e = np.cross(surf[rim.after] - surf[rim.before], n)  # outwards (`_rim_topology`)
+    p, n = np.take(surf, rim.ids, axis=0), np.take(surf_n, rim.ids, axis=0)
+    e = np.cross(np.take(surf, rim.after, axis=0) - np.take(surf, rim.before, axis=0),
+                 n)  # outwards (`_rim_topology`)
     e /= np.maximum(np.linalg.norm(e, axis=1, keepdims=True), 1e-300)
     # each skin point to its nearest rim vertex within reach
     near = rim.candidates(p)
-    dist, owner = cKDTree(p).query(rim.points[near], distance_upper_bound=RIM_REACH)
+    dist, owner = cKDTree(p).query(np.take(rim.points, near, axis=0),
+                                   distance_upper_bound=RIM_REACH)
     point, owner = near[np.isfinite(dist)], owner[np.isfinite(dist)]
     k = len(rim.ids)
     demanded, lid = np.full(k, -np.inf), np.full(k, -np.inf)
     scale = np.ones(k)
     if len(point):
-        d = rim.points[point] - p[owner]
+        d = np.take(rim.points, point, axis=0) - np.take(p, owner, axis=0)
         behind = -np.einsum("ij,ij->i", d, n[owner])
         out = np.einsum("ij,ij->i", d, e[owner])
         over = rim.unnamed[point] & (behind < 0) & (behind > -LID_FRONT) & \
@@ -1027,7 +1032,7 @@ def _out_of_bounds(fit: _Fit, v: np.ndarray, surf: np.ndarray, surf_n: np.ndarra
     would add to `member` and `floor_member` join them (in place) all the same: a refused step
     changes the rows (and so OSQP's set-up, on a large mesh) as it did when constrained in full."""
     ids = fit.sampled_ids
-    sv = surf[ids]
+    sv = np.take(surf, ids, axis=0)
     depths = _depths(fit, sv)
     # a vertex inside a body is wanted; one outside, when its facing skin is near enough (only
     # those not in the rows yet are sought: the others stay in them anyway)
@@ -1113,10 +1118,11 @@ def assess(fit: _Fit, v: np.ndarray, member: np.ndarray,
                                refused)
     try:
         pairing = pair(fit, surf)
-        diff = fit.b_imp - surf[pairing.pair]
+        diff = fit.b_imp - np.take(surf, pairing.pair, axis=0)
         total = max(fit.w_imp.sum(), 1e-300)
         point = float(fit.w_imp @ np.einsum("ij,ij->i", diff, diff) / total)
-        plane = float(fit.w_imp @ np.einsum("ij,ij->i", diff, surf_n[pairing.pair]) ** 2 /
+        plane = float(fit.w_imp @ np.einsum("ij,ij->i", diff,
+                                            np.take(surf_n, pairing.pair, axis=0)) ** 2 /
                       total)
         smooth = float(sum(v[:, a] @ (fit.smooth @ v[:, a]) for a in range(3)))
         pulls = float(np.sum(fit.fixed[:, None] * (v - fit.v0) ** 2))
@@ -1159,7 +1165,7 @@ def _body_side(fit: _Fit, v: np.ndarray, surf: np.ndarray, surf_n: np.ndarray,
     surface is out of bounds (`_beyond`) and its rows (`with_rows`, whose members include
     those `_out_of_bounds` adds), these last unless `refused` is set once the depths are known
     (None then)."""
-    depths = _depths(fit, surf[fit.sampled_ids])
+    depths = _depths(fit, np.take(surf, fit.sampled_ids, axis=0))
     unmet = _beyond(fit, v, surf, depths, floor_member)
     if refused.is_set():
         return depths, unmet, None
@@ -1186,11 +1192,13 @@ def _bends(fit: _Fit, surf: np.ndarray) -> tuple[float, float]:
         return 0.0, np.inf
     cosine, gap, ridge = _bend_parts(fit, surf)
     fold = float(np.degrees(np.arccos(np.clip(cosine.min(), -1.0, 1.0))))
-    angle = np.arccos(np.clip(cosine[ridge], -1.0, 1.0))
+    pairs = np.flatnonzero(ridge)
+    angle = np.arccos(np.clip(np.take(cosine, pairs), -1.0, 1.0))
     bent = angle > 1e-6
     if not bent.any():
         return fold, np.inf
-    return fold, float((np.linalg.norm(gap[ridge][bent], axis=1) / angle[bent]).min())
+    return fold, float((np.linalg.norm(np.take(gap, pairs[bent], axis=0), axis=1) /
+                        angle[bent]).min())
 
 
 def _bend_parts(fit: _Fit, surf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -1202,7 +1210,8 @@ def _bend_parts(fit: _Fit, surf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np
     both = diagonals @ surf
     n = np.cross(both[:len(both) // 2], both[len(both) // 2:])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-    n_a, n_b = n[fit.neighbours[:, 0]], n[fit.neighbours[:, 1]]
+    pairs = np.take(n, fit.neighbours, axis=0)  # (E, 2, 3) (quicker than indexing twice)
+    n_a, n_b = pairs[:, 0], pairs[:, 1]
     gap = centre_map @ surf
     ridge = (np.einsum("ij,ij->i", gap, n_a) < 0) & (np.einsum("ij,ij->i", gap, n_b) > 0)
     return np.einsum("ij,ij->i", n_a, n_b), gap, ridge
