@@ -18,9 +18,10 @@ A fit gives the same surface with one thread or several (tested to 1e-12).
 Apart from BLAS, a fit overlaps its two independent halves of judging a step (the pairing,
 energy and folds; the depths and rows against the bodies, nearest-point searches that run
 outside Python's lock) on a second thread when `overlapped()` says so: when the machine gives
-this process at least two cores and `SITRELAX_THREADS` is unset, or when it says ``all`` or
-a count of two or more. `SITRELAX_THREADS=1` (what batch workers get) keeps every fit on one
-thread. The surface is the same either way (tested bit for bit).
+this process at least two cores (its CPU affinity: a container's CPU quota is not seen) and
+`SITRELAX_THREADS` is unset or ``all``, or when it is a count of two or more (which also gives
+BLAS that many). `SITRELAX_THREADS=1` (what batch workers get) keeps every fit on one thread.
+The surface is the same either way (tested bit for bit).
 """
 
 from __future__ import annotations

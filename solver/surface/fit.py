@@ -75,7 +75,7 @@ from __future__ import annotations
 
 import threading
 import time
-from concurrent.futures import Executor, ThreadPoolExecutor
+from concurrent.futures import Executor, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
 
@@ -513,10 +513,14 @@ def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedB
             len(skins) < len(state.skins) else None
         skins.append(old.moved(t.vertices, t.triangles, stack) if old is not None else
                      _Skin(t.vertices, t.triangles, stack))
-    rim = _make_rim(sub, sampled, targets, v0, state.rim_member if same else None) \
-        if RIM_CLEARANCE > 0 else None
-    if building is not None:
-        trees = building.result()
+    try:
+        rim = _make_rim(sub, sampled, targets, v0, state.rim_member if same else None) \
+            if RIM_CLEARANCE > 0 else None
+        if building is not None:
+            trees = building.result()
+    except BaseException:
+        programme.release()  # (a warm refit's programme is claimed above)
+        raise
     # the data terms aim `sink` into the skin: the foam is pressed that far where it carries
     # the body at rest, so the skin touches it there rather than grazing it
     return _Fit(v0, faces, params, sub, lap, points, normals,
@@ -1029,8 +1033,9 @@ def _out_of_bounds(fit: _Fit, v: np.ndarray, surf: np.ndarray, surf_n: np.ndarra
     `surf` and normals `surf_n`, without the rows themselves (`constrain` and `_with_extra`
     make them, for an iterate that is accepted): the sampled vertices' `Depths` and how far the
     surface is out of bounds (`Rows.beyond_m2`, the same sum). The vertices that `constrain`
-    would add to `member` and `floor_member` join them (in place) all the same: a refused step
-    changes the rows (and so OSQP's set-up, on a large mesh) as it did when constrained in full."""
+    would add to `member` and `floor_member` join them (in place) all the same. (Only the
+    floor's members change what a step solves: a body row is wanted, with a finite bound, only
+    where the iterate it is made for wants it, and the programme takes no other.)"""
     ids = fit.sampled_ids
     sv = np.take(surf, ids, axis=0)
     depths = _depths(fit, sv)
@@ -1101,14 +1106,16 @@ def assess(fit: _Fit, v: np.ndarray, member: np.ndarray,
     loop's candidates: most are accepted), which `with_rows` adds. With `ceiling` (tau, energy),
     a candidate whose energy at tau exceeds that energy before its depths are counted (they
     only add to it) is refused then: its `unmet` is inf and its bends are not measured (the
-    floor's rows it reaches join `floor_member` all the same; the body rows it adds are not
-    wanted once a later iterate is constrained, as `constrain` makes them).
+    floor's rows it reaches join `floor_member` all the same; of the body's members, which
+    change no step, it may add some or none).
 
     With the fit's `pool` (`overlapped`), the depths and rows (`_body_side`) are made on the
     pool's thread while this one pairs, measures and, given `ahead` (the next step's tau),
     assembles the next step's quadratic (`Iterate.ahead`) and has the programme factor it
-    (`DenseProgramme.prepare`): the iterate comes with its rows
-    whatever `rows` says (the loop accepts most candidates), and is the same as made in turn."""
+    (`DenseProgramme.prepare`): an iterate that is not refused early comes with its rows
+    whatever `rows` says (the loop accepts most candidates). Accepted iterates and steps are
+    the same as made in turn, bit for bit; the members of rows that are not wanted (those of
+    the body and the rim) may differ, and change nothing."""
     surf = fit.sub.matrix @ v
     surf_n = fit.sub.normals(surf)
     side, refused = None, None
@@ -1126,20 +1133,22 @@ def assess(fit: _Fit, v: np.ndarray, member: np.ndarray,
                       total)
         smooth = float(sum(v[:, a] @ (fit.smooth @ v[:, a]) for a in range(3)))
         pulls = float(np.sum(fit.fixed[:, None] * (v - fit.v0) ** 2))
+        rest = smooth + pulls
         if ceiling is not None and not rows:
             tau, most = ceiling
-            if (1 - tau) * point + tau * plane + smooth + pulls > most:
+            # `Iterate.energy` adds its last term to this very sum: it cannot come out less
+            if (1 - tau) * point + tau * plane + rest > most:
                 if side is not None:
                     refused.set()
                     side.result()  # (its floor rows join as below)
                 elif floor_member is not None and fit.params.floor is not None:
                     floor_rows(fit, surf, floor_member)
-                return Iterate(v, surf, surf_n, pairing, None, point, plane, smooth + pulls,
+                return Iterate(v, surf, surf_n, pairing, None, point, plane, rest,
                                np.inf, 0.0, np.inf, fit.programme.slack_weight)
         fold, ridge = _bends(fit, surf)
         if side is None:
             depths, unmet = _out_of_bounds(fit, v, surf, surf_n, member, floor_member)
-            it = Iterate(v, surf, surf_n, pairing, None, point, plane, smooth + pulls, unmet,
+            it = Iterate(v, surf, surf_n, pairing, None, point, plane, rest, unmet,
                          fold, ridge, fit.programme.slack_weight, depths)
             return with_rows(fit, it, member, floor_member, skin) if rows else it
         quadratic = None
@@ -1151,10 +1160,10 @@ def assess(fit: _Fit, v: np.ndarray, member: np.ndarray,
     except BaseException:
         if side is not None:  # (it writes to the rows' members: done before they are read)
             refused.set()
-            side.result()
+            wait([side])  # (this thread's error is the one raised)
         raise
     depths, unmet, body_rows = side.result()
-    return Iterate(v, surf, surf_n, pairing, body_rows, point, plane, smooth + pulls, unmet,
+    return Iterate(v, surf, surf_n, pairing, body_rows, point, plane, rest, unmet,
                    fold, ridge, fit.programme.slack_weight, depths, quadratic)
 
 

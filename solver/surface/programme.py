@@ -277,6 +277,12 @@ class DenseProgramme(_Claimed):
             raise ProgrammeError(f"{'; '.join(failures)}; {osqp_failed} (tried instead)"
                                  ) from None
 
+    def release(self) -> None:
+        """Gives the claimed programme back, without what was made ahead for a solve that did
+        not come (a kept programme holds no dense matrices it will not use)."""
+        self._ahead = None
+        super().release()
+
     def prepare(self, p_x: np.ndarray) -> None:
         """Mirrors and factors the objective's matrix `p_x` (upper blocks filled) ahead of the
         next `solve`, which uses them if its own matrix is the same, entry for entry (else it
