@@ -1,10 +1,17 @@
 """Shared test fixtures: where the real recordings and the fixture corpus live."""
 
+import os
 from pathlib import Path
 
 import pytest
 
 from capture.recordings import bundled_dir
+
+# Test workers run side by side (pytest -n), as batch jobs do: one thread each, so that a fit's
+# second thread (solver.threads.overlapped) does not starve the other worker, a browser test's
+# page least of all. The tests of that thread ask for it themselves (test_overlap.py).
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    os.environ.setdefault("SITRELAX_THREADS", "1")
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURES = ROOT / "fixtures"
