@@ -1178,8 +1178,7 @@ def _body_side(fit: _Fit, v: np.ndarray, surf: np.ndarray, surf_n: np.ndarray,
     unmet = _beyond(fit, v, surf, depths, floor_member)
     if refused.is_set():
         return depths, unmet, None
-    return depths, unmet, _with_extra(fit, v, constrain(fit, surf, surf_n, member,
-                                                        floor_member, skin, depths))
+    return depths, unmet, _rows_at(fit, v, surf, surf_n, member, floor_member, skin, depths)
 
 
 def with_rows(fit: _Fit, it: Iterate, member: np.ndarray,
@@ -1187,9 +1186,16 @@ def with_rows(fit: _Fit, it: Iterate, member: np.ndarray,
               ) -> Iterate:
     """`it` with its rows (`constrain`, then the rows on samples): for the members that the
     iterate's assessment left in `member` and `floor_member`."""
-    rows = _with_extra(fit, it.v, constrain(fit, it.surf, it.surf_n, member, floor_member, skin,
-                                            it.depths))
-    return replace(it, rows=rows)
+    return replace(it, rows=_rows_at(fit, it.v, it.surf, it.surf_n, member, floor_member, skin,
+                                     it.depths))
+
+
+def _rows_at(fit: _Fit, v: np.ndarray, surf: np.ndarray, surf_n: np.ndarray,
+             member: np.ndarray, floor_member: np.ndarray | None, skin: np.ndarray | None,
+             depths: Depths | None) -> Rows:
+    """The rows of control vertices v (n0, 3) with level-s surface `surf`, normals `surf_n`
+    and its sampled vertices' `depths`: `constrain`'s, then the rows on samples."""
+    return _with_extra(fit, v, constrain(fit, surf, surf_n, member, floor_member, skin, depths))
 
 
 def _bends(fit: _Fit, surf: np.ndarray) -> tuple[float, float]:
