@@ -50,13 +50,14 @@ class _Claimed:
 
     def _wanted(self, rows: np.ndarray, normals: np.ndarray, lower: np.ndarray):
         """The rows wanted now (a finite bound; the others never bind): their points, normals
-        and bounds, and n . (S x) of them as a function of x (3 n0), from one product with
-        all of S."""
+        and bounds, and n . (S x) of them as a function of x (3 n0), from their own rows of S
+        (the same sums, term by term, as the product with all of S)."""
         wanted = np.flatnonzero(np.isfinite(lower))
         points, plane_normals = rows[wanted], normals[wanted]
+        s_rows = self.s[points]
 
         def plane(x: np.ndarray) -> np.ndarray:
-            return _normals_dot(plane_normals, (self.s @ x.reshape(3, self.n0).T)[points])
+            return _normals_dot(plane_normals, s_rows @ x.reshape(3, self.n0).T)
 
         return points, plane_normals, lower[wanted], plane
 
