@@ -259,10 +259,11 @@ EXAMPLES = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios"
 # The seated examples support a seat (pelvis and thighs); each grid's front edge ends 3 cm short
 # of the calves' skin (the person placed so), and the fit's rim rows keep it from advancing over
 # them. facing_pair's one surface runs on under both people's calves (the lid rows keep it off
-# the south person's since 44cc48e), and its north person (the pose leans back) tips back off a
-# seat under the pelvis and thighs alone, as off a flat seat at its height. Measured after the
-# rim rows and the knee crease; a strict xfail fails the run once its example meets the bar.
-NO_REST = "tips back off a seat under the pelvis and thighs alone (the pose leans back)"
+# the south person's since 44cc48e), and its north person tips back: its calves lie in the
+# surface's foam and press it back (alone on the same long grid it tips too; on single_seated's
+# grid, which ends before the calves, the same body and pose rests). Measured after the rim rows
+# and the knee crease; a strict xfail fails the run once its example meets the bar.
+NO_REST = "tips back: the one surface runs on under its calves, which press it back"
 _EXAMPLE_MARKS = {
     "facing_pair": {"rest": NO_REST},
 }
