@@ -67,9 +67,7 @@ def test_fit_of_one_person_answers_with_the_surface_and_its_evaluation(api):
     person = reply["persons"][0]
     assert person["coverage"] >= 0.9 and person["support"] == ["pelvis", "thighs"]
     assert "converged" in reply["stop_reason"]
-    # the example supports a seat, on which this pose (leaning back) finds no rest; in a chair
-    # (a template with a back, supporting the back too) the body rests and its pressure comes
-    # back
+    # the same person in a chair (a template with a back, supporting the back too) rests on it
     chair = json.loads(json.dumps(SINGLE))
     chair["surface"] = {k: v for k, v in chair["surface"].items() if k != "grid"}
     chair["surface"]["template"] = {"kind": "chair"}
@@ -78,7 +76,7 @@ def test_fit_of_one_person_answers_with_the_surface_and_its_evaluation(api):
     assert status == 200, reply
     person = reply["persons"][0]
     assert person["equilibrium"]["stable"] and person["peak_pressure_kpa"] > 0
-    # this pose leans back: a flat seat without a back lets it tip over
+    # the flat seat a chair is judged against has no back: it does not hold this sitter
     assert person["flat"]["supported"] is False and person["flat"]["peak_pressure_kpa"] is None
 
 
