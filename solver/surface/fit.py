@@ -1207,13 +1207,19 @@ def _bends(fit: _Fit, surf: np.ndarray) -> tuple[float, float]:
         return 0.0, np.inf
     cosine, gap, ridge = _bend_parts(fit, surf)
     fold = float(np.degrees(np.arccos(np.clip(cosine.min(), -1.0, 1.0))))
+    _, radii = _ridge_radii(cosine, gap, ridge)
+    return fold, float(radii.min()) if len(radii) else np.inf
+
+
+def _ridge_radii(cosine: np.ndarray, gap: np.ndarray, ridge: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Of `_bend_parts`' pairs: those that make a ridge and bend (by more than 1e-6 rad), and
+    the radius of each, the distance between the quads' centres over the angle between them
+    (the angles taken for those pairs only)."""
     pairs = np.flatnonzero(ridge)
     angle = np.arccos(np.clip(np.take(cosine, pairs), -1.0, 1.0))
     bent = angle > 1e-6
-    if not bent.any():
-        return fold, np.inf
-    return fold, float((np.linalg.norm(np.take(gap, pairs[bent], axis=0), axis=1) /
-                        angle[bent]).min())
+    return pairs[bent], np.linalg.norm(np.take(gap, pairs[bent], axis=0), axis=1) / angle[bent]
 
 
 def _bend_parts(fit: _Fit, surf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -1239,11 +1245,10 @@ def _bend_pairs(fit: _Fit, surf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     neighbour's plane), the distance between their centres over that angle (inf where they
     make no ridge)."""
     cosine, gap, ridge = _bend_parts(fit, surf)
-    angle = np.arccos(np.clip(cosine, -1.0, 1.0))
-    ridge &= angle > 1e-6
-    radius = np.full(len(angle), np.inf)
-    radius[ridge] = np.linalg.norm(gap[ridge], axis=1) / angle[ridge]
-    return angle, radius
+    pairs, radii = _ridge_radii(cosine, gap, ridge)
+    radius = np.full(len(cosine), np.inf)
+    radius[pairs] = radii
+    return np.arccos(np.clip(cosine, -1.0, 1.0)), radius
 
 
 def _bent_controls(fit: _Fit, it: Iterate, candidate: Iterate) -> np.ndarray:
