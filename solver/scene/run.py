@@ -490,14 +490,16 @@ def export_scene(out: Path, result: FitResult, people: list[PlacedPerson],
                    **(frame if suffix != ".glb" else {}))
         files[f"surface_{suffix[1:]}"] = name
     peak = max([float(m.max()) for m in maps] + [1.0])
-    bodies = []
+    bodies, bodies_obj = [], []
     for k, (p, pressure) in enumerate(zip(people, maps), start=1):
         colors = field_colors(pressure, 0.0, peak)
         write_mesh(out / f"person_{k}.ply", p.vertices, p.body.faces, vertex_colors=colors,
                    **frame)
         write_mesh(out / f"person_{k}.obj", p.vertices, p.body.faces, **frame)
         bodies.append(f"person_{k}.ply")
-    files["bodies"] = bodies
+        bodies_obj.append(f"person_{k}.obj")
+    files["bodies"] = bodies  # (with the pressure as vertex colours)
+    files["bodies_obj"] = bodies_obj
     if "3dm" in formats:
         labels = [(f"person {k}", p.label.split(" (")[0]) for k, p in enumerate(people, 1)]
         names = [a if a == b else f"{a}: {b}" for a, b in labels]

@@ -48,7 +48,9 @@ the energy with every body point at its nearest vertex of the new surface, plus 
 demands the new surface leaves unmet) and folds no neighbouring level-s quads further apart than
 FOLD_GUARD_DEG (or than the iterate before it); otherwise it is tried again half as long (a
 backtracking line search along the programme's solution), up to MAX_HALVINGS times, after which
-the fit has converged. In a cold fit, a full step refused for a fold or a ridge is first
+the fit has converged; while tau is still ramping, the loop first shortens likewise the proposal
+that was refused for its bends but lowered the energy most (a fit that stopped there would stop
+before its energy is the fit's). In a cold fit, a full step refused for a fold or a ridge is first
 proposed again, up to STIFFEN_ROUNDS times, with the smoothness raised (tenfold each time) at the
 control vertices that shape the offending quads (`_stiffened`; the raise stays for the rest of
 the fit and only the proposals see it), and a stiffened proposal refused for its energy once as
@@ -1649,7 +1651,9 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
     the kind the last one took (a fit that creeps on with steps that bend less makes no
     smoother proposal, refused every time, before each); with `freeze` (a warm
     refit) such a step is instead tried again with the control vertices that shape the
-    offending quads held still. Returns why it stopped and the last iteration."""
+    offending quads held still. While tau ramps, an iteration whose halvings all fail shortens
+    in turn the full proposal refused for a fold or a ridge that lowered the energy most, before
+    the loop stops. Returns why it stopped and the last iteration."""
     params = fit.params
     it = run.accepted[-1]
     iteration = first - 1
@@ -1679,6 +1683,9 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
             moving = np.ones((fit.n0, 1))
         halving = freezes = stiffened = 0
         switched = False  # whether the other kind of proposal has been tried
+        bent_best = None  # (gain, target, moving): the full proposal refused for its bends
+        # that lowered the energy most (shortened in turn when the others' halvings fail in
+        # the tau ramp)
         while halving <= MAX_HALVINGS:
             if cancel is not None and (halving or stiffened or freezes or switched) and \
                     cancel():  # (a large programme's tries take seconds each)
@@ -1690,6 +1697,10 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
             if why is None:
                 break
             run.rejected[why] += 1
+            if why != "energy" and halving == 0:
+                gain = it.energy(t) - candidate.energy(t)
+                if gain > 0 and (bent_best is None or gain > bent_best[0]):
+                    bent_best = (gain, target, moving.copy())
             again = None
             if halving == 0 and not freeze:  # (a warm refit holds vertices still instead)
                 if why != "energy" and stiffened < STIFFEN_ROUNDS:
@@ -1724,6 +1735,12 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
                     freezes += 1
                     continue
             halving += 1
+            if halving > MAX_HALVINGS and bent_best is not None and t < params.tau_max:
+                # no step yet at this tau, before tau has reached its top (the energy judged is
+                # not yet the fit's): the proposal that gained most but bent too far is
+                # shortened instead, rather than the fit stopping there
+                _, target, moving = bent_best
+                bent_best, halving = None, 1
         else:
             return (f"converged: no step along the programme's solution (down to "
                     f"1/{2 ** MAX_HALVINGS} of it) lowers the energy without folding (energy "

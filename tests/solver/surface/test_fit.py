@@ -222,8 +222,12 @@ def test_fit_command_writes_files_that_open_again(tmp_path):
             "max_penetration_dense_m"} <= set(guarantees)
     limit = trimesh.load(out / "surface.obj", process=False, force="mesh").vertices
     assert guarantees["min_height_m"] == pytest.approx(limit[:, 1].min(), abs=1e-6)
+    assert report["files"]["bodies"] == ["person_1.ply"]
+    assert report["files"]["bodies_obj"] == ["person_1.obj"]
     body = trimesh.load(out / "person_1.ply", process=False)
     assert len(body.vertices) == 13380 and len(body.faces) == 2 * 13378
+    same = trimesh.load(out / "person_1.obj", process=False)
+    assert np.allclose(same.vertices, body.vertices, atol=1e-5)
     assert report["pictures"] is True
     assert (out / "scene.png").stat().st_size > 10_000
     assert (out / "pressure.png").stat().st_size > 10_000

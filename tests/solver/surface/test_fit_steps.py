@@ -614,3 +614,28 @@ def test_the_folds_of_a_crease_are_not_flaws_and_a_surface_that_is_not_a_number_
     unknown = limit.copy()
     unknown[fit.sub.triangles[0][0]] = np.nan  # its triangles' normals are not numbers
     assert F._triangle_folds(fit, unknown) >= 1
+
+
+def test_a_fit_still_ramping_shortens_the_bent_proposal_that_gained_most_before_it_stops():
+    """`template_stool` (a 6 x 6 stool under the medium-sit pose): in its fifth iteration, tau
+    at 0.2 of its 0.5, every halving of the last proposal raises the energy, while the proposal
+    refused for a ridge before it lowered the energy by 8 %: a quarter of that one is a step,
+    and the fit goes on past the ramp to a lower energy (without that it stopped there, after 5
+    iterations at 4.7e-4). Its energies never rise and no accepted iterate bends past the
+    guards."""
+    from solver.scene.placement import place_scene
+    from solver.scene.run import fit_people
+    from solver.scene.scenario import load_scenario
+
+    from tests.solver.surface.test_fit import EXAMPLES
+
+    scenario, people = place_scene(load_scenario(EXAMPLES / "template_stool.toml"))
+    result = fit_people(scenario, people)
+    assert result.iterations > F.TAU_RAMP + 1, result.stop_reason
+    e = np.asarray(result.energies)
+    assert np.all(np.diff(e) <= 1e-12 * e[:-1])
+    assert e[-1] < 4.5e-4
+    assert result.energy_terms["rejected_steps"]["ridge"] > 0
+    assert result.energy_terms["max_fold_deg"] <= F.FOLD_GUARD_DEG
+    ridge = result.energy_terms["min_ridge_radius_m"]
+    assert ridge is None or ridge >= scenario.surface.params.min_ridge_radius - 1e-12
