@@ -1,10 +1,13 @@
-"""Files written whole or not at all: a temporary file in the same folder, then a rename."""
+"""Files written whole or not at all: a temporary file in the same folder, then a rename; and
+results folders that a command which fails before writing into them does not leave behind."""
 
 from __future__ import annotations
 
 import os
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Iterator
 
 
 def write_atomic(path: str | os.PathLike, data: bytes) -> None:
@@ -25,4 +28,23 @@ def write_atomic(path: str | os.PathLike, data: bytes) -> None:
             os.unlink(tmp)
         except FileNotFoundError:
             pass
+        raise
+
+
+@contextmanager
+def made_folder(path: str | os.PathLike) -> Iterator[Path]:
+    """Makes the folder `path` (and its parents) for a command's results; when the block
+    raises before anything was written into a folder it made, the folder goes again (a failed
+    command leaves no empty results folder behind)."""
+    folder = Path(path)
+    made = not folder.exists()
+    folder.mkdir(parents=True, exist_ok=True)
+    try:
+        yield folder
+    except BaseException:
+        if made:
+            try:
+                folder.rmdir()  # (only when empty)
+            except OSError:
+                pass
         raise

@@ -98,12 +98,17 @@ def _cmd_list(args) -> int:
 
 
 def _cmd_show(args) -> int:
+    from .schema import NotFoundError
+
     lib = _open(args)
     try:
         info = lib.pose(args.name).as_dict(None)
         info["take"] = lib.take(info["take_id"]).name
     except ValueError:
-        info = lib.take(args.name).as_dict()
+        try:
+            info = lib.take(args.name).as_dict()
+        except NotFoundError:  # (the name may be either)
+            raise NotFoundError(f"No pose or take {args.name!r} in {lib.path}") from None
     _print(info, args.json, "\n".join(f"{k:<12} {v}" for k, v in info.items()))
     return 0
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from typing import Any, Callable
 
@@ -134,11 +135,13 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(report, indent=2))
         return 1 if problem else 0
-    print(f"{report['iterations']} iterations in {report['timing']['total_s']:.2f} s: "
+    timing = report["timing"]
+    print(f"fitted in {timing['fit_s']:.2f} s, {report['iterations']} iterations "
+          f"({timing['total_s']:.2f} s in all, with the evaluation and the files): "
           f"{report['stop_reason']}")
     for p in report["persons"]:
-        loads = ", ".join(f"{name} {v['load_share'] * 100:.0f} %" for name, v in
-                          p["equilibrium"]["supports"].items())
+        loads = ", ".join(f"{name} {round(v['load_share'] * 100) or 0} %" for name, v in
+                          p["equilibrium"]["supports"].items())  # (no "-0 %")
         print(f"{p['name']}: coverage {p['coverage']:.2f}, penetration "
               f"{p['max_penetration_m'] * 1000:.0f} mm, peak {peak_text(p)} "
               f"(flat seat {flat_text(p)}), contact {p['contact_area_m2']:.3f} m^2"
@@ -274,8 +277,10 @@ def _cmd_relax(args: argparse.Namespace) -> int:
               f"{a['max_penetration_m'] * 1000:.0f} mm, peak {peak_text(b)} -> {peak_text(a)} "
               f"({p['seconds']:.2f} s)")
         print(f"  {p['relaxation']['summary']}")
-        if "saved_pose" in p:
-            print(f"  saved as pose {p['saved_pose']['name']!r} ({p['saved_pose']['id']})")
+        if "saved_pose" in p:  # (as the studio's button, a kept captured pose is stored too)
+            kept = "" if p["relaxation"]["accepted"] else \
+                ", the captured pose as it was: the relaxation kept it"
+            print(f"  saved as pose {p['saved_pose']['name']!r} ({p['saved_pose']['id']}){kept}")
     return 0
 
 
@@ -493,6 +498,11 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("sitrelax: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the reader stopped (`sitrelax ... --json | head`): no more output
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # (the interpreter's last flush goes nowhere)
+        os.close(devnull)
+        return 1
     except (ValueError, OSError, KeyError) as exc:
         if args.debug:
             raise

@@ -60,6 +60,21 @@ def test_debug_shows_the_exception(tmp_path):
         main(["--debug", "bvh", "info", "bundled:cmu_75_18_high_sit.bvh", "--unit", "furlong"])
 
 
+
+def test_a_reader_that_stops_early_ends_the_command_quietly():
+    """`sitrelax ... --json | head`: the reader closes the pipe after a few bytes; the command
+    stops without a traceback or an error line, exit status 1."""
+    code = ("import argparse, sys; from solver.cli import run; "
+            "p = argparse.ArgumentParser(); p.add_argument('--debug', action='store_true'); "
+            "p.set_defaults(func=lambda a: print('x' * 1_000_000)); sys.exit(run(p, []))")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    assert proc.stdout.read(10) == b"x" * 10
+    proc.stdout.close()
+    err = proc.stderr.read()
+    assert proc.wait(60) == 1
+    assert b"Traceback" not in err and b"error" not in err, err
+
 def test_console_script_runs():
     out = subprocess.run(
         [sys.executable, "-m", "solver.cli", "bvh", "info", "bundled:cmu_75_18_high_sit.bvh",

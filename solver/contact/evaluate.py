@@ -114,25 +114,32 @@ def surface_figures(settled: Settled, names=SURFACE_PARTS) -> dict:
 
 def peak_text(figures: dict) -> str:
     """A person's peak pressure on the surface for people ("7.9 kPa"), why the body does not
-    rest, or that it rests on something else."""
+    rest, that it rests on something else, or that the figures hold no settle ("not
+    measured")."""
     balance = figures.get("equilibrium") or {}
-    if balance.get("stable") is False:
-        return f"no rest: {balance.get('reason') or 'does not rest'}"
+    if balance.get("stable") is False or figures.get("supported") is False:
+        return f"no rest: {balance.get('reason') or 'does not come to rest'}"
     if figures.get("peak_pressure_kpa") is None:
-        return "0 kPa (rests elsewhere)"
+        rests = balance.get("stable") or figures.get("supported")
+        return "0 kPa (rests elsewhere)" if rests else "not measured"
     return f"{figures['peak_pressure_kpa']:.1f} kPa"
 
 
 def flat_text(person: dict) -> str:
     """A person's flat-seat baseline for people: its peak at the same load and the fitted
-    seat's peak as a share of it ("10.4 kPa at the same load, 0.74 of it"), or the flat seat's
-    own settle (`peak_text`) where there is no same-load figure."""
+    seat's own peak (which may be less than the person's peak on the whole surface, a back or
+    a leg rest included) as a share of it ("10.4 kPa at the same load; the seat's 7.7 kPa is
+    0.74 of it"), or the flat seat's own settle (`peak_text`) where there is no same-load
+    figure."""
     flat = person.get("flat") or {}
-    same = (flat.get("same_load") or {}).get("peak_pressure_kpa")
+    same_load = flat.get("same_load") or {}
+    same = same_load.get("peak_pressure_kpa")
     if same is None:
         return peak_text(flat)
-    ratio = person.get("peak_of_flat")
-    return f"{same:.1f} kPa at the same load" + (f", {ratio:.2f} of it" if ratio else "")
+    ratio, seat = person.get("peak_of_flat"), same_load.get("fitted_peak_kpa")
+    if not ratio or seat is None:
+        return f"{same:.1f} kPa at the same load"
+    return f"{same:.1f} kPa at the same load; the seat's {seat:.1f} kPa is {ratio:.2f} of it"
 
 
 def equilibrium_figures(settled: Settled) -> dict:

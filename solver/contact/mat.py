@@ -454,7 +454,11 @@ class PressureGrid:
     pressure_kpa : (R, C) float
         kPa: the normal force landing in each cell over its area, 0 where nothing presses.
     cell_area_m2 : (R, C) float
-        Each cell's area on the support, m^2.
+        Each cell's area on the support as the body presses it, m^2: its area on the surface,
+        or where a hollow gathers more of the body's skin onto the cell than that (sunk skin's
+        closest points crowd towards the middle of a hollow), the area of the skin pressing on
+        it (`pressure_grid` with areas): a mat lying on the pressed foam takes the skin's
+        shape, and its cell reads the skin's mean pressure there.
     row_edges_m, column_edges_m : (R + 1,) and (C + 1,) float
         The cells' edges, metres: along the mat from its first row / column (arc length) when
         draped; coordinates along `row_axis` / `column_axis` from the world origin on a plane.
@@ -634,27 +638,30 @@ def _splat(place: np.ndarray, force: np.ndarray, half: np.ndarray | None,
 
 
 def _orient(force: np.ndarray, area: np.ndarray, nodes: np.ndarray, normal: np.ndarray,
-            across: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The cells transposed and flipped so that columns run along `across` and rows along
-    column axis x normal (seen from the body's side, left to right and top to bottom)."""
+            across: np.ndarray, pressing: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The cells (their force, area and pressing area, `pressure_grid`) transposed and flipped
+    so that columns run along `across` and rows along column axis x normal (seen from the
+    body's side, left to right and top to bottom)."""
     def steps(n):
         return (np.diff(n, axis=0).reshape(-1, 3).mean(axis=0),
                 np.diff(n, axis=1).reshape(-1, 3).mean(axis=0))
 
     row_step, col_step = steps(nodes)
     if abs(row_step @ across) > abs(col_step @ across):
-        force, area, nodes = force.T, area.T, nodes.transpose(1, 0, 2)
+        force, area, pressing, nodes = force.T, area.T, pressing.T, nodes.transpose(1, 0, 2)
         row_step, col_step = col_step, row_step
     if col_step @ across < 0:
-        force, area, nodes = force[:, ::-1], area[:, ::-1], nodes[:, ::-1]
+        force, area, pressing, nodes = force[:, ::-1], area[:, ::-1], pressing[:, ::-1], \
+            nodes[:, ::-1]
         col_step = -col_step
     if row_step @ np.cross(col_step, normal) < 0:
-        force, area, nodes = force[::-1], area[::-1], nodes[::-1]
-    return force, area, nodes
+        force, area, pressing, nodes = force[::-1], area[::-1], pressing[::-1], nodes[::-1]
+    return force, area, pressing, nodes
 
 
-def _crop(force: np.ndarray, area: np.ndarray, nodes: np.ndarray, margin_m: float
-          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _crop(force: np.ndarray, area: np.ndarray, nodes: np.ndarray, margin_m: float,
+          pressing: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The cells over the loaded ones and about `margin_m` around them."""
     spans = []
     for axis in (0, 1):
@@ -664,7 +671,7 @@ def _crop(force: np.ndarray, area: np.ndarray, nodes: np.ndarray, margin_m: floa
         spans.append(slice(max(0, loaded[0] - extra),
                            min(force.shape[axis], loaded[-1] + 1 + extra)))
     rows, cols = spans
-    return force[rows, cols], area[rows, cols], \
+    return force[rows, cols], area[rows, cols], pressing[rows, cols], \
         nodes[rows.start:rows.stop + 1, cols.start:cols.stop + 1]
 
 
@@ -734,23 +741,31 @@ def pressure_grid(contact: SupportContact, surface_vertices: np.ndarray | None =
                                            np.asarray(surface_faces), grid, cell_m)
     else:
         place, area, nodes = _plane_cells(contact, normal, across, cell_m, margin_m)
-    half = None
+    half, pressing = None, area
     if areas is not None:
         areas = np.asarray(areas, dtype=float)
         if contact.vertices.max() >= len(areas):
             raise MatError(f"{contact.name}: expected areas for vertices up to "
                            f"{contact.vertices.max()}, got {len(areas)}")
         size = [np.median(np.linalg.norm(np.diff(nodes, axis=a), axis=-1)) for a in (0, 1)]
-        half = 0.5 * np.sqrt(areas[contact.vertices[loaded]])[:, None] / np.array(size)
+        footprint = areas[contact.vertices[loaded]]
+        half = 0.5 * np.sqrt(footprint)[:, None] / np.array(size)
     force = _splat(place[loaded], contact.normal_force[loaded], half, area.shape)
-    force, area, nodes = _orient(force, area, nodes, normal, across)
-    return _grid(contact.name, *_crop(force, area, nodes, margin_m), grid is not None)
+    if half is not None:
+        # the skin's area pressing on each cell: more than the cell's own where a concave
+        # surface gathers sunk skin onto it (a closest point moves towards the middle of the
+        # hollow), and the skin's mean pressure is what a mat lying on the pressed foam reads
+        pressing = np.maximum(area, _splat(place[loaded], footprint, half, area.shape))
+    force, area, pressing, nodes = _orient(force, area, nodes, normal, across, pressing)
+    force, area, pressing, nodes = _crop(force, area, nodes, margin_m, pressing)
+    return _grid(contact.name, force, area, nodes, grid is not None, pressing)
 
 
-def _grid(name: str, force: np.ndarray, area: np.ndarray, nodes: np.ndarray, draped: bool
-          ) -> PressureGrid:
-    """The PressureGrid of cells carrying force (R, C) N over areas (R, C) m^2 with nodes
-    (R + 1, C + 1, 3)."""
+def _grid(name: str, force: np.ndarray, area: np.ndarray, nodes: np.ndarray, draped: bool,
+          pressing: np.ndarray | None = None) -> PressureGrid:
+    """The PressureGrid of cells with force (R, C) N landing in them, areas (R, C) m^2 and
+    nodes (R + 1, C + 1, 3): each reads its force over its area as pressed, `pressing` (R, C),
+    the larger of its area and the skin's pressing on it (its area when not given)."""
     centres = 0.25 * (nodes[:-1, :-1] + nodes[1:, :-1] + nodes[:-1, 1:] + nodes[1:, 1:])
     row_axis = np.diff(nodes, axis=0).reshape(-1, 3).mean(axis=0)
     col_axis = np.diff(nodes, axis=1).reshape(-1, 3).mean(axis=0)
@@ -762,6 +777,7 @@ def _grid(name: str, force: np.ndarray, area: np.ndarray, nodes: np.ndarray, dra
             np.diff(nodes, axis=1), axis=-1).mean(axis=0))])
     else:
         row_edges, col_edges = nodes[:, 0] @ row_axis, nodes[0] @ col_axis
+    area = area if pressing is None else pressing
     pressure = np.divide(force, area, out=np.zeros_like(force), where=area > 0) / 1e3
     return PressureGrid(name, pressure, area, row_edges, col_edges, centres, row_axis, col_axis,
                         draped)

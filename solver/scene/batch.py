@@ -42,7 +42,7 @@ DEFAULT_JOB_TIME_LIMIT = 1800.0  # seconds
 MAX_SCENARIO_BYTES = 64 * 1024 * 1024
 SUMMARY_FIELDS = ("job", "scenario", "parameters", "status", "seconds", "coverage_min",
                   "max_penetration_m", "peak_pressure_kpa_max", "flat_peak_pressure_kpa_max",
-                  "all_rest", "iterations", "error")
+                  "peak_of_flat_max", "all_rest", "iterations", "error")
 
 
 class BatchError(ValueError):
@@ -214,8 +214,8 @@ def _run_here(job: Job, db: str | None, out_root: str) -> dict:
                    coverage_min=min(p["coverage"] for p in persons),
                    max_penetration_m=max(p["max_penetration_m"] for p in persons),
                    peak_pressure_kpa_max=_max_or_none(p["peak_pressure_kpa"] for p in persons),
-                   flat_peak_pressure_kpa_max=_max_or_none(p["flat"]["peak_pressure_kpa"]
-                                                           for p in persons),
+                   flat_peak_pressure_kpa_max=_max_or_none(_flat_peak(p) for p in persons),
+                   peak_of_flat_max=_max_or_none(p["peak_of_flat"] for p in persons),
                    all_rest=all(p["equilibrium"]["stable"] for p in persons))
     write_atomic(folder / "result.json", json.dumps(row, indent=2).encode())
     return row
@@ -475,6 +475,14 @@ def _store(db: str, jobs: Sequence[Job], rows: list[dict], out: Path) -> list[st
                             source=job.scenario)
             stored.append(job.id)
     return stored
+
+
+def _flat_peak(person: dict) -> float | None:
+    """The flat seat's peak a person's seat is judged against: at the same load when the body
+    rests on the fitted seat (`flat_at_same_load`), else the flat seat's own settle's (None
+    when the body finds no rest on it either)."""
+    same = person["flat"].get("same_load")
+    return same["peak_pressure_kpa"] if same else person["flat"]["peak_pressure_kpa"]
 
 
 def _max_or_none(values) -> float | None:

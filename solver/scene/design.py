@@ -34,7 +34,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from capture.files import write_atomic
+from capture.files import made_folder, write_atomic
 
 from solver.body.posture import PostureFigures, classify_posture, posture_figures
 
@@ -167,10 +167,9 @@ def run_design(poses: Sequence[str], out_dir: str | os.PathLike, *,
 
     Returns the report as written. Raises DesignError (see `design_scenario`)."""
     say = progress or (lambda message: None)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    absolute = [_absolute(p) for p in poses]
-    data, decisions = design_scenario(absolute, db)
+    with made_folder(out_dir) as out:  # (gone again if no scenario can be designed)
+        absolute = [_absolute(p) for p in poses]
+        data, decisions = design_scenario(absolute, db)
     say(f"{', '.join(decisions['postures'])}: a {decisions['template']}")
     header = (f"# sitrelax design {' '.join(poses)}\n# postures: "
               f"{', '.join(decisions['postures'])}; template: {decisions['template']}\n")

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from capture.files import write_atomic
+from capture.files import made_folder, write_atomic
 
 from solver.mesh import SurfaceMesh
 from solver.contact.evaluate import (FLOOR, SUPPORT_FIGURES, SupportGate, body_winding,
@@ -331,16 +331,15 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         scenario, scenario_path = scenario_path, scenario_path.path
     else:
         scenario = load_scenario(scenario_path)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    t = time.perf_counter()
-    scenario, people = place_scene(scenario, db)
-    timing["pose_s"] = time.perf_counter() - t
-    say(f"posed {len(people)} person(s) in {timing['pose_s']:.2f} s")
-    t = time.perf_counter()
-    result = fit_people(scenario, people, lambda i, e, tau: say(
-        f"iteration {i}: energy {e:.6g} (tau {tau:.2f})"))
-    timing["fit_s"] = time.perf_counter() - t
+    with made_folder(out_dir) as out:  # (gone again if nothing could be posed or fitted)
+        t = time.perf_counter()
+        scenario, people = place_scene(scenario, db)
+        timing["pose_s"] = time.perf_counter() - t
+        say(f"posed {len(people)} person(s) in {timing['pose_s']:.2f} s")
+        t = time.perf_counter()
+        result = fit_people(scenario, people, lambda i, e, tau: say(
+            f"iteration {i}: energy {e:.6g} (tau {tau:.2f})"))
+        timing["fit_s"] = time.perf_counter() - t
     say(f"fitted in {result.iterations} iterations, {timing['fit_s']:.2f} s: {result.stop_reason}")
     # the guarantees' check, then the design sheet, on a second thread: the check beside the
     # evaluation, the sheet beside the exports (their numpy, PNG compression and file writes
@@ -450,7 +449,9 @@ def _workshop(out: Path, result: FitResult, people: list[PlacedPerson], workshop
     more, fabrication = export_workshop(out, limit, result.surface_faces, people, workshop)
     files.update(more)
     timing["workshop_s"] = time.perf_counter() - t
-    say(f"workshop files: {', '.join(sorted(more))}")
+    problem = (fabrication.get("solid") or {}).get("problem")
+    say(f"workshop files: {', '.join(sorted(more))}" if more else
+        f"workshop files: none written{f' ({problem})' if problem else ''}")
     return fabrication
 
 
@@ -623,7 +624,7 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
         surface, faces = result.surface, result.surface_faces
         say(f"fitted the surface in {result.iterations} iterations")
     keys = ("mean_support_distance_m", "max_penetration_m", "coverage", "contact_coverage",
-            "peak_pressure_kpa")
+            "peak_pressure_kpa", "supported", "equilibrium")
     rows, meshes_before, meshes_after, relaxed = [], [], [], []
     for k in chosen:
         p = people[k]

@@ -90,3 +90,6 @@ def test_accepted_poses_inherit_the_take_tags_and_the_cli_prints_names(tmp_path,
     assert f"-> pose {bottom} (tags: squat synthetic)" in out and "pose-0" not in out
     assert main(["db", "show", bottom, "--db", db, "--json"]) == 0  # the printed name works
     assert json.loads(capsys.readouterr().out)["tags"] == ["squat", "synthetic"]
+    # a name that is neither: the message says it was sought as both
+    assert main(["db", "show", "nosuch", "--db", db]) == 2
+    assert "No pose or take 'nosuch'" in capsys.readouterr().err

@@ -214,6 +214,27 @@ def test_pressure_grid_conserves_force_and_finds_the_box(seat):
     assert pressure_grid(contact, *seat).normal_load_n == pytest.approx(MASS * G)
 
 
+
+def test_skin_gathered_onto_fewer_cells_reads_its_own_pressure_and_keeps_its_load(seat):
+    """The box's skin, its vertices drawn halfway in towards its middle (as the closest points
+    of skin sunk into a hollow crowd), lands on a quarter of the cells it covers flat: those
+    cells read the skin's pressure m g / A, not four times it, each as pressed taking four
+    times its area on the surface, and the cells carry the whole load."""
+    points, areas, _ = _box()
+    p = MASS * G / AREA
+    gathered = CENTRE + 0.5 * (points - CENTRE)
+    contact = _contact("seat", gathered, p * areas, seat)
+    grid = pressure_grid(contact, *seat, areas)
+    assert grid.normal_load_n == pytest.approx(MASS * G, rel=1e-9)
+    offset = np.abs(grid.centres_m - CENTRE)
+    inside = (offset[..., 0] < 0.1 - 0.02) & (offset[..., 2] < 0.075 - 0.02)
+    assert inside.sum() > 20
+    np.testing.assert_allclose(grid.pressure_kpa[inside], p / 1e3, rtol=1e-6)
+    assert grid.pressure_kpa.max() <= p / 1e3 * (1 + 1e-9)
+    flat = pressure_grid(_contact("seat", points, p * areas, seat), *seat, areas)
+    np.testing.assert_allclose(np.median(grid.cell_area_m2[inside]),
+                               4 * np.median(flat.cell_area_m2[flat.pressure_kpa > 0]), rtol=0.05)
+
 def test_draped_cells_tile_a_curved_surface_exactly():
     """Quads split into many cells each (about 7 x 7) on a bumpy surface: the cells' areas add up
     to the surface's, and a load anywhere stays whole."""

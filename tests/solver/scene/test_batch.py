@@ -85,6 +85,14 @@ def test_batch_runs_records_failures_stores_and_skips(library, tmp_path, capsys)
         report = json.loads((out / "jobs" / row["job"] / "report.json").read_text())
         assert row["coverage_min"] == min(p["coverage"] for p in report["persons"])
         assert row["coverage_min"] > 0.5
+        # the flat seat the seat is judged against: at the same load, where the body rests
+        (person,) = report["persons"]
+        if person["flat"]["same_load"]:
+            assert row["flat_peak_pressure_kpa_max"] == \
+                person["flat"]["same_load"]["peak_pressure_kpa"] > 0
+            assert row["peak_of_flat_max"] == person["peak_of_flat"] > 0
+        else:
+            assert row["peak_of_flat_max"] is None
     assert lib.search_poses("sit") == ["perch_35", "perch_39"]
     assert library.read_bytes() != before
 

@@ -187,6 +187,22 @@ def test_missing_scenario_and_unknown_pose(tmp_path):
         place_person(scenario.persons[0])
 
 
+def test_a_fit_that_cannot_pose_its_people_leaves_no_results_folder(tmp_path, capsys):
+    from solver.cli import main
+
+    scenario = tmp_path / "bad.toml"
+    scenario.write_text(SCENARIO.replace("#frame=39", "#frame=9999"))
+    out = tmp_path / "new" / "out"
+    assert main(["fit", str(scenario), "--out", str(out)]) == 2
+    assert "Expected a frame in 0..76" in capsys.readouterr().err
+    assert not out.exists()
+    kept = tmp_path / "kept"  # a folder that was there before stays, with what it held
+    kept.mkdir()
+    (kept / "notes.txt").write_text("mine")
+    assert main(["fit", str(scenario), "--out", str(kept)]) == 2
+    assert (kept / "notes.txt").read_text() == "mine"
+
+
 @pytest.mark.slow  # the default run stays within its time
 def test_fit_command_writes_files_that_open_again(tmp_path):
     import json
