@@ -34,17 +34,21 @@ def write_atomic(path: str | os.PathLike, data: bytes) -> None:
 @contextmanager
 def made_folder(path: str | os.PathLike) -> Iterator[Path]:
     """Makes the folder `path` (and its parents) for a command's results; when the block
-    raises before anything was written into a folder it made, the folder goes again (a failed
-    command leaves no empty results folder behind)."""
+    raises before anything was written into the folders it made, they go again (a failed
+    command leaves no empty results folder behind, nor the empty parents made for it)."""
     folder = Path(path)
-    made = not folder.exists()
+    made = []  # the folders this makes, the deepest first
+    for f in (folder, *folder.parents):
+        if f.exists():
+            break
+        made.append(f)
     folder.mkdir(parents=True, exist_ok=True)
     try:
         yield folder
     except BaseException:
-        if made:
+        for f in made:
             try:
-                folder.rmdir()  # (only when empty)
+                f.rmdir()  # (only when empty)
             except OSError:
-                pass
+                break
         raise

@@ -499,9 +499,17 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
         print("sitrelax: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # the reader stopped (`sitrelax ... --json | head`): no more output
+        if args.debug:
+            raise
+        try:
+            out = sys.stdout.fileno()
+        except (OSError, ValueError):  # (an output in memory has no descriptor to close)
+            return 1
         devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())  # (the interpreter's last flush goes nowhere)
-        os.close(devnull)
+        try:
+            os.dup2(devnull, out)  # (the interpreter's last flush goes nowhere)
+        finally:
+            os.close(devnull)
         return 1
     except (ValueError, OSError, KeyError) as exc:
         if args.debug:

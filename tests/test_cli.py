@@ -286,3 +286,23 @@ def test_cli_start_bench_entry(capsys):
     assert sitrelax(["bench", "cli_start", "--repeats", "1", "--json"]) == 0
     (row,) = json.loads(capsys.readouterr().out)
     assert row["name"] == "cli_start" and 0 < row["median_s"] < 5
+
+
+def test_a_broken_pipe_in_process_ends_the_command_with_status_1(capsys, monkeypatch):
+    """In a process whose output has no file descriptor (captured, or in memory) the broken
+    pipe still ends the command with status 1, and `--debug` shows it."""
+    import argparse
+    import io
+
+    from solver.cli import run
+
+    def broken(args):
+        raise BrokenPipeError(32, "Broken pipe")
+
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--debug", action="store_true")
+    parser.set_defaults(func=broken)
+    monkeypatch.setattr(sys, "stdout", io.StringIO())
+    assert run(parser, []) == 1
+    with pytest.raises(BrokenPipeError):
+        run(parser, ["--debug"])

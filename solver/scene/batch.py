@@ -208,15 +208,8 @@ def _run_here(job: Job, db: str | None, out_root: str) -> dict:
         row.update(status="failed", seconds=time.perf_counter() - start,
                    error=f"{type(exc).__name__}: {exc}")
     else:
-        persons = report["persons"]
         row.update(status="ok", seconds=time.perf_counter() - start, error="",
-                   iterations=report["iterations"],
-                   coverage_min=min(p["coverage"] for p in persons),
-                   max_penetration_m=max(p["max_penetration_m"] for p in persons),
-                   peak_pressure_kpa_max=_max_or_none(p["peak_pressure_kpa"] for p in persons),
-                   flat_peak_pressure_kpa_max=_max_or_none(_flat_peak(p) for p in persons),
-                   peak_of_flat_max=_max_or_none(p["peak_of_flat"] for p in persons),
-                   all_rest=all(p["equilibrium"]["stable"] for p in persons))
+                   iterations=report["iterations"], **summary_figures(report["persons"]))
     write_atomic(folder / "result.json", json.dumps(row, indent=2).encode())
     return row
 
@@ -477,12 +470,24 @@ def _store(db: str, jobs: Sequence[Job], rows: list[dict], out: Path) -> list[st
     return stored
 
 
-def _flat_peak(person: dict) -> float | None:
-    """The flat seat's peak a person's seat is judged against: at the same load when the body
-    rests on the fitted seat (`flat_at_same_load`), else the flat seat's own settle's (None
-    when the body finds no rest on it either)."""
-    same = person["flat"].get("same_load")
-    return same["peak_pressure_kpa"] if same else person["flat"]["peak_pressure_kpa"]
+def summary_figures(persons: Sequence[dict]) -> dict:
+    """A job's figures in the summary, from its report's `persons`: the smallest coverage, the
+    deepest cut, the highest peak (None when someone finds no rest), and over the people a seat
+    carries at rest (a stander leaning on a wall has no flat seat to be judged against; None
+    when there is none) the highest same-load flat seat's peak and seat-to-flat ratio."""
+    return {"coverage_min": min(p["coverage"] for p in persons),
+            "max_penetration_m": max(p["max_penetration_m"] for p in persons),
+            "peak_pressure_kpa_max": _max_or_none(p["peak_pressure_kpa"] for p in persons),
+            "flat_peak_pressure_kpa_max": _max_of_known(
+                (p["flat"].get("same_load") or {}).get("peak_pressure_kpa") for p in persons),
+            "peak_of_flat_max": _max_of_known(p.get("peak_of_flat") for p in persons),
+            "all_rest": all(p["equilibrium"]["stable"] for p in persons)}
+
+
+def _max_of_known(values) -> float | None:
+    """The largest of the values that are not None (None when none is)."""
+    known = [v for v in values if v is not None]
+    return max(known) if known else None
 
 
 def _max_or_none(values) -> float | None:

@@ -1683,9 +1683,9 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
             moving = np.ones((fit.n0, 1))
         halving = freezes = stiffened = 0
         switched = False  # whether the other kind of proposal has been tried
-        bent_best = None  # (gain, target, moving): the full proposal refused for its bends
-        # that lowered the energy most (shortened in turn when the others' halvings fail in
-        # the tau ramp)
+        bent_best = None  # (gain, target, moving, status, residual): the full proposal
+        # refused for its bends that lowered the energy most (shortened in turn when the
+        # others' halvings fail in the tau ramp)
         while halving <= MAX_HALVINGS:
             if cancel is not None and (halving or stiffened or freezes or switched) and \
                     cancel():  # (a large programme's tries take seconds each)
@@ -1700,7 +1700,7 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
             if why != "energy" and halving == 0:
                 gain = it.energy(t) - candidate.energy(t)
                 if gain > 0 and (bent_best is None or gain > bent_best[0]):
-                    bent_best = (gain, target, moving.copy())
+                    bent_best = (gain, target, moving.copy(), status, residual)
             again = None
             if halving == 0 and not freeze:  # (a warm refit holds vertices still instead)
                 if why != "energy" and stiffened < STIFFEN_ROUNDS:
@@ -1735,11 +1735,13 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
                     freezes += 1
                     continue
             halving += 1
-            if halving > MAX_HALVINGS and bent_best is not None and t < params.tau_max:
+            if halving > MAX_HALVINGS and bent_best is not None and t < params.tau_max and \
+                    bent_best[1] is not target:
                 # no step yet at this tau, before tau has reached its top (the energy judged is
                 # not yet the fit's): the proposal that gained most but bent too far is
-                # shortened instead, rather than the fit stopping there
-                _, target, moving = bent_best
+                # shortened instead, rather than the fit stopping there (unless it is the one
+                # whose halvings just failed)
+                _, target, moving, status, residual = bent_best
                 bent_best, halving = None, 1
         else:
             return (f"converged: no step along the programme's solution (down to "

@@ -201,3 +201,28 @@ def test_warm_workers_start_each_job_process_once_and_answer_as_a_fresh_batch(tm
         assert (w["job"], w["status"]) == (f["job"], f["status"]) == (w["job"], "ok")
         assert {k: w[k] for k in numbers} == pytest.approx({k: f[k] for k in numbers},
                                                           rel=1e-9)
+
+
+def test_summary_figures_judge_the_seated_against_their_flat_seat_and_skip_standers():
+    """A sitter with a same-load flat seat and a stander leaning on a wall (no seat load: no
+    flat seat to be judged against): the flat-seat columns are the sitter's; with no sitter
+    they are empty; a person without rest empties the peak column."""
+    from solver.scene.batch import summary_figures
+
+    sitter = {"coverage": 0.97, "max_penetration_m": 0.02, "peak_pressure_kpa": 7.6,
+              "peak_of_flat": 0.78, "equilibrium": {"stable": True},
+              "flat": {"peak_pressure_kpa": None,
+                       "same_load": {"peak_pressure_kpa": 9.8, "fitted_peak_kpa": 7.6}}}
+    stander = {"coverage": 0.95, "max_penetration_m": 0.025, "peak_pressure_kpa": 4.5,
+               "peak_of_flat": None, "equilibrium": {"stable": True},
+               "flat": {"peak_pressure_kpa": 202.8, "same_load": None}}
+    row = summary_figures([sitter, stander])
+    assert row == {"coverage_min": 0.95, "max_penetration_m": 0.025,
+                   "peak_pressure_kpa_max": 7.6, "flat_peak_pressure_kpa_max": 9.8,
+                   "peak_of_flat_max": 0.78, "all_rest": True}
+    alone = summary_figures([stander])
+    assert alone["flat_peak_pressure_kpa_max"] is None and alone["peak_of_flat_max"] is None
+    tipped = dict(stander, peak_pressure_kpa=None, equilibrium={"stable": False})
+    row = summary_figures([sitter, tipped])
+    assert row["peak_pressure_kpa_max"] is None and row["all_rest"] is False
+    assert row["peak_of_flat_max"] == 0.78

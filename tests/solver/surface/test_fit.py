@@ -195,7 +195,7 @@ def test_a_fit_that_cannot_pose_its_people_leaves_no_results_folder(tmp_path, ca
     out = tmp_path / "new" / "out"
     assert main(["fit", str(scenario), "--out", str(out)]) == 2
     assert "Expected a frame in 0..76" in capsys.readouterr().err
-    assert not out.exists()
+    assert not out.exists() and not out.parent.exists()  # nor the parent made for it
     kept = tmp_path / "kept"  # a folder that was there before stays, with what it held
     kept.mkdir()
     (kept / "notes.txt").write_text("mine")

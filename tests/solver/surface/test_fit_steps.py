@@ -618,7 +618,7 @@ def test_the_folds_of_a_crease_are_not_flaws_and_a_surface_that_is_not_a_number_
 
 def test_a_fit_still_ramping_shortens_the_bent_proposal_that_gained_most_before_it_stops():
     """`template_stool` (a 6 x 6 stool under the medium-sit pose): in its fifth iteration, tau
-    at 0.2 of its 0.5, every halving of the last proposal raises the energy, while the proposal
+    at 0.4 of its 0.5, every halving of the last proposal raises the energy, while the proposal
     refused for a ridge before it lowered the energy by 8 %: a quarter of that one is a step,
     and the fit goes on past the ramp to a lower energy (without that it stopped there, after 5
     iterations at 4.7e-4). Its energies never rise and no accepted iterate bends past the
