@@ -148,6 +148,15 @@ def _parse_id(text: str, prefix: str) -> int | None:
     return None
 
 
+def _whole(value, name: str) -> int:
+    """A frame number as an int; a LibraryError for anything but a whole number (5.7 is no
+    frame, and would be cut to 5 silently)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        if not (isinstance(value, (float, np.floating)) and float(value).is_integer()):
+            raise LibraryError(f"Expected a whole frame number for {name}, got {value!r}")
+    return int(value)
+
+
 def _find_take(takes: dict[str, TakeInfo], ref: str, path: Path) -> TakeInfo:
     """A take by id or name."""
     if ref in takes:
@@ -278,7 +287,8 @@ class PoseLibrary:
     def take_data(self, ref: str, start: int = 0, stop: int | None = None) -> TakeData:
         """A take's arrays for frames [start, stop) (0-based)."""
         info = self.take(ref)
-        stop = info.frames if stop is None else stop
+        start = _whole(start, "start")
+        stop = info.frames if stop is None else _whole(stop, "stop")
         if not (0 <= start < stop <= info.frames):
             raise ValueError(
                 f"Expected a frame range within 0..{info.frames} of take {info.name!r}, got "
@@ -595,7 +605,7 @@ class Editor:
         (`posedb.regions.support_regions`; default a seat's)."""
         info = self._take(take)
         name = self._check_name(name, "pose")
-        frame = int(frame)
+        frame = _whole(frame, "frame")
         if not 0 <= frame < info.frames:
             raise LibraryError(f"Expected a frame in 0..{info.frames - 1} of take "
                                f"{info.name!r}, got {frame}")

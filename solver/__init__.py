@@ -35,7 +35,7 @@ _EXPORTS = {
     "solver.contact.evaluate": ("evaluate_person",),
     "solver.contact.settle": ("Foam", "Settled", "Support", "settle"),
     "solver.contact.mat": ("SupportContact", "mat_figures", "pressure_grid"),
-    "solver.mesh": ("SurfaceMesh",),
+    "solver.mesh": ("SurfaceMesh", "SurfaceMeshError"),
     "solver.surface.subdivision": ("MeshError", "Subdivision", "grid_mesh", "subdivision"),
     "solver.surface.fit": ("FitError", "FitParams", "FitResult", "fit_surface"),
     "solver.surface.limit": ("limit_matrix", "limit_positions"),

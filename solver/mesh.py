@@ -156,6 +156,10 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     return triangle_mesh(triangles, len(vertices)).measures(vertices)[1]
 
 
+class SurfaceMeshError(ValueError):
+    """A surface no distance query can be made on (empty, ill-indexed, not finite)."""
+
+
 @dataclass(frozen=True, eq=False)
 class SurfaceMesh:
     """A triangle surface for distance queries: vertices (N, 3), triangles (F, 3), unit face
@@ -165,6 +169,27 @@ class SurfaceMesh:
     triangles: np.ndarray
     face_normals: np.ndarray
 
+    def __post_init__(self) -> None:
+        self.check(self.vertices, self.triangles)
+
+    @staticmethod
+    def check(v: np.ndarray, t: np.ndarray) -> None:
+        """A SurfaceMeshError unless vertices v (N, 3) are finite and triangles t (F, 3) index
+        them, neither empty (libigl's search tree on an empty or ill-indexed mesh ends the
+        process with no error)."""
+        if v.ndim != 2 or v.shape[1] != 3 or t.ndim != 2 or t.shape[1] != 3:
+            raise SurfaceMeshError(f"Expected a surface of (N, 3) vertices and (F, 3) "
+                                   f"triangles, got {v.shape} and {t.shape}")
+        if not len(v) or not len(t):
+            raise SurfaceMeshError(f"Expected a surface with vertices and faces, got "
+                                   f"{len(v)} vertices and {len(t)} faces")
+        if t.min() < 0 or t.max() >= len(v):
+            raise SurfaceMeshError(f"Expected face indices in 0..{len(v) - 1}, got "
+                                   f"{t.min()}..{t.max()}")
+        if not np.all(np.isfinite(v)):
+            raise SurfaceMeshError(f"Expected finite surface vertices, got "
+                                   f"{int(np.sum(~np.isfinite(v).all(axis=1)))} that are not")
+
     @classmethod
     def from_quads(cls, vertices: np.ndarray, quads: np.ndarray) -> "SurfaceMesh":
         return cls.from_triangles(vertices, quad_triangles(quads))
@@ -173,6 +198,7 @@ class SurfaceMesh:
     def from_triangles(cls, vertices: np.ndarray, triangles: np.ndarray) -> "SurfaceMesh":
         v = np.asarray(vertices, dtype=np.float64)
         t = np.asarray(triangles, dtype=np.int64)
+        cls.check(v, t)  # (before the normals index the vertices)
         return cls(v, t, face_normals(v, t))
 
     @classmethod

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import secrets
 import threading
 import time
@@ -50,6 +51,7 @@ MAX_WORK = 3_000_000
 MAX_EVAL_VERTICES = 200_000
 MAX_EVAL_WORK = 600_000  # evaluated surface vertices x people
 MAX_ERRORS, MAX_MESSAGE = 10, 300  # an error body lists this many problems of this length
+MAX_QUOTED = 40  # characters of a quoted value an error may send back
 COORD = 100.0  # metres: the largest coordinate a request may give
 # the server's own ceilings on top of the scenario schema's bounds, so no request runs long
 CEILINGS = {"level": 3, "max_iterations": 100, "sigma": 100.0, "gamma": 1e6, "anchor": 1e6,
@@ -220,7 +222,7 @@ def create_app(db: str | os.PathLike | None = None, limit: int = DEFAULT_LIMIT,
     app = FastAPI(title="sitrelax", version="1", responses=ERRORS,
                   description="Fit supporting surfaces to captured poses: poses, posed bodies, "
                               "pressure fields, fits, relaxation and evaluation, in metres.")
-    _error_handlers(app)
+    _error_handlers(app, db)
     place = _placer(db)
     _library_routes(app, db)
     _person_routes(app, place, time_limit)
@@ -235,15 +237,32 @@ def _short(text: str) -> str:
     return text if len(text) <= MAX_MESSAGE else text[:MAX_MESSAGE - 3] + "..."
 
 
-def _error_handlers(app: FastAPI) -> None:
+# a path with at least one folder (POSIX or Windows): its last part is kept
+_PATH = re.compile(r"(?:\b[A-Za-z]:)?[/\\](?:[^\s'\",:;()/\\]+[/\\])+([^\s'\",:;()/\\]+)")
+_QUOTED = re.compile(r"'([^']{%d,})'" % (MAX_QUOTED + 1))
+
+
+def _scrubbed(text: str, db: str | None) -> str:
+    """An error's text as a client may read it: no path on the server's disk (the pose library
+    named as such, any other file by its name alone) and no long quoted value sent back."""
+    text = str(text)
+    if db is not None:
+        for path in {os.path.abspath(db), db}:
+            text = text.replace(path, "the server's pose library")
+    text = _PATH.sub(lambda m: m.group(1), text)
+    return _QUOTED.sub(lambda m: repr(m.group(1)[:MAX_QUOTED - 3] + "..."), text)
+
+
+def _error_handlers(app: FastAPI, db: str | None = None) -> None:
     from posedb.schema import LibraryError, NotFoundError
 
     def reply(status: int, detail) -> JSONResponse:
         if isinstance(detail, list):
             detail = [{"type": e.get("type", "value"), "loc": list(e.get("loc", ()))[:12],
-                       "msg": _short(e.get("msg", ""))} for e in detail[:MAX_ERRORS]]
+                       "msg": _short(_scrubbed(e.get("msg", ""), db))}
+                      for e in detail[:MAX_ERRORS]]
         else:
-            detail = _short(detail)
+            detail = _short(_scrubbed(detail, db))
         return JSONResponse({"detail": detail}, status_code=status)
 
     @app.exception_handler(RequestValidationError)

@@ -13,6 +13,7 @@ from urllib.parse import urlsplit
 from .loopback import LOOPBACK, LOOPBACK_NAMES  # noqa: F401 (studio.net.LOOPBACK, as before)
 HEAD_TIMEOUT = 10.0  # seconds a client has to send a request head
 BODY_TIMEOUT = 30.0  # seconds a request body may pause between chunks
+DECLARED_PAUSE = 1.0  # seconds a body refused on its declared size is still drained when paused
 DRAIN_FACTOR, DRAIN_MAX = 4, 64 * 1024 * 1024  # bytes of a refused body still read and dropped
 
 
@@ -132,8 +133,8 @@ class BodyLimit:
                 size = int(declared)
             except ValueError:
                 return await _reply(send, 400, "Content-Length is not a number")
-            if size > self.limit:
-                await self._drain(receive, 0)
+            if size > self.limit:  # (a client that stops sending is answered within a second)
+                await self._drain(receive, 0, pause=min(self.timeout, DECLARED_PAUSE))
                 return await _reply(send, 413, self._message(size))
         seen = 0
         refused = False
@@ -172,14 +173,15 @@ class BodyLimit:
 
         await self.app(scope, limited_receive, guarded_send)
 
-    async def _drain(self, receive, seen: int) -> None:
+    async def _drain(self, receive, seen: int, pause: float | None = None) -> None:
         """Reads and drops the rest of a refused body, up to DRAIN_FACTOR times the limit:
         closing on unread bytes resets the connection, and the client may never see the 413.
-        A body larger still is cut off."""
+        A body larger still is cut off, and one that pauses over `pause` seconds (default the
+        body timeout) is no longer waited for."""
         cap = min(DRAIN_FACTOR * self.limit, DRAIN_MAX)
         while seen <= cap:
             try:
-                message = await asyncio.wait_for(receive(), self.timeout)
+                message = await asyncio.wait_for(receive(), pause or self.timeout)
             except asyncio.TimeoutError:
                 return
             if message["type"] != "http.request":

@@ -78,7 +78,8 @@ def pressure_field(vertices: np.ndarray, triangles: np.ndarray, *,
     Raises
     ------
     ValueError
-        If `gravity` is not a finite, non-zero (3,) direction, or `model` or `mu` unknown.
+        If `gravity` is not a finite, non-zero (3,) direction, `model` or `mu` unknown, the
+        vertices not finite (V, 3), a triangle index out of range or the mask of another length.
     """
     g = np.asarray(gravity, dtype=np.float64)
     norm = np.linalg.norm(g)
@@ -87,6 +88,22 @@ def pressure_field(vertices: np.ndarray, triangles: np.ndarray, *,
     g = g / norm
     if model not in MODELS or not mu >= 0:
         raise ValueError(f"Expected model in {MODELS} and mu >= 0, got {model!r} and {mu!r}")
+    vertices = np.asarray(vertices, dtype=np.float64)
+    triangles = np.asarray(triangles)
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or triangles.ndim != 2 or \
+            triangles.shape[1] != 3:
+        raise ValueError(f"Expected (V, 3) vertices and (F, 3) triangles, got "
+                         f"{vertices.shape} and {triangles.shape}")
+    if triangles.size and (triangles.min() < 0 or triangles.max() >= len(vertices)):
+        raise ValueError(f"Expected triangle indices in 0..{len(vertices) - 1}, got "
+                         f"{triangles.min()}..{triangles.max()}")
+    bad = ~np.isfinite(vertices).all(axis=1)
+    if bad.any():  # (a NaN vertex would leave every importance 0, silently)
+        raise ValueError(f"Expected finite vertices, got {int(bad.sum())} that are not "
+                         f"(the first is vertex {int(np.flatnonzero(bad)[0])})")
+    if mask is not None and np.shape(mask) != (len(vertices),):
+        raise ValueError(f"Expected a mask of {len(vertices)} entries (one per vertex), got "
+                         f"shape {np.shape(mask)}")
     if normals is None or areas is None:
         a, n = triangle_mesh(triangles, len(vertices)).measures(vertices)
         n = n if normals is None else np.asarray(normals)

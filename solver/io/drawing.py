@@ -288,8 +288,19 @@ def write_overall_dxf(path: str | os.PathLike, vertices: np.ndarray, faces: np.n
     Returns
     -------
     dict, `overall_dimensions` of the surface.
+
+    Raises
+    ------
+    DrawingError
+        If the surface has no vertices or faces, or a vertex that is not finite.
     """
     v = np.asarray(vertices, dtype=np.float64) * 1000.0
+    if v.ndim != 2 or v.shape[1:] != (3,) or not len(v) or not len(faces):
+        raise DrawingError(f"Expected a surface of (N, 3) vertices and some faces, got "
+                           f"{v.shape} and {np.shape(faces)}")
+    if not np.all(np.isfinite(v)):
+        raise DrawingError(f"Expected finite surface vertices, got "
+                           f"{int(np.sum(~np.isfinite(v).all(axis=1)))} that are not")
     plan = np.stack([v[:, 0], -v[:, 2]], axis=1)  # workshop (X, Y) seen from above
     side = np.stack([-v[:, 2], v[:, 1]], axis=1)  # workshop (Y, Z) seen from +X
     shift = plan[:, 0].max() + gap - side[:, 0].min()

@@ -255,6 +255,9 @@ def test_duplicate_names(lib):
      "at least one body region"),
     (lambda lib: lib.add_pose("cmu_75_18_high_sit", 1, "x", tags=["not"]), "Expected a tag"),
     (lambda lib: lib.add_pose("cmu_75_18_high_sit", 1, "a/b"), "without '/'"),
+    (lambda lib: lib.add_pose("cmu_75_18_high_sit", 5.7, "x"), "whole frame number for frame"),
+    (lambda lib: lib.take_data("cmu_75_18_high_sit", 1.5, 3),
+     "whole frame number for start, got 1.5"),
 ])
 def test_bad_pose_requests(lib, call, message):
     before = _digest(lib.path)

@@ -57,3 +57,20 @@ def test_splitting_is_checked():
     fin = np.concatenate([q0, [[q0[0, 0], q0[0, 1], 0, 0]]])
     with pytest.raises(MeshSplitError):
         split_quad(v0, fin[:, :3], 0)
+
+
+def test_a_surface_mesh_with_nothing_to_search_is_refused_before_libigl_sees_it():
+    """libigl's search tree on an empty or ill-indexed mesh ends the process: refused first."""
+    from solver.mesh import SurfaceMesh, SurfaceMeshError
+
+    with pytest.raises(SurfaceMeshError, match="0 vertices and 0 faces"):
+        SurfaceMesh.from_triangles(np.zeros((0, 3)), np.zeros((0, 3), int))
+    square = np.array([[0.0, 0, 0], [1, 0, 0], [1, 0, 1], [0, 0, 1]])
+    with pytest.raises(SurfaceMeshError, match=r"indices in 0..3, got 0..7"):
+        SurfaceMesh.from_quads(square, np.array([[0, 1, 2, 7]]))
+    bad = square.copy()
+    bad[1, 1] = np.inf
+    with pytest.raises(SurfaceMeshError, match="finite surface vertices, got 1"):
+        SurfaceMesh.from_quads(bad, np.array([[0, 1, 2, 3]]))
+    mesh = SurfaceMesh.from_quads(square, np.array([[0, 3, 2, 1]]))
+    assert mesh.closest(np.array([[0.5, 0.1, 0.5]]))[0][0] == pytest.approx(0.1)

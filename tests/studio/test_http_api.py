@@ -8,6 +8,7 @@ import os
 import re
 import subprocess
 import sys
+import time
 import tomllib
 from pathlib import Path
 
@@ -152,6 +153,24 @@ def test_bad_requests_get_a_4xx_that_names_the_problem(api, change, status, word
     assert words in json.dumps(reply)
 
 
+@pytest.mark.parametrize("change, status, words", [
+    ({"pose": "db:nobody"}, 404, "No pose 'nobody' in the server's pose library"),
+    ({"pose": "bvh:bundled:cmu_75_18_high_sit.bvh#frame=999"}, 400,
+     "Expected a frame in 0..76 of cmu_75_18_high_sit.bvh, got 999"),
+    ({"pose": "db:" + "x" * 120}, 404, "x" * 37 + "..."),
+])
+def test_errors_name_no_path_on_the_server_and_send_back_no_long_value(api, change, status,
+                                                                       words):
+    """The library's and the bundled recordings' paths are the server's business: an error
+    names them as such or by the file's name; a long value sent is quoted shortened."""
+    body = json.loads(json.dumps(SINGLE))
+    body["person"][0].update(change)
+    got, reply = _request(api, "POST", "/api/fit", body)
+    assert got == status and words in reply["detail"], reply
+    assert "/" not in reply["detail"] and "poses.h5" not in reply["detail"]
+    assert "x" * 41 not in reply["detail"]
+
+
 def test_a_control_mesh_that_is_not_all_quads_is_refused(api):
     body = json.loads(json.dumps(SINGLE))
     del body["surface"]["grid"]
@@ -182,6 +201,18 @@ def test_a_request_over_the_size_limit_gets_413(api):
         pass  # the server may close before we finish sending
     response = conn.getresponse()
     assert response.status == 413
+    conn.close()
+    # a huge declared size and a client that then sends nothing: answered at once, not after
+    # the body's 30 s pause
+    conn = http.client.HTTPConnection(api.host, api.port, timeout=30)
+    conn.putrequest("POST", "/api/fit")
+    conn.putheader("Content-Type", "application/json")
+    conn.putheader("Content-Length", "999999999")
+    conn.endheaders()
+    conn.send(b"[")
+    start = time.monotonic()
+    response = conn.getresponse()
+    assert response.status == 413 and time.monotonic() - start < 5
     conn.close()
 
 

@@ -123,3 +123,21 @@ def test_bad_gravity_is_named(seated):
     body, verts = seated
     with pytest.raises(ValueError, match="non-zero gravity"):
         pressure_field(verts, body.triangles, gravity=(0, 0, 0))
+
+
+def test_bad_bodies_are_named_not_given_zero_importance():
+    """A vertex that is not a number would leave every importance 0 with no word; it, an index
+    past the vertices, a flat array and a mask of another length are refused by name."""
+    v = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+    t = np.array([[0, 1, 2], [0, 3, 1], [1, 3, 2], [2, 3, 0]])
+    assert pressure_field(v, t).importance.max() == 1.0
+    bad = v.copy()
+    bad[2, 1] = np.nan
+    with pytest.raises(ValueError, match="finite vertices, got 1 that are not .*vertex 2"):
+        pressure_field(bad, t)
+    with pytest.raises(ValueError, match=r"indices in 0..3, got 0..4"):
+        pressure_field(v, np.array([[0, 1, 4]]))
+    with pytest.raises(ValueError, match=r"\(V, 3\) vertices"):
+        pressure_field(v[:, :2], t)
+    with pytest.raises(ValueError, match="a mask of 4 entries"):
+        pressure_field(v, t, mask=np.ones(3, dtype=bool))

@@ -84,3 +84,14 @@ def test_sections_picture_is_a_png(tmp_path, trough):
     assert path.read_bytes()[:4] == b"\x89PNG"
     with pytest.raises(DrawingError, match="at least one section"):
         render_sections(tmp_path / "none.png", [])
+
+
+def test_overall_dxf_refuses_a_surface_that_is_not_a_number_or_empty(tmp_path, trough):
+    vertices, quads, _ = trough
+    bad = np.array(vertices, dtype=float)
+    bad[3, 0] = np.nan
+    with pytest.raises(DrawingError, match="finite surface vertices, got 1"):
+        write_overall_dxf(tmp_path / "nan.dxf", bad, quads)
+    with pytest.raises(DrawingError, match="some faces"):
+        write_overall_dxf(tmp_path / "empty.dxf", np.zeros((0, 3)), np.zeros((0, 4), int))
+    assert not list(tmp_path.glob("*.dxf"))  # nothing half-written
