@@ -24,6 +24,9 @@ WORKSHOP_UNITS = ("STL, 3MF and DXF in millimetres, Z up: a scene point (x, y, z
                   "(mm along the section from the pelvis, mm above the floor)")
 
 
+MAX_SOLID_THICKNESS = 0.1  # metres: trimming a 0.1 m offset of a seat takes about 30 s
+
+
 @dataclass(frozen=True)
 class WorkshopOptions:
     """What to make for the workshop: an offset solid `solid_thickness` metres thick (None:
@@ -37,8 +40,10 @@ class WorkshopOptions:
 
     def __post_init__(self):
         t = self.solid_thickness
-        if t is not None and not (np.isfinite(t) and t > 0):
-            raise SolidError(f"Expected a solid thickness > 0 m, got {t}")
+        if t is not None and not (np.isfinite(t) and 0 < t <= MAX_SOLID_THICKNESS):
+            raise SolidError(f"Expected a solid thickness in (0, {MAX_SOLID_THICKNESS:g}] m, "
+                             f"got {t} (trimming a thicker offset where the surface bends takes "
+                             "longer than half a minute; --plinth fills down to the floor)")
         if self.tool_radius is not None and not (np.isfinite(self.tool_radius) and
                                                  self.tool_radius > 0):
             raise SolidError(f"Expected a tool radius > 0 m, got {self.tool_radius}")

@@ -313,3 +313,26 @@ def test_lengthening_never_turns_a_sliver_over():
     before, after = face_cross(v, t), face_cross(out, t)
     big = np.linalg.norm(before, axis=1) > 0
     assert np.all(np.einsum("ij,ij->i", before[big], after[big]) > 0)
+
+
+@pytest.mark.parametrize("thickness, fine", [(0.1, True), (0.3, False), (float("inf"), False)])
+def test_the_fit_command_bounds_the_solid_it_will_trim(tmp_path, capsys, thickness, fine):
+    """An offset 0.1 m thick takes about half a minute to trim on a seat that bends; a thicker
+    one is refused before anything is fitted, saying so and pointing to the plinth."""
+    from solver.scene.workshop import MAX_SOLID_THICKNESS, WorkshopOptions
+
+    assert MAX_SOLID_THICKNESS == 0.1
+    if fine:
+        assert WorkshopOptions(solid_thickness=thickness).any
+        return
+    from pathlib import Path
+
+    from solver.cli import main
+
+    example = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios" / "single_seated.toml"
+    out = tmp_path / "out"
+    assert main(["fit", str(example), "--out", str(out),
+                 "--solid", str(thickness)]) == 2
+    err = capsys.readouterr().err
+    assert "solid thickness in (0, 0.1] m" in err and "--plinth" in err, err
+    assert not out.exists()
