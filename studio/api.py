@@ -499,8 +499,9 @@ def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
         check()
         result = fit_people(scenario, people, check)
         person = people[req.index]
-        res, before, after, seconds = relax_person(scenario, person, result.surface,
-                                                   result.surface_faces)
+        res, before, after, seconds = relax_person(  # onto the limit surface, as evaluated
+            scenario, person, result.limit_surface(scenario.surface.params.creases),
+            result.surface_faces)
         return {"label": person.label, "evaluations": res.evaluations,
                 "parameters_at_limit": res.at_limit, "seconds": seconds,
                 "before": before, "after": after, "relaxation": relax_record(res),

@@ -512,8 +512,10 @@ class Design:
             raise DesignError("Fit first: a person relaxes onto the fitted surface")
         start = time.perf_counter()
         person = self.place(self.people[k])
-        res, before, after, _ = relax_person(self.scenario(), person, self.last.result.surface,
-                                             self.last.result.surface_faces)
+        scenario = self.scenario()  # (onto the limit surface, as the fit is evaluated)
+        res, before, after, _ = relax_person(
+            scenario, person, self.last.result.limit_surface(scenario.surface.params.creases),
+            self.last.result.surface_faces)
         outcome = RelaxOutcome(k, res.vertices, person.body.triangles, before, after,
                                time.perf_counter() - start, relax_text(res), person, res)
         with self.edit():

@@ -542,15 +542,17 @@ def _scene_pictures(out: Path, result: FitResult, people: list[PlacedPerson],
 def mat_maps(result: FitResult, people: list[PlacedPerson],
              settles: list[PressureMap]) -> list[PressureGrid]:
     """The pressure mats' grids: per person at rest, one per support part it loads (the
-    surface's draped on it, the floor's on the floor), named "person: support"."""
+    surface's draped on its limit surface, where the settle's contacts lie, the floor's on the
+    floor), named "person: support"."""
     grids = []
+    limit = result.limit_surface()
     for p, m in zip(people, settles):
         if not m.settled.stable:
             continue
         footprint = contact_footprint(m.settled, len(p.vertices))
         for c in m.settled.contacts:
             on_surface = c.faces.min() >= 0
-            grid = pressure_grid(c, result.surface if on_surface else None,
+            grid = pressure_grid(c, limit if on_surface else None,
                                  result.surface_faces if on_surface else None, footprint)
             if grid.pressure_kpa.size:
                 grids.append(dataclasses.replace(grid, name=f"{p.label.split(' (')[0]}: "
@@ -620,8 +622,9 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
         surface, faces = read_quad_obj(Path(surface_dir) / "surface.obj", sitrelax_frame=True)
         say(f"surface from {surface_dir}")
     else:
-        result = fit_people(scenario, people)
-        surface, faces = result.surface, result.surface_faces
+        result = fit_people(scenario, people)  # relaxed onto its limit surface, as evaluated
+        surface = result.limit_surface(scenario.surface.params.creases)
+        faces = result.surface_faces
         say(f"fitted the surface in {result.iterations} iterations")
     keys = ("mean_support_distance_m", "max_penetration_m", "coverage", "contact_coverage",
             "peak_pressure_kpa", "supported", "equilibrium")
