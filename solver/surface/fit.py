@@ -418,10 +418,11 @@ def _stack(targets: Sequence[SupportedBody]):
 def _check_bodies(surface0: np.ndarray, surface_normals: np.ndarray,
                   targets: Sequence[SupportedBody], points: np.ndarray, normals: np.ndarray,
                   rho: np.ndarray, owner: np.ndarray, important: np.ndarray,
-                  floor: float | None = None) -> None:
+                  floor: float | None = None, margin: float = 0.0) -> None:
     """A FitError when a body has nothing to support, lies beyond REACH of the start surface
-    `surface0` (ns, 3) or has supported skin under the `floor` (the floor is under the people:
-    a surface held above a floor over them could follow no one), or when the control mesh's
+    `surface0` (ns, 3) or has its lowest supported skin more than the `margin` under the
+    `floor` (the floor is under the people: a surface held above a floor over them could reach
+    no one; a floor within the margin may hold a surface up under a body sunk into it), or when the control mesh's
     faces point away from the bodies: the skin to be supported faces the surface, so its
     normals run against the surface's normals (`surface_normals`, (ns, 3)) where they meet (at
     the nearest surface vertex); if on the importance-weighted balance they run along them,
@@ -433,10 +434,11 @@ def _check_bodies(surface0: np.ndarray, surface_normals: np.ndarray,
             raise FitError(f"{t.label}: no body part to support faces the surface (nothing has "
                            "importance)")
         lowest = float(points[important[mine], 1].min())
-        if floor is not None and lowest <= floor:
-            raise FitError(f"The floor (y = {floor:.3g} m) lies above {t.label}'s lowest "
-                           f"supported skin (y = {lowest:.3f} m): the floor is under the "
-                           "people; lower it (surface.floor) or set it to none")
+        if floor is not None and lowest < floor - margin - 1e-9:
+            raise FitError(f"The floor (y = {floor:.3g} m) lies more than the margin "
+                           f"({margin:g} m) above {t.label}'s lowest supported skin (y = "
+                           f"{lowest:.3f} m): the floor is under the people; lower it "
+                           "(surface.floor) or set it to none")
         if near[mine].min() > REACH:
             raise FitError(f"{t.label} is entirely outside the surface's reach: its nearest "
                            f"supported point is {near[mine].min():.2f} m from the surface "
@@ -470,7 +472,7 @@ def prepare(control: np.ndarray, faces: np.ndarray, targets: Sequence[SupportedB
     important = np.flatnonzero(rho > 1e-3)
     surface0 = sub.matrix @ v0
     _check_bodies(surface0, sub.normals(surface0), targets, points, normals, rho, owner,
-                  important, params.floor)
+                  important, params.floor, params.margin)
     fixed = np.full(n0, params.anchor / n0)
     fixed[list(params.fixed)] += params.gamma
     smooth = (params.sigma / n0) * (lap.T @ lap)

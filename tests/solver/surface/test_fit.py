@@ -91,16 +91,22 @@ def test_person_out_of_reach_is_named(ball):
 
 
 def test_a_floor_over_the_people_is_refused_at_once(ball):
-    """A floor above the supported skin (a height typed wrong) asks every surface vertex up
+    """A floor far above the supported skin (a height typed wrong) asks every surface vertex up
     through the bodies: each programme of such a fit took 5-9 s. It is refused before the fit
-    starts; a floor just under the skin is not."""
+    starts; a floor under the skin, or over it by no more than the margin (holding the surface
+    up under a body sunk into it: `test_the_floor_holds_the_surface_up`), is not."""
     v, t, normals, areas, importance = ball
     grid_v, grid_f = grid_mesh((1.2, 0.8), (8, 6), 0.45)
     body = [SupportedBody(v, normals, importance, "ball")]
     lowest = v[importance > 1e-3, 1].min()
-    with pytest.raises(FitError, match=r"floor \(y = 1 m\) lies above ball's lowest supported"):
-        fit_surface(grid_v, grid_f, body, FitParams(floor=1.0, max_iterations=2))
-    fit_surface(grid_v, grid_f, body, FitParams(floor=lowest - 0.01, max_iterations=2))
+    with pytest.raises(FitError, match=r"floor \(y = 1 m\) lies more than the margin \(0.02 "
+                                       r"m\) above ball's lowest supported"):
+        fit_surface(grid_v, grid_f, body, FitParams(margin=0.02, floor=1.0, max_iterations=2))
+    with pytest.raises(FitError, match="more than the margin"):
+        fit_surface(grid_v, grid_f, body, FitParams(margin=0.02, floor=lowest + 0.021,
+                                                    max_iterations=2))
+    for floor in (lowest - 0.01, lowest + 0.019):
+        fit_surface(grid_v, grid_f, body, FitParams(margin=0.02, floor=floor, max_iterations=2))
 
 
 SCENARIO = """
