@@ -271,6 +271,12 @@ def _error_handlers(app: FastAPI, db: str | None = None) -> None:
 
     @app.exception_handler(StarletteHTTPException)
     async def http_error(_: Request, exc: StarletteHTTPException):
+        if exc.status_code == 400 and exc.detail == "There was an error parsing the body":
+            # (FastAPI's own answer to a body its JSON reader gives up on, such as one nested
+            # too deep): malformed, as the other malformed bodies
+            return reply(422, [{"type": "json_invalid", "loc": ["body"],
+                                "msg": "The body is not JSON this server can read (nested "
+                                       "too deep, or a number too long)"}])
         return reply(exc.status_code, exc.detail)
 
     @app.exception_handler(NotFoundError)

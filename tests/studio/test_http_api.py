@@ -171,6 +171,14 @@ def test_errors_name_no_path_on_the_server_and_send_back_no_long_value(api, chan
     assert "x" * 41 not in reply["detail"]
 
 
+def test_a_body_nested_too_deep_for_the_json_reader_is_malformed_422(api):
+    for body in (b"[" * 100_000 + b"]" * 100_000, b'{"scenario": 1' + b"0" * 5000 + b"}"):
+        got, reply = _request(api, "POST", "/api/fit", body)
+        assert got == 422, (got, reply)
+        assert reply["detail"][0]["loc"] == ["body"]
+    assert _request(api, "GET", "/api/health")[0] == 200  # and the server goes on
+
+
 def test_a_control_mesh_that_is_not_all_quads_is_refused(api):
     body = json.loads(json.dumps(SINGLE))
     del body["surface"]["grid"]
