@@ -48,7 +48,8 @@ def test_solver_public_api():
         "FitError", "FitParams", "FitResult", "MeshError", "MeshView", "PlacedPerson",
         "PoseSourceError", "PressureField", "RelaxError", "RelaxProblem", "RelaxResult",
         "RetargetError", "RigMotion", "Scenario", "ScenarioError", "Subdivision",
-        "SupportedBody", "SurfaceMesh", "SurfaceMeshError", "evaluate_person", "fit_scene", "fit_surface",
+        "SupportedBody", "SurfaceMesh", "SurfaceMeshError", "evaluate_person", "fit_scene",
+        "fit_surface",
         "grid_mesh", "joint_map_for", "load_pose", "load_scenario", "make_body",
         "parse_scenario", "place", "place_person", "pose_body", "pressure_field", "relax",
         "relax_problem", "render_png", "rest_pose", "retarget", "retarget_pose", "rig_pose",
@@ -56,7 +57,8 @@ def test_solver_public_api():
         "Foam", "Settled", "Support", "settle", "SupportContact", "mat_figures", "pressure_grid",
     ])
     for name in ("BodyShapeError", "ExportError", "FitError", "MeshError", "PoseSourceError",
-                 "RelaxError", "RetargetError", "ScenarioError", "SurfaceMeshError"):
+                 "RelaxError", "RetargetError", "ScenarioError",
+                 "SurfaceMeshError"):
         assert issubclass(getattr(solver, name), ValueError)
 
 

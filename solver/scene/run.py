@@ -510,7 +510,7 @@ def export_scene(out: Path, result: FitResult, people: list[PlacedPerson],
         files["scene_3dm"] = "scene.3dm"
     if pictures:
         _scene_pictures(out, result, people, maps, peak, files)
-    grids = mat_maps(result, people, settles)
+    grids = mat_maps(result, people, settles, creases)
     if grids:
         write_pressure_csv(out / "pressure_map.csv", grids)
         files["pressure_map_csv"] = "pressure_map.csv"
@@ -540,12 +540,13 @@ def _scene_pictures(out: Path, result: FitResult, people: list[PlacedPerson],
 
 
 def mat_maps(result: FitResult, people: list[PlacedPerson],
-             settles: list[PressureMap]) -> list[PressureGrid]:
+             settles: list[PressureMap], creases=()) -> list[PressureGrid]:
     """The pressure mats' grids: per person at rest, one per support part it loads (the
     surface's draped on its limit surface, where the settle's contacts lie, the floor's on the
-    floor), named "person: support"."""
+    floor), named "person: support"; `creases` as the fit's (for a result that does not carry
+    its limit surface)."""
     grids = []
-    limit = result.limit_surface()
+    limit = result.limit_surface(creases)
     for p, m in zip(people, settles):
         if not m.settled.stable:
             continue

@@ -422,11 +422,11 @@ def _check_bodies(surface0: np.ndarray, surface_normals: np.ndarray,
     """A FitError when a body has nothing to support, lies beyond REACH of the start surface
     `surface0` (ns, 3) or has its lowest supported skin more than the `margin` under the
     `floor` (the floor is under the people: a surface held above a floor over them could reach
-    no one; a floor within the margin may hold a surface up under a body sunk into it), or when the control mesh's
-    faces point away from the bodies: the skin to be supported faces the surface, so its
-    normals run against the surface's normals (`surface_normals`, (ns, 3)) where they meet (at
-    the nearest surface vertex); if on the importance-weighted balance they run along them,
-    the faces are reversed."""
+    no one; a floor within the margin may hold a surface up under a body sunk into it), or
+    when the control mesh's faces point away from the bodies: the skin to be supported faces
+    the surface, so its normals run against the surface's normals (`surface_normals`,
+    (ns, 3)) where they meet (at the nearest surface vertex); if on the importance-weighted
+    balance they run along them, the faces are reversed."""
     near, vertex = cKDTree(surface0).query(points[important])
     for k, t in enumerate(targets):
         mine = owner[important] == k
