@@ -163,14 +163,12 @@ class SurfaceMeshError(ValueError):
 @dataclass(frozen=True, eq=False)
 class SurfaceMesh:
     """A triangle surface for distance queries: vertices (N, 3), triangles (F, 3), unit face
-    normals (F, 3) pointing to the side bodies rest on."""
+    normals (F, 3) pointing to the side bodies rest on. Made by `from_triangles` (or
+    `from_quads`, `from_faces`), which `check` the surface first."""
 
     vertices: np.ndarray
     triangles: np.ndarray
     face_normals: np.ndarray
-
-    def __post_init__(self) -> None:
-        self.check(self.vertices, self.triangles)
 
     @staticmethod
     def check(v: np.ndarray, t: np.ndarray) -> None:

@@ -612,13 +612,15 @@ def _splat(place: np.ndarray, force: np.ndarray, half: np.ndarray | None,
     """(R, C) force per cell: each point's force spread evenly over a box of half-widths
     `half` (K, 2) cells about its place (K, 2) (a point load without `half`), each cell
     taking the box's overlap with it; a box reaching past the grid's edge is renormalised to
-    the cells it covers, so the cells carry the whole force."""
+    the cells it covers, so the cells carry the whole force. With `half`, `force` (K, m)
+    spreads m quantities over the same boxes at once: (R, C, m)."""
     rows, cols = shape
     place = np.clip(place, 0, np.array([rows, cols]) - 1e-9)
     if half is None:
         cell = place.astype(int)
         return np.bincount(cell[:, 0] * cols + cell[:, 1], weights=force,
                            minlength=rows * cols).reshape(shape)
+    values = force[:, None] if force.ndim == 1 else force
     half = np.maximum(half, 1e-6)
     reach = int(min(6, np.ceil(half.max()) + 1))
     offsets = np.arange(-reach, reach + 1)
@@ -632,36 +634,36 @@ def _splat(place: np.ndarray, force: np.ndarray, half: np.ndarray | None,
         weights.append(overlap)
         indices.append(np.clip(idx, 0, n - 1))
     w = weights[0][:, :, None] * weights[1][:, None, :]
-    w = w / w.sum(axis=(1, 2), keepdims=True) * force[:, None, None]
-    cell = indices[0][:, :, None] * cols + indices[1][:, None, :]
-    return np.bincount(cell.ravel(), weights=w.ravel(), minlength=rows * cols).reshape(shape)
+    w = (w / w.sum(axis=(1, 2), keepdims=True)).ravel()
+    cell = (indices[0][:, :, None] * cols + indices[1][:, None, :]).ravel()
+    per = w.size // len(values)  # (each point's box cells)
+    spread = np.stack([np.bincount(cell, weights=w * np.repeat(v, per), minlength=rows * cols)
+                       for v in values.T], axis=-1).reshape(rows, cols, -1)
+    return spread[..., 0] if force.ndim == 1 else spread
 
 
 def _orient(force: np.ndarray, area: np.ndarray, nodes: np.ndarray, normal: np.ndarray,
-            across: np.ndarray, pressing: np.ndarray
-            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The cells (their force, area and pressing area, `pressure_grid`) transposed and flipped
-    so that columns run along `across` and rows along column axis x normal (seen from the
-    body's side, left to right and top to bottom)."""
+            across: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The cells transposed and flipped so that columns run along `across` and rows along
+    column axis x normal (seen from the body's side, left to right and top to bottom)."""
     def steps(n):
         return (np.diff(n, axis=0).reshape(-1, 3).mean(axis=0),
                 np.diff(n, axis=1).reshape(-1, 3).mean(axis=0))
 
     row_step, col_step = steps(nodes)
     if abs(row_step @ across) > abs(col_step @ across):
-        force, area, pressing, nodes = force.T, area.T, pressing.T, nodes.transpose(1, 0, 2)
+        force, area, nodes = force.T, area.T, nodes.transpose(1, 0, 2)
         row_step, col_step = col_step, row_step
     if col_step @ across < 0:
-        force, area, pressing, nodes = force[:, ::-1], area[:, ::-1], pressing[:, ::-1], \
-            nodes[:, ::-1]
+        force, area, nodes = force[:, ::-1], area[:, ::-1], nodes[:, ::-1]
         col_step = -col_step
     if row_step @ np.cross(col_step, normal) < 0:
-        force, area, pressing, nodes = force[::-1], area[::-1], pressing[::-1], nodes[::-1]
-    return force, area, pressing, nodes
+        force, area, nodes = force[::-1], area[::-1], nodes[::-1]
+    return force, area, nodes
 
 
-def _crop(force: np.ndarray, area: np.ndarray, nodes: np.ndarray, margin_m: float,
-          pressing: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _crop(force: np.ndarray, area: np.ndarray, nodes: np.ndarray, margin_m: float
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The cells over the loaded ones and about `margin_m` around them."""
     spans = []
     for axis in (0, 1):
@@ -671,7 +673,7 @@ def _crop(force: np.ndarray, area: np.ndarray, nodes: np.ndarray, margin_m: floa
         spans.append(slice(max(0, loaded[0] - extra),
                            min(force.shape[axis], loaded[-1] + 1 + extra)))
     rows, cols = spans
-    return force[rows, cols], area[rows, cols], pressing[rows, cols], \
+    return force[rows, cols], area[rows, cols], \
         nodes[rows.start:rows.stop + 1, cols.start:cols.stop + 1]
 
 
@@ -741,7 +743,7 @@ def pressure_grid(contact: SupportContact, surface_vertices: np.ndarray | None =
                                            np.asarray(surface_faces), grid, cell_m)
     else:
         place, area, nodes = _plane_cells(contact, normal, across, cell_m, margin_m)
-    half, pressing = None, area
+    half = None
     if areas is not None:
         areas = np.asarray(areas, dtype=float)
         if contact.vertices.max() >= len(areas):
@@ -750,22 +752,24 @@ def pressure_grid(contact: SupportContact, surface_vertices: np.ndarray | None =
         size = [np.median(np.linalg.norm(np.diff(nodes, axis=a), axis=-1)) for a in (0, 1)]
         footprint = areas[contact.vertices[loaded]]
         half = 0.5 * np.sqrt(footprint)[:, None] / np.array(size)
-    force = _splat(place[loaded], contact.normal_force[loaded], half, area.shape)
-    if half is not None:
-        # the skin's area pressing on each cell: more than the cell's own where a concave
-        # surface gathers sunk skin onto it (a closest point moves towards the middle of the
-        # hollow), and the skin's mean pressure is what a mat lying on the pressed foam reads
-        pressing = np.maximum(area, _splat(place[loaded], footprint, half, area.shape))
-    force, area, pressing, nodes = _orient(force, area, nodes, normal, across, pressing)
-    force, area, pressing, nodes = _crop(force, area, nodes, margin_m, pressing)
-    return _grid(contact.name, force, area, nodes, grid is not None, pressing)
+        # the force and the skin's area pressing on each cell, spread over the same boxes:
+        # where a concave surface gathers sunk skin onto a cell (a closest point moves towards
+        # the middle of the hollow) more skin than the cell's own area presses it, and the
+        # cell, as pressed, takes the skin's area (a mat lying on the pressed foam reads the
+        # skin's mean pressure there)
+        both = _splat(place[loaded], np.stack([contact.normal_force[loaded], footprint], 1),
+                      half, area.shape)
+        force, area = both[..., 0], np.maximum(area, both[..., 1])
+    else:
+        force = _splat(place[loaded], contact.normal_force[loaded], None, area.shape)
+    force, area, nodes = _orient(force, area, nodes, normal, across)
+    return _grid(contact.name, *_crop(force, area, nodes, margin_m), grid is not None)
 
 
-def _grid(name: str, force: np.ndarray, area: np.ndarray, nodes: np.ndarray, draped: bool,
-          pressing: np.ndarray | None = None) -> PressureGrid:
-    """The PressureGrid of cells with force (R, C) N landing in them, areas (R, C) m^2 and
-    nodes (R + 1, C + 1, 3): each reads its force over its area as pressed, `pressing` (R, C),
-    the larger of its area and the skin's pressing on it (its area when not given)."""
+def _grid(name: str, force: np.ndarray, area: np.ndarray, nodes: np.ndarray, draped: bool
+          ) -> PressureGrid:
+    """The PressureGrid of cells carrying force (R, C) N over areas (as pressed) (R, C) m^2
+    with nodes (R + 1, C + 1, 3)."""
     centres = 0.25 * (nodes[:-1, :-1] + nodes[1:, :-1] + nodes[:-1, 1:] + nodes[1:, 1:])
     row_axis = np.diff(nodes, axis=0).reshape(-1, 3).mean(axis=0)
     col_axis = np.diff(nodes, axis=1).reshape(-1, 3).mean(axis=0)
@@ -777,7 +781,6 @@ def _grid(name: str, force: np.ndarray, area: np.ndarray, nodes: np.ndarray, dra
             np.diff(nodes, axis=1), axis=-1).mean(axis=0))])
     else:
         row_edges, col_edges = nodes[:, 0] @ row_axis, nodes[0] @ col_axis
-    area = area if pressing is None else pressing
     pressure = np.divide(force, area, out=np.zeros_like(force), where=area > 0) / 1e3
     return PressureGrid(name, pressure, area, row_edges, col_edges, centres, row_axis, col_axis,
                         draped)
