@@ -290,9 +290,10 @@ class PoseLibrary:
         start = _whole(start, "start")
         stop = info.frames if stop is None else _whole(stop, "stop")
         if not (0 <= start < stop <= info.frames):
+            empty = " (empty: a range holds at least one frame)" if stop <= start else ""
             raise ValueError(
                 f"Expected a frame range within 0..{info.frames} of take {info.name!r}, got "
-                f"{start}..{stop}"
+                f"{start}..{stop}{empty}"
             )
         with schema.open_checked(self.path) as f:
             g = f["takes"][info.id]

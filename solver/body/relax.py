@@ -109,13 +109,31 @@ class RelaxProblem:
     guard_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     def __post_init__(self):
+        joints, count = len(self.body.joint_names), len(self.body.vertices)
+        for name, value, shape in (("local0", self.local0, (joints, 3, 3)),
+                                   ("root0", self.root0, (3,))):
+            if np.shape(value) != shape or not np.all(np.isfinite(value)):
+                raise RelaxError(f"Expected {name} of shape {shape}, finite, got shape "
+                                 f"{np.shape(value)}")
+        ids = np.asarray(self.vertex_ids)
+        guard = np.asarray(self.guard_ids)
+        for name, value in (("vertex_ids", ids), ("guard_ids", guard)):
+            if value.ndim != 1 or value.size and (
+                    not np.issubdtype(value.dtype, np.integer) or value.min() < 0 or
+                    value.max() >= count):
+                raise RelaxError(f"Expected {name} as (m,) integer indices in 0..{count - 1}, "
+                                 f"got {value.dtype} of shape {value.shape}")
+        surface = np.asarray(self.surface_vertices)
+        if surface.ndim != 2 or surface.shape[1:] != (3,):
+            raise RelaxError(f"Expected surface_vertices of shape (N, 3), got {surface.shape}")
         both = np.intersect1d(self.vertex_ids, self.guard_ids)
         if both.size:
             raise RelaxError(f"Expected guarded vertices that are not supportable, got "
                              f"{both.size} in both (first {int(both[0])})")
-        if len(self.importance) != len(self.vertex_ids):
-            raise RelaxError(f"Expected one importance per supportable vertex "
-                             f"({len(self.vertex_ids)}), got {len(self.importance)}")
+        if np.shape(self.importance) != (len(ids),) or \
+                not np.all(np.isfinite(self.importance)):
+            raise RelaxError(f"Expected one finite importance per supportable vertex "
+                             f"({len(ids)}), got shape {np.shape(self.importance)}")
 
     def surface_mesh(self) -> SurfaceMesh:
         """The surface as a `SurfaceMesh` (its closest-point tree), made on first use and kept."""

@@ -71,9 +71,14 @@ def skin(body: Body, pose: WorldPose, normals: bool = True
 
     Raises
     ------
+    TypeError
+        If `pose` is not a `WorldPose`.
     ValueError
         If the pose's rotations are not of shape (J, 3, 3).
     """
+    if not (hasattr(pose, "rotmats") and hasattr(pose, "positions")):
+        raise TypeError(f"Expected a WorldPose (one frame of a RigMotion: `motion.frame(t)`), "
+                        f"got {type(pose).__name__}")
     if pose.rotmats.shape != (len(body.joint_names), 3, 3):
         raise ValueError(f"Expected one pose of {len(body.joint_names)} joints, got rotations of "
                          f"shape {pose.rotmats.shape}")

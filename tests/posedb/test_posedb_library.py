@@ -68,6 +68,8 @@ def test_frame_range_export(lib):
     np.testing.assert_array_equal(data.channels, original.motion.channels[10:21])
     with pytest.raises(ValueError, match="frame range within 0..77"):
         lib.take_data("cmu_75_18_high_sit", 70, 80)
+    with pytest.raises(ValueError, match=r"got 10\.\.10 \(empty"):
+        lib.take_data("cmu_75_18_high_sit", 10, 10)
 
 
 def test_skeletons_are_stored_once(tmp_path):

@@ -104,6 +104,16 @@ def test_rest_pose_skins_to_the_rest_mesh_exactly(body):
     np.testing.assert_allclose(skin(body, pose)[0], body.vertices, atol=1e-12)
 
 
+def test_skinning_refuses_what_is_not_one_pose_by_name(body):
+    """An array, or a whole motion's frames, is refused with what was expected."""
+    with pytest.raises(TypeError, match="Expected a WorldPose.*got ndarray"):
+        skin(body, body.joints)
+    n = len(body.joint_names)
+    frames = WorldPose(np.zeros((2, n, 3)), np.broadcast_to(np.eye(3), (2, n, 3, 3)))
+    with pytest.raises(ValueError, match="Expected one pose of"):
+        skin(body, frames)
+
+
 def test_rigid_motion_moves_every_vertex_rigidly(body):
     n = len(body.joint_names)
     rot = Rotation.from_euler("y", 90, degrees=True).as_matrix()

@@ -342,3 +342,25 @@ def test_a_round_worse_by_the_gate_is_retried_shorter_and_otherwise_refused(hove
     assert not np.any(kept.theta)
     np.testing.assert_allclose(kept.vertices, verts, atol=1e-7)
     assert kept.figures == {"moved_m": 0.0} and still.asked == len(STEP_SCALES)
+
+
+def test_a_problem_of_the_wrong_shape_is_refused_by_name():
+    """Rotations, a root, indices or importances of the wrong shape (or not numbers) are
+    refused when the problem is made, naming what is wrong, not deep in a solver."""
+    from solver.body.model import make_body
+    from solver.body.relax import RelaxError, RelaxProblem
+
+    body = make_body()
+    joints = len(body.joint_names)
+    good = dict(local0=np.tile(np.eye(3), (joints, 1, 1)), root0=np.zeros(3),
+                vertex_ids=np.arange(3), importance=np.ones(3),
+                surface_vertices=np.zeros((3, 3)), surface_triangles=np.array([[0, 1, 2]]))
+    RelaxProblem(body, **good)  # (the good one is made)
+    for name, bad, said in (("local0", np.eye(3), "local0"),
+                            ("root0", np.array([0.0, np.nan, 0.0]), "root0"),
+                            ("vertex_ids", np.array([0, 1, len(body.vertices)]), "vertex_ids"),
+                            ("vertex_ids", np.array([0.0, 1.0, 2.0]), "vertex_ids"),
+                            ("importance", np.ones(2), "importance"),
+                            ("surface_vertices", np.zeros(9), "surface_vertices")):
+        with pytest.raises(RelaxError, match=said):
+            RelaxProblem(body, **{**good, name: bad})
