@@ -179,7 +179,12 @@ def checked_name(name: str, kind: str = "pose") -> str:
     """A take's or pose's name as stored (stripped); raises LibraryError for an empty one, one
     with '/', tabs or line breaks, or one over 200 characters."""
     name = str(name).strip()
-    if not name or any(c in name for c in "\n\r\t/") or len(name) > 200:
+    if not name:
+        raise LibraryError(f"Expected a {kind} name, got an empty one")
+    if len(name) > 200:
+        raise LibraryError(f"Expected a {kind} name of at most 200 characters, got "
+                           f"{len(name)}")
+    if any(c in name for c in "\n\r\t/"):
         raise LibraryError(f"Expected a {kind} name without '/', tabs or line breaks, got "
                            f"{name!r}")
     return name

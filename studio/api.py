@@ -134,6 +134,10 @@ def _check_person(p: schema.Person, loc: list) -> None:
                                          f"{p.position}")
     if p.pose.startswith("bvh:bundled:"):
         name = p.pose[len("bvh:bundled:"):].split("#", 1)[0]
+        if "/" in name or "\\" in name:
+            raise _limit([*loc, "pose"], "Expected a bundled recording's name after "
+                                         "bvh:bundled:, got a path (the bundled ones are at "
+                                         "/api/recordings)")
         if name not in bundled_recordings():
             raise _limit([*loc, "pose"], f"No bundled recording {name[:100]!r} (the bundled "
                                          "ones are at /api/recordings)", 404, "not_found")
@@ -237,8 +241,9 @@ def _short(text: str) -> str:
     return text if len(text) <= MAX_MESSAGE else text[:MAX_MESSAGE - 3] + "..."
 
 
-# a path with at least one folder (POSIX or Windows): its last part is kept
-_PATH = re.compile(r"(?:\b[A-Za-z]:)?[/\\](?:[^\s'\",:;()/\\]+[/\\])+([^\s'\",:;()/\\]+)")
+# a path with at least one folder (POSIX or Windows): its last part is kept (not the API's own
+# routes, which messages name)
+_PATH = re.compile(r"(?:\b[A-Za-z]:)?(?!/api/)[/\\](?:[^\s'\",:;()/\\]+[/\\])+([^\s'\",:;()/\\]+)")
 _QUOTED = re.compile(r"'([^']{%d,})'" % (MAX_QUOTED + 1))
 
 

@@ -4,6 +4,7 @@ drawing its 3D nodes under its own scene prefix (`/record`, `/library`, `/design
 
 from __future__ import annotations
 
+import os
 import threading
 import traceback
 from dataclasses import dataclass, field
@@ -48,3 +49,15 @@ def guarded(lock, action, status) -> None:
         except Exception as exc:  # noqa: BLE001 (the studio stays up; the trace is shown)
             status(f"**Internal error:** {type(exc).__name__}: {exc}\n\n```\n"
                    f"{traceback.format_exc(limit=3)}\n```")
+
+
+POLL_EVERY = 2.0  # s between looks at the library file: a change elsewhere is listed
+
+
+def library_stamp(db: str | None) -> tuple | None:
+    """The library file's identity and version (None: no file): a change replaces the file."""
+    try:
+        st = os.stat(db)
+    except (OSError, TypeError):
+        return None
+    return st.st_ino, st.st_mtime_ns, st.st_size

@@ -101,6 +101,7 @@ class FitOutcome:
     pressure: list[np.ndarray]
     seconds: float
     limit: np.ndarray | None = None  # (ns, 3) m: the level-s vertices' limit points (exported)
+    data: dict | None = None  # the scenario data (`Design.scenario_data`) it is the fit of
 
 
 @dataclass(frozen=True)
@@ -167,6 +168,16 @@ class Design:
                 "faces": self.faces.copy(), "fixed": set(self.fixed),
                 "creases": set(self.creases), "params": dict(self.params),
                 "last": self.last, "relaxed": dict(self.relaxed)}
+
+    def snapshot(self) -> dict:
+        """The session's state (people, control mesh, parameters, the last fit), to start
+        another session from (`restore`): its history stays behind."""
+        return self._state()
+
+    def restore(self, state: dict) -> None:
+        """Takes a `snapshot`'s state as one step of the history."""
+        with self.edit():
+            self._restore(copy.copy(state))
 
     def _restore(self, state: dict) -> None:
         for name in _STATE:
@@ -441,7 +452,8 @@ class Design:
         start, resumable = time.perf_counter(), self._resumable
         if cancel is not None and cancel():
             return None
-        scenario = self.scenario()
+        data = self.scenario_data()
+        scenario = self._parse(data)
         people = [self.place(p) for p in self.people]
         params, faces = scenario.surface.params, scenario.surface.faces
         each = None
@@ -461,7 +473,7 @@ class Design:
             self._keep_resume(result, resumable)
             return None
         self.last = FitOutcome(result, people, persons, [m.pressure_kpa for m in settles],
-                               time.perf_counter() - start, limit)
+                               time.perf_counter() - start, limit, data)
         self.resume = None
         self.relaxed = {}  # relaxed onto the surface before
         return self.last
@@ -562,13 +574,25 @@ class Design:
                             json.dumps(result, sort_keys=True), source="studio")
         return name
 
+    @property
+    def fitted(self) -> bool:
+        """Whether the last fit is of the session as it is now (nothing edited since)."""
+        return self.last is not None and self.last.data is not None and \
+            self.last.data == self.scenario_data()
+
     def export(self, out_dir: str | os.PathLike,
                progress: Callable[[str], None] | None = None,
-               formats: tuple[str, ...] = SURFACE_FORMATS) -> dict:
-        """Fits and writes everything as `sitrelax fit` does (surface in `formats`, control
-        mesh, bodies, pictures, report.json, and the scenario as scenario.toml)."""
+               formats: tuple[str, ...] = SURFACE_FORMATS, title: str | None = None) -> dict:
+        """Writes everything as `sitrelax fit` does (surface in `formats`, control mesh,
+        bodies, pictures, report.json, and the scenario as scenario.toml) of the last fit, the
+        one on screen; a DesignError when there is none of the session as it is now (`fitted`:
+        fit first)."""
+        if not self.fitted:
+            raise DesignError("Fit first: the session was edited since its last fit (or has "
+                              "none), and the export writes the fit on screen")
         out = Path(out_dir)
-        report = run_fit(self.scenario(), out, db=self.db, progress=progress, formats=formats)
+        report = run_fit(self.scenario(), out, db=self.db, progress=progress, formats=formats,
+                         fitted=self.last.result, title=title)
         self.save_toml(out / "scenario.toml")
         return report
 
@@ -579,7 +603,7 @@ class Design:
         name = check_name(name)
         with tempfile.TemporaryDirectory() as tmp:
             folder = Path(tmp) / name
-            report = self.export(folder, progress, formats)
+            report = self.export(folder, progress, formats, title=name)
             buffer = io.BytesIO()
             with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as pack:
                 for path in sorted(folder.rglob("*")):

@@ -22,9 +22,11 @@ selection and status line, all drawing every edit).
 
 from __future__ import annotations
 
+import io
 import json
 import threading
 import time
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +40,7 @@ from solver.mesh import quad_triangles
 from solver.scene import schema
 from solver.scene.run import pressure_on_skin
 
-from .context import StudioContext, guarded
+from .context import POLL_EVERY, StudioContext, guarded, library_stamp
 from .design import DEFAULT_POSE, Design, DesignError, Iterate, check_name, control_edges
 
 CONTROL_COLOR = (40, 40, 48)
@@ -316,6 +318,9 @@ class DesignView:
         self._shown_iteration: int | None = None  # the running fit's iterate drawn last
         self._gizmo = None
         self._gizmo_start: tuple[np.ndarray, np.ndarray] | None = None
+        self._leaving: str | None = None  # the session a join was warned about (pressed again)
+        self._closing = threading.Event()
+        self._seen = library_stamp(context.db)  # the library as the pose list was made of it
         with tab:
             self._build_gui()
         self._wire()
@@ -327,6 +332,25 @@ class DesignView:
         self.redraw()
         self._status("Add people (a seated pose is chosen), then press **Fit**, or drag with "
                      "**Refit while dragging** on.")
+        if context.db is not None:  # the pose list follows the library (renames, recordings)
+            threading.Thread(target=self._poll, daemon=True, name="design-poll").start()
+
+    def _poll(self) -> None:
+        """Lists the poses again when the library file changes (another tab, a recording,
+        another process), keeping the pose chosen while it is still there."""
+        while not self._closing.wait(POLL_EVERY):
+            stamp = library_stamp(self.context.db)
+            if stamp is None or stamp == self._seen:
+                continue
+            try:
+                options = self._pose_options(self.tags.value)
+            except Exception:  # noqa: BLE001 (a file mid-change, a bad expression: next look)
+                continue
+            self._seen = stamp
+            with self.session.lock:
+                chosen = self.pose.value
+                self.pose.options = options
+                self.pose.value = chosen if chosen in options else self._default(options)
 
     @property
     def design(self) -> Design:
@@ -984,13 +1008,26 @@ class DesignView:
         self._status(f"Wrote {path}.")
 
     def _export(self) -> None:
+        """Downloads the fit on screen as a zip (`Design.export_zip`); fits first when the
+        session was edited since its last fit, so that what is exported is what is then shown."""
         name = check_name(self.name.value)
+        if not self.design.people:
+            raise DesignError("Add a person first: the scene is empty")
+        if not self.design.fitted:
+            self._status("Fitting before the export (the session changed since its last fit)...")
+            if not self.session.fit(source=self):
+                self._status("The fit was overtaken by a newer edit: nothing exported.")
+                return
         self._status("Exporting...")
         data, report = self.design.export_zip(name)
         self.client.send_file_download(f"{name}.zip", data, save_immediately=True)
         self.exported = data
-        self._status(f"Exported {len(report['files'])} files as {name}.zip ({len(data)} bytes, "
-                     "downloaded).")
+        with zipfile.ZipFile(io.BytesIO(data)) as pack:
+            count = len(pack.namelist())
+        misses = self.warning_lines
+        self._status(f"Exported the fit on screen (fit {self.session.fits}) as {name}.zip: "
+                     f"{count} files, {len(data)} bytes, downloaded." +
+                     (f" It misses {len(misses)} bar(s), listed above." if misses else ""))
 
     # sessions -----------------------------------------------------------------------------
     def _join(self) -> None:
@@ -1001,18 +1038,32 @@ class DesignView:
         if name == old.name:
             return
         new = self.context.designs.get(name) if name else None
+        alone = old.views == [self]  # (this tab's design goes when it leaves)
+        if new is not None and alone and old.design.people and self._leaving != name:
+            self._leaving = name  # pressed again: joins
+            self._status(f"The session {name!r} has a design of its own: joining leaves this "
+                         f"tab's ({len(old.design.people)} person(s)), which no other tab "
+                         f"shows. Save it first (Save TOML), or press **Join session** again "
+                         f"to join.")
+            return
+        self._leaving = None
+        carried = None
         if new is None:
             new = Session(self.context.db, name)
             if name:
                 self.context.designs[name] = new
+            with old.lock:  # a new session starts from this tab's design (its fit with it)
+                carried = old.design.snapshot()
+            new.design.restore(carried)
         self._leave()
         with new.lock:
             self.session = new
             new.views.append(self)
             self.selection = []
             self.redraw()
-        self._status(f"Joined the session {name!r} ({len(new.views)} tab(s))." if name else
-                     "This tab's own session.")
+        kept = " with this tab's design" if carried is not None and carried["people"] else ""
+        self._status(f"Joined the session {name!r}{kept} ({len(new.views)} tab(s))." if name
+                     else f"This tab's own session{kept}.")
 
     def _leave(self) -> None:
         old = self.session
@@ -1047,4 +1098,5 @@ class DesignView:
 
     def close(self) -> None:
         """The tab went away: leaves its session (which stops when no tab shows it)."""
+        self._closing.set()
         self._leave()

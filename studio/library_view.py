@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import contextlib
 import html
-import os
 import threading
 
 import numpy as np
@@ -25,11 +24,10 @@ from posedb.library import TakeData
 from posedb.regions import DEFAULT_SUPPORT
 from posedb.suggest import HeldPosture, take_holds
 
-from .context import StudioContext, guarded
+from .context import POLL_EVERY, StudioContext, guarded, library_stamp
 from .record import split_words
 from .skeleton_draw import SceneFigure, png_base64, pose_world, posed_body, skeleton_thumbnail
 
-POLL_EVERY = 2.0  # s between looks at the library file: a change elsewhere is listed
 MAX_THUMBNAILS = 24  # pictures of poses (and of takes) shown at once: a search's first
 _THUMBS: dict[tuple, str] = {}  # (library file, "pose"/"take", id, frame) -> base64 PNG
 _MAX_CACHED = 4096
@@ -174,12 +172,7 @@ class LibraryView:
         self._list()
 
     def _stamp(self) -> tuple | None:
-        """The library file's identity and version: a change replaces the file."""
-        try:
-            st = os.stat(self.context.db)
-        except (OSError, TypeError):
-            return None
-        return st.st_ino, st.st_mtime_ns, st.st_size
+        return library_stamp(self.context.db)
 
     def _poll(self) -> None:
         """Lists again what a recording, another tab or another process changed, keeping

@@ -99,8 +99,8 @@ def load_pose(spec: str, db: str | os.PathLike | None = None, *,
     bvh = read_bvh(path, unit="auto" if chosen is None else chosen)
     frame = int(m["frame"])
     if not 0 <= frame < bvh.motion.num_frames:
-        raise PoseSourceError(f"Expected a frame in 0..{bvh.motion.num_frames - 1} of {path}, "
-                              f"got {frame}")
+        raise PoseSourceError(f"Expected a frame in 0..{bvh.motion.num_frames - 1} of "
+                              f"{m['path']}, got {frame}")  # (the file as named, not resolved)
     if bvh.skeleton.unit_m is None:
         raise PoseSourceError(f"{path}: the file's length unit is unknown (no known skeleton "
                               "profile): give it, e.g. --unit cm or #frame=N&unit=cm")

@@ -293,7 +293,8 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
             progress: Callable[[str], None] | None = None, formats=("obj", "ply", "glb"),
             unit: str | None = None, up: str | None = None,
             workshop: WorkshopOptions | None = None, pictures: bool = True,
-            beside: bool | None = None) -> dict:
+            beside: bool | None = None, fitted: FitResult | None = None,
+            title: str | None = None) -> dict:
     """Fits a scenario and writes everything into `out_dir` (`sitrelax fit`).
 
     Parameters
@@ -314,6 +315,9 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     beside : the guarantees' check on a second thread beside the evaluation, then the design
         sheet there beside the exports; None (the default): when the machine has more than one
         core; False: all in this thread, in turn (a batch's workers, one per core).
+    fitted : the scenario's fit made already (the studio's, as on screen): written as it is,
+        not fitted again (its control mesh must be the scenario's).
+    title : the design sheet's title (default: the scenario file's name).
 
     Returns
     -------
@@ -337,10 +341,19 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         timing["pose_s"] = time.perf_counter() - t
         say(f"posed {len(people)} person(s) in {timing['pose_s']:.2f} s")
         t = time.perf_counter()
-        result = fit_people(scenario, people, lambda i, e, tau: say(
-            f"iteration {i}: energy {e:.6g} (tau {tau:.2f})"))
-        timing["fit_s"] = time.perf_counter() - t
-    say(f"fitted in {result.iterations} iterations, {timing['fit_s']:.2f} s: {result.stop_reason}")
+        if fitted is None:
+            result = fit_people(scenario, people, lambda i, e, tau: say(
+                f"iteration {i}: energy {e:.6g} (tau {tau:.2f})"))
+            timing["fit_s"] = time.perf_counter() - t
+            say(f"fitted in {result.iterations} iterations, {timing['fit_s']:.2f} s: "
+                f"{result.stop_reason}")
+        else:
+            if fitted.faces.shape != scenario.surface.faces.shape or \
+                    not np.array_equal(fitted.faces, scenario.surface.faces):
+                raise ValueError("Expected a fit of the scenario's control mesh, got one of "
+                                 "another mesh")
+            result, timing["fit_s"] = fitted, fitted.seconds  # (its own, when it was made)
+            say(f"the fit given ({result.iterations} iterations: {result.stop_reason})")
     # the guarantees' check, then the design sheet, on a second thread: the check beside the
     # evaluation, the sheet beside the exports (their numpy, PNG compression and file writes
     # let go of the interpreter; libigl's queries do not); the BLAS limit is held around both,
@@ -354,7 +367,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         _, persons, maps = evaluate_fit(scenario, people, result)
         timing["evaluate_s"] = time.perf_counter() - t
         if pictures:  # (after the check on the one thread beside: it waits for no one)
-            title = Path(scenario_path).stem if scenario_path else "scenario"
+            title = title or (Path(scenario_path).stem if scenario_path else "scenario")
             sheet = submit(_timed, _design_sheet, out / "sheet.png", title, result, people,
                            maps, checking, persons, dict(timing), scenario.surface.params.creases)
         t = time.perf_counter()

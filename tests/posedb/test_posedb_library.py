@@ -292,3 +292,14 @@ def test_concurrent_writers_queue(lib):
         t.join()
     assert not errors
     assert sorted(p.name for p in PoseLibrary(lib.path).poses()) == sorted(f"p{k}" for k in range(8))
+
+
+def test_a_bad_name_is_refused_saying_what_is_wrong(lib):
+    from posedb.library import checked_name
+
+    assert checked_name("  perch  ") == "perch"
+    for name, said in (("", "got an empty one"), ("   ", "got an empty one"),
+                       ("x" * 201, "at most 200 characters, got 201"),
+                       ("a/b", "without '/'"), ("a\tb", "without '/', tabs")):
+        with pytest.raises(LibraryError, match=said):
+            checked_name(name)

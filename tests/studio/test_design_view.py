@@ -6,6 +6,7 @@ relaxed pose saved to the library and the export as one zip."""
 from __future__ import annotations
 
 import io
+import json
 import time
 import zipfile
 
@@ -84,13 +85,30 @@ def test_every_tab_gets_the_three_tabs_and_its_own_session(studio):
         assert len(a.design.people) == 1 and b.design.people == []
         assert np.allclose(b.design.vertices[0], [-0.6, 0.45, -0.4])
         assert "Added" not in b.status_text  # a new tab shows none of another's status
-        # joining by name shares one session
+        # joining by name shares one session; the first tab in brings its design into it
         for view in (a, b):
             view.join_name.value = "shared bench"
             view._guarded(view._join)
-        assert a.session is b.session and a.design.people == []
+        assert a.session is b.session and len(a.design.people) == 1
+        assert "with this tab's design" in a.status_text, a.status_text
+        assert np.allclose(b.design.vertices[0], [-0.6, 0.5, -0.4])  # the second sees it
         a.add_person(HIGH_SIT)
-        assert len(b.design.people) == 1 and b.selected.options[0].startswith("1: person 1")
+        assert len(b.design.people) == 2 and b.selected.options[0].startswith("1: person 1")
+        a._guarded(a.design.undo)  # (the person added is one step; the design brought another)
+        assert len(b.design.people) == 1
+        # a tab with a design of its own is warned before joining leaves it; a second press joins
+        third = Tab(studio)
+        try:
+            c = third.view
+            c.add_person(HIGH_SIT)
+            c.join_name.value = "shared bench"
+            c._guarded(c._join)
+            assert c.session is not a.session and "press **Join session** again" in \
+                c.status_text, c.status_text
+            c._guarded(c._join)
+            assert c.session is a.session and len(c.design.people) == 1
+        finally:
+            third.close()
         assert studio.context.designs["shared bench"] is a.session
     finally:
         first.close()
@@ -222,16 +240,23 @@ def test_export_downloads_one_zip_of_every_format(tab):
     view = tab.view
     _seat(view)
     view.name.value = "bench one"
-    view._guarded(view._export)
-    assert "Exported" in view.status_text, view.status_text
+    view._guarded(view._export)  # (no fit yet: it fits first, and shows that fit)
+    assert "Exported the fit on screen (fit 1)" in view.status_text, view.status_text
     with zipfile.ZipFile(io.BytesIO(view.exported)) as pack:
         names = set(pack.namelist())
-        report = pack.read("bench one/report.json")
+        report = json.loads(pack.read("bench one/report.json"))
     assert {"bench one/surface.obj", "bench one/surface.ply", "bench one/surface.glb",
             "bench one/scene.3dm", "bench one/control.obj",
             "bench one/scenario.toml"} <= names
-    assert b'"persons"' in report
+    assert f"{len(names)} files" in view.status_text
+    shown = view.design.last
+    assert report["energies"] == shown.result.energies  # the fit on screen, not another
+    assert report["persons"][0]["coverage"] == shown.persons[0]["coverage"]
     assert not (view.out / "bench one").exists()  # nothing left on the server
+    # a person moved since the fit: the export fits the session as it is now first
+    view._guarded(lambda: view.design.update_person(0, position=[0.0, 0.0, -0.08]))
+    view._guarded(view._export)
+    assert "fit 2" in view.status_text and view.design.fitted, view.status_text
 
 
 @pytest.mark.slow
@@ -301,3 +326,25 @@ def test_a_drag_streams_the_surface_and_the_fit_of_its_end_replaces_it(studio):
         assert view.progress.content == "" and "Fitted" in view.status_text
     finally:
         tab.close()
+
+
+def test_the_pose_list_follows_a_rename_made_elsewhere(tmp_path):
+    """A pose renamed in the library (the Library tab, another process) is listed under its
+    new name within a few seconds, the chosen pose kept when it is still there."""
+    path = tmp_path / "poses.h5"
+    lib = PoseLibrary(path, create=True)
+    take = lib.import_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"), name="high_sit")
+    lib.add_pose(take.id, 39, "perch")
+    server = Studio(db=str(path), port=0, out=str(tmp_path / "out"))
+    tab = Tab(server)
+    try:
+        view = tab.view
+        assert "perch" in view.pose.options
+        chosen = view.pose.value  # (the seated recording)
+        with PoseLibrary(path).edit() as ed:
+            ed.rename("perch", "my favourite perch")
+        _wait(lambda: "my favourite perch" in view.pose.options, 10, "the renamed pose")
+        assert "perch" not in view.pose.options and view.pose.value == chosen
+    finally:
+        tab.close()
+        server.stop()

@@ -140,6 +140,10 @@ def test_pressure_evaluate_and_relax(api):
 
 @pytest.mark.parametrize("change, status, words", [
     ({"pose": "bvh:/etc/passwd#frame=0"}, 400, "files are not read here"),
+    ({"pose": "bvh:bundled:../../etc/passwd#frame=0"}, 422, "got a path (the bundled ones "
+                                                            "are at /api/recordings)"),
+    ({"pose": "bvh:bundled:nobody.bvh#frame=0"}, 404, "No bundled recording 'nobody.bvh' "
+                                                      "(the bundled ones are at /api/recordings)"),
     ({"pose": "db:nobody"}, 404, "nobody"),
     ({"position": [5.0, 0.0, 0.0]}, 400, "outside the surface's reach"),
     ({"support": ["wings"]}, 422, "support"),
@@ -156,7 +160,7 @@ def test_bad_requests_get_a_4xx_that_names_the_problem(api, change, status, word
 @pytest.mark.parametrize("change, status, words", [
     ({"pose": "db:nobody"}, 404, "No pose 'nobody' in the server's pose library"),
     ({"pose": "bvh:bundled:cmu_75_18_high_sit.bvh#frame=999"}, 400,
-     "Expected a frame in 0..76 of cmu_75_18_high_sit.bvh, got 999"),
+     "Expected a frame in 0..76 of bundled:cmu_75_18_high_sit.bvh, got 999"),
     ({"pose": "db:" + "x" * 120}, 404, "x" * 37 + "..."),
 ])
 def test_errors_name_no_path_on_the_server_and_send_back_no_long_value(api, change, status,
