@@ -212,6 +212,7 @@ class Session:
         self.shown = 0
         self.showing_s = 0.0  # the seconds the last fit spent showing its iterates
         self.refitter = Refitter(self)
+        self.stopped = False  # the running fit was cancelled by the Cancel button
 
     def changed(self, source: "DesignView | None" = None) -> None:
         """Every other view of the session draws the session anew (the source drew its own)."""
@@ -230,6 +231,7 @@ class Session:
         """
         if generation is None:
             generation = self.refitter.bump()
+        self.stopped = False
         for view in list(self.views):
             view.fitting(None, None)
         begun, spent, accepted = time.perf_counter(), 0.0, 0
@@ -242,7 +244,8 @@ class Session:
 
         def cancel() -> bool:
             stepped = accepted > 0 or time.perf_counter() - begun > STEP_GRACE_S
-            return self.refitter.closed or (stepped and self.refitter.outdated(generation))
+            return self.refitter.closed or self.stopped or \
+                (stepped and self.refitter.outdated(generation))
 
         def iterate(it: Iterate) -> None:
             nonlocal spent
@@ -279,6 +282,12 @@ class Session:
             for view in list(self.views):
                 view.fitted(source)
         return True
+
+    def cancel_fit(self) -> None:
+        """Stops the running fit at its next iteration (the surface drawn stays the last
+        finished fit's); called without the session's lock, which a running fit may hold."""
+        self.stopped = True
+        self.refitter.bump()
 
     def problem(self, exc: Exception) -> None:
         """A refit failed (a person out of reach, ...): every view says so."""
@@ -365,6 +374,7 @@ class DesignView:
         gui = self.client.gui
         with gui.add_folder("Run"):
             self.fit = gui.add_button("Fit")
+            self.cancel = gui.add_button("Cancel fit")
             self.live = gui.add_checkbox("Refit while dragging", initial_value=True)
             self.undo = gui.add_button("Undo", disabled=True)
             self.redo = gui.add_button("Redo", disabled=True)
@@ -419,8 +429,9 @@ class DesignView:
             self.upload = gui.add_upload_button("Load control mesh (OBJ)", mime_type=".obj")
             self.level = gui.add_slider("Level", min=1, max=3, step=1,
                                         initial_value=params["level"])
-            self.sigma = gui.add_number("Sigma", initial_value=params["sigma"], min=0.0,
-                                        max=100.0, step=0.001)
+            # (typed as text: a number input drops the exponent of 3e-3 and clamps silently)
+            self.sigma = gui.add_text("Sigma", initial_value=f"{params['sigma']:g}",
+                                      hint="smoothness weight, e.g. 0.003 or 3e-3 (0-100)")
             self.tau = gui.add_slider("Tau max", min=0.0, max=1.0, step=0.05,
                                       initial_value=params["tau_max"])
             self.margin = gui.add_slider("Margin (m)", min=0.0, max=0.1, step=0.005,
@@ -458,11 +469,15 @@ class DesignView:
         for handle, action in inputs:
             handle.on_update(lambda _e, action=action: None if self._syncing else
                              self._guarded(action))
-        for name, handle in (("level", self.level), ("sigma", self.sigma),
-                             ("tau_max", self.tau), ("margin", self.margin)):
+        self.sigma.on_update(lambda _e: None if self._syncing else
+                             self._guarded(self._typed_sigma))
+        for name, handle in (("level", self.level), ("tau_max", self.tau),
+                             ("margin", self.margin)):
             handle.on_update(lambda _e, name=name, handle=handle: None if self._syncing else
                              self._guarded(lambda: self._set_parameter(name, handle.value)))
         self.upload.on_upload(lambda _e: self._guarded(self._load_mesh))
+        # (not guarded: the Fit button's fit holds the session's lock while it runs)
+        self.cancel.on_click(lambda _e: self.session.cancel_fit())
 
     def _guarded(self, action) -> None:
         """Runs one action at a time in the session; a problem becomes the status line."""
@@ -866,6 +881,34 @@ class DesignView:
         self.design.set_parameter(name, value)
         self._edited()
 
+    def _show_parameters(self) -> None:
+        """The panel's parameters as the session holds them (after an undo, a join, another
+        tab's edit)."""
+        params = self.design.params
+        for handle, value in ((self.level, params["level"]), (self.tau, params["tau_max"]),
+                              (self.margin, params["margin"])):
+            if handle.value != value:
+                self._set(handle, value)
+        if self.sigma.value.strip() != f"{params['sigma']:g}":
+            self._set(self.sigma, f"{params['sigma']:g}")
+
+    def _typed_sigma(self) -> None:
+        """Sigma as typed: a number from 0 to 100 (3e-3 as well as 0.003); anything else is
+        refused, and the field shows the value kept."""
+        text = self.sigma.value.strip()
+        kept = self.design.params["sigma"]
+        try:
+            value = float(text)
+            if not 0.0 <= value <= 100.0:
+                raise ValueError
+        except ValueError:
+            self._set(self.sigma, f"{kept:g}")
+            raise DesignError(f"Expected sigma as a number from 0 to 100 (e.g. 0.003 or 3e-3), "
+                              f"got {text[:40]!r}; it stays {kept:g}") from None
+        if value != kept:
+            self._set_parameter("sigma", value)
+            self._status(f"Sigma is {value:g}.")
+
     def _adopt(self) -> None:
         self.design.adopt_fit()
         self.redraw()
@@ -894,7 +937,8 @@ class DesignView:
         if not self.design.people:
             raise DesignError("Add a person first: the scene is empty")
         if not self.session.fit(source=self):
-            self._status("The fit was overtaken by a newer edit.")
+            self._status("The fit was cancelled: the surface shown is the last finished fit's."
+                         if self.session.stopped else "The fit was overtaken by a newer edit.")
 
     def fitting(self, iteration: int | None, energy: float | None) -> None:
         """A fit's news: started (None) or one more accepted iteration."""
@@ -915,7 +959,7 @@ class DesignView:
     def overtaken(self) -> None:
         """The running fit was cancelled and no other follows: the last finished fit again."""
         self._fit_news, self._shown_iteration = "", None
-        self.progress.content = ""
+        self.progress.content = "*Fit cancelled.*" if self.session.stopped else ""
         self._draw_surface()
 
     def _show_progress(self) -> None:
@@ -1088,6 +1132,7 @@ class DesignView:
             finally:
                 self._syncing = False
             self._show_person()
+            self._show_parameters()
             self.selection = [j for j in self.selection if j < len(self.design.vertices)]
             self._draw_control()
             self._draw_surface()

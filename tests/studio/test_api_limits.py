@@ -47,7 +47,7 @@ def _scenario(surface=None, person=None) -> dict:
 
 
 @pytest.mark.parametrize("path, body, status, words", [
-    ("/api/fit", _scenario(person={"pose": "bvh:bundled:../../../../etc/passwd#frame=0"}), 404,
+    ("/api/fit", _scenario(person={"pose": "bvh:bundled:../../../../etc/passwd#frame=0"}), 422,
      '"person", 0, "pose"'),
     ("/api/body", {"person": {"pose": "bvh:bundled:nope.bvh#frame=1"}}, 404, "nope.bvh"),
     ("/api/body", {"person": {"pose": "db:perch"}}, 409, "no pose library"),

@@ -348,3 +348,37 @@ def test_the_pose_list_follows_a_rename_made_elsewhere(tmp_path):
     finally:
         tab.close()
         server.stop()
+
+
+def test_sigma_takes_an_exponent_and_refuses_what_is_no_number_keeping_its_value(tab):
+    view = tab.view
+    view.sigma.value = "5e-3"
+    _wait(lambda: view.design.params["sigma"] == 0.005, 10, "sigma from 5e-3")
+    for typed in ("-1", "1e308", "lots"):
+        view.sigma.value = typed
+        _wait(lambda: "Expected sigma" in view.status_text, 10, f"{typed!r} refused")
+        assert view.design.params["sigma"] == 0.005 and view.sigma.value == "0.005"
+        view._status("")
+    view._guarded(view.design.undo)  # the panel shows the value the session holds again
+    view._guarded(view.redraw)
+    assert view.sigma.value == "0.003" and view.design.params["sigma"] == 0.003
+
+
+def test_cancel_stops_the_fit_the_fit_button_started(tab):
+    """Cancel fit stops a running fit at its next iteration (it needs no lock the running fit
+    holds): nothing new is drawn, and the status says so."""
+    import threading
+
+    view = tab.view
+    _seat(view)
+    worker = threading.Thread(target=lambda: view._guarded(view.run_fit))
+    worker.start()
+    _wait(lambda: "iteration" in view.progress.content, 30, "the fit's first iteration")
+    view.session.cancel_fit()
+    worker.join(30)
+    assert not worker.is_alive()
+    assert "The fit was cancelled" in view.status_text, view.status_text
+    assert view.design.last is None and view.fits == 0
+    assert "Fit cancelled" in view.progress.content
+    view._guarded(view.run_fit)  # and the next fit runs to its end
+    assert view.fits == 1 and "Fitted" in view.status_text, view.status_text
