@@ -38,17 +38,38 @@ class View(Protocol):
         """Stops what the view runs (streams, fits) when its tab goes away."""
 
 
-def guarded(lock, action, status) -> None:
+PROBLEM, INTERNAL = "**Problem:**", "**Internal error:**"
+NOTICE_S = 10.0  # seconds a problem's notice stays up (its text stays in the status line)
+
+
+def guarded(lock, action, status, client=None, shown: str = "") -> None:
     """Runs a view's `action` holding `lock`; a problem becomes `status(text)`: bad input names
-    itself, anything else shows its trace, and the studio stays up."""
+    itself, anything else shows its trace, and the studio stays up. With the tab's `client`, a
+    problem also pops up as a notice (the status line may be scrolled out of view in a long
+    panel); `shown`, the status line's text now: a problem shown there from an earlier action
+    is cleared before this one runs."""
     with lock:
+        if shown.startswith((PROBLEM, INTERNAL)):
+            status("")
         try:
             action()
         except (ValueError, OSError, KeyError) as exc:
-            status(f"**Problem:** {exc}")
+            status(f"{PROBLEM} {exc}")
+            _notice(client, "Problem", str(exc))
         except Exception as exc:  # noqa: BLE001 (the studio stays up; the trace is shown)
-            status(f"**Internal error:** {type(exc).__name__}: {exc}\n\n```\n"
+            status(f"{INTERNAL} {type(exc).__name__}: {exc}\n\n```\n"
                    f"{traceback.format_exc(limit=3)}\n```")
+            _notice(client, "Internal error", f"{type(exc).__name__}: {exc}")
+
+
+def _notice(client, title: str, text: str) -> None:
+    """A red notice in the tab, closed after NOTICE_S (nothing without a client)."""
+    if client is None:
+        return
+    try:
+        client.add_notification(title, text[:300], auto_close_seconds=NOTICE_S, color="red")
+    except Exception:  # noqa: BLE001 (a tab that went away: its status line is all there is)
+        pass
 
 
 POLL_EVERY = 2.0  # s between looks at the library file: a change elsewhere is listed

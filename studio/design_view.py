@@ -481,7 +481,7 @@ class DesignView:
 
     def _guarded(self, action) -> None:
         """Runs one action at a time in the session; a problem becomes the status line."""
-        guarded(self.session.lock, action, self._status)
+        guarded(self.session.lock, action, self._status, self.client, self.status_text)
 
     def _status(self, text: str) -> None:
         self.status_text = text

@@ -51,7 +51,8 @@ class HeadlessTab:
     `watch` names scene nodes (e.g. "/design/surface") whose messages' arrival times are kept:
     the last in `arrived` (name -> time.perf_counter()), the last few thousand in `arrivals`
     (name -> times, oldest first). With `texts`, the contents sent to markdown panels are kept
-    with their arrival times in `contents` ((time, text), the last few thousand)."""
+    with their arrival times in `contents` ((time, text), the last few thousand), and the
+    notices the tab was shown in `notices` ((title, body), the last few hundred)."""
 
     def __init__(self, studio, camera: dict | None = None, timeout: float = 20.0,
                  watch: tuple[str, ...] = (), texts: bool = False):
@@ -65,6 +66,7 @@ class HeadlessTab:
         self._watch = set(watch)
         self._texts = texts
         self.contents: deque = deque(maxlen=4096)
+        self.notices: deque = deque(maxlen=256)
         self._closed = threading.Event()
         threading.Thread(target=self._drain, daemon=True).start()
         self.send(_messages.ViewerCameraMessage(**{**CAMERA, **(camera or {})}))
@@ -89,9 +91,13 @@ class HeadlessTab:
             except Exception:  # noqa: BLE001 (the socket closed)
                 return
             self.received += len(frame)
-            if (self._watch or self._texts) and isinstance(frame, bytes):
+            if isinstance(frame, bytes):
                 now = time.perf_counter()
                 messages = _messages_of(frame)
+                self.notices.extend(
+                    (m["props"].get("title"), m["props"].get("body")) for m in messages
+                    if m.get("type") == "NotificationShowMessage" and
+                    isinstance(m.get("props"), dict))
                 names = {m["name"] for m in messages if isinstance(m.get("name"), str)}
                 for name in self._watch & names:
                     self.arrived[name] = now

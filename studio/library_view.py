@@ -139,7 +139,7 @@ class LibraryView:
 
     # plumbing ------------------------------------------------------------------------------
     def _guarded(self, action) -> None:
-        guarded(self._lock, action, self._status)
+        guarded(self._lock, action, self._status, self.client, self.status.content)
 
     def _status(self, text: str) -> None:
         self.status.content = text

@@ -239,7 +239,7 @@ class RecordView:
 
     # actions -------------------------------------------------------------------------------
     def _guarded(self, action) -> None:
-        guarded(self._lock, action, self._status)
+        guarded(self._lock, action, self._status, self.client, self.status.content)
 
     def _status(self, text: str) -> None:
         self.status.content = text

@@ -382,3 +382,16 @@ def test_cancel_stops_the_fit_the_fit_button_started(tab):
     assert "Fit cancelled" in view.progress.content
     view._guarded(view.run_fit)  # and the next fit runs to its end
     assert view.fits == 1 and "Fitted" in view.status_text, view.status_text
+
+
+def test_a_problem_pops_up_a_notice_and_is_cleared_by_the_next_action(tab):
+    """The status line may be scrolled away in a long panel: a problem also shows as a notice;
+    the next action clears the problem from the status line."""
+    view = tab.view
+    view.name.value = ""
+    view._guarded(view._save_toml)
+    assert view.status_text.startswith("**Problem:**"), view.status_text
+    _wait(lambda: any(title == "Problem" and "name" in body for title, body in tab.notices),
+          10, "the notice")
+    view._guarded(lambda: None)  # an action that says nothing
+    assert view.status_text == ""
