@@ -116,6 +116,14 @@ def ray_pick(points: np.ndarray, origin, direction, angle: float = PICK_ANGLE) -
     return int(np.argmin(ang))
 
 
+def _short_pose(spec: str) -> str:
+    """A pose source as a label shows it: `bvh:bundled:NAME.bvh#frame=N` as `NAME #N`, a
+    library pose by its name, anything else cut to 40 characters."""
+    text = spec.removeprefix("bvh:").removeprefix("bundled:").removeprefix("db:")
+    text = text.replace(".bvh#frame=", " #")
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
 def show_due(spent: float, elapsed: float, share: float = SHOW_SHARE) -> bool:
     """Whether a fit that has run `elapsed` seconds, `spent` of them showing its iterates, shows
     the next one: showing stays within `share` of the fit's time (by at most one showing's
@@ -553,7 +561,10 @@ class DesignView:
         self.add_person(self._pose_spec())
 
     def _labels(self) -> list[str]:
-        return [f"{k + 1}: {p['name']} ({p['pose']})" for k, p in enumerate(self.design.people)]
+        """The Selected list's entries: number, name and pose, short enough for the panel
+        (a bundled recording by its name and frame: `cmu_75_18_high_sit #39`)."""
+        return [f"{k + 1}: {p['name']} ({_short_pose(p['pose'])})"
+                for k, p in enumerate(self.design.people)]
 
     def selected_person(self) -> int:
         labels = self._labels()
