@@ -26,7 +26,9 @@ def _lock_timeout(args) -> float | None:
         from .library import default_lock_timeout
 
         return default_lock_timeout()
-    return None if value < 0 else value
+    from .locking import lock_wait
+
+    return lock_wait(value, "--lock-timeout")
 
 
 def _waiting(db: str):
@@ -198,7 +200,7 @@ def _cmd_recover(args) -> int:
     rows = recover(args.db, lock_timeout=_lock_timeout(args), on_wait=_waiting(args.db))
     _print(rows, args.json, "\n".join(f"{r['take']}: {r['status']}" for r in rows)
            or "nothing to recover")
-    return 0
+    return 1 if any(r["status"].startswith("failed") for r in rows) else 0
 
 
 def _cmd_stats(args) -> int:

@@ -32,7 +32,7 @@ from capture import Bvh, Motion, Skeleton, identify_profile, read_bvh
 
 from . import files, schema
 from .compact import compact_into
-from .locking import LockedError, exclusive, try_exclusive
+from .locking import LockedError, exclusive, lock_wait, try_exclusive
 from .posetable import PoseTable
 from .regions import DEFAULT_SUPPORT
 from .schema import LibraryError, NotFoundError, decode_supports, encode_supports
@@ -45,17 +45,19 @@ FULL_CHECK_BYTES = 64 << 20  # libraries up to this size are read entirely befor
 
 
 def default_lock_timeout() -> float | None:
-    """$SITRELAX_LOCK_TIMEOUT in seconds ("none": wait as long as the writer lives)."""
+    """$SITRELAX_LOCK_TIMEOUT in seconds ("none", a negative or an infinite number: wait as long
+    as the writer lives)."""
     text = os.environ.get("SITRELAX_LOCK_TIMEOUT", "").strip().lower()
     if not text:
         return DEFAULT_LOCK_TIMEOUT
-    if text in ("none", "inf", "forever"):
+    if text in ("none", "forever"):
         return None
     try:
-        return float(text)
+        seconds = float(text)
     except ValueError:
         raise LibraryError(f"Expected $SITRELAX_LOCK_TIMEOUT in seconds or 'none', got "
                            f"{text!r}") from None
+    return lock_wait(seconds, "$SITRELAX_LOCK_TIMEOUT")
 
 
 class DuplicateNameError(LibraryError):

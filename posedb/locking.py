@@ -13,6 +13,7 @@ Paths are derived with `pathlib` alone, the same way on every platform: the lock
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from contextlib import contextmanager
@@ -51,7 +52,9 @@ def exclusive(path: str | Path, *, timeout: float | None,
               on_wait: Callable[[float], None] | None = None,
               what: str = "The pose library") -> Iterator[None]:
     """Holds the write lock of `path`, waiting up to `timeout` seconds (None: as long as the
-    holder lives) and calling `on_wait(seconds waited)` about once a second meanwhile."""
+    holder lives, as does a negative or infinite one) and calling `on_wait(seconds waited)`
+    about once a second meanwhile."""
+    timeout = lock_wait(timeout)
     lock = _new_lock(Path(path))
     start = time.monotonic()
     while True:
@@ -73,6 +76,18 @@ def exclusive(path: str | Path, *, timeout: float | None,
         yield
     finally:
         lock.release()
+
+
+def lock_wait(seconds: float | None, what: str = "a lock timeout") -> float | None:
+    """Seconds to wait for another writer, None for as long as it lives (None, a negative or
+    an infinite number); a LibraryError for a number that is not one (NaN)."""
+    if seconds is None:
+        return None
+    seconds = float(seconds)
+    if math.isnan(seconds):
+        raise LibraryError(f"Expected {what} in seconds (negative: wait as long as the other "
+                           f"writer runs), got nan")
+    return None if seconds < 0 or math.isinf(seconds) else seconds
 
 
 def try_exclusive(path: str | Path) -> filelock.BaseFileLock | None:

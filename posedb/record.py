@@ -168,9 +168,13 @@ def import_journal(lib: PoseLibrary, path: Path) -> TakeInfo | None:
             stored = _stored_take(ed.takes.values(), recording_id)  # as of the lock
             if stored is not None:
                 raise _AlreadyStored(stored.id)
+            wanted = str(meta.get("name", path.stem))
+            name = _free_take_name(ed, wanted)
+            if name != wanted:  # (another take took it while this one recorded)
+                summary += f"; stored as {name!r}: a take named {wanted!r} was there first"
             tid = ed.add_take(
                 skeleton, channels, _frame_time(frames, float(meta.get("frame_time", 1 / 120))),
-                name=meta.get("name", path.stem), subject=meta.get("subject", ""),
+                name=name, subject=meta.get("subject", ""),
                 tags=meta.get("tags", ()), notes=(notes + "\n" if notes else "") + summary,
                 source=f"{header.get('source', '')}#recording={recording_id}",
                 recorded_at=header.get("started_at"), origin="stream", frame_indices=indices,
@@ -199,6 +203,18 @@ def _free_name(ed: Editor, name: str) -> str:
         return name
     k = 2
     while ed.table.row_of(f"{name}-{k}") is not None:
+        k += 1
+    return f"{name}-{k}"
+
+
+def _free_take_name(ed: Editor, name: str) -> str:
+    """`name`, or `name-2`, `name-3`... when a take holds it already (a recording is never lost
+    to a take of its name stored while it ran)."""
+    taken = {t.name for t in ed.takes.values()}
+    if name not in taken:
+        return name
+    k = 2
+    while f"{name}-{k}" in taken:
         k += 1
     return f"{name}-{k}"
 
@@ -236,7 +252,9 @@ def _recover_one(lib: PoseLibrary, rec: Recording) -> dict:
         return row | {"status": f"failed: {exc}"}
     finally:
         lock.release()
-    return row | {"status": "empty, removed" if take is None else "recovered",
+    status = "empty, removed" if take is None else "recovered" if take.name == rec.take else \
+        f"recovered as {take.name!r} (a take named {rec.take!r} was there first)"
+    return row | {"status": status,
                   "frames": 0 if take is None else take.frames}
 
 

@@ -9,6 +9,7 @@ import stat
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -268,3 +269,43 @@ def test_check_and_compact_commands(tmp_path, capsys):
     assert main(["db", "tag", "seated", "mine", "--db", str(path)]) == 2
     err = capsys.readouterr().err
     assert str(path) in err and "was not changed" in err and "db check" in err
+
+
+def test_a_lock_timeout_negative_waits_on_and_nan_is_refused(tmp_path, monkeypatch, capsys):
+    """$SITRELAX_LOCK_TIMEOUT and --lock-timeout agree: negative (or infinite) waits as long as
+    the other writer runs; NaN, which would poll without waiting and never time out, is
+    refused by name."""
+    import threading
+
+    from posedb.library import default_lock_timeout
+    from posedb.locking import exclusive, lock_wait
+    from studio.cli import main
+
+    for text, seconds in (("-1", None), ("inf", None), ("none", None), ("2.5", 2.5)):
+        monkeypatch.setenv("SITRELAX_LOCK_TIMEOUT", text)
+        assert default_lock_timeout() == seconds
+    monkeypatch.setenv("SITRELAX_LOCK_TIMEOUT", "nan")
+    with pytest.raises(LibraryError, match=r"SITRELAX_LOCK_TIMEOUT.*got nan"):
+        default_lock_timeout()
+    assert lock_wait(-3.0) is None and lock_wait(0.0) == 0.0
+    monkeypatch.delenv("SITRELAX_LOCK_TIMEOUT")
+    path = _library(tmp_path / "poses.h5")
+    assert main(["db", "tag", "--db", str(path), "--lock-timeout", "nan",
+                 "cmu_75_18_high_sit", "x"]) == 2
+    assert "--lock-timeout in seconds" in capsys.readouterr().err
+    # a negative timeout waits for the writer holding the lock, however long
+    held, done = threading.Event(), []
+
+    def hold() -> None:
+        with exclusive(path, timeout=0):
+            held.set()
+            time.sleep(1.5)
+
+    holder = threading.Thread(target=hold)
+    holder.start()
+    held.wait(10)
+    monkeypatch.setenv("SITRELAX_LOCK_TIMEOUT", "-1")
+    start = time.monotonic()
+    done.append(main(["db", "tag", "--db", str(path), "cmu_75_18_high_sit", "x"]))
+    holder.join()
+    assert done == [0] and time.monotonic() - start > 1.0

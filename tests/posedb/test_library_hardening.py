@@ -198,3 +198,22 @@ def test_recover_and_a_finishing_recorder_store_the_take_once(db, races):
         assert outcome["take"]["name"] == f"race{k}"
         assert [t.name for t in PoseLibrary(db).takes()].count(f"race{k}") == 1
     assert not list(journal_dir(db).glob("*.raw"))
+
+
+def test_a_recording_whose_name_was_taken_meanwhile_is_stored_under_another(db, capsys):
+    """A take of the recording's name stored while it ran (another recorder, an import) does
+    not strand the journal: it is stored as NAME-2, and its notes say why."""
+    from studio.cli import main
+
+    holder = _hold_lock(db, 3.0)
+    with pytest.raises(LibraryError):
+        _record_from_file(db, "twin", lock_timeout=0.5)  # (its journal is kept)
+    holder.wait()
+    assert main(["db", "import", str(recording(CMU)), "--name", "twin", "--db", str(db)]) == 0
+    capsys.readouterr()
+    assert main(["db", "recover", "--db", str(db), "--json"]) == 0
+    (row,) = json.loads(capsys.readouterr().out)
+    assert row["status"] == "recovered as 'twin-2' (a take named 'twin' was there first)"
+    stored = PoseLibrary(db).take("twin-2")
+    assert stored.frames == 60 and "a take named 'twin' was there first" in stored.notes
+    assert not list(journal_dir(db).glob("*.raw"))
