@@ -3,6 +3,7 @@ results folders that a command which fails before writing into them does not lea
 
 from __future__ import annotations
 
+import errno
 import os
 import tempfile
 from contextlib import contextmanager
@@ -11,8 +12,14 @@ from typing import Iterator
 
 
 def write_atomic(path: str | os.PathLike, data: bytes) -> None:
-    """Writes bytes to `path` through a temporary file in the same folder and a rename."""
+    """Writes bytes to `path` through a temporary file in the same folder and a rename; an
+    error names `path` (or its missing folder), never the temporary file."""
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(errno.EISDIR, "Expected a file name, got a folder", str(path))
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise FileNotFoundError(errno.ENOENT, "No such folder to write into", str(folder))
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
     umask = os.umask(0)
     os.umask(umask)

@@ -278,8 +278,9 @@ class Replay:
         def make(k: int, loop: int) -> tuple[int, bytes]:
             return records[k].kind, records[k].data
 
+        cut = " (its last record, cut short, is left out)" if cap.truncated else ""
         return cls(times, make, float(times[-1]) + step,
-                   f"{Path(path).name}: {len(records)} records over {times[-1]:.2f} s")
+                   f"{Path(path).name}: {len(records)} records over {times[-1]:.2f} s{cut}")
 
     @classmethod
     def from_file(cls, path: str | Path, **kw) -> "Replay":

@@ -329,6 +329,9 @@ class Source:
         if self.transport.exhausted and not self._flushed:
             frames.extend(self.decoder.flush())
             self._flushed = True
+            if getattr(self.transport, "truncated", False):  # (a raw capture cut short)
+                self._event(time.time(), f"{self.name}: the last record is cut short (the "
+                                         "capture was interrupted); it is ignored")
         if frames and self._resume_pending:
             self._report_resume(frames[0])
         dec = self.decoder

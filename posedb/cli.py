@@ -54,6 +54,11 @@ def _cmd_import(args) -> int:
     from capture import read_bvh, resolve_path
     from capture.jointmap import read_joint_map
 
+    if args.name and len(args.files) > 1:
+        from .schema import LibraryError
+
+        raise LibraryError(f"Expected one file with --name (a name is one take's), got "
+                           f"{len(args.files)} files")
     # parsed before the write lock, so other writers wait only for the commit
     parsed = [read_bvh(resolve_path(spec), unit=args.unit) for spec in args.files]
     joint_map = read_joint_map(args.joint_map) if args.joint_map else None
@@ -61,8 +66,7 @@ def _cmd_import(args) -> int:
     names = []
     with lib.edit() as ed:
         for bvh in parsed:
-            name = args.name if (args.name and len(args.files) == 1) else None
-            names.append(ed.import_bvh(bvh, name=name, subject=args.subject, tags=args.tag,
+            names.append(ed.import_bvh(bvh, name=args.name, subject=args.subject, tags=args.tag,
                                        notes=args.notes, joint_map=joint_map))
     takes = [lib.take(t).as_dict() for t in names]
     _print(takes, args.json, "\n".join(f"imported {t['name']} ({t['id']}): {t['frames']} frames, "
@@ -171,8 +175,13 @@ def _cmd_export(args) -> int:
 
     lib = _open(args)
     take = lib.take(args.name)
-    stop = None if args.end is None else args.end + 1
-    bvh = lib.take_bvh(take.id, args.start, stop)
+    end = take.frames - 1 if args.end is None else args.end
+    if not 0 <= args.start <= end <= take.frames - 1:
+        from .schema import LibraryError
+
+        raise LibraryError(f"Expected --start and --end (both inclusive) within 0..{take.frames - 1} "
+                           f"of take {take.name!r}, start <= end, got {args.start}..{end}")
+    bvh = lib.take_bvh(take.id, args.start, end + 1)
     write_bvh(args.out, bvh.skeleton, bvh.motion)
     print(f"wrote {bvh.motion.num_frames} frames of {take.name} to {args.out}")
     return 0

@@ -177,6 +177,18 @@ def _find_pose(table: PoseTable, ref: str, path: Path) -> int:
     return row
 
 
+def name_holder(takes: dict[str, TakeInfo], table: PoseTable, name: str) -> str | None:
+    """What holds `name` already ("take named 'x'", "pose named 'x'", or an id's form), or None
+    when it is free for a take or a pose: takes and poses share one namespace with their ids."""
+    if _parse_id(name, "take-") is not None or _parse_id(name, "pose-") is not None:
+        return f"take or pose id of the form {name!r} (a name may not look like one)"
+    if any(t.name == name for t in takes.values()):
+        return f"take named {name!r}"
+    if table.row_of(name) is not None:
+        return f"pose named {name!r}"
+    return None
+
+
 def checked_name(name: str, kind: str = "pose") -> str:
     """A take's or pose's name as stored (stripped); raises LibraryError for an empty one, one
     with '/', tabs or line breaks, or one over 200 characters."""
@@ -286,6 +298,11 @@ class PoseLibrary:
     def take(self, ref: str) -> TakeInfo:
         """A take by id or name."""
         return _find_take(self._takes, ref, self.path)
+
+    def name_holder(self, name: str) -> str | None:
+        """What holds `name` already, or None when it is free for a new take or pose (see the
+        module's `name_holder`)."""
+        return name_holder(self._takes, self._table, name)
 
     def skeleton(self, key: str) -> Skeleton:
         with schema.open_checked(self.path) as f:
@@ -493,12 +510,18 @@ class Editor:
     # -- names ----------------------------------------------------------------------------
 
     def _check_name(self, name: str, kind: str) -> str:
+        """A new take's or pose's name: takes and poses share one namespace with their ids (a
+        reference names one thing: `db show NAME`, `db tag NAME` look for a pose, then a
+        take)."""
         name = checked_name(name, kind)
-        if kind == "take" and any(t.name == name for t in self.takes.values()):
-            raise DuplicateNameError(f"A take named {name!r} already exists in {self.lib.path}")
-        if kind == "pose" and self.table.row_of(name) is not None:
-            raise DuplicateNameError(f"A pose named {name!r} already exists in {self.lib.path}")
+        holder = self.name_holder(name)
+        if holder is not None:
+            raise DuplicateNameError(f"A {holder} already exists in {self.lib.path}")
         return name
+
+    def name_holder(self, name: str) -> str | None:
+        """`name_holder` of the library as this edit has it."""
+        return name_holder(self.takes, self.table, name)
 
     def _take(self, ref: str) -> TakeInfo:
         return _find_take(self.takes, ref, self.lib.path)
@@ -656,7 +679,10 @@ class Editor:
         try:
             row = self._pose_row(ref)
         except NotFoundError:
-            take = self._take(ref)
+            try:
+                take = self._take(ref)
+            except NotFoundError:
+                raise NotFoundError(f"No pose or take {ref!r} in {self.lib.path}") from None
             new_name = self._check_name(new_name, "take")
             self.f["takes"][take.id].attrs["name"] = new_name
             self.takes[take.id] = replace(take, name=new_name)

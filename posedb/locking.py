@@ -55,6 +55,9 @@ def exclusive(path: str | Path, *, timeout: float | None,
     holder lives, as does a negative or infinite one) and calling `on_wait(seconds waited)`
     about once a second meanwhile."""
     timeout = lock_wait(timeout)
+    folder = Path(path).parent
+    if not folder.is_dir():  # (the lock would make it: a mistyped path's folders)
+        raise LibraryError(f"{what} {path}: its folder {folder} does not exist")
     lock = _new_lock(Path(path))
     start = time.monotonic()
     while True:

@@ -43,7 +43,7 @@ from capture.stream_layout import StreamLayout
 from .library import DuplicateNameError, Editor, PoseLibrary, TakeInfo, checked_name
 from .locking import LockedError, exclusive, try_exclusive
 from .regions import DEFAULT_SUPPORT, support_regions
-from .schema import LibraryError, NotFoundError
+from .schema import LibraryError
 from .tags import normalise_tags
 
 _SYNC_EVERY = 0.5  # seconds between fsyncs of the journal
@@ -169,7 +169,7 @@ def import_journal(lib: PoseLibrary, path: Path) -> TakeInfo | None:
             if stored is not None:
                 raise _AlreadyStored(stored.id)
             wanted = str(meta.get("name", path.stem))
-            name = _free_take_name(ed, wanted)
+            name = _free(ed, wanted)
             if name != wanted:  # (another take took it while this one recorded)
                 summary += f"; stored as {name!r}: a take named {wanted!r} was there first"
             tid = ed.add_take(
@@ -196,25 +196,14 @@ def marked_frame(received_at: np.ndarray, t: float) -> int:
     return max(0, int(np.searchsorted(received_at, t, side="right")) - 1)
 
 
-def _free_name(ed: Editor, name: str) -> str:
-    """`name`, or `name-2`, `name-3`... when a pose holds it already (a mark is never lost to
-    a name taken after it was made; the take's notes say what was renamed)."""
-    if ed.table.row_of(name) is None:
+def _free(ed: Editor, name: str) -> str:
+    """`name` or the first of `name-2`, `name-3`... that no take or pose holds (`name_holder`):
+    a recording, or a pose marked in it, is never lost to a name taken while it ran; the take's
+    notes say what was renamed."""
+    if ed.name_holder(name) is None:
         return name
     k = 2
-    while ed.table.row_of(f"{name}-{k}") is not None:
-        k += 1
-    return f"{name}-{k}"
-
-
-def _free_take_name(ed: Editor, name: str) -> str:
-    """`name`, or `name-2`, `name-3`... when a take holds it already (a recording is never lost
-    to a take of its name stored while it ran)."""
-    taken = {t.name for t in ed.takes.values()}
-    if name not in taken:
-        return name
-    k = 2
-    while f"{name}-{k}" in taken:
+    while ed.name_holder(f"{name}-{k}") is not None:
         k += 1
     return f"{name}-{k}"
 
@@ -227,7 +216,7 @@ def _add_marked_poses(ed: Editor, take_id: str, received_at: np.ndarray,
     for t, mark in marks:
         frame = marked_frame(received_at, t)
         wanted = str(mark.get("name") or f"{take.name}-f{frame:05d}")
-        name = _free_name(ed, wanted)
+        name = _free(ed, wanted)
         if name != wanted:
             renamed.append(f"the pose marked {wanted!r} is {name!r} (the name was taken)")
         ed.add_pose(take_id, frame, name, tags=tuple(take.tags) + tuple(mark.get("tags", ())),
@@ -342,13 +331,9 @@ class TakeRecorder:
         self._next_sync = time.monotonic() + _SYNC_EVERY
 
     def _check_free(self, library) -> None:
-        try:
-            self.library.take(self.take)
-        except NotFoundError:
-            pass
-        else:
-            raise DuplicateNameError(f"A take named {self.take!r} already exists in "
-                                     f"{self.library.path}")
+        holder = self.library.name_holder(self.take)
+        if holder is not None:
+            raise DuplicateNameError(f"A {holder} already exists in {self.library.path}")
         if any(r.take == self.take for r in recordings(library)):
             raise DuplicateNameError(f"A recording of take {self.take!r} is already running or "
                                      "waiting for `sitrelax db recover`")
@@ -373,10 +358,11 @@ class TakeRecorder:
         if not np.isfinite(received_at):
             raise LibraryError(f"Expected the receive time of a frame, got {received_at!r}")
         name = checked_name(name, "pose") if str(name).strip() else ""
-        if name and (name in self.library.search_poses()
-                     or any(m["name"] == name for m in self.marks)):
-            raise DuplicateNameError(f"A pose named {name!r} already exists in "
-                                     f"{self.library.path} or was marked already")
+        holder = self.library.name_holder(name) if name else None
+        if holder is not None:
+            raise DuplicateNameError(f"A {holder} already exists in {self.library.path}")
+        if name and any(m["name"] == name for m in self.marks):
+            raise DuplicateNameError(f"A pose named {name!r} was marked already")
         mark = {"name": name, "tags": list(normalise_tags(tags)),
                 "supports": list(support_regions(supports)), "notes": str(notes)}
         self.writer.write(MARK, float(received_at), json.dumps(mark).encode("utf-8"))

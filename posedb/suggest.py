@@ -96,6 +96,15 @@ def held_postures(skeleton: Skeleton, channels: np.ndarray, frame_time: float,
     channels : (T, C) raw channels of `skeleton` (its unit must be known).
     min_bottom_duration : s, shortest still stretch at the bottom of a motion; None: none.
     """
+    for name, value in (("max_speed", max_speed), ("min_duration", min_duration),
+                        ("smooth", smooth), ("min_bottom_duration", min_bottom_duration),
+                        ("bottom_drop", bottom_drop)):
+        if value is not None and not (np.isfinite(value) and value >= 0) or \
+                name == "max_speed" and not value > 0:
+            from .schema import LibraryError
+
+            raise LibraryError(f"Expected {name} as a finite number >= 0 (max_speed > 0), got "
+                               f"{value!r}")
     speed = joint_speed(skeleton, channels, frame_time, profile, smooth)
     height = skeleton.root_positions(channels)[:, 1]
     min_frames = _frames(min_duration, frame_time)

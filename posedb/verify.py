@@ -46,6 +46,12 @@ def _check_skeletons(f: h5py.File, problems: list[str]) -> dict[str, tuple[int, 
             shapes[key] = (sk.num_joints, sk.num_channels)
         except _STORAGE as exc:
             problems.append(f"/skeletons/{key}: unreadable ({exc})")
+            continue
+        for name, values in (("offsets", sk.offsets), ("end_sites", sk.end_sites)):
+            bad = ~np.isfinite(np.asarray(values, dtype=np.float64))
+            if bad.any():  # (an export would write a BVH file no reader takes)
+                problems.append(f"/skeletons/{key}/{name}: {int(bad.sum())} value(s) that are "
+                                "not numbers")
     return shapes
 
 

@@ -60,3 +60,22 @@ def test_bad_files_are_named(tmp_path, content, message):
     path.write_bytes(content)
     with pytest.raises(RawCaptureError, match=message):
         read_raw_capture(path)
+
+
+def test_listen_and_replay_say_when_the_last_record_is_cut_short(tmp_path, capsys):
+    """The README's promise: a raw capture's cut-off last record is ignored and reported, by
+    the commands as by the reader."""
+    import json
+
+    from capture.replay import Replay
+    from studio.cli import main
+    from tests.capture.test_stream_fixtures import STREAMS
+
+    cut = tmp_path / "cut.raw"
+    cut.write_bytes((STREAMS / "coalesced_reads.raw").read_bytes()[:20000])
+    assert read_raw_capture(cut).truncated
+    assert main(["capture", "listen", f"file:{cut}", "--skeleton",
+                 "bundled:cmu_75_18_high_sit.bvh", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert any("the last record is cut short" in e for e in summary["events"])
+    assert "cut short" in Replay.from_raw(cut).description

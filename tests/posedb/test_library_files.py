@@ -309,3 +309,34 @@ def test_a_lock_timeout_negative_waits_on_and_nan_is_refused(tmp_path, monkeypat
     done.append(main(["db", "tag", "--db", str(path), "cmu_75_18_high_sit", "x"]))
     holder.join()
     assert done == [0] and time.monotonic() - start > 1.0
+
+
+def test_check_finds_a_skeleton_offset_that_is_no_number(tmp_path, capsys):
+    """An offset that is not a number would be exported as `OFFSET nan ...`, which no BVH
+    reader (ours included) takes: the check names it."""
+    import h5py
+
+    from studio.cli import main
+
+    path = _library(tmp_path / "poses.h5")
+    with h5py.File(path, "r+") as f:
+        (key,) = list(f["skeletons"])[:1]
+        offsets = f["skeletons"][key]["offsets"]
+        row = offsets[3]
+        row[1] = np.nan
+        offsets[3] = row
+    assert main(["db", "check", "--db", str(path), "--quick"]) == 1
+    assert f"/skeletons/{key}/offsets: 1 value(s) that are not numbers" in capsys.readouterr().out
+
+
+def test_a_library_in_a_folder_that_does_not_exist_is_refused_not_made(tmp_path, capsys):
+    from studio.cli import main
+
+    path = tmp_path / "typo" / "dir" / "poses.h5"
+    assert main(["db", "import", "--db", str(path), "bundled:cmu_82_05_floor_sit_excerpt.bvh"]) == 2
+    assert f"its folder {path.parent} does not exist" in capsys.readouterr().err
+    assert not (tmp_path / "typo").exists()
+    good = _library(tmp_path / "poses.h5")
+    with pytest.raises(LibraryError, match="No pose or take 'nobody'"):
+        with PoseLibrary(good).edit() as ed:
+            ed.rename("nobody", "x")

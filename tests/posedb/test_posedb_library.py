@@ -245,6 +245,15 @@ def test_duplicate_names(lib):
         with lib.edit() as ed:
             ed.add_pose("cmu_75_18_high_sit", 41, "fresh")
             ed.rename("fresh", "perch")
+    # takes and poses share one namespace with their ids: a reference names one thing
+    take = lib.take("cmu_75_18_high_sit")
+    for name, said in (("cmu_82_05_floor_sit_excerpt", "take named"),
+                       (take.id, "id of the form"), ("pose-000007", "id of the form")):
+        with pytest.raises(DuplicateNameError, match=said):
+            lib.add_pose("cmu_75_18_high_sit", 42, name)
+    with pytest.raises(DuplicateNameError, match="pose named 'perch'"):
+        with lib.edit() as ed:
+            ed.rename("cmu_82_05_floor_sit_excerpt", "perch")
     assert _digest(lib.path) == before
 
 

@@ -93,3 +93,15 @@ def test_accepted_poses_inherit_the_take_tags_and_the_cli_prints_names(tmp_path,
     # a name that is neither: the message says it was sought as both
     assert main(["db", "show", "nosuch", "--db", db]) == 2
     assert "No pose or take 'nosuch'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("option, value", [("max_speed", -1.0), ("max_speed", float("nan")),
+                                           ("max_speed", 0.0), ("min_duration", float("nan")),
+                                           ("min_duration", -3.0),
+                                           ("min_bottom_duration", float("inf"))])
+def test_thresholds_that_are_no_numbers_or_negative_are_refused_by_name(option, value):
+    from posedb.schema import LibraryError
+
+    sk, channels, _ = squat()
+    with pytest.raises(LibraryError, match=f"Expected {option} as a finite number"):
+        held_postures(sk, channels, FRAME_TIME, identify_profile(sk.names), **{option: value})
