@@ -340,3 +340,21 @@ def test_a_library_in_a_folder_that_does_not_exist_is_refused_not_made(tmp_path,
     with pytest.raises(LibraryError, match="No pose or take 'nobody'"):
         with PoseLibrary(good).edit() as ed:
             ed.rename("nobody", "x")
+
+
+def test_export_range_is_checked_as_the_flags_say_both_ends_included(tmp_path, capsys):
+    from studio.cli import main
+
+    path = _library(tmp_path / "poses.h5")
+    out = tmp_path / "part.bvh"
+    for start, end in (("0", "77"), ("50", "10"), ("-1", "3")):
+        assert main(["db", "export", "cmu_75_18_high_sit", "--db", str(path), "--out", str(out),
+                     "--start", start, "--end", end]) == 2
+        assert f"within 0..76 of take 'cmu_75_18_high_sit', start <= end, got {start}..{end}" \
+            in capsys.readouterr().err
+    assert main(["db", "export", "cmu_75_18_high_sit", "--db", str(path), "--out", str(out),
+                 "--start", "76", "--end", "76"]) == 0
+    assert "wrote 1 frames" in capsys.readouterr().out
+    assert main(["db", "export", "cmu_75_18_high_sit", "--db", str(path), "--out",
+                 str(tmp_path)]) == 2
+    assert f"got a folder: {tmp_path}" in capsys.readouterr().err
