@@ -590,10 +590,12 @@ def _parse_motion(cur: _Tokens, n_channels: int) -> Motion:
 
 
 def _prepared(data: bytes | str, path: str | None) -> bytes:
-    """The file's bytes with LF or CRLF line ends (CR-only files rewritten), checked for
-    text."""
+    """The file's bytes with LF or CRLF line ends (CR-only files rewritten), without a UTF-8
+    byte order mark (Windows editors write one), checked for text."""
     if isinstance(data, str):
         data = data.encode("utf-8")
+    if data.startswith(b"\xef\xbb\xbf"):
+        data = data[3:]
     # CRLF needs no rewriting (CR is whitespace, lines are counted at LF); a lone CR, as in
     # CR-only files, ends a line too, so those files are rewritten to LF.
     if _LONE_CR.search(data):

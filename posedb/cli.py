@@ -153,6 +153,25 @@ def _cmd_pose_delete(args) -> int:
     return 0
 
 
+def _cmd_take_rename(args) -> int:
+    lib = _open(args)
+    take = lib.take(args.name)  # (a take: `db pose rename` looks for a pose first)
+    with lib.edit() as ed:
+        ed.rename(take.id, args.new_name)
+    print(f"renamed take {take.name} to {args.new_name}")
+    return 0
+
+
+def _cmd_take_delete(args) -> int:
+    lib = _open(args)
+    take = lib.take(args.name)
+    poses = len(lib.find_poses(take=take.id))
+    with lib.edit() as ed:
+        ed.delete_take(take.id)
+    print(f"deleted take {take.name} and its {poses} pose(s)")
+    return 0
+
+
 def _cmd_suggest(args) -> int:
     from .suggest import suggest_poses
 
@@ -326,13 +345,27 @@ def _register_pose_commands(sub) -> None:
     _support_option(p, "the body regions the pose needs supported")
     p.add_argument("--notes", default="")
     p.set_defaults(func=_cmd_pose_add)
-    p = _library_options(psub.add_parser("rename"), json_flag=False)
+    p = _library_options(psub.add_parser("rename", help="rename a pose (or a take)"),
+                         json_flag=False)
     p.add_argument("name")
     p.add_argument("new_name")
     p.set_defaults(func=_cmd_pose_rename)
-    p = _library_options(psub.add_parser("delete"), json_flag=False)
+    p = _library_options(psub.add_parser("delete", help="delete a pose (its take stays)"),
+                         json_flag=False)
     p.add_argument("name")
     p.set_defaults(func=_cmd_pose_delete)
+
+    take = sub.add_parser("take", help="rename or delete takes")
+    tsub = take.add_subparsers(dest="take_command", required=True)
+    p = _library_options(tsub.add_parser("rename", help="rename a take"), json_flag=False)
+    p.add_argument("name")
+    p.add_argument("new_name")
+    p.set_defaults(func=_cmd_take_rename)
+    p = _library_options(tsub.add_parser("delete", help="delete a take and the poses made from it "
+                                                        "(`db compact` then frees the space)"),
+                         json_flag=False)
+    p.add_argument("name")
+    p.set_defaults(func=_cmd_take_delete)
 
     p = _library_options(sub.add_parser("suggest", help="propose poses where the body holds still"))
     p.add_argument("take")

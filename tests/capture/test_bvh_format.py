@@ -80,6 +80,17 @@ def test_dialects_read_the_same(end_site, crlf, spaces):
     np.testing.assert_allclose(other.world_positions(), base.world_positions())
 
 
+def test_a_utf8_byte_order_mark_is_read_past():
+    """Windows editors start a saved file with EF BB BF; the file reads as without it (and
+    an error still counts lines from the first)."""
+    base = parse_bvh(SMALL, unit="cm")
+    marked = parse_bvh(b"\xef\xbb\xbf" + SMALL.encode("utf-8"), unit="cm")
+    np.testing.assert_array_equal(marked.motion.channels, base.motion.channels)
+    assert marked.skeleton.names == base.skeleton.names
+    with pytest.raises(ValueError, match=":1: expected .HIERARCHY.*got .HIERARCH.$"):
+        parse_bvh(b"\xef\xbb\xbfHIERARCH\n", unit="cm")
+
+
 def test_braces_on_the_keyword_line_and_odd_names():
     text = (SMALL.replace("ROOT Hips\n{", "ROOT mixamorig:Hips {")
             .replace("JOINT Spine\n\t{", "JOINT Bip01 L.Spine{")

@@ -358,3 +358,20 @@ def test_export_range_is_checked_as_the_flags_say_both_ends_included(tmp_path, c
     assert main(["db", "export", "cmu_75_18_high_sit", "--db", str(path), "--out",
                  str(tmp_path)]) == 2
     assert f"got a folder: {tmp_path}" in capsys.readouterr().err
+
+
+def test_db_take_rename_and_delete(tmp_path, capsys):
+    from studio.cli import main
+
+    path = _library(tmp_path / "poses.h5")
+    lib = PoseLibrary(path)
+    lib.add_pose("cmu_75_18_high_sit", 39, "perch")
+    lib.add_pose("cmu_75_18_high_sit", 40, "perch2")
+    assert main(["db", "take", "rename", "cmu_75_18_high_sit", "high", "--db", str(path)]) == 0
+    assert PoseLibrary(path).take("high").frames == 77
+    assert main(["db", "take", "delete", "high", "--db", str(path)]) == 0
+    assert "deleted take high and its 3 pose(s)" in capsys.readouterr().out  # (and "seated")
+    lib = PoseLibrary(path)
+    assert "high" not in [t.name for t in lib.takes()] and lib.find_poses() == []
+    assert main(["db", "take", "delete", "perch", "--db", str(path)]) == 2
+    assert "No take 'perch'" in capsys.readouterr().err
