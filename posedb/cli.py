@@ -137,11 +137,13 @@ def _cmd_pose_add(args) -> int:
     return 0
 
 
-def _cmd_pose_rename(args) -> int:
+def _cmd_pose_rename(args, kind: str = "") -> int:
+    """`db pose rename` (a pose, else a take) and `db take rename` (`kind` "take": a take)."""
     lib = _open(args)
+    ref = lib.take(args.name).id if kind == "take" else args.name
     with lib.edit() as ed:
-        ed.rename(args.name, args.new_name)
-    print(f"renamed {args.name} to {args.new_name}")
+        ed.rename(ref, args.new_name)
+    print(f"renamed {kind + ' ' if kind else ''}{args.name} to {args.new_name}")
     return 0
 
 
@@ -150,15 +152,6 @@ def _cmd_pose_delete(args) -> int:
     with lib.edit() as ed:
         ed.delete_pose(args.name)
     print(f"deleted pose {args.name}")
-    return 0
-
-
-def _cmd_take_rename(args) -> int:
-    lib = _open(args)
-    take = lib.take(args.name)  # (a take: `db pose rename` looks for a pose first)
-    with lib.edit() as ed:
-        ed.rename(take.id, args.new_name)
-    print(f"renamed take {take.name} to {args.new_name}")
     return 0
 
 
@@ -360,7 +353,7 @@ def _register_pose_commands(sub) -> None:
     p = _library_options(tsub.add_parser("rename", help="rename a take"), json_flag=False)
     p.add_argument("name")
     p.add_argument("new_name")
-    p.set_defaults(func=_cmd_take_rename)
+    p.set_defaults(func=lambda a: _cmd_pose_rename(a, "take"))
     p = _library_options(tsub.add_parser("delete", help="delete a take and the poses made from it "
                                                         "(`db compact` then frees the space)"),
                          json_flag=False)
