@@ -175,6 +175,10 @@ class RawRecords:
         self._path = path
         self.truncated = False
 
+    def close(self) -> None:
+        """Closes the file (records not yet read are not read)."""
+        self._fh.close()
+
     def __iter__(self) -> Iterator[RawRecord]:
         fh = self._fh
         with fh:
@@ -209,6 +213,13 @@ def iter_raw_capture(path: str | os.PathLike) -> tuple[dict, RawRecords]:
         fh.close()
         raise
     return header, RawRecords(fh, path)
+
+
+def raw_header(path: str | os.PathLike) -> dict:
+    """The header of a raw capture alone (the file closed again)."""
+    header, records = iter_raw_capture(path)
+    records.close()
+    return header
 
 
 def raw_marks(path: str | os.PathLike) -> list[tuple[float, dict]]:

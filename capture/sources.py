@@ -239,6 +239,7 @@ class RawFileTransport:
         return out
 
     def close(self) -> None:
+        self._records.close()
         self._iter = iter(())
         self.exhausted = True
 

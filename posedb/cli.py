@@ -62,16 +62,39 @@ def _cmd_import(args) -> int:
     # parsed before the write lock, so other writers wait only for the commit
     parsed = [read_bvh(resolve_path(spec), unit=args.unit) for spec in args.files]
     joint_map = read_joint_map(args.joint_map) if args.joint_map else None
+    new = not os.path.exists(args.db)
     lib = _open(args, create=True)
     names = []
-    with lib.edit() as ed:
-        for bvh in parsed:
-            names.append(ed.import_bvh(bvh, name=args.name, subject=args.subject, tags=args.tag,
-                                       notes=args.notes, joint_map=joint_map))
+    try:
+        with lib.edit() as ed:
+            for bvh in parsed:
+                names.append(ed.import_bvh(bvh, name=args.name, subject=args.subject,
+                                           tags=args.tag, notes=args.notes,
+                                           joint_map=joint_map))
+    except BaseException:
+        if new and _empty(args.db):  # (a library made for this import: not left behind)
+            from .locking import lock_path
+
+            for made in (args.db, lock_path(args.db)):
+                try:
+                    os.unlink(made)
+                except OSError:
+                    pass
+        raise
     takes = [lib.take(t).as_dict() for t in names]
     _print(takes, args.json, "\n".join(f"imported {t['name']} ({t['id']}): {t['frames']} frames, "
                                       f"{t['duration']:.2f} s" for t in takes))
     return 0
+
+
+def _empty(db: str) -> bool:
+    """Whether the library `db` holds nothing (no take, so no pose)."""
+    from .library import PoseLibrary
+
+    try:
+        return not PoseLibrary(db).takes()
+    except Exception:  # noqa: BLE001 (unreadable: someone else's business, left alone)
+        return False
 
 
 def _cmd_list(args) -> int:

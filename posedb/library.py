@@ -564,9 +564,13 @@ class Editor:
                 "when importing (for example --unit cm)"
             )
         channels = np.asarray(channels)
-        if channels.ndim != 2 or channels.shape[1] != skeleton.num_channels or not len(channels):
-            raise LibraryError(f"Expected channels (T > 0, {skeleton.num_channels}), got "
-                               f"{channels.shape}")
+        if channels.ndim == 2 and channels.shape[1] == skeleton.num_channels and \
+                not len(channels):
+            raise LibraryError(f"Expected at least one frame for take {name!r}, got none (a "
+                               f"header-only file, `Frames: 0`, holds no motion to store)")
+        if channels.ndim != 2 or channels.shape[1] != skeleton.num_channels:
+            raise LibraryError(f"Expected channels (T > 0, {skeleton.num_channels}) for take "
+                               f"{name!r}, got {channels.shape}")
         if not np.isfinite(channels).all():
             raise LibraryError(f"Expected finite channels for take {name!r}")
         sk_key = self._store_skeleton(skeleton)

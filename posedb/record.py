@@ -35,13 +35,13 @@ import numpy as np
 
 from capture import parse_bvh, read_bvh, resolve_path
 from capture.monitor import StreamMonitor, sender_timing
-from capture.rawcapture import (MARK, RawCaptureError, RawCaptureWriter, iter_raw_capture,
+from capture.rawcapture import (MARK, RawCaptureError, RawCaptureWriter, raw_header,
                                 raw_marks, skeleton_header_text)
 from capture.sources import RawFileTransport, Source, UnknownProtocolError, open_transport
 from capture.stream_layout import StreamLayout
 
 from .library import DuplicateNameError, Editor, PoseLibrary, TakeInfo, checked_name
-from .locking import LockedError, exclusive, try_exclusive
+from .locking import LockedError, exclusive, lock_path, try_exclusive
 from .regions import DEFAULT_SUPPORT, support_regions
 from .schema import LibraryError
 from .tags import normalise_tags
@@ -107,7 +107,7 @@ def recordings(library: str | os.PathLike) -> list[Recording]:
     out = []
     for path in sorted(folder.glob("*.raw")) if folder.is_dir() else []:
         try:
-            header, _ = iter_raw_capture(path)
+            header = raw_header(path)
         except (RawCaptureError, OSError):
             continue
         take = header.get("take", {}).get("name", path.stem)
@@ -139,7 +139,7 @@ def import_journal(lib: PoseLibrary, path: Path) -> TakeInfo | None:
 
     Returns None for a journal that holds no frame (it is removed too).
     """
-    header, _ = iter_raw_capture(path)
+    header = raw_header(path)
     meta = header.get("take", {})
     recording_id = meta.get("recording_id", "")
     stored = _stored_take(lib.takes(), recording_id)
@@ -149,8 +149,8 @@ def import_journal(lib: PoseLibrary, path: Path) -> TakeInfo | None:
     unit = meta.get("unit_m")
     skeleton = parse_bvh(header["skeleton_bvh"], unit=unit if unit else "auto").skeleton
     layout = StreamLayout(skeleton)
-    source = Source(RawFileTransport(path), layout)
-    frames = list(source)
+    with Source(RawFileTransport(path), layout) as source:
+        frames = list(source)
     if not frames:
         path.unlink()
         return None
@@ -226,6 +226,17 @@ def _add_marked_poses(ed: Editor, take_id: str, received_at: np.ndarray,
         ed.set_take(take_id, notes="\n".join([take.notes, *renamed]))
 
 
+def _drop_lock(journal: Path) -> None:
+    """Removes a stored journal's lock file (released: nothing takes it again once the journal
+    is gone); a journal still there keeps it."""
+    if journal.exists():
+        return
+    try:
+        os.unlink(lock_path(journal))
+    except OSError:
+        pass
+
+
 def _recover_one(lib: PoseLibrary, rec: Recording) -> dict:
     """Stores one journal, holding its lock so that its recorder (if it is finishing) and any
     other `recover` wait or skip it."""
@@ -241,6 +252,7 @@ def _recover_one(lib: PoseLibrary, rec: Recording) -> dict:
         return row | {"status": f"failed: {exc}"}
     finally:
         lock.release()
+        _drop_lock(rec.path)
     status = "empty, removed" if take is None else "recovered" if take.name == rec.take else \
         f"recovered as {take.name!r} (a take named {rec.take!r} was there first)"
     return row | {"status": status,
@@ -380,6 +392,7 @@ class TakeRecorder:
             return _store_journal(self.library, self.journal, self.take)
         finally:
             self._held.close()
+            _drop_lock(self.journal)
 
     def abandon(self) -> None:
         """Closes the journal and releases its lock without storing it, as a recorder that

@@ -375,3 +375,22 @@ def test_db_take_rename_and_delete(tmp_path, capsys):
     assert "high" not in [t.name for t in lib.takes()] and lib.find_poses() == []
     assert main(["db", "take", "delete", "perch", "--db", str(path)]) == 2
     assert "No take 'perch'" in capsys.readouterr().err
+
+
+def test_a_failed_import_into_a_new_library_leaves_no_library(tmp_path, capsys):
+    """A header-only file (`Frames: 0`) holds nothing to store: the error names the take, and
+    the library the import would have made is not left behind empty."""
+    from studio.cli import main
+
+    empty = tmp_path / "empty.bvh"
+    empty.write_text("HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 6 Xposition Yposition "
+                     "Zposition Zrotation Xrotation Yrotation\n End Site\n {\n  OFFSET 0 1 0\n }"
+                     "\n}\nMOTION\nFrames: 0\nFrame Time: 0.01\n")
+    path = tmp_path / "new.h5"
+    assert main(["db", "import", "--db", str(path), str(empty), "--unit", "cm"]) == 2
+    assert "Expected at least one frame for take 'empty'" in capsys.readouterr().err
+    assert not list(tmp_path.glob("new.h5*"))
+    kept = _library(tmp_path / "kept.h5")  # an existing library stays, as it was
+    before = kept.read_bytes()
+    assert main(["db", "import", "--db", str(kept), str(empty), "--unit", "cm"]) == 2
+    assert kept.read_bytes() == before

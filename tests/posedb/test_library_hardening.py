@@ -217,3 +217,4 @@ def test_a_recording_whose_name_was_taken_meanwhile_is_stored_under_another(db, 
     stored = PoseLibrary(db).take("twin-2")
     assert stored.frames == 60 and "a take named 'twin' was there first" in stored.notes
     assert not list(journal_dir(db).glob("*.raw"))
+    assert not list(journal_dir(db).glob("*.lock"))  # (nor the stored journal's lock)
