@@ -31,6 +31,11 @@ VIEWS = (
     ("Design", DesignView),
 )
 SHOWN = "Design"  # the view whose 3D nodes a new tab shows (viser tells no tab switch)
+# where the camera first looks when a view is shown (then the designer's own orbit is kept):
+# a seat and its sitter, or a whole standing performer
+FRAMING = {"Record": ((1.7, 1.5, 2.6), (0.0, 0.9, 0.0)),
+           "Library": ((0.95, 0.8, 1.2), (0.0, 0.38, 0.0)),
+           "Design": ((0.95, 0.8, 1.2), (0.0, 0.38, 0.0))}
 
 
 @contextlib.contextmanager
@@ -63,6 +68,7 @@ class Studio:
         self.context = StudioContext(db, Path(out), int(limit))
         self.out, self.limit = self.context.out, self.context.limit
         self.views: dict[int, list] = {}
+        self.shown: dict[int, object] = {}  # per tab, its "3D view shows" dropdown
         self.problem_text = ""  # the last upload refused, as its tab was told
         self._lock = threading.Lock()
         with contextlib.redirect_stdout(io.StringIO()), _guarded_websocket():  # its banner
@@ -81,8 +87,8 @@ class Studio:
         self.server.gui.configure_theme(show_share_button=False, control_width="large")
         scene = self.server.scene
         scene.set_up_direction("+y")
-        self.server.initial_camera.position = (0.95, 0.8, 1.2)
-        self.server.initial_camera.look_at = (0.0, 0.38, 0.0)
+        self.server.initial_camera.position, self.server.initial_camera.look_at = \
+            FRAMING[SHOWN]
         scene.add_grid("/floor", width=4.0, height=4.0, plane="xz", position=(0.0, 0.0, 0.0))
         self.server.on_client_connect(self._connect)
         self.server.on_client_disconnect(self._disconnect)
@@ -106,16 +112,26 @@ class Studio:
             roots[label].visible = label == SHOWN
             views.append(view)
 
+        framed = {SHOWN}  # the views the camera has been framed for (the first showing)
+
         def show(_event) -> None:
             for label, root in roots.items():
                 root.visible = label == shown.value
+            if shown.value not in framed:
+                framed.add(shown.value)
+                position, target = FRAMING[shown.value]
+                with client.atomic():
+                    client.camera.position = position
+                    client.camera.look_at = target
         shown.on_update(show)
         with self._lock:
             self.views[client.client_id] = views
+            self.shown[client.client_id] = shown
 
     def _disconnect(self, client) -> None:
         with self._lock:
             views = self.views.pop(client.client_id, [])
+            self.shown.pop(client.client_id, None)
         for view in views:
             view.close()
 

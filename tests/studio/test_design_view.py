@@ -395,3 +395,20 @@ def test_a_problem_pops_up_a_notice_and_is_cleared_by_the_next_action(tab):
           10, "the notice")
     view._guarded(lambda: None)  # an action that says nothing
     assert view.status_text == ""
+
+
+def test_showing_record_frames_a_standing_performer_once(studio, tab):
+    """The camera first framed for a seat; shown the Record view it steps back to take in a
+    standing performer, once (the designer's own orbit is kept after)."""
+    from studio.web import FRAMING
+
+    client = studio.server.get_clients()[tab.client_id]
+    shown = studio.shown[tab.client_id]
+    shown.value = "Record"
+    _wait(lambda: np.allclose(client.camera.position, FRAMING["Record"][0]), 10,
+          "the camera to frame a standing performer")
+    client.camera.position = (3.0, 2.0, 3.0)  # the designer orbits
+    shown.value = "Design"
+    shown.value = "Record"
+    time.sleep(0.2)
+    assert np.allclose(client.camera.position, (3.0, 2.0, 3.0))
