@@ -700,10 +700,12 @@ def save_relaxed(db: str | os.PathLike, relaxed: list, surface: str) -> list[dic
             else:
                 # "bvh:bundled:NAME.bvh#frame=N" or "bvh:PATH.bvh#...": the file's stem
                 source, base, tags = ref, Path(ref.split("#")[0].split(":")[-1]).stem, ()
+            # the pose "<base>-relaxed" and its take "<base>-relaxed-take" (takes and poses
+            # share one namespace)
             name, k = f"{base}-relaxed", 2
-            while name in taken:
+            while name in taken or f"{name}-take" in taken:
                 name, k = f"{base}-relaxed-{k}", k + 1
-            taken.add(name)
+            taken |= {name, f"{name}-take"}
             rot, shift = person.transform[:3, :3], person.transform[:3, 3]
             local = res.local.copy()
             local[0] = rot.T @ local[0]
@@ -711,7 +713,8 @@ def save_relaxed(db: str | os.PathLike, relaxed: list, surface: str) -> list[dic
             skeleton, _ = rig_skeleton(person.body)
             notes = f"relaxed from {ref} onto the surface {surface}"
             tid = ed.add_take(skeleton, pose_channels(person.body, local, root)[None], 1 / 30,
-                              name=name, source=source, origin="relaxed", notes=notes)
+                              name=f"{name}-take", source=source, origin="relaxed",
+                              notes=notes)
             pid = ed.add_pose(tid, 0, name, tags=tuple(tags) + ("relaxed",),
                               supports=person.spec.support, notes=notes)
             saved.append({"id": pid, "name": name, "take": tid, "origin": source})

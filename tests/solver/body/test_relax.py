@@ -287,6 +287,7 @@ def test_relaxed_poses_saved_to_the_library_link_their_origin(tmp_path, capsys):
     assert set(pose.tags) == {"sitting", "relaxed"}
     stored = lib.take(pose.take)
     assert stored.source == origin.id and stored.kind == "relaxed"
+    assert stored.name == "perched-relaxed-take"  # (takes and poses share one namespace)
 
     # the stored pose, put on the same body in the same scene, is the relaxed body moved
     spec = load_scenario(scenario).persons[0]
