@@ -166,11 +166,12 @@ def equilibrium_figures(settled: Settled) -> dict:
             "supports": supports}
 
 
-def penetration_depth(surface_points: np.ndarray, body_vertices: np.ndarray,
-                      body_triangles: np.ndarray, winding=None) -> float:
+def deepest_cut(surface_points: np.ndarray, body_vertices: np.ndarray,
+                body_triangles: np.ndarray, winding=None) -> tuple[float, int]:
     """Largest depth (m) of the given surface points (P, 3) inside a closed body mesh (0 if
-    none): inside where the body's fast winding number (`winding`, its `body_winding`, kept
-    per skin when None) exceeds one half, the depth the exact distance to the skin.
+    none), and the skin triangle nearest the deepest point (-1 if none): inside where the
+    body's fast winding number (`winding`, its `body_winding`, kept per skin when None)
+    exceeds one half, the depth the exact distance to the skin.
 
     A point's distance to its nearest body vertex bounds its depth from above, so the points
     are taken largest bound first, tested for inside in batches of `DEPTH_BATCH` and measured
@@ -178,7 +179,7 @@ def penetration_depth(surface_points: np.ndarray, body_vertices: np.ndarray,
     deepest depth found."""
     points = np.asarray(surface_points, dtype=np.float64)
     if not len(points):
-        return 0.0
+        return 0.0, -1
     vertices = np.asarray(body_vertices, dtype=np.float64)
     triangles = np.asarray(body_triangles, dtype=np.int64)
     if winding is None:
@@ -186,7 +187,7 @@ def penetration_depth(surface_points: np.ndarray, body_vertices: np.ndarray,
     bound, _ = vertex_tree(vertices).query(points)
     order = np.argsort(-bound)
     skin = body_closest(vertices, triangles)
-    deepest = 0.0
+    deepest, face = 0.0, -1
     for start in range(0, len(order), DEPTH_BATCH):
         batch = order[start:start + DEPTH_BATCH]
         batch = batch[bound[batch] > deepest]
@@ -198,9 +199,17 @@ def penetration_depth(surface_points: np.ndarray, body_vertices: np.ndarray,
             measured = measured[bound[measured] > deepest]
             if not measured.size:
                 break
-            squared, _, _ = skin.squared_distance(vertices, triangles, points[measured])
-            deepest = max(deepest, float(np.sqrt(squared.max())))
-    return deepest
+            squared, faces, _ = skin.squared_distance(vertices, triangles, points[measured])
+            k = int(np.argmax(squared))
+            if np.sqrt(squared[k]) > deepest:
+                deepest, face = float(np.sqrt(squared[k])), int(faces[k])
+    return deepest, face
+
+
+def penetration_depth(surface_points: np.ndarray, body_vertices: np.ndarray,
+                      body_triangles: np.ndarray, winding=None) -> float:
+    """The depth of `deepest_cut` alone."""
+    return deepest_cut(surface_points, body_vertices, body_triangles, winding)[0]
 
 
 def cut_vertices(vertices: np.ndarray, triangles: np.ndarray, signed: np.ndarray,
@@ -227,7 +236,8 @@ SUPPORT_FIGURES = {"mean_support_distance_m": -1, "coverage": +1, "contact_cover
 
 def support_figures(surface: SurfaceMesh, vertices: np.ndarray, importance: np.ndarray,
                     triangles: np.ndarray, margin: float, foam: Foam, closest=None,
-                    winding=None, reference: dict | None = None) -> dict:
+                    winding=None, reference: dict | None = None,
+                    regions: np.ndarray | None = None) -> dict:
     """How well a surface supports a posed body: the `SUPPORT_FIGURES` of `evaluate_person`.
 
     Parameters
@@ -250,6 +260,9 @@ def support_figures(surface: SurfaceMesh, vertices: np.ndarray, importance: np.n
         Figures to judge against: when the distance or the coverage is worse than the
         reference's, the figures stop there, without the costly ones (the contact coverage and
         the penetration, which need the body's winding number).
+    regions : (V,) int, optional
+        Each vertex's body region: the figures then name the region of the deepest cut
+        (``deepest_cut_region``, None where the surface cuts nowhere).
 
     Returns
     -------
@@ -288,9 +301,22 @@ def support_figures(surface: SurfaceMesh, vertices: np.ndarray, importance: np.n
         figures["contact_coverage"] = 0.0
     lo, hi = vertices.min(axis=0) - 0.01, vertices.max(axis=0) + 0.01
     near = np.all((surface.vertices >= lo) & (surface.vertices <= hi), axis=1)
-    figures["max_penetration_m"] = penetration_depth(surface.vertices[near], vertices,
+    figures["max_penetration_m"], face = deepest_cut(surface.vertices[near], vertices,
                                                      triangles, winding)
+    if regions is not None:
+        figures["deepest_cut_region"] = _face_region(regions, triangles, face)
     return figures
+
+
+def _face_region(regions: np.ndarray, triangles: np.ndarray, face: int) -> str | None:
+    """The body region (`BODY_REGIONS`) most of a skin triangle's corners belong to (None for
+    no triangle, -1)."""
+    from solver.body.model import BODY_REGIONS
+
+    if face < 0:
+        return None
+    corners = np.asarray(regions)[triangles[face]]
+    return str(BODY_REGIONS[int(np.bincount(corners).argmax())])
 
 
 def worse_figures(before: dict, after: dict) -> list[str]:
@@ -384,7 +410,7 @@ def evaluate_person(surface: SurfaceMesh, person: SupportedBody, margin: float, 
     near = surface.closest(vertices)
     winding = body_winding(vertices, triangles) if winding is None else winding
     support = support_figures(surface, vertices, person.importance, triangles, margin, foam,
-                              near, winding)
+                              near, winding, regions=person.regions)
     dist, signed, over, face, closest = near
     cut = cut_vertices(vertices, triangles, signed, closest, foam, winding)
     supports = [Support("surface", foam, surface, parts=surface_parts(person.regions))]

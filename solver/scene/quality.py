@@ -130,6 +130,8 @@ def design_misses(person: dict, margin: float) -> list[str]:
     misses = person_misses(person)
     deepest = person["max_penetration_m"]
     if deepest > margin + CUT_TOLERANCE_M:
-        misses.append(f"{name}: the surface cuts {1000 * deepest:.0f} mm into the skin (margin "
+        where = person.get("deepest_cut_region")
+        where = f"the {where.replace('_', ' ')}" if where else "the skin"
+        misses.append(f"{name}: the surface cuts {1000 * deepest:.0f} mm into {where} (margin "
                       f"{1000 * margin:.0f} mm)")
     return misses

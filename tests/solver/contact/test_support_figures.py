@@ -124,3 +124,29 @@ def test_worse_figures_knows_which_way_is_better():
     assert worse_figures(none, none) == []
     assert worse_figures(before, none) == ["mean_support_distance_m"]
     assert worse_figures(before, {"coverage": 0.9}) == []  # only what both have is compared
+
+
+def test_the_deepest_cut_names_its_skin_triangle_and_region():
+    """Two balls of two regions, a plane sunk 21 mm into the right one and 4 mm into the left:
+    the deepest cut is the right ball's (one of its triangles), and the
+    figures name its region."""
+    from solver.body.model import BODY_REGIONS
+    from solver.contact.evaluate import deepest_cut
+
+    left, tl = _ball([-0.15, 0.1 - 0.004, 0.0])
+    right, tr = _ball([0.15, 0.1 - 0.021, 0.0])
+    vertices, triangles = np.concatenate([left, right]), np.concatenate([tl, tr + len(left)])
+    regions = np.concatenate([np.full(len(left), BODY_REGIONS.index("pelvis")),
+                              np.full(len(right), BODY_REGIONS.index("calves"))])
+    plane = _plane(size=0.8, cells=64)
+    depth, face = deepest_cut(plane.vertices, vertices, triangles)
+    assert depth == pytest.approx(_oracle_depth(plane.vertices, vertices, triangles), abs=1e-12)
+    assert face >= len(tl)  # one of the right ball's triangles
+    figures = support_figures(plane, vertices, np.ones(len(vertices)), triangles, 0.03,
+                              Foam(200e3), regions=regions)
+    assert figures["deepest_cut_region"] == "calves"
+    assert figures["max_penetration_m"] == pytest.approx(depth)
+    high, high_t = _ball([0.0, 0.5, 0.0])  # a body above the plane: no cut, no region
+    none = support_figures(plane, high, np.ones(len(high)), high_t, 0.03, Foam(200e3),
+                           regions=np.zeros(len(high), dtype=int))
+    assert none["max_penetration_m"] == 0.0 and none["deepest_cut_region"] is None
