@@ -578,7 +578,7 @@ class Design:
     def fitted(self) -> bool:
         """Whether the last fit is of the session as it is now (nothing edited since)."""
         return self.last is not None and self.last.data is not None and \
-            self.last.data == self.scenario_data()
+            bool(self.people) and self.last.data == self.scenario_data()
 
     def export(self, out_dir: str | os.PathLike,
                progress: Callable[[str], None] | None = None,
