@@ -999,8 +999,9 @@ class DesignView:
         """The last fit's figures per person, as a markdown table."""
         rows = "\n".join(
             f"| {p['name'].split(' (')[0]} | {p['coverage']:.2f} | "
-            f"{peak_text(p)} / {flat_text(p)} | "
-            f"{1000 * p['max_penetration_m']:.0f} |" for p in self.design.last.persons)
+            # (a body at no rest: why is among the warnings, once)
+            f"{'no rest' if p.get('supported') is False else f'{peak_text(p)} / {flat_text(p)}'}"
+            f" | {1000 * p['max_penetration_m']:.0f} |" for p in self.design.last.persons)
         return ("| person | coverage | peak kPa (flat) | into skin mm |\n|---|---|---|---|\n"
                 f"{rows}")
 
