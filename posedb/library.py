@@ -557,7 +557,7 @@ class Editor:
                  received_at: np.ndarray | None = None) -> str:
         """Stores a take; returns its id. channels : (T, C) raw channels of `skeleton`."""
         name = self._check_name(name, "take")
-        tags = normalise_tags(tags)
+        tags = normalise_tags(tags, new=True)
         if skeleton.unit_m is None:
             raise LibraryError(
                 f"Expected a skeleton with a known length unit for take {name!r}: give the unit "
@@ -644,7 +644,7 @@ class Editor:
         if not 0 <= frame < info.frames:
             raise LibraryError(f"Expected a frame in 0..{info.frames - 1} of take "
                                f"{info.name!r}, got {frame}")
-        tags = normalise_tags(tags)
+        tags = normalise_tags(tags, new=True)
         mask = encode_supports(supports)
         rot, root = self._frame_arrays(info, frame)
         pid = self.next_pose
@@ -696,7 +696,7 @@ class Editor:
 
     def tag(self, ref: str, add: Iterable[str] = (), remove: Iterable[str] = ()) -> tuple:
         """Adds and removes tags of a pose or take; returns the new tags."""
-        add = set(normalise_tags(add))
+        add = set(normalise_tags(add, new=True))
         remove = set(normalise_tags(remove))
         try:
             row = self._pose_row(ref)

@@ -313,7 +313,7 @@ class TakeRecorder:
                                    on_wait=waiting)
         self.take = checked_name(take, "take")
         self._check_free(library)
-        tags = normalise_tags(tags)
+        tags = normalise_tags(tags, new=True)
         header_path = resolve_path(skeleton)
         header = read_bvh(header_path, unit=unit)
         if header.skeleton.unit_m is None:
@@ -375,7 +375,7 @@ class TakeRecorder:
             raise DuplicateNameError(f"A {holder} already exists in {self.library.path}")
         if name and any(m["name"] == name for m in self.marks):
             raise DuplicateNameError(f"A pose named {name!r} was marked already")
-        mark = {"name": name, "tags": list(normalise_tags(tags)),
+        mark = {"name": name, "tags": list(normalise_tags(tags, new=True)),
                 "supports": list(support_regions(supports)), "notes": str(notes)}
         self.writer.write(MARK, float(received_at), json.dumps(mark).encode("utf-8"))
         self.writer.sync()

@@ -37,9 +37,18 @@ def normalise_tag(tag: str) -> str:
     return text
 
 
-def normalise_tags(tags: Iterable[str]) -> tuple[str, ...]:
-    """Sorted, de-duplicated canonical tags."""
-    return tuple(sorted({normalise_tag(t) for t in tags}))
+MAX_TAG = 64  # characters of a new tag (a word, not a note: the studio lists tags in a line)
+
+
+def normalise_tags(tags: Iterable[str], new: bool = False) -> tuple[str, ...]:
+    """Sorted, de-duplicated canonical tags; `new`: tags being given, held to MAX_TAG
+    characters (a tag stored before is read, searched and removed whatever its length)."""
+    out = tuple(sorted({normalise_tag(t) for t in tags}))
+    long = [t for t in out if len(t) > MAX_TAG] if new else []
+    if long:
+        raise TagError(f"Expected tags of at most {MAX_TAG} characters (a word, not a note), "
+                       f"got one of {len(long[0])}: {long[0][:40]!r}...")
+    return out
 
 
 Matcher = Callable[[np.ndarray, dict[str, int]], np.ndarray]

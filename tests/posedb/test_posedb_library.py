@@ -312,3 +312,16 @@ def test_a_bad_name_is_refused_saying_what_is_wrong(lib):
                        ("a/b", "without '/'"), ("a\tb", "without '/', tabs")):
         with pytest.raises(LibraryError, match=said):
             checked_name(name)
+
+
+def test_a_new_tag_is_a_word_not_a_note(lib):
+    from posedb.tags import MAX_TAG
+
+    lib.add_pose("cmu_75_18_high_sit", 39, "perch", tags=["x" * MAX_TAG])
+    with pytest.raises(TagError, match=f"at most {MAX_TAG} characters.*got one of 200"):
+        with lib.edit() as ed:
+            ed.tag("perch", add=["y" * 200])
+    assert lib.pose("perch").tags == ("x" * MAX_TAG,)
+    with lib.edit() as ed:  # a tag is removed whatever its length
+        ed.tag("perch", remove=["x" * MAX_TAG])
+    assert lib.pose("perch").tags == ()
