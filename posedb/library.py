@@ -177,6 +177,23 @@ def _find_pose(table: PoseTable, ref: str, path: Path) -> int:
     return row
 
 
+UTC_STAMP = "%Y-%m-%dT%H:%M:%SZ"  # how a take's recorded_at is stored, whatever its source
+
+
+def _utc_stamp(text: str) -> str:
+    """An ISO 8601 time as UTC_STAMP (a streamed take's start, `...+00:00` with microseconds,
+    as an imported take's); text that is not one is kept as given."""
+    import datetime as dt
+
+    try:
+        moment = dt.datetime.fromisoformat(str(text))
+    except ValueError:
+        return str(text)
+    if moment.tzinfo is None:
+        moment = moment.replace(tzinfo=dt.timezone.utc)
+    return moment.astimezone(dt.timezone.utc).strftime(UTC_STAMP)
+
+
 def name_holder(takes: dict[str, TakeInfo], table: PoseTable, name: str) -> str | None:
     """What holds `name` already ("take named 'x'", "pose named 'x'", or an id's form), or None
     when it is free for a take or a pose: takes and poses share one namespace with their ids."""
@@ -577,7 +594,8 @@ class Editor:
         tid = _take_id(self.next_take)
         self.next_take += 1
         g = self.f["takes"].create_group(tid)
-        recorded_at = recorded_at or time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+        recorded_at = _utc_stamp(recorded_at) if recorded_at else \
+            time.strftime(UTC_STAMP, time.gmtime())
         for key, value in dict(name=name, skeleton=sk_key, frame_time=float(frame_time),
                                source=source, subject=subject, tags=" ".join(tags), notes=notes,
                                recorded_at=recorded_at, origin=origin).items():

@@ -2,6 +2,7 @@
 readable by other processes throughout."""
 
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -110,6 +111,10 @@ def test_record_in_process_from_a_raw_capture(tmp_path):
     assert "8 dropped" in take.notes
     indices = lib.take_data("gappy").frame_indices
     assert indices[19] == 19 and indices[20] == 21  # the gap is kept, not filled
+    # its start as an imported take's is written (the capture's header has microseconds)
+    imported = lib.import_bvh(recording("cmu_75_18_high_sit.bvh"), name="imported")
+    for t in (take, imported):
+        assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ", t.recorded_at), t.recorded_at
 
 
 def test_record_refuses_a_taken_name_before_listening(tmp_path):
