@@ -71,15 +71,11 @@ def _cmd_import(args) -> int:
                 names.append(ed.import_bvh(bvh, name=args.name, subject=args.subject,
                                            tags=args.tag, notes=args.notes,
                                            joint_map=joint_map))
-    except BaseException:
-        if new and _empty(args.db):  # (a library made for this import: not left behind)
-            from .locking import lock_path
+    except BaseException as exc:
+        from .locking import LockedError
 
-            for made in (args.db, lock_path(args.db)):
-                try:
-                    os.unlink(made)
-                except OSError:
-                    pass
+        if new and not isinstance(exc, LockedError):  # (another writer has it: theirs now)
+            _drop_if_empty(args.db)
         raise
     takes = [lib.take(t).as_dict() for t in names]
     _print(takes, args.json, "\n".join(f"imported {t['name']} ({t['id']}): {t['frames']} frames, "
@@ -87,14 +83,23 @@ def _cmd_import(args) -> int:
     return 0
 
 
-def _empty(db: str) -> bool:
-    """Whether the library `db` holds nothing (no take, so no pose)."""
+def _drop_if_empty(db: str) -> None:
+    """Removes the library `db` if it holds nothing (no take, so no pose): one an import made
+    and failed to fill. Only with its lock free and held meanwhile (a writer that came since
+    keeps it); the lock file stays, as another writer may be waiting on it."""
     from .library import PoseLibrary
+    from .locking import try_exclusive
 
+    lock = try_exclusive(db)
+    if lock is None:
+        return
     try:
-        return not PoseLibrary(db).takes()
-    except Exception:  # noqa: BLE001 (unreadable: someone else's business, left alone)
-        return False
+        if not PoseLibrary(db).takes():
+            os.unlink(db)
+    except Exception:  # noqa: BLE001 (unreadable or gone: someone else's business, left alone)
+        pass
+    finally:
+        lock.release()
 
 
 def _cmd_list(args) -> int:
@@ -163,9 +168,8 @@ def _cmd_pose_add(args) -> int:
 def _cmd_pose_rename(args, kind: str = "") -> int:
     """`db pose rename` (a pose, else a take) and `db take rename` (`kind` "take": a take)."""
     lib = _open(args)
-    ref = lib.take(args.name).id if kind == "take" else args.name
     with lib.edit() as ed:
-        ed.rename(ref, args.new_name)
+        (ed.rename_take if kind == "take" else ed.rename)(args.name, args.new_name)
     print(f"renamed {kind + ' ' if kind else ''}{args.name} to {args.new_name}")
     return 0
 

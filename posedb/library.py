@@ -19,6 +19,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
@@ -194,11 +195,13 @@ def _utc_stamp(text: str) -> str:
     return moment.astimezone(dt.timezone.utc).strftime(UTC_STAMP)
 
 
+_ID_FORM = re.compile(r"take-\d{5,}|pose-\d{6,}")  # the ids' own, zero-padded forms
+
+
 def name_holder(takes: dict[str, TakeInfo], table: PoseTable, name: str) -> str | None:
-    """What holds `name` already ("take named 'x'", "pose named 'x'", or an id's form), or None
-    when it is free for a take or a pose: takes and poses share one namespace with their ids."""
-    if _parse_id(name, "take-") is not None or _parse_id(name, "pose-") is not None:
-        return f"take or pose id of the form {name!r} (a name may not look like one)"
+    """What holds `name` already ("take named 'x'", "pose named 'x'"), or None when it is free
+    for a take or a pose: takes and poses share one namespace with their ids (a name of an
+    id's form, `take-00002` or `pose-000007`, is refused by `checked_name`)."""
     if any(t.name == name for t in takes.values()):
         return f"take named {name!r}"
     if table.row_of(name) is not None:
@@ -218,6 +221,9 @@ def checked_name(name: str, kind: str = "pose") -> str:
     if any(c in name for c in "\n\r\t/"):
         raise LibraryError(f"Expected a {kind} name without '/', tabs or line breaks, got "
                            f"{name!r}")
+    if _ID_FORM.fullmatch(name):
+        raise LibraryError(f"Expected a {kind} name that is not of an id's form (take-00002, "
+                           f"pose-000007: a reference to it would name the id), got {name!r}")
     return name
 
 
@@ -536,6 +542,10 @@ class Editor:
             raise DuplicateNameError(f"A {holder} already exists in {self.lib.path}")
         return name
 
+    def _known_tags(self) -> set[str]:
+        """The tags the library's takes and poses carry (a stored tag may be inherited)."""
+        return set(self.table.vocab) | {t for take in self.takes.values() for t in take.tags}
+
     def name_holder(self, name: str) -> str | None:
         """`name_holder` of the library as this edit has it."""
         return name_holder(self.takes, self.table, name)
@@ -574,7 +584,7 @@ class Editor:
                  received_at: np.ndarray | None = None) -> str:
         """Stores a take; returns its id. channels : (T, C) raw channels of `skeleton`."""
         name = self._check_name(name, "take")
-        tags = normalise_tags(tags, new=True)
+        tags = normalise_tags(tags, new=True, known=self._known_tags())
         if skeleton.unit_m is None:
             raise LibraryError(
                 f"Expected a skeleton with a known length unit for take {name!r}: give the unit "
@@ -662,7 +672,7 @@ class Editor:
         if not 0 <= frame < info.frames:
             raise LibraryError(f"Expected a frame in 0..{info.frames - 1} of take "
                                f"{info.name!r}, got {frame}")
-        tags = normalise_tags(tags, new=True)
+        tags = normalise_tags(tags, new=True, known=self._known_tags())
         mask = encode_supports(supports)
         rot, root = self._frame_arrays(info, frame)
         pid = self.next_pose
@@ -702,19 +712,24 @@ class Editor:
             row = self._pose_row(ref)
         except NotFoundError:
             try:
-                take = self._take(ref)
+                self._take(ref)
             except NotFoundError:
                 raise NotFoundError(f"No pose or take {ref!r} in {self.lib.path}") from None
-            new_name = self._check_name(new_name, "take")
-            self.f["takes"][take.id].attrs["name"] = new_name
-            self.takes[take.id] = replace(take, name=new_name)
+            self.rename_take(ref, new_name)
             return
         self.table.rename(row, self._check_name(new_name, "pose"))
         self._table_dirty = True
 
+    def rename_take(self, ref: str, new_name: str) -> None:
+        """Renames a take (by id or name; a pose of that name is not looked at)."""
+        take = self._take(ref)
+        new_name = self._check_name(new_name, "take")
+        self.f["takes"][take.id].attrs["name"] = new_name
+        self.takes[take.id] = replace(take, name=new_name)
+
     def tag(self, ref: str, add: Iterable[str] = (), remove: Iterable[str] = ()) -> tuple:
         """Adds and removes tags of a pose or take; returns the new tags."""
-        add = set(normalise_tags(add, new=True))
+        add = set(normalise_tags(add, new=True, known=self._known_tags()))
         remove = set(normalise_tags(remove))
         try:
             row = self._pose_row(ref)

@@ -40,11 +40,14 @@ def normalise_tag(tag: str) -> str:
 MAX_TAG = 64  # characters of a new tag (a word, not a note: the studio lists tags in a line)
 
 
-def normalise_tags(tags: Iterable[str], new: bool = False) -> tuple[str, ...]:
+def normalise_tags(tags: Iterable[str], new: bool = False,
+                   known: Iterable[str] = ()) -> tuple[str, ...]:
     """Sorted, de-duplicated canonical tags; `new`: tags being given, held to MAX_TAG
-    characters (a tag stored before is read, searched and removed whatever its length)."""
+    characters but for those the library holds already (`known`: a tag stored before is read,
+    searched, removed and inherited whatever its length)."""
     out = tuple(sorted({normalise_tag(t) for t in tags}))
-    long = [t for t in out if len(t) > MAX_TAG] if new else []
+    known = set(known) if new else set()
+    long = [t for t in out if len(t) > MAX_TAG and t not in known] if new else []
     if long:
         raise TagError(f"Expected tags of at most {MAX_TAG} characters (a word, not a note), "
                        f"got one of {len(long[0])}: {long[0][:40]!r}...")

@@ -55,14 +55,14 @@ def guarded(lock, action, status, client=None, shown: str = "") -> None:
             action()
         except (ValueError, OSError, KeyError) as exc:
             status(f"{PROBLEM} {exc}")
-            _notice(client, "Problem", str(exc))
+            notice(client, "Problem", str(exc))
         except Exception as exc:  # noqa: BLE001 (the studio stays up; the trace is shown)
             status(f"{INTERNAL} {type(exc).__name__}: {exc}\n\n```\n"
                    f"{traceback.format_exc(limit=3)}\n```")
-            _notice(client, "Internal error", f"{type(exc).__name__}: {exc}")
+            notice(client, "Internal error", f"{type(exc).__name__}: {exc}")
 
 
-def _notice(client, title: str, text: str) -> None:
+def notice(client, title: str, text: str) -> None:
     """A red notice in the tab, closed after NOTICE_S (nothing without a client)."""
     if client is None:
         return

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 import threading
 import time
 import zipfile
@@ -40,7 +41,8 @@ from solver.mesh import quad_triangles
 from solver.scene import schema
 from solver.scene.run import pressure_on_skin
 
-from .context import POLL_EVERY, StudioContext, guarded, library_stamp
+from .context import (INTERNAL, POLL_EVERY, PROBLEM, StudioContext, guarded,
+                      library_stamp, notice)
 from .design import DEFAULT_POSE, Design, DesignError, Iterate, check_name, control_edges
 
 CONTROL_COLOR = (40, 40, 48)
@@ -114,6 +116,11 @@ def ray_pick(points: np.ndarray, origin, direction, angle: float = PICK_ANGLE) -
     if not len(ang) or ang.min() > angle:
         return None
     return int(np.argmin(ang))
+
+
+# what a number looks like while it is typed, before it reads as one: nothing yet, a sign, a
+# point, or an exponent without its digits (a text input sends every keystroke)
+_PARTIAL_NUMBER = re.compile(r"[+-]?(\d*\.?\d*)?([eE][+-]?)?")
 
 
 def _short_pose(spec: str) -> str:
@@ -281,11 +288,13 @@ class Session:
                 outcome = self.design.fit(progress, warm=True, iterates=iterate, cancel=cancel)
         self.showing_s = spent
         with self.lock:
-            if outcome is None or self.refitter.outdated(generation):
+            if outcome is None:
                 if not self.refitter.wanted:  # no newer fit on its way to take its place
                     for view in list(self.views):
                         view.overtaken()
                 return False
+            # a finished fit is the session's last (`Design.fit` kept it): it is drawn, even
+            # when an edit or a Cancel came in its last moment (a newer fit, if asked, follows)
             self.fits += 1
             for view in list(self.views):
                 view.fitted(source)
@@ -298,12 +307,15 @@ class Session:
         self.refitter.bump()
 
     def problem(self, exc: Exception) -> None:
-        """A refit failed (a person out of reach, ...): every view says so."""
-        kind = "Problem" if isinstance(exc, (ValueError, OSError, KeyError)) else \
-            f"Internal error ({type(exc).__name__})"
+        """A refit failed (a person out of reach, ...): every view says so, in its status line
+        (the next action clears it) and as a notice."""
+        bad_input = isinstance(exc, (ValueError, OSError, KeyError))
+        text = f"the refit failed: {exc}" if bad_input else \
+            f"the refit failed: {type(exc).__name__}: {exc}"
         for view in list(self.views):
             view.progress.content = ""
-            view._status(f"**{kind}** in the refit: {exc}")
+            view._status(f"{PROBLEM if bad_input else INTERNAL} {text}")
+            notice(view.client, "Problem" if bad_input else "Internal error", text)
 
     def close(self) -> None:
         self.refitter.close()
@@ -910,9 +922,11 @@ class DesignView:
         kept = self.design.params["sigma"]
         try:
             value = float(text)
-            if not 0.0 <= value <= 100.0:
-                raise ValueError
         except ValueError:
+            if _PARTIAL_NUMBER.fullmatch(text):
+                return  # a number being typed, key by key ("", "-", "3e", "3e-"): wait
+            value = None
+        if value is None or not 0.0 <= value <= 100.0:
             self._set(self.sigma, f"{kept:g}")
             raise DesignError(f"Expected sigma as a number from 0 to 100 (e.g. 0.003 or 3e-3), "
                               f"got {text[:40]!r}; it stays {kept:g}") from None

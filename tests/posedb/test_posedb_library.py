@@ -247,14 +247,20 @@ def test_duplicate_names(lib):
             ed.rename("fresh", "perch")
     # takes and poses share one namespace with their ids: a reference names one thing
     take = lib.take("cmu_75_18_high_sit")
-    for name, said in (("cmu_82_05_floor_sit_excerpt", "take named"),
-                       (take.id, "id of the form"), ("pose-000007", "id of the form")):
-        with pytest.raises(DuplicateNameError, match=said):
+    with pytest.raises(DuplicateNameError, match="take named"):
+        lib.add_pose("cmu_75_18_high_sit", 42, "cmu_82_05_floor_sit_excerpt")
+    for name in (take.id, "pose-000007", "take-123456"):
+        with pytest.raises(LibraryError, match="not of an id's form"):
             lib.add_pose("cmu_75_18_high_sit", 42, name)
     with pytest.raises(DuplicateNameError, match="pose named 'perch'"):
         with lib.edit() as ed:
             ed.rename("cmu_82_05_floor_sit_excerpt", "perch")
     assert _digest(lib.path) == before
+    # names like the studio's default take names are no ids (those are zero-padded)
+    lib.add_pose("cmu_75_18_high_sit", 43, "take-1")
+    with lib.edit() as ed:  # and a take is renamed as a take, whatever a pose is called
+        ed.rename_take(take.id, "pose-7")
+    assert lib.take(take.id).name == "pose-7" and lib.pose("take-1").frame == 43
 
 
 @pytest.mark.parametrize("call, message", [
@@ -314,14 +320,24 @@ def test_a_bad_name_is_refused_saying_what_is_wrong(lib):
             checked_name(name)
 
 
-def test_a_new_tag_is_a_word_not_a_note(lib):
+def test_a_new_tag_is_a_word_not_a_note(lib, monkeypatch):
+    import posedb.tags
+    from posedb.suggest import suggest_poses
     from posedb.tags import MAX_TAG
 
-    lib.add_pose("cmu_75_18_high_sit", 39, "perch", tags=["x" * MAX_TAG])
+    long = "x" * MAX_TAG
+    with lib.edit() as ed:
+        ed.tag("cmu_75_18_high_sit", add=[long])
     with pytest.raises(TagError, match=f"at most {MAX_TAG} characters.*got one of 200"):
         with lib.edit() as ed:
-            ed.tag("perch", add=["y" * 200])
-    assert lib.pose("perch").tags == ("x" * MAX_TAG,)
-    with lib.edit() as ed:  # a tag is removed whatever its length
-        ed.tag("perch", remove=["x" * MAX_TAG])
+            ed.tag("cmu_75_18_high_sit", add=["y" * 200])
+    # a tag stored before (here: before the limit is lowered) is inherited, kept and removed
+    monkeypatch.setattr(posedb.tags, "MAX_TAG", 10)
+    (row,) = suggest_poses(lib, "cmu_75_18_high_sit", accept=True)
+    assert long in row["tags"]
+    lib.add_pose("cmu_75_18_high_sit", 40, "perch", tags=[long])
+    with pytest.raises(TagError, match="at most 10 characters"):
+        lib.add_pose("cmu_75_18_high_sit", 41, "perch2", tags=["z" * 11])
+    with lib.edit() as ed:
+        ed.tag("perch", remove=[long])
     assert lib.pose("perch").tags == ()

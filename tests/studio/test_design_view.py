@@ -352,14 +352,16 @@ def test_the_pose_list_follows_a_rename_made_elsewhere(tmp_path):
 
 def test_sigma_takes_an_exponent_and_refuses_what_is_no_number_keeping_its_value(tab):
     view = tab.view
-    view.sigma.value = "5e-3"
+    for typed in ("5", "5e", "5e-", "5e-3"):  # key by key, as the text input sends them
+        view.sigma.value = typed
     _wait(lambda: view.design.params["sigma"] == 0.005, 10, "sigma from 5e-3")
+    assert view.sigma.value == "5e-3" and "Expected sigma" not in view.status_text
     for typed in ("-1", "1e308", "lots"):
         view.sigma.value = typed
         _wait(lambda: "Expected sigma" in view.status_text, 10, f"{typed!r} refused")
         assert view.design.params["sigma"] == 0.005 and view.sigma.value == "0.005"
         view._status("")
-    view._guarded(view.design.undo)  # the panel shows the value the session holds again
+    view._guarded(view.design.undo)  # one step for the typing: the value before it again
     view._guarded(view.redraw)
     assert view.sigma.value == "0.003" and view.design.params["sigma"] == 0.003
 
@@ -394,6 +396,13 @@ def test_a_problem_pops_up_a_notice_and_is_cleared_by_the_next_action(tab):
     _wait(lambda: any(title == "Problem" and "name" in body for title, body in tab.notices),
           10, "the notice")
     view._guarded(lambda: None)  # an action that says nothing
+    assert view.status_text == ""
+    # a refit's problem (on the worker, no action of the tab's) likewise
+    view.session.problem(ValueError("person 1 is 18 m from the surface"))
+    assert view.status_text == "**Problem:** the refit failed: person 1 is 18 m from the surface"
+    _wait(lambda: ("Problem", "the refit failed: person 1 is 18 m from the surface")
+          in tab.notices, 10, "the refit's notice")
+    view._guarded(lambda: None)
     assert view.status_text == ""
 
 
