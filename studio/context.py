@@ -82,3 +82,34 @@ def library_stamp(db: str | None) -> tuple | None:
     except (OSError, TypeError):
         return None
     return st.st_ino, st.st_mtime_ns, st.st_size
+
+
+class LibraryWatch:
+    """Calls `changed()` on a thread of its own when the library file `db` changes (another
+    tab, a recording, another process): the file is looked at every POLL_EVERY seconds, not
+    read. A `changed` that raises (a file mid-change) is called again at the next look."""
+
+    def __init__(self, db: str, changed, name: str):
+        self.db = db
+        self._changed = changed
+        self._seen = library_stamp(db)
+        self._closing = threading.Event()
+        threading.Thread(target=self._run, daemon=True, name=name).start()
+
+    def read(self) -> None:
+        """The library was just read as it is now: no call for what is there already."""
+        self._seen = library_stamp(self.db)
+
+    def close(self) -> None:
+        self._closing.set()
+
+    def _run(self) -> None:
+        while not self._closing.wait(POLL_EVERY):
+            stamp = library_stamp(self.db)
+            if stamp is None or stamp == self._seen:
+                continue
+            try:
+                self._changed()
+            except Exception:  # noqa: BLE001 (a file mid-change: the next look sees it)
+                continue
+            self._seen = stamp

@@ -41,8 +41,7 @@ from solver.mesh import quad_triangles
 from solver.scene import schema
 from solver.scene.run import pressure_on_skin
 
-from .context import (INTERNAL, POLL_EVERY, PROBLEM, StudioContext, guarded,
-                      library_stamp, notice)
+from .context import INTERNAL, PROBLEM, LibraryWatch, StudioContext, guarded, notice
 from .design import DEFAULT_POSE, Design, DesignError, Iterate, check_name, control_edges
 
 CONTROL_COLOR = (40, 40, 48)
@@ -348,8 +347,6 @@ class DesignView:
         self._gizmo = None
         self._gizmo_start: tuple[np.ndarray, np.ndarray] | None = None
         self._leaving: str | None = None  # the session a join was warned about (pressed again)
-        self._closing = threading.Event()
-        self._seen = library_stamp(context.db)  # the library as the pose list was made of it
         with tab:
             self._build_gui()
         self._wire()
@@ -361,25 +358,17 @@ class DesignView:
         self.redraw()
         self._status("Add people (a seated pose is chosen), then press **Fit**, or drag with "
                      "**Refit while dragging** on.")
-        if context.db is not None:  # the pose list follows the library (renames, recordings)
-            threading.Thread(target=self._poll, daemon=True, name="design-poll").start()
+        # the pose list follows the library (renames, recordings)
+        self._watch = LibraryWatch(context.db, self._relist, "design-poll") \
+            if context.db is not None else None
 
-    def _poll(self) -> None:
-        """Lists the poses again when the library file changes (another tab, a recording,
-        another process), keeping the pose chosen while it is still there."""
-        while not self._closing.wait(POLL_EVERY):
-            stamp = library_stamp(self.context.db)
-            if stamp is None or stamp == self._seen:
-                continue
-            try:
-                options = self._pose_options(self.tags.value)
-            except Exception:  # noqa: BLE001 (a file mid-change, a bad expression: next look)
-                continue
-            self._seen = stamp
-            with self.session.lock:
-                chosen = self.pose.value
-                self.pose.options = options
-                self.pose.value = chosen if chosen in options else self._default(options)
+    def _relist(self) -> None:
+        """Lists the poses again, keeping the pose chosen while it is still there."""
+        options = self._pose_options(self.tags.value)
+        with self.session.lock:
+            chosen = self.pose.value
+            self.pose.options = options
+            self.pose.value = chosen if chosen in options else self._default(options)
 
     @property
     def design(self) -> Design:
@@ -1169,5 +1158,6 @@ class DesignView:
 
     def close(self) -> None:
         """The tab went away: leaves its session (which stops when no tab shows it)."""
-        self._closing.set()
+        if self._watch is not None:
+            self._watch.close()
         self._leave()

@@ -51,11 +51,12 @@ class HeadlessTab:
     `watch` names scene nodes (e.g. "/design/surface") whose messages' arrival times are kept:
     the last in `arrived` (name -> time.perf_counter()), the last few thousand in `arrivals`
     (name -> times, oldest first). With `texts`, the contents sent to markdown panels are kept
-    with their arrival times in `contents` ((time, text), the last few thousand), and the
-    notices the tab was shown in `notices` ((title, body), the last few hundred)."""
+    with their arrival times in `contents` ((time, text), the last few thousand); with
+    `notices`, the notices the tab was shown in `notices` ((title, body), the last few
+    hundred). Frames are decoded only for these (not for a tab that only looks on)."""
 
     def __init__(self, studio, camera: dict | None = None, timeout: float = 20.0,
-                 watch: tuple[str, ...] = (), texts: bool = False):
+                 watch: tuple[str, ...] = (), texts: bool = False, notices: bool = False):
         self.studio = studio
         before = set(studio.views)
         self.socket = connect(f"ws://127.0.0.1:{studio.server.get_port()}",
@@ -65,6 +66,7 @@ class HeadlessTab:
         self.arrivals: dict[str, deque] = {name: deque(maxlen=4096) for name in watch}
         self._watch = set(watch)
         self._texts = texts
+        self._notices = notices
         self.contents: deque = deque(maxlen=4096)
         self.notices: deque = deque(maxlen=256)
         self._closed = threading.Event()
@@ -91,7 +93,7 @@ class HeadlessTab:
             except Exception:  # noqa: BLE001 (the socket closed)
                 return
             self.received += len(frame)
-            if isinstance(frame, bytes):
+            if (self._watch or self._texts or self._notices) and isinstance(frame, bytes):
                 now = time.perf_counter()
                 messages = _messages_of(frame)
                 self.notices.extend(

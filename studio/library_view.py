@@ -24,7 +24,7 @@ from posedb.library import TakeData
 from posedb.regions import DEFAULT_SUPPORT
 from posedb.suggest import HeldPosture, take_holds
 
-from .context import POLL_EVERY, StudioContext, guarded, library_stamp
+from .context import LibraryWatch, StudioContext, guarded
 from .record import split_words
 from .skeleton_draw import SceneFigure, png_base64, pose_world, posed_body, skeleton_thumbnail
 
@@ -131,11 +131,10 @@ class LibraryView:
         self.pose.on_update(lambda _e: self._guarded(self._pose_chosen))
         self.with_body.on_update(lambda _e: self._guarded(self._show_frame))
         self._wire_frame()
-        self._seen = None  # the library file's identity when last read
-        self._closing = threading.Event()
+        # what a recording, another tab or another process changes is listed again
+        self._watch = LibraryWatch(context.db, self._reread, "library-poll") \
+            if context.db is not None else None
         self._guarded(self.do_refresh)
-        self._poller = threading.Thread(target=self._poll, daemon=True, name="library-poll")
-        self._poller.start()
 
     # plumbing ------------------------------------------------------------------------------
     def _guarded(self, action) -> None:
@@ -167,27 +166,15 @@ class LibraryView:
         if self.context.db is None:
             self._status("No pose library: start the studio with --db to see one.")
             return
-        self._seen = self._stamp()
+        self._watch.read()
         self.lib = PoseLibrary(self.context.db)
         self._list()
 
-    def _stamp(self) -> tuple | None:
-        return library_stamp(self.context.db)
-
-    def _poll(self) -> None:
-        """Lists again what a recording, another tab or another process changed, keeping
-        what is chosen."""
-        while not self._closing.wait(POLL_EVERY):
-            stamp = self._stamp()
-            if stamp is None or stamp == self._seen:
-                continue
-            with self._lock:
-                try:
-                    self._seen = stamp
-                    self.lib = PoseLibrary(self.context.db)
-                    self._list(keep=True)
-                except Exception:  # noqa: BLE001 (a file mid-change: the next look sees it)
-                    self._seen = None
+    def _reread(self) -> None:
+        """Lists again what changed in the library, keeping what is chosen."""
+        with self._lock:
+            self.lib = PoseLibrary(self.context.db)
+            self._list(keep=True)
 
     def do_search(self) -> None:
         self.expr = self.search_text.value.strip()
@@ -364,4 +351,5 @@ class LibraryView:
 
     def close(self) -> None:
         """Stops looking at the library file."""
-        self._closing.set()
+        if self._watch is not None:
+            self._watch.close()

@@ -386,9 +386,17 @@ def test_cancel_stops_the_fit_the_fit_button_started(tab):
     assert view.fits == 1 and "Fitted" in view.status_text, view.status_text
 
 
-def test_a_problem_pops_up_a_notice_and_is_cleared_by_the_next_action(tab):
+def test_a_problem_pops_up_a_notice_and_is_cleared_by_the_next_action(studio):
     """The status line may be scrolled away in a long panel: a problem also shows as a notice;
     the next action clears the problem from the status line."""
+    tab = Tab(studio, notices=True)
+    try:
+        _problems_are_noticed(tab)
+    finally:
+        tab.close()
+
+
+def _problems_are_noticed(tab) -> None:
     view = tab.view
     view.name.value = ""
     view._guarded(view._save_toml)
