@@ -313,8 +313,13 @@ def _deadline(seconds: float):
             raise TimeLimit(f"The request took over this server's time limit of {seconds:g} "
                             "s (stopped); lower the level, the iterations or the control mesh")
 
-    # a fit polls this within its iterations too (a large programme's tries take seconds)
-    progress.expired = lambda: time.monotonic() > end
+    def expired() -> bool:
+        return time.monotonic() > end
+
+    # a fit polls this within its iterations too (a large programme's tries take seconds),
+    # and stops a programme's solve running at the deadline
+    expired.deadline = end
+    progress.expired = expired
     return progress
 
 

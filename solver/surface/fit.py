@@ -88,7 +88,7 @@ from scipy.spatial import cKDTree
 from solver.contact.supported import SupportedBody
 from solver.mesh import boundary_edges
 from solver.surface.guarantees import FOLD_LIMIT_DEG, neighbour_faces, quad_normals
-from solver.surface.programme import DenseProgramme, Programme, ProgrammeError
+from solver.surface.programme import DeadlinePassed, DenseProgramme, Programme, ProgrammeError
 from solver.surface.subdivision import Subdivision, subdivision
 from solver.threads import overlapped, with_limited_threads
 
@@ -1420,11 +1420,14 @@ def uncrossed(fit: _Fit, accepted: Sequence[np.ndarray]) -> tuple[int, int]:
     folds past FOLD_LIMIT_DEG), and the flaws of the last one: the one before the last when
     that is clean (the last step is most often the only one that crossed), else by bisection
     (a surface that starts crossing itself seldom stops). Returns (index, flaws of the last);
-    the last index when it is clean, and 0 when even the start crosses."""
+    the last index when it is clean, and 0 when even the start crosses; (0, 0) for the start
+    alone, unchecked (there is nothing to choose from)."""
     last = len(accepted) - 1
+    if last == 0:  # the start alone (a fit cancelled before its first step): nothing to choose
+        return 0, 0
     crossings = _flaws(fit, accepted[last])
-    if crossings == 0 or last == 0:
-        return (last if crossings == 0 else 0), crossings
+    if crossings == 0:
+        return last, crossings
     if _flaws(fit, accepted[last - 1]) == 0:
         return last - 1, crossings
     if last == 1 or _flaws(fit, accepted[0]):
@@ -1480,6 +1483,8 @@ def fit_surface(control: np.ndarray, faces: np.ndarray, targets: Sequence[Suppor
     cancel : callable, optional
         Polled between iterations; when it returns True the fit ends early with the last
         accepted iterate (the best so far) and a `stop_reason` that begins with "cancelled".
+        One with a `deadline` attribute (a `time.monotonic()` value) also ends the solve of a
+        large programme (seconds each) running at that time.
     iterates : callable, optional
         Called after every accepted iteration as ``iterates(iteration, control, surface)``
         with that iterate's control vertices (n0, 3) and level-s surface vertices (ns, 3),
@@ -1649,6 +1654,25 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
             first: int, last: int, progress=None, tau: float | None = None,
             settle: bool = False, cancel: Callable[[], bool] | None = None,
             freeze: bool = False) -> tuple[str, int]:
+    """`_descend`, with the programme's solves stopped at the `deadline` of `cancel` (a
+    `time.monotonic()` value, when it has one): a fit cancelled there mid-solve ends as one
+    cancelled between iterations does."""
+    before = len(run.accepted)
+    fit.programme.deadline = getattr(cancel, "deadline", None)
+    try:
+        return _descend(fit, run, member, floor_member, first, last, progress, tau, settle,
+                        cancel, freeze)
+    except DeadlinePassed:
+        done = len(run.accepted) - before
+        return _cancelled(done), first - 1 + done
+    finally:
+        fit.programme.deadline = None
+
+
+def _descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarray,
+             first: int, last: int, progress=None, tau: float | None = None,
+             settle: bool = False, cancel: Callable[[], bool] | None = None,
+             freeze: bool = False) -> tuple[str, int]:
     """Iterations `first`..`last` from the run's last iterate: each proposes a step and
     accepts it (`acceptable`) or tries it half as long; tau ramps over the first TAU_RAMP
     iterations unless given. With `settle`, it stops once an accepted step lowers the energy

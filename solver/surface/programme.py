@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import threading
+import time
 
 import numpy as np
 import scipy.sparse as sp
@@ -18,6 +19,7 @@ EPS_ABS, EPS_REL = 1e-5, 1e-4  # OSQP tolerances (metres for the constraints)
 NEAR_ROW = 0.01  # m: rows this close to binding at the step's start join the first try
 ROW_TOLERANCE = 1e-7  # m: a row left out that the solution breaks by more joins the next try
 BOX_TOLERANCE = 1e-9  # m: a coordinate left free that leaves its trust region by more is held
+NO_TIME_LIMIT = 1e10  # s: OSQP's time limit without a deadline (its own default)
 
 
 NOT_A_NUMBER = ("The surface's quadratic programme has a value that is not a number in its "
@@ -26,6 +28,10 @@ NOT_A_NUMBER = ("The surface's quadratic programme has a value that is not a num
 
 class ProgrammeError(ValueError):
     """The solver (DAQP or OSQP) could not solve the programme."""
+
+
+class DeadlinePassed(Exception):
+    """A solve stopped at the programme's `deadline` (the caller's time is up)."""
 
 
 class _Claimed:
@@ -39,6 +45,9 @@ class _Claimed:
         self.s = sp.csr_matrix(points)
         self.setups = 0
         self._in_use = threading.Lock()
+        # time.monotonic() at which a solve stops (`DeadlinePassed`), None for none: the fit
+        # sets it while it runs with one, so that a large programme's solve (seconds) ends there
+        self.deadline: float | None = None
 
     def claim(self) -> bool:
         """Whether this programme is now the caller's alone (False: another fit solves it)."""
@@ -198,14 +207,23 @@ class Programme(_Claimed):
         q_full = np.concatenate([q, np.zeros(r)])
         low = np.concatenate([lower, x0 - step, np.zeros(r)])
         high = np.concatenate([np.full(r, np.inf), x0 + step, np.full(r, np.inf)])
+        began = time.monotonic()  # (OSQP counts its set-up or update into its time limit)
         if fresh:
             self._set_up(p_values, q_full, a_values, low, high)
         else:
             self.solver.update(Px=p_values, q=q_full, Ax=a_values, l=low, u=high)
         slack0 = np.maximum(0.0, lower - now)
         self.solver.warm_start(x=np.concatenate([x0, slack0]), y=self._warm_duals(rows))
+        # OSQP's own time limit (its default, 1e10 s, without a deadline): a solve that ends
+        # before it is the same either way
+        if self.deadline is not None and time.monotonic() >= self.deadline:
+            raise DeadlinePassed
+        left = NO_TIME_LIMIT if self.deadline is None else self.deadline - began
+        self.solver.update_settings(time_limit=min(left, NO_TIME_LIMIT))
         res = self.solver.solve(raise_error=False)
         status = str(res.info.status)
+        if status == "run time limit reached":
+            raise DeadlinePassed
         if status not in ("solved", "solved inaccurate"):
             self._duals = None
             raise ProgrammeError(f"The surface's quadratic programme failed: OSQP says "
@@ -272,6 +290,7 @@ class DenseProgramme(_Claimed):
         if self._fallback is None:
             self._fallback = Programme(self.s, self.lap, self.n0, self.slack_weight)
         self.fallbacks += 1
+        self._fallback.deadline = self.deadline
         try:
             return self._fallback.solve(p_x, q, rows, normals, lower, x0, step)
         except ProgrammeError as osqp_failed:

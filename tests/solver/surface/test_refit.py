@@ -103,6 +103,76 @@ def test_cancel_ends_the_fit_with_the_last_accepted_iterate(seated):
     np.testing.assert_array_equal(start.control, scenario.surface.vertices)
 
 
+def _deadline_cancel(deadline: float):
+    """A cancel that never says so itself, with a deadline (as the HTTP API's has)."""
+    def cancel():
+        return False
+    cancel.deadline = deadline
+    return cancel
+
+
+def test_a_deadline_stops_the_programme_s_solve(seated):
+    """A fit on a mesh large enough for OSQP (16 x 12 quads, 221 control vertices) whose
+    cancel's deadline has passed stops at its first solve, as a fit cancelled between
+    iterations does; one whose deadline is far off solves as without (OSQP's time limit set
+    from it, its default again after the fit)."""
+    import time
+
+    import solver.surface.fit as F
+
+    scenario, _, people = seated
+    grid_v, grid_f = grid_mesh((0.6, 0.6), (16, 12), 0.42)
+    params = replace(scenario.surface.params, max_iterations=2)
+    stopped = fit_surface(grid_v, grid_f, people, params,
+                          cancel=_deadline_cancel(time.monotonic() - 1.0))
+    assert stopped.stop_reason.startswith("cancelled after 0 iteration(s)"), stopped.stop_reason
+    np.testing.assert_array_equal(stopped.control, grid_v)
+    solved = []
+    real = F.Programme._solve_rows
+
+    def solve_rows(self, *args):
+        out = real(self, *args)
+        solved.append(self.solver.settings.time_limit)
+        return out
+
+    F.Programme._solve_rows = solve_rows
+    try:
+        free = fit_surface(grid_v, grid_f, people, params)
+        late = fit_surface(grid_v, grid_f, people, params,
+                           cancel=_deadline_cancel(time.monotonic() + 1000.0))
+    finally:
+        F.Programme._solve_rows = real
+    assert free.iterations == late.iterations and len(free.energies) == 2
+    np.testing.assert_array_equal(free.control, late.control)
+    limits = np.array(solved)
+    assert len(limits) >= 4 and np.all(limits[:len(limits) // 2] == 1e10)
+    assert np.all((limits[len(limits) // 2:] > 900.0) & (limits[len(limits) // 2:] < 1000.0))
+
+
+def test_a_solve_stopped_at_the_deadline_keeps_the_accepted_iterates(seated, monkeypatch):
+    """Stopped at the deadline in its third iteration's solve, a fit ends with the two
+    iterations it accepted, as one cancelled there between its tries does."""
+    import solver.surface.fit as F
+    from solver.surface.programme import DeadlinePassed
+
+    scenario, _, people = seated
+    calls = []
+    real = F.propose
+
+    def propose(*args):
+        calls.append(1)
+        if len(calls) == 3:
+            raise DeadlinePassed
+        return real(*args)
+
+    monkeypatch.setattr(F, "propose", propose)
+    result = fit_surface(scenario.surface.vertices, scenario.surface.faces, people,
+                         scenario.surface.params)
+    assert result.stop_reason.startswith("cancelled after 2 iteration(s)"), result.stop_reason
+    assert result.iterations == 2 and len(result.energies) == 2
+    assert not result.energy_terms["repairs"]
+
+
 def test_a_warm_start_from_another_control_mesh_is_refused(seated):
     scenario, first, people = seated
     grid_v, grid_f = grid_mesh((0.5, 0.6), (4, 3), 0.42)
