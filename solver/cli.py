@@ -212,7 +212,8 @@ def _print_fabrication(fab: dict) -> None:
     dims = fab.get("dimensions_mm")
     if dims:
         print(f"overall {dims['width_mm']:.0f} x {dims['depth_mm']:.0f} x "
-              f"{dims['height_mm']:.0f} mm -> overall.dxf, section_*.dxf, sections.png")
+              f"{dims['height_mm']:.0f} mm ({fab.get('dimensions_of', 'surface')}) -> "
+              f"overall.dxf, section_*.dxf, sections.png")
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:

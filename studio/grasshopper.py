@@ -35,8 +35,8 @@ Component outputs
 
 Conventions. Rhino documents are Z up in their model unit (usually millimetres); sitrelax is
 Y up in metres. With `scale` the metres per document unit, a document point (x, y, z) is the
-sitrelax point (x, z, -y) * scale and back (x, y, z) -> (x, -z, y) / scale: a rotation of -90
-degrees about x (determinant +1, so right-handed frames stay right-handed), which sends
+sitrelax point (x, z, -y) * scale and back (x, y, z) -> (x, -z, y) / scale: rotations of -90
+and +90 degrees about x (determinant +1, so right-handed frames stay right-handed), which send
 Rhino's up (+Z) to sitrelax's up (+Y) and sitrelax's forward (+Z, where a body in rest pose
 faces) to Rhino's -Y. A turn about Rhino's Z by h degrees is a turn about sitrelax's Y by h
 degrees (rotation_deg [0, h, 0]).

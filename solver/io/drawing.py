@@ -170,9 +170,20 @@ def _new_document():
     return doc
 
 
+def _polyline(msp, points: np.ndarray, layer: str) -> None:
+    """points (K, 2) as an LWPOLYLINE on `layer`: a closed one (flagged so, its first point
+    not repeated) when the curve ends where it starts, as a loop does."""
+    closed = len(points) > 3 and np.allclose(points[0], points[-1], rtol=0.0, atol=1e-9)
+    msp.add_lwpolyline(points[:-1] if closed else points, close=closed,
+                       dxfattribs={"layer": layer})
+
+
 def _dimension(msp, p1, p2, base, angle: float) -> None:
+    # (ezdxf's EZDXF style shows metres in centimetres, a length factor of 100: the
+    # drawings are in millimetres, shown as they are)
     dim = msp.add_linear_dim(base=base, p1=p1, p2=p2, angle=angle, dimstyle="EZDXF",
-                             override={"dimtxt": 12.0, "dimasz": 8.0, "dimdec": 0},
+                             override={"dimtxt": 12.0, "dimasz": 8.0, "dimdec": 0,
+                                       "dimlfac": 1.0},
                              dxfattribs={"layer": "DIMENSIONS"})
     dim.render()
 
@@ -210,7 +221,7 @@ def write_section_dxf(path: str | os.PathLike, sec: Section) -> Path:
     msp = doc.modelspace()
     for layer, lines in sec.curves.items():
         for line in lines:
-            msp.add_lwpolyline(line * 1000.0, dxfattribs={"layer": layer})
+            _polyline(msp, line * 1000.0, layer)
     box = sec.extent("SURFACE")
     if box is None:
         raise DrawingError(f"Section {sec.name!r} does not cut the surface")
@@ -273,10 +284,51 @@ def overall_dimensions(vertices: np.ndarray) -> dict:
             "height_mm": float(hi[1])}
 
 
+def silhouette(points: np.ndarray, triangles: np.ndarray) -> list[np.ndarray]:
+    """The outline of a mesh seen along its points' third axis: what its triangles cover in
+    the plane of the first two, as closed loops. A closed manifold mesh is projected by
+    manifold3d (`Manifold.project`, fast on large solids); any other, such as a surface, is the
+    union of its projected triangles (manifold3d's polygon clipping).
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        The vertices in the drawing's frame: the first two axes the drawing's, the third
+        towards the viewer (a rotation of the scene, so that a solid stays a solid).
+    triangles : (F, 3) int, or (F, 4) quads (split along their 0-2 diagonal)
+
+    Returns
+    -------
+    list of (K + 1, 2) float
+        The outer outlines and the holes, each repeating its first point at its end.
+    """
+    import manifold3d
+
+    t = np.asarray(triangles, dtype=np.int64)
+    if t.ndim == 2 and t.shape[1] == 4:
+        t = quad_triangles(t)
+    p = np.asarray(points, dtype=np.float64)
+    solid = manifold3d.Manifold(manifold3d.Mesh(vert_properties=p.astype(np.float32),
+                                                tri_verts=t.astype(np.uint32)))
+    if solid.status() == manifold3d.Error.NoError and solid.num_tri() == len(t):
+        union = solid.project()
+    else:
+        corners = p[t][:, :, :2]  # (F, 3, 2)
+        edge1, edge2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+        area = edge1[:, 0] * edge2[:, 1] - edge1[:, 1] * edge2[:, 0]
+        # each triangle counter-clockwise (one seen from behind counts as much), those seen
+        # edge-on left out (they cover nothing)
+        corners = np.where((area < 0)[:, None, None], corners[:, ::-1], corners)
+        shown = corners[np.abs(area) > 1e-12 * max(float(np.ptp(corners)) ** 2, 1e-300)]
+        union = manifold3d.CrossSection(list(shown), manifold3d.FillRule.Positive)
+    return [np.concatenate([loop, loop[:1]]) for loop in union.to_polygons() if len(loop) > 2]
+
+
 def write_overall_dxf(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray,
-                      gap: float = 200.0) -> dict:
-    """Writes the plan (from above) and side elevation of a surface as DXF, millimetres,
-    Z up: the border as polylines, the floor line, dimensions of width, depth and height.
+                      gap: float = 200.0, what: str = "surface") -> dict:
+    """Writes the plan (from above) and side elevation of a surface or solid as DXF,
+    millimetres, Z up: its outline seen from above and from the side (`silhouette`) as closed
+    polylines, the floor line, dimensions of width, depth and height.
 
     Parameters
     ----------
@@ -284,10 +336,11 @@ def write_overall_dxf(path: str | os.PathLike, vertices: np.ndarray, faces: np.n
     vertices : (N, 3) float, metres, Y up.
     faces : (F, 4) or (F, 3) int.
     gap : millimetres between the plan and the elevation.
+    what : what the mesh is, for the drawing's text ("surface", "solid").
 
     Returns
     -------
-    dict, `overall_dimensions` of the surface.
+    dict, `overall_dimensions` of the mesh.
 
     Raises
     ------
@@ -307,9 +360,11 @@ def write_overall_dxf(path: str | os.PathLike, vertices: np.ndarray, faces: np.n
     side[:, 0] += shift
     doc = _new_document()
     msp = doc.modelspace()
-    for loop in boundary_loops(faces):
-        msp.add_lwpolyline(plan[loop], dxfattribs={"layer": "SURFACE"})
-        msp.add_lwpolyline(side[loop], dxfattribs={"layer": "SURFACE"})
+    # the views as rotations of the scene (the third axis towards the viewer): from above,
+    # (x, -z) with y; from +X, (-z, y) with x
+    for view, depth in ((plan, v[:, 1]), (side, v[:, 0])):
+        for loop in silhouette(np.column_stack([view, depth]), faces):
+            _polyline(msp, loop, "SURFACE")
     (x0, y0), (x1, y1) = plan.min(axis=0), plan.max(axis=0)
     (s0, _), (s1, top) = side.min(axis=0), side.max(axis=0)
     _dimension(msp, (x0, y0), (x1, y0), (0, y0 - 60), 0)
@@ -318,8 +373,8 @@ def write_overall_dxf(path: str | os.PathLike, vertices: np.ndarray, faces: np.n
     _dimension(msp, (s1, 0), (s1, top), (s1 + 60, 0), 90)
     dims = overall_dimensions(vertices)
     msp.add_text(f"overall {dims['width_mm']:.0f} x {dims['depth_mm']:.0f} x "
-                 f"{dims['height_mm']:.0f} mm (width x depth x height above the floor); plan "
-                 f"and elevation Z up", height=14,
+                 f"{dims['height_mm']:.0f} mm (the {what}'s width x depth x height above the "
+                 f"floor); plan and elevation Z up", height=14,
                  dxfattribs={"layer": "DIMENSIONS"}).set_placement((x0, y0 - 130))
     _save(doc, Path(path))
     return dims

@@ -3,7 +3,7 @@ mesh, checked by libraries (trimesh, manifold3d) and written as STL or 3MF.
 
 Inside the library a solid is in the project's frame: metres, right-handed, Y up. The files
 follow the workshop's convention instead: millimetres and Z up, the point (x, y, z) written as
-1000 * (x, -z, y), a proper rotation (determinant +1) of -90 degrees about X, so nothing is
+1000 * (x, -z, y), a proper rotation (determinant +1) of +90 degrees about X, so nothing is
 mirrored. A 3MF file states its unit (``unit="millimeter"``); STL has none, and millimetres is
 the convention every slicer and CAM program assumes.
 

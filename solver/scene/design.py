@@ -34,7 +34,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from capture.files import made_folder, write_atomic
+from capture.files import made_folder, replace_results, write_atomic
 
 from solver.body.posture import PostureFigures, classify_posture, posture_figures
 
@@ -209,6 +209,7 @@ def _try_waterfall(out: Path, header: str, data: dict, db, report: dict, designe
     (the straight front's design then stands)."""
     from solver.scene.furnish import furnish
     from solver.scene.placement import place_scene
+    from solver.scene.run import previous_results
     from solver.scene.scenario import ScenarioError, parse_scenario
     from solver.surface.fit import FitError
     from solver.surface.templates import TemplateError
@@ -235,7 +236,8 @@ def _try_waterfall(out: Path, header: str, data: dict, db, report: dict, designe
                 again["scenario"] = str(out / "scenario.toml")
                 again["design"] = {**designed, "waterfall": tried}
                 _write_report(stage, again)
-                _replace_all(stage, out)
+                # (the straight front's files that the waterfall front's fit did not write go)
+                replace_results(stage, out, previous_results(out), "report.json")
                 say("kept the waterfall front")
                 return tried, again
             say("kept the straight front: the waterfall front missed as many bars or more")
@@ -246,29 +248,6 @@ def _try_waterfall(out: Path, header: str, data: dict, db, report: dict, designe
         if stage is not None:
             shutil.rmtree(stage, ignore_errors=True)
     return tried, None
-
-
-def _replace_all(stage: Path, out: Path) -> None:
-    """Moves every file of `stage` into `out`, in place of the file of the same name; should
-    a move fail, every file moved so far goes back where it was, in `stage` or in `out` (and
-    the error is raised)."""
-    backup = Path(tempfile.mkdtemp(prefix=".straight-", dir=out))
-    done = []  # the names moved (out's own file of that name, if any, now in backup)
-    try:
-        for made in sorted(stage.iterdir()):
-            if (out / made.name).exists():
-                os.replace(out / made.name, backup / made.name)
-            done.append(made.name)
-            os.replace(made, out / made.name)
-    except OSError:
-        for name in reversed(done):
-            if not (stage / name).exists() and (out / name).exists():
-                os.replace(out / name, stage / name)
-            if (backup / name).exists():
-                os.replace(backup / name, out / name)
-        raise
-    finally:
-        shutil.rmtree(backup, ignore_errors=True)
 
 
 def _fit_design(out: Path, header: str, data: dict, db, say, pictures: bool) -> dict:

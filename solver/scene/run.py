@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from capture.files import made_folder, write_atomic
+from capture.files import results_folder, write_atomic
 
 from solver.mesh import SurfaceMesh
 from solver.contact.evaluate import (FLOOR, SUPPORT_FIGURES, SupportGate, body_winding,
@@ -335,7 +335,9 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         scenario, scenario_path = scenario_path, scenario_path.path
     else:
         scenario = load_scenario(scenario_path)
-    with made_folder(out_dir) as out:  # (gone again if nothing could be posed or fitted)
+    # written whole or not at all: the folder's earlier result, if any, stays until this one is
+    # complete and then goes (gone again if made and nothing could be posed or fitted)
+    with results_folder(out_dir, previous_results, "report.json") as out:
         t = time.perf_counter()
         scenario, people = place_scene(scenario, db)
         timing["pose_s"] = time.perf_counter() - t
@@ -354,55 +356,85 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
                                  "another mesh")
             result, timing["fit_s"] = fitted, fitted.seconds  # (its own, when it was made)
             say(f"the fit given ({result.iterations} iterations: {result.stop_reason})")
-    # the guarantees' check, then the design sheet, on a second thread: the check beside the
-    # evaluation, the sheet beside the exports (their numpy, PNG compression and file writes
-    # let go of the interpreter; libigl's queries do not); the BLAS limit is held around both,
-    # so the second thread's stays at the solver's count while the evaluation's own limits
-    # come and go
-    beside = (os.cpu_count() or 1) > 1 if beside is None else beside
-    with limited_threads(), ThreadPoolExecutor(1, "sitrelax-beside") as pool:
-        submit = pool.submit if beside else _now
-        checking = submit(_timed, fit_guarantees, result, people, scenario.surface.params)
-        t = time.perf_counter()
-        _, persons, maps = evaluate_fit(scenario, people, result)
-        timing["evaluate_s"] = time.perf_counter() - t
-        if pictures:  # (after the check on the one thread beside: it waits for no one)
-            title = title or (Path(scenario_path).stem if scenario_path else "scenario")
-            sheet = submit(_timed, _design_sheet, out / "sheet.png", title, result, people,
-                           maps, checking, persons, dict(timing), scenario.surface.params.creases)
-        t = time.perf_counter()
-        files = export_scene(out, result, people, maps, formats=tuple(formats), unit=unit,
-                             up=up, creases=scenario.surface.params.creases, pictures=pictures)
-        timing["export_s"] = time.perf_counter() - t
-        fabrication = _workshop(out, result, people, workshop, files, timing, say,
-                                scenario.surface.params.creases)
-        guarantees, timing["guarantees_s"] = checking.result()
-        if pictures:
-            files["sheet_png"], timing["sheet_s"] = sheet.result()
-    timing["total_s"] = time.perf_counter() - start
-    report = {
-        "scenario": str(scenario_path),
-        "parameters": report_parameters(scenario),
-        "iterations": result.iterations,
-        "stop_reason": result.stop_reason,
-        "energies": result.energies,
-        "energy_terms": result.energy_terms,
-        "timing": timing,
-        "control_vertices": int(len(result.control)),
-        "surface_vertices": int(len(result.surface)),
-        "persons": persons,
-        "surface_limit": files.pop("surface_limit"),
-        "guarantees": guarantees,
-        "pictures": pictures,
-        "files": files,
-    }
-    if fabrication is not None:
-        report["fabrication"] = fabrication
-    write_atomic(out / "report.json", json.dumps(report, indent=2, allow_nan=False).encode())
+        # the guarantees' check, then the design sheet, on a second thread: the check beside
+        # the evaluation, the sheet beside the exports (their numpy, PNG compression and file
+        # writes let go of the interpreter; libigl's queries do not); the BLAS limit is held
+        # around both, so the second thread's stays at the solver's count while the
+        # evaluation's own limits come and go
+        beside = (os.cpu_count() or 1) > 1 if beside is None else beside
+        with limited_threads(), ThreadPoolExecutor(1, "sitrelax-beside") as pool:
+            submit = pool.submit if beside else _now
+            checking = submit(_timed, fit_guarantees, result, people, scenario.surface.params)
+            t = time.perf_counter()
+            _, persons, maps = evaluate_fit(scenario, people, result)
+            timing["evaluate_s"] = time.perf_counter() - t
+            if pictures:  # (after the check on the one thread beside: it waits for no one)
+                title = title or (Path(scenario_path).stem if scenario_path else "scenario")
+                sheet = submit(_timed, _design_sheet, out / "sheet.png", title, result,
+                               people, maps, checking, persons, dict(timing),
+                               scenario.surface.params.creases)
+            t = time.perf_counter()
+            files = export_scene(out, result, people, maps, formats=tuple(formats),
+                                 unit=unit, up=up, creases=scenario.surface.params.creases,
+                                 pictures=pictures)
+            timing["export_s"] = time.perf_counter() - t
+            fabrication = _workshop(out, result, people, workshop, files, timing, say,
+                                    scenario.surface.params.creases)
+            guarantees, timing["guarantees_s"] = checking.result()
+            if pictures:
+                files["sheet_png"], timing["sheet_s"] = sheet.result()
+        timing["total_s"] = time.perf_counter() - start
+        report = {
+            "scenario": str(scenario_path),
+            "parameters": report_parameters(scenario),
+            "iterations": result.iterations,
+            "stop_reason": result.stop_reason,
+            "energies": result.energies,
+            "energy_terms": result.energy_terms,
+            "timing": timing,
+            "control_vertices": int(len(result.control)),
+            "surface_vertices": int(len(result.surface)),
+            "persons": persons,
+            "surface_limit": files.pop("surface_limit"),
+            "guarantees": guarantees,
+            "pictures": pictures,
+            "files": files,
+        }
+        if fabrication is not None:
+            report["fabrication"] = fabrication
+        write_atomic(out / "report.json",
+                     json.dumps(report, indent=2, allow_nan=False).encode())
     return report
 
 
 SURFACE_FORMATS = ("obj", "ply", "glb", "3dm")
+
+
+def previous_results(folder: Path, listing: type = dict) -> set[str]:
+    """The files of the result written into `folder` before: report.json and the names its
+    "files" lists, when that is a `listing` (`run_fit`'s and `sitrelax design`'s a dict,
+    `run_relax`'s a list: neither command removes the other's); none without a readable
+    report."""
+    try:
+        report = json.loads((folder / "report.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return set()
+    if not isinstance(report, dict) or not isinstance(report.get("files"), listing):
+        return set()
+    names = {"report.json"}
+
+    def collect(value) -> None:
+        if isinstance(value, str):
+            names.add(value)
+        elif isinstance(value, list):
+            for item in value:
+                collect(item)
+        elif isinstance(value, dict):
+            for item in value.values():
+                collect(item)
+
+    collect(report["files"])
+    return names
 
 
 def _timed(func: Callable, *args):
@@ -629,52 +661,53 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
     if person is not None and not 1 <= person <= len(scenario.persons):
         raise RelaxError(f"Expected --person in 1..{len(scenario.persons)}, got {person}")
     chosen = range(len(scenario.persons)) if person is None else [person - 1]
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    scenario, people = place_scene(scenario, db)
-    if surface_dir is not None:
-        surface, faces = read_quad_obj(Path(surface_dir) / "surface.obj", sitrelax_frame=True)
-        say(f"surface from {surface_dir}")
-    else:
-        result = fit_people(scenario, people)  # relaxed onto its limit surface, as evaluated
-        surface = result.limit_surface(scenario.surface.params.creases)
-        faces = result.surface_faces
-        say(f"fitted the surface in {result.iterations} iterations")
-    keys = ("mean_support_distance_m", "max_penetration_m", "coverage", "contact_coverage",
-            "peak_pressure_kpa", "supported", "equilibrium")
-    rows, meshes_before, meshes_after, relaxed = [], [], [], []
-    for k in chosen:
-        p = people[k]
-        res, before, after, seconds = relax_person(scenario, p, surface, faces)
-        name = f"person_{k + 1}_relaxed"
-        write_mesh(out / f"{name}.obj", res.vertices, p.body.faces)
-        skeleton, _ = rig_skeleton(p.body)
-        write_bvh(out / f"{name}.bvh", skeleton,
-                  Motion(pose_channels(p.body, res.local, res.world.positions[0])[None], 1 / 30))
-        rows.append({"name": p.label, "seconds": seconds, "evaluations": res.evaluations,
-                     "parameters_at_limit": res.at_limit,
-                     "before": {key: before[key] for key in keys},
-                     "after": {key: after[key] for key in keys},
-                     "relaxation": relax_record(res),
-                     "files": [f"{name}.obj", f"{name}.bvh"]})
-        relaxed.append((p, res))
-        meshes_before.append(MeshView(p.vertices, p.body.faces))
-        meshes_after.append(MeshView(res.vertices, p.body.faces, (0.62, 0.78, 0.62)))
-        say(f"{p.label}: relaxed in {seconds:.2f} s; mean support distance "
-            f"{before['mean_support_distance_m'] * 100:.1f} -> "
-            f"{after['mean_support_distance_m'] * 100:.1f} cm; {relax_text(res)}")
-    if save:
-        for row, saved in zip(rows, save_relaxed(db, relaxed, str(surface_dir or "fitted"))):
-            row["saved_pose"] = saved
-            say(f"{row['name']}: saved as pose {saved['name']!r} ({saved['id']})")
-    surf_view = MeshView(surface, faces, SURFACE)
-    render_panels(out / "relax.png", [Panel([surf_view] + meshes_before, "side", "before"),
-                                      Panel([surf_view] + meshes_after, "side", "after")],
-                  columns=2)
-    report = {"scenario": str(scenario_path), "surface": str(surface_dir or "fitted"),
-              "persons": rows, "timing": {"total_s": time.perf_counter() - start},
-              "files": ["relax.png"]}
-    write_atomic(out / "report.json", json.dumps(report, indent=2, allow_nan=False).encode())
+    # written whole or not at all, in place of an earlier relaxation's result (not a fit's)
+    with results_folder(out_dir, lambda folder: previous_results(folder, list),
+                        "report.json") as out:
+        scenario, people = place_scene(scenario, db)
+        if surface_dir is not None:
+            surface, faces = read_quad_obj(Path(surface_dir) / "surface.obj", sitrelax_frame=True)
+            say(f"surface from {surface_dir}")
+        else:
+            result = fit_people(scenario, people)  # relaxed onto its limit surface, as evaluated
+            surface = result.limit_surface(scenario.surface.params.creases)
+            faces = result.surface_faces
+            say(f"fitted the surface in {result.iterations} iterations")
+        keys = ("mean_support_distance_m", "max_penetration_m", "coverage", "contact_coverage",
+                "peak_pressure_kpa", "supported", "equilibrium")
+        rows, meshes_before, meshes_after, relaxed = [], [], [], []
+        for k in chosen:
+            p = people[k]
+            res, before, after, seconds = relax_person(scenario, p, surface, faces)
+            name = f"person_{k + 1}_relaxed"
+            write_mesh(out / f"{name}.obj", res.vertices, p.body.faces)
+            skeleton, _ = rig_skeleton(p.body)
+            channels = pose_channels(p.body, res.local, res.world.positions[0])
+            write_bvh(out / f"{name}.bvh", skeleton, Motion(channels[None], 1 / 30))
+            rows.append({"name": p.label, "seconds": seconds, "evaluations": res.evaluations,
+                         "parameters_at_limit": res.at_limit,
+                         "before": {key: before[key] for key in keys},
+                         "after": {key: after[key] for key in keys},
+                         "relaxation": relax_record(res),
+                         "files": [f"{name}.obj", f"{name}.bvh"]})
+            relaxed.append((p, res))
+            meshes_before.append(MeshView(p.vertices, p.body.faces))
+            meshes_after.append(MeshView(res.vertices, p.body.faces, (0.62, 0.78, 0.62)))
+            say(f"{p.label}: relaxed in {seconds:.2f} s; mean support distance "
+                f"{before['mean_support_distance_m'] * 100:.1f} -> "
+                f"{after['mean_support_distance_m'] * 100:.1f} cm; {relax_text(res)}")
+        if save:
+            for row, saved in zip(rows, save_relaxed(db, relaxed, str(surface_dir or "fitted"))):
+                row["saved_pose"] = saved
+                say(f"{row['name']}: saved as pose {saved['name']!r} ({saved['id']})")
+        surf_view = MeshView(surface, faces, SURFACE)
+        render_panels(out / "relax.png", [Panel([surf_view] + meshes_before, "side", "before"),
+                                          Panel([surf_view] + meshes_after, "side", "after")],
+                      columns=2)
+        report = {"scenario": str(scenario_path), "surface": str(surface_dir or "fitted"),
+                  "persons": rows, "timing": {"total_s": time.perf_counter() - start},
+                  "files": ["relax.png"] + [name for row in rows for name in row["files"]]}
+        write_atomic(out / "report.json", json.dumps(report, indent=2, allow_nan=False).encode())
     return report
 
 

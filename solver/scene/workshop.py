@@ -92,9 +92,10 @@ def export_workshop(out: Path, surface: np.ndarray, faces: np.ndarray, people: l
         fab["reach"] = reach.summary()
         render_reach(out / "reach.png", surface, faces, reach)
         files["reach_png"] = "reach.png"
-    if options.drawings:
+    if options.drawings:  # (the solid's size when one is written: what the workshop makes)
         files.update(_drawings(out, surface, faces, people, solid))
-        fab["dimensions_mm"] = overall_dimensions(surface)
+        fab["dimensions_mm"] = overall_dimensions(surface if solid is None else solid.vertices)
+        fab["dimensions_of"] = "surface" if solid is None else "solid"
     return files, fab
 
 
@@ -118,7 +119,10 @@ def _solid(surface, faces, options: WorkshopOptions):
 
 def _drawings(out: Path, surface, faces, people: list, solid) -> dict:
     files = {"overall_dxf": "overall.dxf"}
-    write_overall_dxf(out / "overall.dxf", surface, faces)
+    if solid is None:
+        write_overall_dxf(out / "overall.dxf", surface, faces)
+    else:
+        write_overall_dxf(out / "overall.dxf", solid.vertices, solid.triangles, what="solid")
     sections, names = [], []
     for k, person in enumerate(people, start=1):
         pelvis, forward = person_frame(person)

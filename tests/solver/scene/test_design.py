@@ -319,38 +319,3 @@ def test_the_first_design_is_complete_before_the_second_try(tmp_path, monkeypatc
     assert sorted(p.name for p in out.iterdir()) == ["report.json", "scenario.toml",
                                                       "surface.obj"]
 
-
-def test_replacing_the_design_s_files_is_undone_when_a_move_fails(tmp_path, monkeypatch):
-    """`_replace_all` with its fourth move failing: `out` is as it was (the user's own file
-    untouched), the new files are back in the stage, and a second go moves them all."""
-    import os
-
-    import solver.scene.design as design
-
-    stage, out = tmp_path / "stage", tmp_path / "out"
-    stage.mkdir()
-    out.mkdir()
-    for name in ("a.obj", "b.obj", "report.json"):
-        (stage / name).write_text("new")
-    (out / "a.obj").write_text("old")
-    (out / "report.json").write_text("old")
-    (out / "notes.txt").write_text("the user's")
-    real, moves = os.replace, []
-
-    def failing(src, dst):
-        moves.append(src)
-        if len(moves) == 4:  # a.obj out and in, b.obj in, then report.json's first move
-            raise OSError("disk full")
-        real(src, dst)
-
-    monkeypatch.setattr(design.os, "replace", failing)
-    with pytest.raises(OSError, match="disk full"):
-        design._replace_all(stage, out)
-    monkeypatch.setattr(design.os, "replace", real)
-    assert {p.name: p.read_text() for p in out.iterdir()} == {
-        "a.obj": "old", "report.json": "old", "notes.txt": "the user's"}
-    assert sorted(p.name for p in stage.iterdir()) == ["a.obj", "b.obj", "report.json"]
-    assert not [p for p in out.iterdir() if p.name.startswith(".straight-")]
-    design._replace_all(stage, out)
-    assert {p.name: p.read_text() for p in out.iterdir()} == {
-        "a.obj": "new", "b.obj": "new", "report.json": "new", "notes.txt": "the user's"}

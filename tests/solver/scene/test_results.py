@@ -1,0 +1,41 @@
+"""`sitrelax fit` and `sitrelax relax` into a folder that holds an earlier result: the folder
+then holds the new result alone (the earlier one's files that the new one does not write go,
+the user's own files stay), and a fit that fails leaves the earlier result as it was."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from solver.scene.run import run_fit
+
+EXAMPLES = Path(__file__).resolve().parents[3] / "solver" / "data" / "scenarios"
+
+
+def test_a_fit_written_again_into_its_folder_leaves_no_file_of_the_earlier_one(tmp_path):
+    out = tmp_path / "out"
+    first = run_fit(EXAMPLES / "single_seated.toml", out, formats=("obj", "3dm"),
+                    pictures=False)
+    assert (out / "scene.3dm").exists() and first["files"]["scene_3dm"] == "scene.3dm"
+    (out / "notes.txt").write_text("the user's")
+    second = run_fit(EXAMPLES / "single_seated.toml", out, formats=("ply",), pictures=False)
+    listed = {v for v in second["files"].values() if isinstance(v, str)} | {
+        name for v in second["files"].values() if isinstance(v, list) for name in v}
+    assert sorted(p.name for p in out.iterdir()) == sorted(listed | {"report.json",
+                                                                     "notes.txt"})
+    assert not (out / "scene.3dm").exists() and not (out / "surface.obj").exists()
+    assert json.loads((out / "report.json").read_text())["files"] == second["files"]
+
+
+def test_a_fit_that_fails_leaves_the_earlier_result(tmp_path):
+    out = tmp_path / "out"
+    run_fit(EXAMPLES / "single_seated.toml", out, formats=("obj",), pictures=False)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    broken = tmp_path / "broken.toml"
+    broken.write_text((EXAMPLES / "single_seated.toml").read_text().replace(
+        'pose = "', 'pose = "bvh:bundled:no-such-take.bvh#frame=1" # "', 1))
+    with pytest.raises(Exception, match="no-such-take"):
+        run_fit(broken, out, formats=("obj",), pictures=False)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
