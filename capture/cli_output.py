@@ -30,3 +30,30 @@ def print_event(message: str) -> None:
     if sys.stderr.isatty():
         sys.stderr.write("\r\033[K")
     print(message, file=sys.stderr, flush=True)
+
+
+def number(low: float | None = None, high: float | None = None, *, whole: bool = False,
+           low_open: bool = False):
+    """An argparse `type` for a finite number (a whole one with `whole`) within [low, high]
+    (`low_open`: above `low`): the option's error names what it expected and what it got
+    (argparse prints it with the option's name and exits with status 2)."""
+    import argparse
+    import math
+
+    def parse(text: str):
+        noun = "a whole number" if whole else "a number"
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {noun}, got {text!r}") from None
+        if not math.isfinite(value) or (whole and not value.is_integer()):
+            raise argparse.ArgumentTypeError(f"expected {noun}, got {text!r}")
+        if low is not None and (value <= low if low_open else value < low):
+            raise argparse.ArgumentTypeError(
+                f"expected {noun} {'>' if low_open else '>='} {low:g}, got {text!r}")
+        if high is not None and value > high:
+            raise argparse.ArgumentTypeError(f"expected {noun} <= {high:g}, got {text!r}")
+        return int(value) if whole else value
+
+    parse.__name__ = "whole number" if whole else "number"  # (argparse's fallback message)
+    return parse

@@ -9,6 +9,7 @@ import sys
 from typing import Any, Callable
 
 from capture import cli as capture_cli
+from capture.cli_output import number
 from posedb import cli as posedb_cli
 
 # each command imports its work when it runs (numpy, scipy, h5py, the solver): `sitrelax --help`
@@ -226,7 +227,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
 
     def progress(c: dict) -> None:
         print(f"\rbatch: {c['done'] + c['failed']}/{c['total'] - c['skipped']} done, "
-              f"{c['failed']} failed, {c['running']} running, ~{c['left_s']:.0f} s left  ",
+              f"{c['failed']} failed, {c['running']} to go, ~{c['left_s']:.0f} s left  ",
               end="", file=sys.stderr, flush=True)
 
     print(f"batch: {len(jobs)} jobs", file=sys.stderr, flush=True)
@@ -234,9 +235,10 @@ def _cmd_batch(args: argparse.Namespace) -> int:
                        scheduler=args.scheduler, progress=progress,
                        time_limit=args.job_time_limit)
     print(file=sys.stderr)
+    failed = 1 if result["counts"]["failed"] else 0  # (status 1 when a job failed)
     if args.json:
         print(json.dumps(result, indent=2))
-        return 0
+        return failed
     c = result["counts"]
     print(f"{c['total']} jobs: {c['done']} done, {c['failed']} failed ({c['timed_out']} timed "
           f"out), {c['skipped']} skipped "
@@ -245,7 +247,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     for row in result["jobs"]:
         if row["status"] != "ok":
             print(f"  {row['job']} failed: {row['error']}")
-    return 0
+    return failed
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -370,12 +372,14 @@ def _register_bodies(sub) -> None:
                       "joint names and the hierarchy)")
     add_shape_args(show)
     show.add_argument("--out", required=True, help="posed.obj|.ply|.glb or a .png picture")
-    show.add_argument("--lowest", type=float, default=0.0,
-                      help="put the lowest skin point at this height, m (default 0: the floor)")
-    show.add_argument("--pelvis", type=float, default=None,
-                      help="put the pelvis at this height instead, m")
-    show.add_argument("--as-captured", action="store_true",
-                      help="keep the captured height (scaled by leg length)")
+    height = show.add_mutually_exclusive_group()
+    height.add_argument("--lowest", type=number(-100.0, 100.0), default=0.0,
+                        help="put the lowest skin point at this height, m (default 0: the "
+                             "floor)")
+    height.add_argument("--pelvis", type=number(-100.0, 100.0), default=None,
+                        help="put the pelvis at this height instead, m")
+    height.add_argument("--as-captured", action="store_true",
+                        help="keep the captured height (scaled by leg length)")
     show.add_argument("--view", choices=sorted(VIEWS), default="three-quarter")
     show.add_argument("--json", action="store_true", help="machine-readable output")
     show.set_defaults(func=_cmd_pose_show)
@@ -434,10 +438,11 @@ def _register_fitting(sub) -> None:
                        "results are stored as scenarios")
     batch.add_argument("--out", required=True, help="output folder (a re-run skips what "
                        "finished)")
-    batch.add_argument("--workers", type=int, default=2,
+    batch.add_argument("--workers", type=number(1, 256, whole=True), default=2,
                        help="local worker processes (default 2)")
     batch.add_argument("--scheduler", help="an existing Dask scheduler, tcp://HOST:8786")
-    batch.add_argument("--job-time-limit", type=float, default=1800.0, metavar="SECONDS",
+    batch.add_argument("--job-time-limit", type=number(0, low_open=True), default=1800.0,
+                       metavar="SECONDS",
                        help="a job running longer is stopped and recorded as timed out "
                             "(default 1800)")
     batch.add_argument("--json", action="store_true", help="print the result as JSON")
@@ -469,7 +474,7 @@ def _register_checks(sub) -> None:
                          "(finite elements, a contact programme, the rigid mould), about a "
                          "minute; --quick skips the finite elements")
     vp.add_argument("--out", help="folder for the side-by-side pictures")
-    vp.add_argument("--mu", type=float, nargs="+", default=[0.3, 0.5, 0.8],
+    vp.add_argument("--mu", type=number(0, 10), nargs="+", default=[0.3, 0.5, 0.8],
                     help="friction coefficients (default: 0.3 0.5 0.8)")
     vp.add_argument("--reference", action="append",
                     choices=["soft layer FE", "contact programme", "rigid mould"],

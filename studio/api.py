@@ -180,6 +180,16 @@ def check_limits(s: schema.Scenario, loc: tuple = ()) -> None:
             raise _limit([*loc, "surface", "control_mesh", "vertices"],
                          "expected finite coordinates, got NaN or infinity")
         extent = float(np.abs(vertices).max(initial=0.0))
+    elif surf.template is not None:  # built at its given parameters (bounded, milliseconds):
+        # its count does not change when it is placed around the people
+        from solver.scene.scenario import ScenarioError, template_request
+
+        try:
+            _, mesh = template_request(surf.template, len(s.person), "request")
+        except ScenarioError:
+            count, extent = 0, 0.0  # refused, naming its parameter, by the parse
+        else:
+            count, extent = len(mesh.vertices), float(np.abs(mesh.vertices).max(initial=0.0))
     else:
         count, extent = 0, 0.0  # a file name: refused as such by the parse
     if count > MAX_CONTROL_VERTICES:

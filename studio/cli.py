@@ -7,11 +7,37 @@ from __future__ import annotations
 import argparse
 import sys
 
+from capture.cli_output import number
+
 from .loopback import LOOPBACK  # the servers (studio.net: asyncio) load when they run
 
 
 def _say(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
+
+
+def _listening(host: str, port: int):
+    """A TCP socket bound to host:port for a server to listen on; OSError naming the address
+    (and what to do) when it cannot be bound, such as a port another server holds."""
+    import errno
+    import socket
+
+    try:
+        family, kind, proto, _, address = socket.getaddrinfo(host, port,
+                                                              type=socket.SOCK_STREAM)[0]
+    except socket.gaierror as exc:
+        raise OSError(f"Cannot listen on {host!r}: {exc.strerror}") from None
+    sock = socket.socket(family, kind, proto)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind(address)
+    except OSError as exc:
+        sock.close()
+        hint = " (another server holds it: --port picks another, 0 a free one)" if \
+            exc.errno == errno.EADDRINUSE else ""
+        raise OSError(f"Cannot listen on {host}:{port}: {exc.strerror}{hint}") from None
+    sock.set_inheritable(True)
+    return sock
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
@@ -30,9 +56,10 @@ def _cmd_serve(args: argparse.Namespace) -> int:
                      time_limit=args.time_limit,
                      hosts=allowed_names(args.host, args.allow_host))
     server = uvicorn.Server(server_config(app, args.host, args.port))
+    sock = _listening(args.host, args.port)  # (a port in use: a one-line error, no server)
 
     async def run() -> None:
-        task = asyncio.create_task(server.serve())
+        task = asyncio.create_task(server.serve(sockets=[sock]))
         while not server.started and not task.done():
             await asyncio.sleep(0.02)
         if server.started:
@@ -107,11 +134,11 @@ def register(sub) -> None:
     serve.add_argument("--db", help="pose library (HDF5) the API reads poses from")
     serve.add_argument("--host", default=LOOPBACK,
                        help=f"address to listen on (default {LOOPBACK}, this machine only)")
-    serve.add_argument("--port", type=int, default=8765, help="port (default 8765; 0 picks "
+    serve.add_argument("--port", type=number(0, 65535, whole=True), default=8765, help="port (default 8765; 0 picks "
                                                               "a free one)")
-    serve.add_argument("--max-request-mb", type=float, default=8.0,
+    serve.add_argument("--max-request-mb", type=number(0, 4096, low_open=True), default=8.0,
                        help="largest request body accepted, MB (default 8; larger: 413)")
-    serve.add_argument("--time-limit", type=float, default=60.0,
+    serve.add_argument("--time-limit", type=number(0, low_open=True), default=60.0,
                        help="seconds of computing a request may take (default 60; longer: "
                             "stopped, 413)")
     _allow_host(serve)
@@ -120,7 +147,7 @@ def register(sub) -> None:
     studio.add_argument("--db", help="pose library (HDF5) to pick people from and save to")
     studio.add_argument("--host", default=LOOPBACK,
                         help=f"address to listen on (default {LOOPBACK}, this machine only)")
-    studio.add_argument("--port", type=int, default=8080, help="port (default 8080; 0 picks "
+    studio.add_argument("--port", type=number(0, 65535, whole=True), default=8080, help="port (default 8080; 0 picks "
                                                                "a free one)")
     studio.add_argument("--out", default="sitrelax-studio",
                         help="folder that Export and Save TOML write into (made if missing)")

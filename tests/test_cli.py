@@ -165,6 +165,47 @@ def test_replay_port_in_use_is_one_line():
     assert out.stderr.strip() == f"sitrelax: error: TCP port {port} on 127.0.0.1 is in use"
 
 
+def test_serve_on_a_port_in_use_is_one_line(capsys):
+    import socket
+
+    from studio.cli import main as sitrelax
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        assert sitrelax(["serve", "--port", str(port)]) == 2
+    err = capsys.readouterr().err
+    assert err.strip().splitlines()[-1] == (
+        f"sitrelax: error: Cannot listen on 127.0.0.1:{port}: Address already in use (another "
+        f"server holds it: --port picks another, 0 a free one)")
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["serve", "--port", "70000"], "--port: expected a whole number <= 65535, got '70000'"),
+    (["serve", "--time-limit", "nan"], "--time-limit: expected a number, got 'nan'"),
+    (["serve", "--max-request-mb", "-1"], "--max-request-mb: expected a number > 0, got '-1'"),
+    (["batch", "a.toml", "--out", "o", "--job-time-limit", "-1"],
+     "--job-time-limit: expected a number > 0, got '-1'"),
+    (["batch", "a.toml", "--out", "o", "--workers", "0"], "--workers: expected a whole number"),
+    (["validate", "pressure", "--mu", "0.5", "inf"], "--mu: expected a number, got 'inf'"),
+    (["pose", "show", "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39", "--out", "p.png",
+      "--pelvis", "1e308"], "--pelvis: expected a number <= 100, got '1e308'"),
+    (["pose", "show", "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39", "--out", "p.png",
+      "--pelvis", "1", "--lowest", "0"], "not allowed with argument"),
+])
+def test_options_out_of_range_are_refused_by_name_before_any_work(argv, words, capsys,
+                                                                   tmp_path, monkeypatch):
+    from studio.cli import main as sitrelax
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as stopped:
+        sitrelax(argv)
+    assert stopped.value.code == 2 and words in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_body_make_json_and_files(tmp_path, capsys):
     out = tmp_path / "body.obj"
     assert main(["body", "make", "--weight", "0.7", "--out", str(out), "--json"]) == 0

@@ -20,14 +20,18 @@ import hashlib
 import io
 import itertools
 import json
+import logging
+import math
 import os
 import select
+import signal
 import stat
 import subprocess
 import sys
 import threading
 import time
 import tomllib
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
@@ -79,7 +83,11 @@ def parse_grid(items: Sequence[str]) -> dict[str, list]:
                 number = float(v)
             except ValueError:
                 raise BatchError(f"--grid {key}: expected numbers, got {v!r}") from None
-            parsed.append(int(number) if number.is_integer() and "." not in v else number)
+            if not math.isfinite(number):
+                raise BatchError(f"--grid {key}: expected finite numbers, got {v!r}")
+            # (a whole number is one however written: level=3.0 is level 3)
+            parsed.append(int(number) if number.is_integer() and abs(number) < 2 ** 53 else
+                          number)
         grid[key] = parsed
     return grid
 
@@ -282,7 +290,10 @@ def _load_job_modules() -> None:
 
 
 def _serve_jobs() -> None:
-    """The child's loop: a job a line on stdin, its row a line on stdout."""
+    """The child's loop: a job a line on stdin, its row a line on stdout. It ends with its
+    worker (`_orphaned`), mid-job too."""
+    parent = os.getppid()
+    threading.Thread(target=_orphaned, args=(parent,), daemon=True).start()
     out = os.fdopen(os.dup(1), "w")
     os.dup2(2, 1)  # whatever the job prints goes to stderr, not into the answers
     _load_job_modules()
@@ -295,6 +306,17 @@ def _serve_jobs() -> None:
         out.write(json.dumps(row) + "\n")
         out.flush()
 
+
+def _orphaned(parent: int) -> None:
+    """Ends this process once its parent (the worker) has gone: a batch stopped (Ctrl-C) leaves
+    no job running on; an unfinished job's files are as a failed run leaves them (its results
+    folder as it was, `capture.files.results_folder`)."""
+    while os.getppid() == parent:
+        time.sleep(ORPHAN_POLL)
+    os._exit(1)
+
+
+ORPHAN_POLL = 0.5  # s: how often a job's child looks whether its worker is still there
 
 _runners = threading.local()
 
@@ -347,9 +369,25 @@ def local_cluster(workers: int = 2):
     import dask
     from distributed import LocalCluster
 
-    with dask.config.set(LOCAL_CLUSTER_CONFIG):
+    with dask.config.set(LOCAL_CLUSTER_CONFIG), _terminal_interrupt_ignored():
+        # (its processes, and the jobs' children they start, ignore the terminal's Ctrl-C:
+        # the batch stops them itself, without a traceback from each)
         return LocalCluster(n_workers=max(1, int(workers)), threads_per_worker=1,
                             processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0")
+
+
+@contextmanager
+def _terminal_interrupt_ignored():
+    """SIGINT ignored while the block starts processes (which keep that disposition: Python
+    leaves an ignored SIGINT ignored), then as it was; from the main thread only."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, before)
 
 
 def run_job(job: Job, db: str | None, out_root: str,
@@ -357,6 +395,9 @@ def run_job(job: Job, db: str | None, out_root: str,
     """Runs one job on a worker, in its child process, for at most `time_limit` seconds;
     returns its summary row (a failure or a timeout is a row too)."""
     start = time.perf_counter()
+    # (a job cancelled as the batch stops, Ctrl-C, is no news for this worker to log: the
+    # batch says it was interrupted)
+    logging.getLogger("distributed.worker.state_machine").setLevel(logging.ERROR)
     runner = _runner()
     got = runner.run(job, db, out_root, time_limit) if runner.ready else "it did not start"
     if isinstance(got, dict):
@@ -418,7 +459,7 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *,
             futures = [client.submit(run_job, job, db_path, str(out.resolve()), time_limit,
                                      key=f"sitrelax-job-{job.id}", pure=False, retries=2)
                        for job in todo]
-            for future in as_completed(futures):
+            for future in _completed(as_completed(futures), out, jobs, rows):
                 row = future.result()
                 rows[row["job"]] = row
                 counts["done" if row["status"] == "ok" else "failed"] += 1
@@ -438,6 +479,20 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *,
     stored = _store(db_path, jobs, ordered, out) if (db_path and store) else []
     return {"out": str(out), "jobs": ordered, "counts": counts, "stored": stored,
             "seconds": time.perf_counter() - start}
+
+
+def _completed(futures, out: Path, jobs: Sequence[Job], rows: dict):
+    """The finished futures as they come; interrupted (Ctrl-C), the summary of the jobs
+    finished so far is written (the others "interrupted": a re-run runs them), and the
+    interrupt goes on."""
+    try:
+        yield from futures
+    except KeyboardInterrupt:
+        _write_summary(out, [rows.get(job.id) or {
+            "job": job.id, "scenario": job.scenario, "parameters": job.parameters,
+            "status": "interrupted", "error": "the batch was interrupted before it finished"}
+            for job in jobs])
+        raise
 
 
 def _write_summary(out: Path, rows: list[dict]) -> None:

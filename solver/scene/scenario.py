@@ -209,7 +209,8 @@ def scenario_from_model(model: schema.Scenario, where: str = "<scenario>",
     surf = model.surface
     template = None
     if surf.template is not None:
-        template, faces, template_creases = _template(surf.template, len(model.person), where)
+        template, built = template_request(surf.template, len(model.person), where)
+        faces, template_creases = built.quads, built.creases
         verts, source = None, f"{template.kind} template"
         n = int(faces.max()) + 1
     else:
@@ -250,10 +251,11 @@ def template_error(exc: TemplateError, where: str) -> ScenarioError:
     return _fail(where, "surface.template", message)
 
 
-def _template(model, persons: int, where: str) -> tuple[TemplateRequest, np.ndarray, np.ndarray]:
-    """The request, quads and creases of a scenario's template: its topology does not depend
-    on the people (a bench has a seat per person unless `seats` says otherwise), so it is
-    built here at its given parameters to check them."""
+def template_request(model, persons: int, where: str) -> tuple[TemplateRequest, Any]:
+    """The request of a scenario's template (its schema `model`) and its control mesh built at
+    the given parameters (a `TemplateMesh`, not yet placed around the people): its topology
+    does not depend on them (a bench has a seat per person unless `seats` says otherwise), so
+    it is built here to check the parameters (ScenarioError naming the one at fault)."""
     given = model.model_dump(exclude_none=True)
     kind = given.pop("kind")
     if kind == "bench":
@@ -262,7 +264,7 @@ def _template(model, persons: int, where: str) -> tuple[TemplateRequest, np.ndar
         mesh = make_template(kind, **given)
     except TemplateError as exc:
         raise template_error(exc, where) from None
-    return TemplateRequest(kind, given), mesh.quads, mesh.creases
+    return TemplateRequest(kind, given), mesh
 
 
 def _control_mesh(surf, where: str, base: Path,

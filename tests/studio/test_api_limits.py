@@ -58,6 +58,12 @@ def _scenario(surface=None, person=None) -> dict:
         "faces": [[0, 1, 2, 3]]}}), 422, "finite"),
     ("/api/fit", _scenario({"grid": {"size": [1, 1], "resolution": [40, 40], "height": 0.4},
                             "max_iterations": 100}), 413, "compute budget"),
+    # a template counts as the control mesh it builds (2,806 vertices here)
+    ("/api/fit", _scenario({"grid": None, "template": {"kind": "chair",
+                                                       "seat_quads": [60, 40]}}),
+     422, "at most 2000 control vertices here, got"),
+    ("/api/fit", _scenario({"grid": None, "template": {"kind": "chair", "seat_quads": [30, 12]},
+                            "max_iterations": 100}), 413, "compute budget"),
     ("/api/evaluate", {"vertices": [["x", 0, 0]] * 50_000, "faces": [[0, 1, 2]],
                        "person": [{"pose": HIGH_SIT}]}, 422, "vertices"),
 ])

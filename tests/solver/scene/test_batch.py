@@ -43,6 +43,12 @@ def test_grid_and_template_expand_to_jobs(library, tmp_path):
         assert person["body"]["weight"] == job.parameters["body.weight"]
     with pytest.raises(BatchError, match="expected numbers"):
         parse_grid(["sigma=a,b"])
+    for bad in ("nan", "inf", "-inf"):
+        with pytest.raises(BatchError, match=f"--grid sigma: expected finite numbers, got "
+                                             f"'{bad}'"):
+            parse_grid([f"sigma=0.003,{bad}"])
+    assert parse_grid(["level=3.0,2"]) == {"level": [3, 2]}  # whole however written
+    assert type(parse_grid(["level=3.0"])["level"][0]) is int
     with pytest.raises(BatchError, match="--grid colour"):
         expand_jobs([EXAMPLES / "single_seated.toml"], grid={"colour": [1]})
     with pytest.raises(BatchError, match="No pose"):
