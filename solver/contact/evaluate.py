@@ -292,8 +292,10 @@ def support_figures(surface: SurfaceMesh, vertices: np.ndarray, importance: np.n
     if winding is None:
         winding = body_winding(vertices, triangles)
     if wanted.size:
-        front = (signed >= 0) & (signed <= CONTACT_GAP)
-        sunk = (signed < 0) & (signed >= -margin - 1e-9)
+        # (by the distance to the surface, on the side its normal says: skin level with the
+        # plane of a face it lies far beside touches nothing)
+        front = (signed >= 0) & (dist <= CONTACT_GAP)
+        sunk = (signed < 0) & (dist <= margin + 1e-9)
         cut = np.zeros(len(wanted), dtype=bool)
         cut[sunk] = cut_vertices(vertices, triangles, signed[sunk], points[sunk], foam, winding)
         figures["contact_coverage"] = float(weight[front | cut].sum() / total)
@@ -301,6 +303,8 @@ def support_figures(surface: SurfaceMesh, vertices: np.ndarray, importance: np.n
         figures["contact_coverage"] = 0.0
     lo, hi = vertices.min(axis=0) - 0.01, vertices.max(axis=0) + 0.01
     near = np.all((surface.vertices >= lo) & (surface.vertices <= hi), axis=1)
+    near[np.setdiff1d(np.arange(len(near)), surface.triangles)] = False  # (a vertex no face
+    # uses is no part of the surface: it cuts nothing)
     figures["max_penetration_m"], face = deepest_cut(surface.vertices[near], vertices,
                                                      triangles, winding)
     if regions is not None:

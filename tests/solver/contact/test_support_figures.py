@@ -95,6 +95,36 @@ def test_the_report_and_the_gate_give_the_same_figures():
     assert "max_penetration_m" not in worse_figures(deep, sink)
 
 
+def test_skin_level_with_a_face_far_beside_it_is_not_in_contact():
+    """A ball whose upper half is important, 1 m beside a 20 cm plate whose plane runs
+    through its middle: none of it is within the margin of the plate, so none of it is in
+    contact either (measured along the plate's normal alone, the skin up to 5 mm over the
+    plate's height read as touching it). Checked with trimesh's own closest points."""
+    plate, foam = _plane(height=0.1, size=0.2, cells=4), Foam(200e3)
+    vertices, triangles = _ball([1.1, 0.1, 0.0])
+    importance = np.where(vertices[:, 1] >= 0.1, 1.0, 0.0)
+    assert np.any((vertices[:, 1] >= 0.1) & (vertices[:, 1] <= 0.105))  # (the case at issue)
+    figures = support_figures(plate, vertices, importance, triangles, 0.03, foam)
+    mesh = trimesh.Trimesh(plate.vertices, plate.triangles, process=False)
+    _, gap, _ = trimesh.proximity.closest_point(mesh, vertices[importance > 0])
+    assert gap.min() > 0.8  # (the oracle: nothing within reach)
+    assert figures["coverage"] == 0.0 and figures["contact_coverage"] == 0.0
+
+
+def test_a_vertex_no_face_uses_cuts_nothing():
+    """A plate 1 cm under a ball, and one more vertex, used by no face, 2 cm inside the
+    ball: the surface does not cut into the ball (the stray vertex read as a 2 cm cut)."""
+    plate, foam = _plane(), Foam(200e3)
+    ball = _sunk_ball(-0.01)
+    stray = SurfaceMesh.from_triangles(
+        np.concatenate([plate.vertices, [[0.0, 0.03, 0.0]]]), plate.triangles)
+    figures = support_figures(stray, ball.vertices, ball.importance, ball.triangles, 0.03,
+                              foam)
+    assert figures["max_penetration_m"] == 0.0
+    assert figures == support_figures(plate, ball.vertices, ball.importance, ball.triangles,
+                                      0.03, foam)
+
+
 def test_figures_stop_short_once_the_cheap_ones_are_worse_than_the_reference():
     plane, foam = _plane(), Foam(200e3)
     near, far = _sunk_ball(0.002), _sunk_ball(-0.02)
