@@ -25,7 +25,9 @@ from solver.body.model import Body
 from solver.body.retarget import RetargetError, place, retarget_pose
 from solver.body.rig import RigMotion
 
-_FRAME = re.compile(r"^(?P<path>.+?)#frame=(?P<frame>-?\d+)(?:&unit=(?P<unit>[^&#]+))?$")
+# (a path holds no "#frame=": one frame a reference)
+_FRAME = re.compile(r"^(?P<path>(?:(?!#frame=).)+)#frame=(?P<frame>-?\d+)"
+                    r"(?:&unit=(?P<unit>[^&#]+))?$")
 
 
 class PoseSourceError(ValueError):

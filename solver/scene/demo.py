@@ -121,10 +121,10 @@ def run_demo(out_dir: str | os.PathLike, progress: Callable[[str], None] | None 
             report(message)
 
     out = Path(out_dir)
+    if out.is_dir() and any(out.iterdir()):  # (its files would mix with the demo's)
+        raise DemoError(f"{out} is not empty: give the demo an empty or new folder (--out)")
     out.mkdir(parents=True, exist_ok=True)
     library = out / "poses.h5"
-    if library.exists():
-        raise DemoError(f"{library} exists: give the demo an empty folder (--out)")
     stages: dict[str, float] = {}
     start = time.perf_counter()
 

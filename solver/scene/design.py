@@ -137,8 +137,11 @@ def design_scenario(poses: Sequence[str], db: str | os.PathLike | None = None,
                "position": [0.0, float(lift), 0.0]}
               for k, (p, lift) in enumerate(zip(poses, lifts))]
     data = {"surface": {"template": {"kind": kind, **given}}, "person": people}
-    if not one:  # side by side along x, their skin GAP apart
-        _, placed = place_scene(parse_scenario(data, "design", base), db)
+    if not one:  # side by side along x, their skin GAP apart (measured over a plain grid: a
+        # template built round them all overlapping could be too narrow a seat for each)
+        measuring = {**data, "surface": {"grid": {"size": [1.0, 1.0], "resolution": [1, 1],
+                                                  "height": 0.45}}}
+        _, placed = place_scene(parse_scenario(measuring, "design", base), db)
         widths = np.array([np.ptp(p.vertices[:, 0]) for p in placed])
         centres = [float(np.mean(p.vertices[:, 0].min() + p.vertices[:, 0].max()) / 2)
                    for p in placed]

@@ -666,7 +666,9 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
                         "report.json") as out:
         scenario, people = place_scene(scenario, db)
         if surface_dir is not None:
-            surface, faces = read_quad_obj(Path(surface_dir) / "surface.obj", sitrelax_frame=True)
+            surface, faces = read_quad_obj(Path(surface_dir) / "surface.obj",
+                                           sitrelax_frame=True)
+            _within_reach(surface, [people[k] for k in chosen])
             say(f"surface from {surface_dir}")
         else:
             result = fit_people(scenario, people)  # relaxed onto its limit surface, as evaluated
@@ -709,6 +711,24 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
                   "files": ["relax.png"] + [name for row in rows for name in row["files"]]}
         write_atomic(out / "report.json", json.dumps(report, indent=2, allow_nan=False).encode())
     return report
+
+
+def _within_reach(surface: np.ndarray, people: list[PlacedPerson]) -> None:
+    """A RelaxError for a person whose supported skin lies wholly beyond the fit's REACH of the
+    surface's vertices (nothing there to relax onto), as a fit refuses one."""
+    from scipy.spatial import cKDTree
+
+    from solver.body.relax import RelaxError
+    from solver.surface.fit import REACH
+
+    tree = cKDTree(surface)
+    for p in people:
+        points = p.vertices[p.importance > 0] if np.any(p.importance > 0) else p.vertices
+        nearest = float(tree.query(points)[0].min())
+        if nearest > REACH:
+            raise RelaxError(f"{p.label} is entirely outside the surface's reach: its nearest "
+                             f"supported point is {nearest:.2f} m from the surface (reach "
+                             f"{REACH} m); move the person or the surface")
 
 
 def save_relaxed(db: str | os.PathLike, relaxed: list, surface: str) -> list[dict]:

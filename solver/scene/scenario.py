@@ -152,9 +152,16 @@ def read_control_mesh(path: Path, where: str) -> tuple[np.ndarray, np.ndarray]:
     """Vertices and quad faces of a scenario's OBJ control mesh (every face must be a quad);
     errors name the scenario's field."""
     try:
-        return read_quad_obj(path)
+        verts, faces = read_quad_obj(path)
     except MeshFileError as exc:
         raise _fail(where, "surface.control_mesh", str(exc)) from None
+    far = np.flatnonzero(~(np.abs(verts) <= schema.MAX_COORDINATE).all(axis=1))
+    if len(far):  # (NaN fails the comparison too)
+        raise _fail(where, "surface.control_mesh",
+                    f"{path.name}: expected vertex coordinates within "
+                    f"{schema.MAX_COORDINATE:g} m, got {verts[far[0]].tolist()} (vertex "
+                    f"{far[0] + 1})" + (f" and {len(far) - 1} more" if len(far) > 1 else ""))
+    return verts, faces
 
 
 def inline_control_mesh(mesh: schema.InlineMesh | dict,

@@ -49,7 +49,9 @@ NonNegative = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=0.0)]
 Positive = Annotated[float, Field(strict=True, allow_inf_nan=False, gt=0.0)]
 Unit = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=0.0, le=1.0)]
 Index = Annotated[int, Field(strict=True, ge=0)]
-Vector3 = Annotated[list[Number], Field(min_length=3, max_length=3)]
+MAX_COORDINATE = 1000.0  # metres: no furniture or room is larger
+Coordinate = Annotated[Number, Field(ge=-MAX_COORDINATE, le=MAX_COORDINATE)]
+Vector3 = Annotated[list[Coordinate], Field(min_length=3, max_length=3)]
 
 
 def _support_names(value: Any) -> Any:
@@ -75,31 +77,34 @@ Support = Annotated[Union[str, list[str]], BeforeValidator(_support_names), Fiel
 # each fit parameter's type and bounds; its default is FitParams's
 FIT_FIELDS: dict[str, Any] = {
     "level": Annotated[int, Field(strict=True, ge=1, le=5, description="subdivision level s")],
-    "sigma": Annotated[NonNegative, Field(description="Laplacian smoothing weight")],
+    "sigma": Annotated[NonNegative, Field(le=100.0, description="Laplacian smoothing weight")],
     "tau_max": Annotated[Unit, Field(description="ceiling of the point-to-plane blend")],
     "margin": Annotated[float, Field(strict=True, allow_inf_nan=False, ge=0.0, le=0.5,
                                      description="allowed body softness, metres")],
     "fixed": Annotated[list[Index], Field(description="control vertices held near their start")],
-    "gamma": Annotated[NonNegative, Field(description="how strongly fixed vertices are held")],
+    "gamma": Annotated[NonNegative, Field(le=1e6, description="how strongly fixed vertices "
+                                                                "are held")],
     "creases": Annotated[list[Annotated[list[Index], Field(min_length=2, max_length=2)]],
                          Field(description="control edges [i, j] kept sharp")],
     "max_iterations": Annotated[int, Field(strict=True, ge=1, le=10_000)],
-    "tolerance": Annotated[NonNegative, Field(description="stop when the best energy improves "
-                                                          "less than this in 5 iterations")],
-    "anchor": Annotated[NonNegative, Field(description="weak pull of every control vertex to "
-                                                       "its start")],
-    "pull_range": Annotated[Positive, Field(description="metres: farther body points do not "
-                                                        "pull yet")],
-    "step": Annotated[Positive, Field(description="metres a control vertex may move per "
-                                                  "iteration (a trust region)")],
-    "floor": Annotated[Union[Number, None], Field(description="the floor's height y, metres: "
+    "tolerance": Annotated[NonNegative, Field(le=1.0, description="stop when the best energy "
+                                                                  "improves less than this in 5 "
+                                                                  "iterations")],
+    "anchor": Annotated[NonNegative, Field(le=1e6, description="weak pull of every control "
+                                                               "vertex to its start")],
+    "pull_range": Annotated[Positive, Field(le=100.0, description="metres: farther body "
+                                                                  "points do not pull yet")],
+    "step": Annotated[Positive, Field(le=100.0, description="metres a control vertex may "
+                                                            "move per iteration (a trust "
+                                                            "region)")],
+    "floor": Annotated[Union[Coordinate, None], Field(description="the floor's height y, metres: "
                                                   "the surface stays above it (null: no floor)")],
     "sink": Annotated[float, Field(strict=True, allow_inf_nan=False, ge=0.0, le=0.1,
                                    description="metres into the skin the surface is fitted "
                                                "to (where the foam is pressed at rest)")],
     "min_ridge_radius": Annotated[NonNegative, Field(
-        description="metres: the tightest the surface may bend away from the bodies (a solid "
-                    "up to this thick can follow it)")],
+        le=1.0, description="metres: the tightest the surface may bend away from the bodies "
+                            "(a solid up to this thick can follow it)")],
 }
 _missing = sorted({f.name for f in dataclasses.fields(FitParams)} ^ set(FIT_FIELDS))
 if _missing:  # a new fit parameter needs its bounds here (or a removed one its entry gone)
@@ -113,10 +118,11 @@ class _Model(BaseModel):
 class Grid(_Model):
     """A flat start: `resolution` quads over `size` metres (x, z), at `height` (y)."""
 
-    size: Annotated[list[Positive], Field(min_length=2, max_length=2)] = [1.2, 0.8]
+    size: Annotated[list[Annotated[Positive, Field(le=MAX_COORDINATE)]],
+                    Field(min_length=2, max_length=2)] = [1.2, 0.8]
     resolution: Annotated[list[Annotated[int, Field(strict=True, ge=1, le=200)]],
                           Field(min_length=2, max_length=2)] = [8, 6]
-    height: Number = 0.45
+    height: Coordinate = 0.45
 
 
 class InlineMesh(_Model):

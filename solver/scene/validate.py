@@ -21,6 +21,8 @@ model that predicts zero everywhere, and Pearson's r.
 
 from __future__ import annotations
 
+import errno
+
 import time
 from pathlib import Path
 from typing import Callable, Sequence
@@ -124,6 +126,9 @@ def validate_pressure(out_dir: str | Path | None = None, *, mus: Sequence[float]
         (`model_ms`), the reference's (`reference_s`), its equilibrium residual, and for the
         first model of a pose with pictures, `picture`.
     """
+    if out_dir is not None and Path(out_dir).exists() and not Path(out_dir).is_dir():
+        raise NotADirectoryError(errno.ENOTDIR, "Expected a folder for the pictures, got a "
+                                                "file", str(out_dir))  # (before the work)
     body = make_body()
     rows = []
     for pose, verts in validation_poses().items():

@@ -118,6 +118,9 @@ def test_pose_sources(tmp_path):
     from_file = pose_body(load_pose(f"bvh:{recording('cmu_75_18_high_sit.bvh')}#frame=39"), body)
     np.testing.assert_allclose(from_db.world.positions, from_file.world.positions, atol=1e-5)
     for spec, message in [("perch", "Expected a pose as"), ("db:perch", "needs a pose library"),
-                          (f"{recording('cmu_75_18_high_sit.bvh')}#frame=77", "0..76")]:
+                          (f"{recording('cmu_75_18_high_sit.bvh')}#frame=77", "0..76"),
+                          # one frame a reference (the file was read as '...bvh#frame=39')
+                          ("bvh:bundled:cmu_75_18_high_sit.bvh#frame=39#frame=2",
+                           "Expected a pose as")]:
         with pytest.raises(PoseSourceError, match=message):
             load_pose(spec)

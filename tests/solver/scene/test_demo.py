@@ -108,3 +108,12 @@ def test_the_demo_command_runs_every_stage_on_a_smaller_scene(tmp_path, capsys, 
     assert person["coverage"] > 0.5 and person["relaxed"]["coverage"] > 0.5
     # a second run into the same folder is refused
     assert main(["demo", "--out", str(out)]) != 0
+
+
+def test_the_demo_refuses_a_folder_that_holds_files(tmp_path):
+    from solver.scene.demo import DemoError, run_demo
+
+    (tmp_path / "scenario.toml").write_text("a designer's")
+    with pytest.raises(DemoError, match="is not empty: give the demo an empty or new folder"):
+        run_demo(tmp_path)
+    assert [p.name for p in tmp_path.iterdir()] == ["scenario.toml"]

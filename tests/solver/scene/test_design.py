@@ -83,6 +83,21 @@ def test_one_sitter_gets_a_chair_two_a_bench_side_by_side():
     assert scenario.surface.template.given["seat_height"] == template["seat_height"]
 
 
+@pytest.mark.parametrize("poses", [[HIGH.format(39)] * 6,
+                                   [HIGH.format(f) for f in (35, 39, 45)] +
+                                   [MEDIUM.format(f) for f in (150, 200, 250)]])
+def test_six_sitters_get_a_bench_of_six_seats_side_by_side(poses):
+    """Six copies of one pose, or six poses: a bench whose seats are each as wide as a
+    person (measured with the people side by side; all at one place they were 9 cm each,
+    under the template's least)."""
+    data, decided = design_scenario(poses)
+    template = data["surface"]["template"]
+    assert decided["template"] == "bench" and template["seats"] == 6
+    assert 0.35 < template["seat_width"] < 0.7
+    xs = np.array([p["position"][0] for p in data["person"]])
+    assert np.all(np.diff(xs) > 0.3)
+
+
 def test_lying_people_get_a_bed_they_are_lifted_onto(tmp_path):
     lying = _turned(tmp_path, STANDING.format(0), -90.0, "lying")
     data, decided = design_scenario([lying])

@@ -39,3 +39,17 @@ def test_a_fit_that_fails_leaves_the_earlier_result(tmp_path):
     with pytest.raises(Exception, match="no-such-take"):
         run_fit(broken, out, formats=("obj",), pictures=False)
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_relaxing_onto_a_surface_out_of_reach_is_refused_and_writes_nothing(tmp_path):
+    from solver.body.relax import RelaxError
+    from solver.scene.run import run_relax
+
+    fitted = tmp_path / "fitted"
+    fitted.mkdir()
+    (fitted / "surface.obj").write_text(  # a plate 50 m away from the sitter
+        "v 50 0.4 0\nv 51 0.4 0\nv 51 0.4 -1\nv 50 0.4 -1\nf 1 2 3 4\n")
+    with pytest.raises(RelaxError, match=r"entirely outside the surface's reach: its nearest "
+                                          r"supported point is 4\d\.\d\d m"):
+        run_relax(EXAMPLES / "single_seated.toml", tmp_path / "out", surface_dir=fitted)
+    assert not (tmp_path / "out").exists()

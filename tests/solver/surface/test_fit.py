@@ -141,6 +141,14 @@ pose = "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"
      r"surface.creases\[0\]: expected a whole number in 0..62, got 99"),
     (("#frame=39\"", "#frame=39\"\nposition = [0, 0]"),
      r"person\[0\].position: expected a list of 3 numbers, got \[0, 0\]"),
+    # numbers no furniture has: refused by name, not by the solver's numerics
+    (("sigma = 0.1", "sigma = 1e308"), r"surface.sigma: expected a number <= 100, got 1e\+308"),
+    (("sigma = 0.1", "gamma = 1e308"), r"surface.gamma: expected a number <= 1e\+06"),
+    (("size = [1.2, 0.8]", "size = [1e308, 0.8]"),
+     r"surface.grid.size\[0\]: expected a number <= 1000, got 1e\+308"),
+    (("height = 0.45", "height = -1e9"), r"surface.grid.height: expected a number >= -1000"),
+    (("#frame=39\"", "#frame=39\"\nposition = [0, 1e300, 0]"),
+     r"person\[0\].position\[1\]: expected a number <= 1000"),
 ])
 def test_bad_scenarios_name_the_field(tmp_path, edit, message):
     path = tmp_path / "s.toml"
@@ -192,6 +200,19 @@ def test_non_quad_control_mesh_is_refused(tmp_path):
         "grid = { size = [1.2, 0.8], resolution = [8, 6], height = 0.45 }",
         "control_mesh = 'tri.obj'"))
     with pytest.raises(ScenarioError, match="tri.obj:4: expected a quad control mesh"):
+        load_scenario(path)
+
+
+@pytest.mark.parametrize("value", ["nan", "1e308"])
+def test_a_control_mesh_file_with_a_coordinate_out_of_bounds_is_refused(tmp_path, value):
+    (tmp_path / "quad.obj").write_text(f"v 0 0.4 0\nv 1 0.4 0\nv 1 0.4 {value}\nv 0 0.4 1\n"
+                                       "f 1 2 3 4\n")
+    path = tmp_path / "s.toml"
+    path.write_text(SCENARIO.replace(
+        "grid = { size = [1.2, 0.8], resolution = [8, 6], height = 0.45 }",
+        "control_mesh = 'quad.obj'"))
+    with pytest.raises(ScenarioError, match=r"surface.control_mesh: quad.obj: expected vertex "
+                                            r"coordinates within 1000 m, got .* \(vertex 3\)$"):
         load_scenario(path)
 
 
