@@ -416,7 +416,55 @@ def _trimmed(v: np.ndarray, tris: np.ndarray, offset: np.ndarray, t: float,
     out_v, out_t, fixed = _mend(out_v, out_t, fixed, surface, boundary_edges(tris), t)
     out_v, out_t, fixed = _collapse_tiny(out_v, out_t, fixed)
     out_v = _part_touching(out_v, out_t, fixed)
+    out_v, out_t, fixed = _unsliver(out_v, out_t, fixed)
     return _surface_first(v, tris, out_v, out_t, t, int(unsound.sum()))
+
+
+SLIVER_HEIGHT = 1e-6  # m: a triangle of the trimmed solid lower than this is taken away
+SLIVER_EDGE = 1e-4  # m: ... by collapsing its shortest edge when that is shorter than this
+SLIVER_ROUNDS = 8
+
+
+def _unsliver(vertices: np.ndarray, triangles: np.ndarray, fixed: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The slivers where merged pieces meet taken away: a triangle under `SLIVER_HEIGHT` high
+    (a cap: its third corner lies on its longest edge) has that edge flipped with the triangle
+    across it (`_flip_caps`, which leaves the shape as it was: the corner lies in both
+    triangles' plane), or, where the flip would turn a face over (the corner lies within a
+    fraction of a millimetre of an end of the edge, among more slivers), its shortest edge
+    collapsed when shorter than `SLIVER_EDGE` (`_collapse`: manifold, no face turned by more
+    than 60 degrees, a `fixed` vertex kept in place); up to `SLIVER_ROUNDS` rounds. The
+    surface's own triangles (three corners `fixed`) are never flipped. Written in single
+    precision, a sliver's normal can turn over, and readers that merge corners find
+    zero-volume pieces. Returns the vertices, the triangles and which of them are `fixed`."""
+    def slivers():
+        corners = vertices[triangles]
+        cross = face_cross(vertices, triangles)
+        sides = np.linalg.norm(np.roll(corners, -1, axis=1) - corners, axis=2)
+        low = (np.linalg.norm(cross, axis=1) < SLIVER_HEIGHT * sides.max(axis=1)) & \
+            ~fixed[triangles].all(axis=1)
+        return np.flatnonzero(low), cross, sides
+
+    for _ in range(SLIVER_ROUNDS):
+        low, cross, _ = slivers()
+        if not len(low):
+            break
+        flipped = _flip_caps(vertices, triangles, low, cross, held=fixed[triangles].all(axis=1))
+        low, _, sides = slivers()  # (those the flips could not take)
+        k = sides[low].argmin(axis=1)  # edge k runs from corner k to corner k + 1
+        span = sides[low, k]
+        rows = triangles[low]
+        pairs = np.stack([rows[np.arange(len(k)), k], rows[np.arange(len(k)), (k + 1) % 3]],
+                         axis=1)[span < SLIVER_EDGE]
+        keep = np.ones(len(vertices), dtype=bool)
+        if len(pairs):
+            vertices, triangles, keep, _ = _collapse(
+                vertices, triangles, pairs[np.argsort(span[span < SLIVER_EDGE])], fixed,
+                np.zeros((len(triangles), 3)))
+            fixed = fixed[keep]
+        if not flipped and keep.all():
+            break
+    return vertices, triangles, fixed
 
 
 MEND_ROUNDS = 4
@@ -688,11 +736,11 @@ def _snap(vertices: np.ndarray, triangles: np.ndarray, target: np.ndarray,
 
 
 def _flip_caps(moved: np.ndarray, triangles: np.ndarray, faces: np.ndarray,
-               start: np.ndarray) -> bool:
+               start: np.ndarray, held: np.ndarray | None = None) -> bool:
     """Flips the longest edge of each of `faces` that is a cap (an angle over 150 degrees)
     where the two triangles made across the other diagonal face, with the moved corners,
-    within 60 degrees of where the old two faced (`start`, updated); in place. Returns
-    whether any edge flipped."""
+    within 60 degrees of where the old two faced (`start`, updated), and neither is `held`
+    (a mask over the triangles); in place. Returns whether any edge flipped."""
     n = len(moved)
     corners = moved[triangles[faces]]
     sides = np.linalg.norm(np.roll(corners, -1, axis=1) - corners, axis=2)  # edge k: k -> k+1
@@ -715,6 +763,8 @@ def _flip_caps(moved: np.ndarray, triangles: np.ndarray, faces: np.ndarray,
         if len(across) != 1 or face in touched or across[0] in touched:
             continue
         other = across[0]
+        if held is not None and (held[face] or held[other]):
+            continue
         apex = int(np.setdiff1d(triangles[other], [p, q])[0])
         diagonal = min(r, apex) * n + max(r, apex)
         if diagonal in made or np.searchsorted(keys, diagonal + 1) > np.searchsorted(

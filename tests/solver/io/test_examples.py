@@ -87,16 +87,18 @@ def test_fit_writes_solid_reach_and_drawings(tmp_path):
     assert abs(fab["solid"]["thickness_max_m"] - WORKSHOP) <= THICKNESS_TOLERANCE
     assert (out / files["scene_3dm"]).exists()
     surface = trimesh.load(out / "surface.obj", process=False).vertices
+    solid = trimesh.load(out / "solid.stl")  # (millimetres, Z up)
+    assert solid.is_watertight
+    # the drawing dimensions what the workshop makes, the solid, as the STL has it
     doc = ezdxf.readfile(out / "overall.dxf")
     measured = sorted(d.get_measurement() for d in doc.modelspace().query("DIMENSION"))
-    box = np.ptp(surface, axis=0) * 1000
-    assert measured == pytest.approx(sorted([box[0], box[2], surface[:, 1].max() * 1000]),
-                                     abs=0.01)
+    box = np.ptp(solid.vertices, axis=0)
+    assert measured == pytest.approx(sorted([box[0], box[1], solid.bounds[1][2]]), abs=0.01)
+    assert fab["dimensions_of"] == "solid"
+    assert fab["dimensions_mm"]["depth_mm"] == pytest.approx(box[1], abs=0.01)
     section = ezdxf.readfile(out / "section_1_sagittal.dxf").modelspace()
     assert len(section.query("LWPOLYLINE[layer=='BODY']")) >= 1
     assert len(section.query("DIMENSION")) == 2
-    solid = trimesh.load(out / "solid.stl")
-    assert solid.is_watertight
     # the surface is the solid's top face; where it overhangs (a rim curled over), its offset
     # may reach above it, by less than the thickness
     top = surface[:, 1].max() * 1000
