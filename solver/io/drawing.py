@@ -286,15 +286,20 @@ def overall_dimensions(vertices: np.ndarray) -> dict:
 
 def silhouette(points: np.ndarray, triangles: np.ndarray) -> list[np.ndarray]:
     """The outline of a mesh seen along its points' third axis: what its triangles cover in
-    the plane of the first two, as closed loops. A closed manifold mesh is projected by
-    manifold3d (`Manifold.project`, fast on large solids); any other, such as a surface, is the
-    union of its projected triangles (manifold3d's polygon clipping).
+    the plane of the first two, as closed loops.
+
+    The triangles facing the viewer form regions, as do those facing away; each region's
+    projection is what its border loops (the region's own faces' direction, reversed for a
+    region facing away) enclose with a positive winding number, so the union of all of them
+    (manifold3d's polygon clipping, positive fill) is what the mesh covers: from a few
+    thousand border edges, not from every triangle (a 300,000-triangle bench takes a fraction
+    of a second). Triangles seen edge-on cover nothing and count on either side.
 
     Parameters
     ----------
     points : (N, 3) float
         The vertices in the drawing's frame: the first two axes the drawing's, the third
-        towards the viewer (a rotation of the scene, so that a solid stays a solid).
+        towards the viewer.
     triangles : (F, 3) int, or (F, 4) quads (split along their 0-2 diagonal)
 
     Returns
@@ -308,20 +313,41 @@ def silhouette(points: np.ndarray, triangles: np.ndarray) -> list[np.ndarray]:
     if t.ndim == 2 and t.shape[1] == 4:
         t = quad_triangles(t)
     p = np.asarray(points, dtype=np.float64)
-    solid = manifold3d.Manifold(manifold3d.Mesh(vert_properties=p.astype(np.float32),
-                                                tri_verts=t.astype(np.uint32)))
-    if solid.status() == manifold3d.Error.NoError and solid.num_tri() == len(t):
-        union = solid.project()
-    else:
-        corners = p[t][:, :, :2]  # (F, 3, 2)
-        edge1, edge2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
-        area = edge1[:, 0] * edge2[:, 1] - edge1[:, 1] * edge2[:, 0]
-        # each triangle counter-clockwise (one seen from behind counts as much), those seen
-        # edge-on left out (they cover nothing)
-        corners = np.where((area < 0)[:, None, None], corners[:, ::-1], corners)
-        shown = corners[np.abs(area) > 1e-12 * max(float(np.ptp(corners)) ** 2, 1e-300)]
-        union = manifold3d.CrossSection(list(shown), manifold3d.FillRule.Positive)
+    corners = p[t][:, :, :2]
+    edge1, edge2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    facing = edge1[:, 0] * edge2[:, 1] - edge1[:, 1] * edge2[:, 0] >= 0.0
+    loops = []
+    for side in (facing, ~facing):
+        tris = t[side] if side is facing else t[side][:, ::-1]  # (away: turned round)
+        loops += _border_loops(tris, len(p))
+    union = manifold3d.CrossSection([p[loop, :2] for loop in loops if len(loop) > 2],
+                                    manifold3d.FillRule.Positive)
     return [np.concatenate([loop, loop[:1]]) for loop in union.to_polygons() if len(loop) > 2]
+
+
+def _border_loops(tris: np.ndarray, n: int) -> list[np.ndarray]:
+    """The closed loops of vertex indices that border a set of triangles (F, 3), each edge in
+    its triangle's direction: the directed edges whose reverse no triangle of the set has,
+    chained end to start (at a vertex where several loops meet, any continuation closes a
+    loop)."""
+    if not len(tris):
+        return []
+    edges = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
+    forward = edges[:, 0] * n + edges[:, 1]
+    backward = edges[:, 1] * n + edges[:, 0]
+    border = edges[~np.isin(forward, backward)]
+    following: dict[int, list[int]] = {}
+    for a, b in border.tolist():
+        following.setdefault(a, []).append(b)
+    loops = []
+    for start in list(following):
+        while following.get(start):
+            loop, here = [start], following[start].pop()
+            while here != start and following.get(here):
+                loop.append(here)
+                here = following[here].pop()
+            loops.append(np.array(loop))
+    return loops
 
 
 def write_overall_dxf(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray,
