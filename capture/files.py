@@ -119,28 +119,54 @@ def replace_results(stage: Path, folder: Path, stale: Iterable[str] = (),
     left alone. Only plain names of files are removed (no folder, nothing outside `folder`)."""
     made = sorted((p for p in stage.iterdir() if p.is_file()),
                   key=lambda p: (p.name == last, p.name))
-    backup = Path(tempfile.mkdtemp(prefix=f"{STAGE_PREFIX}{os.getpid()}-old-", dir=folder))
-    done = []  # the names moved (folder's own file of that name, if any, now in backup)
-    try:
-        for path in made:
-            if (folder / path.name).exists():
-                os.replace(folder / path.name, backup / path.name)
-            done.append(path.name)
-            os.replace(path, folder / path.name)
-    except BaseException:
-        for name in reversed(done):
-            if not (stage / name).exists() and (folder / name).exists():
-                os.replace(folder / name, stage / name)
-            if (backup / name).exists():
-                os.replace(backup / name, folder / name)
-        raise
-    finally:
-        shutil.rmtree(backup, ignore_errors=True)
+    for path in made:  # (a folder of the user's is never moved aside, nor lost with it)
+        if (folder / path.name).is_dir() and not (folder / path.name).is_symlink():
+            raise IsADirectoryError(errno.EISDIR, "Expected a file name, got a folder",
+                                    str(folder / path.name))
+    with _interrupt_deferred():  # (moving in or back is never cut short half-way)
+        backup = Path(tempfile.mkdtemp(prefix=f"{STAGE_PREFIX}{os.getpid()}-old-",
+                                       dir=folder))
+        done = []  # the names moved (folder's own file of that name, if any, now in backup)
+        try:
+            for path in made:
+                if os.path.lexists(folder / path.name):
+                    os.replace(folder / path.name, backup / path.name)
+                done.append(path.name)
+                os.replace(path, folder / path.name)
+        except BaseException:
+            for name in reversed(done):
+                if not (stage / name).exists() and os.path.lexists(folder / name):
+                    os.replace(folder / name, stage / name)
+                if os.path.lexists(backup / name):
+                    os.replace(backup / name, folder / name)
+            raise
+        finally:
+            shutil.rmtree(backup, ignore_errors=True)
     written = {p.name for p in made}
     for name in set(stale) - written:
         old = folder / name
         if name == Path(name).name and not name.startswith(".") and old.is_file():
             old.unlink(missing_ok=True)
+
+
+@contextmanager
+def _interrupt_deferred() -> Iterator[None]:
+    """Ctrl-C (SIGINT) held back while the block runs and raised as KeyboardInterrupt once it
+    has ended (from the main thread; elsewhere the block runs as it is)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught = []
+    before = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, before)
+    if caught:
+        raise KeyboardInterrupt
 
 
 def _drop_orphans(folder: Path) -> None:

@@ -441,7 +441,7 @@ def _register_fitting(sub) -> None:
     batch.add_argument("--workers", type=number(1, 256, whole=True), default=2,
                        help="local worker processes (default 2)")
     batch.add_argument("--scheduler", help="an existing Dask scheduler, tcp://HOST:8786")
-    batch.add_argument("--job-time-limit", type=number(0, low_open=True), default=1800.0,
+    batch.add_argument("--job-time-limit", type=number(0, 1e6, low_open=True), default=1800.0,
                        metavar="SECONDS",
                        help="a job running longer is stopped and recorded as timed out "
                             "(default 1800)")

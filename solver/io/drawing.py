@@ -327,15 +327,22 @@ def silhouette(points: np.ndarray, triangles: np.ndarray) -> list[np.ndarray]:
 
 def _border_loops(tris: np.ndarray, n: int) -> list[np.ndarray]:
     """The closed loops of vertex indices that border a set of triangles (F, 3), each edge in
-    its triangle's direction: the directed edges whose reverse no triangle of the set has,
-    chained end to start (at a vertex where several loops meet, any continuation closes a
-    loop)."""
+    its triangle's direction: the directed edges used more often than their reverse (as
+    often as that), chained end to start (at a vertex where several loops meet, any
+    continuation closes a loop)."""
+    tris = tris[(tris[:, 0] != tris[:, 1]) & (tris[:, 1] != tris[:, 2]) &
+                (tris[:, 2] != tris[:, 0])]  # (one with a corner twice covers nothing)
     if not len(tris):
         return []
     edges = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
-    forward = edges[:, 0] * n + edges[:, 1]
-    backward = edges[:, 1] * n + edges[:, 0]
-    border = edges[~np.isin(forward, backward)]
+    # each directed edge as often as it is used more than its reverse (an edge three faces
+    # share borders the region once, whichever comes first)
+    keys, counts = np.unique(edges[:, 0] * n + edges[:, 1], return_counts=True)
+    reverse = (keys % n) * n + keys // n
+    at = np.minimum(np.searchsorted(keys, reverse), len(keys) - 1)
+    against = np.where(keys[at] == reverse, counts[at], 0)
+    extra = np.maximum(counts - against, 0)
+    border = np.repeat(np.stack([keys // n, keys % n], axis=1), extra, axis=0)
     following: dict[int, list[int]] = {}
     for a, b in border.tolist():
         following.setdefault(a, []).append(b)

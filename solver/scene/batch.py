@@ -459,7 +459,7 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *,
             futures = [client.submit(run_job, job, db_path, str(out.resolve()), time_limit,
                                      key=f"sitrelax-job-{job.id}", pure=False, retries=2)
                        for job in todo]
-            for future in _completed(as_completed(futures), out, jobs, rows):
+            for future in as_completed(futures):
                 row = future.result()
                 rows[row["job"]] = row
                 counts["done" if row["status"] == "ok" else "failed"] += 1
@@ -470,6 +470,12 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *,
                     elapsed = time.perf_counter() - start
                     progress({**counts, "elapsed_s": elapsed,
                               "left_s": elapsed / finished * counts["running"]})
+        except KeyboardInterrupt:  # (Ctrl-C: the jobs finished so far, the others interrupted)
+            _write_summary(out, [rows.get(job.id) or {
+                "job": job.id, "scenario": job.scenario, "parameters": job.parameters,
+                "status": "interrupted", "error": "the batch was interrupted before it finished"}
+                for job in jobs])
+            raise
         finally:
             client.close()
             if cluster is not None:
@@ -479,20 +485,6 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *,
     stored = _store(db_path, jobs, ordered, out) if (db_path and store) else []
     return {"out": str(out), "jobs": ordered, "counts": counts, "stored": stored,
             "seconds": time.perf_counter() - start}
-
-
-def _completed(futures, out: Path, jobs: Sequence[Job], rows: dict):
-    """The finished futures as they come; interrupted (Ctrl-C), the summary of the jobs
-    finished so far is written (the others "interrupted": a re-run runs them), and the
-    interrupt goes on."""
-    try:
-        yield from futures
-    except KeyboardInterrupt:
-        _write_summary(out, [rows.get(job.id) or {
-            "job": job.id, "scenario": job.scenario, "parameters": job.parameters,
-            "status": "interrupted", "error": "the batch was interrupted before it finished"}
-            for job in jobs])
-        raise
 
 
 def _write_summary(out: Path, rows: list[dict]) -> None:

@@ -169,20 +169,30 @@ def run_design(poses: Sequence[str], out_dir: str | os.PathLike, *,
     (`solver.scene.quality`); "design" says what was tried (`waterfall`).
 
     Returns the report as written. Raises DesignError (see `design_scenario`)."""
+    from solver.scene.run import previous_results
+
     say = progress or (lambda message: None)
-    with made_folder(out_dir) as out:  # (gone again if no scenario can be designed)
+    with made_folder(out_dir) as out:  # (gone again if nothing can be designed or fitted)
         absolute = [_absolute(p) for p in poses]
         data, decisions = design_scenario(absolute, db)
-    say(f"{', '.join(decisions['postures'])}: a {decisions['template']}")
-    header = (f"# sitrelax design {' '.join(poses)}\n# postures: "
-              f"{', '.join(decisions['postures'])}; template: {decisions['template']}\n")
-    for stale in [*out.glob(".waterfall-*"), *out.glob(".straight-*")]:
-        shutil.rmtree(stale, ignore_errors=True)  # an earlier run's unfinished second try
-    report = _fit_design(out, header, data, db, say, pictures)
-    designed = {**decisions, "poses": list(poses), "scenario_file": "scenario.toml",
-                "waterfall": None}
-    report["design"] = designed
-    _write_report(out, report)  # (complete before any second try: it may not finish)
+        say(f"{', '.join(decisions['postures'])}: a {decisions['template']}")
+        header = (f"# sitrelax design {' '.join(poses)}\n# postures: "
+                  f"{', '.join(decisions['postures'])}; template: {decisions['template']}\n")
+        for stale in [*out.glob(".waterfall-*"), *out.glob(".straight-*")]:
+            shutil.rmtree(stale, ignore_errors=True)  # an earlier run's unfinished try
+        designed = {**decisions, "poses": list(poses), "scenario_file": "scenario.toml",
+                    "waterfall": None}
+        # the design whole, scenario.toml and report.json with it, in place of an earlier
+        # one only once complete; and complete before any second try (it may not finish)
+        stage = Path(tempfile.mkdtemp(prefix=".straight-", dir=out))
+        try:
+            report = _fit_design(stage, header, data, db, say, pictures)
+            report["scenario"] = str(out / "scenario.toml")
+            report["design"] = designed
+            _write_report(stage, report)
+            replace_results(stage, out, previous_results(out), "report.json")
+        finally:
+            shutil.rmtree(stage, ignore_errors=True)
     if decisions["template"] in ("chair", "bench") and _on_calves(report):
         tried, kept = _try_waterfall(out, header, data, db, report, designed, say, pictures)
         if kept is not None:  # (in place, with its report, already)

@@ -412,15 +412,20 @@ SURFACE_FORMATS = ("obj", "ply", "glb", "3dm")
 
 def previous_results(folder: Path, listing: type = dict) -> set[str]:
     """The files of the result written into `folder` before: report.json and the names its
-    "files" lists, when that is a `listing` (`run_fit`'s and `sitrelax design`'s a dict,
-    `run_relax`'s a list: neither command removes the other's); none without a readable
-    report."""
+    "files" lists (none without a readable report). `listing`: what the command's report
+    lists its files in (`run_fit`'s and `sitrelax design`'s a dict, `run_relax`'s a list); a
+    folder holding the other command's result is refused (ValueError): its report.json would
+    be replaced and its files mixed with these."""
     try:
         report = json.loads((folder / "report.json").read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return set()
-    if not isinstance(report, dict) or not isinstance(report.get("files"), listing):
+    if not isinstance(report, dict) or not isinstance(report.get("files"), (dict, list)):
         return set()
+    if not isinstance(report["files"], listing):
+        held = "a relaxation's" if isinstance(report["files"], list) else "a fit's"
+        raise ValueError(f"{folder} holds {held} results (its report.json): give this command "
+                         f"a folder of its own (--out)")
     names = {"report.json"}
 
     def collect(value) -> None:

@@ -123,7 +123,8 @@ def test_replacing_is_undone_when_a_move_fails(tmp_path, monkeypatch):
             raise OSError("disk full")
         real(src, dst)
 
-    stale = {"a.obj", "old.png", "report.json", "../elsewhere.txt", ".hidden"}
+    stale = {"a.obj", "old.png", "report.json", "../elsewhere.txt", ".hidden",
+             "x/../../elsewhere.txt"}
     monkeypatch.setattr(files.os, "replace", failing)
     with pytest.raises(OSError, match="disk full"):
         replace_results(stage, out, stale, "report.json")
@@ -163,3 +164,43 @@ def test_write_atomic_names_the_file_asked_for_in_a_folder_it_may_not_write(tmp_
     with pytest.raises(PermissionError) as caught:
         write_atomic(tmp_path / "surface.obj", b"")
     assert caught.value.filename == str(tmp_path / "surface.obj")
+
+
+def test_a_folder_of_the_user_s_named_as_a_result_file_is_refused_and_kept(tmp_path):
+    out = tmp_path / "out"
+    previous = _earlier(out)
+    (out / "sections.png").mkdir()
+    (out / "sections.png" / "my_drawing.svg").write_text("the user's")
+    with pytest.raises(IsADirectoryError) as caught:
+        with results_folder(out, previous, "report.json") as stage:
+            for name in ("a.obj", "sections.png", "report.json"):
+                (stage / name).write_text("new")
+    assert caught.value.filename == str(out / "sections.png")
+    assert (out / "sections.png" / "my_drawing.svg").read_text() == "the user's"
+    assert (out / "a.obj").read_text() == "old" and (out / "report.json").read_text() == "old"
+    assert not [p for p in out.iterdir() if p.name.startswith(STAGE_PREFIX)]
+
+
+def test_an_interrupt_while_the_files_move_in_waits_until_they_have(tmp_path, monkeypatch):
+    """Ctrl-C arriving while the results move in (here: raised by the first move's signal)
+    ends the command only once every file is in place: never half the new result."""
+    import signal
+
+    stage, out = tmp_path / "stage", tmp_path / "out"
+    stage.mkdir()
+    out.mkdir()
+    for name in ("a.obj", "b.obj", "report.json"):
+        (stage / name).write_text("new")
+    (out / "a.obj").write_text("old")
+    real, moves = os.replace, []
+
+    def interrupted(src, dst):
+        moves.append(dst)
+        if len(moves) == 1:
+            os.kill(os.getpid(), signal.SIGINT)
+        real(src, dst)
+
+    monkeypatch.setattr(files.os, "replace", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        replace_results(stage, out, (), "report.json")
+    assert _contents(out) == {"a.obj": "new", "b.obj": "new", "report.json": "new"}

@@ -167,3 +167,31 @@ def test_overall_dxf_outlines_what_the_mesh_covers_from_above_and_the_side(tmp_p
     assert elevation[:, 1].min() == pytest.approx(mm[:, 1].min(), abs=0.01)
     assert elevation[:, 1].max() == pytest.approx(500.0, abs=0.01)
     assert mm[:, 1].min() == pytest.approx(390.0 if solid else 400.0, abs=0.01)
+
+
+def _outline_area(loops):
+    """The area the outlines enclose (outer loops counter-clockwise, holes clockwise)."""
+    return sum(0.5 * float(np.sum(lp[:-1, 0] * lp[1:, 1] - lp[1:, 0] * lp[:-1, 1]))
+               for lp in loops)
+
+
+@pytest.mark.parametrize("order", [[0, 1, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]])
+def test_silhouette_of_three_triangles_on_one_edge_is_their_union_in_any_order(order):
+    """Two triangles either side of an edge and a third standing on it, seen from above:
+    the outline is the two lower ones' rhombus (area 1), whatever order they come in (an edge
+    used three times borders the region once)."""
+    from solver.io.drawing import silhouette
+
+    points = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -1, 0], [0.5, 0.5, 1.0]])
+    tris = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]])[order]
+    assert _outline_area(silhouette(points, tris)) == pytest.approx(1.0)
+
+
+def test_silhouette_ignores_a_triangle_with_a_corner_twice():
+    """A quad stored with a corner twice (a triangle) beside a unit square: the outline is
+    the square and that triangle (area 1.5), not nothing."""
+    from solver.io.drawing import silhouette
+
+    points = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0]], dtype=float)
+    loops = silhouette(points, np.array([[0, 1, 2, 3], [1, 4, 2, 2]]))
+    assert _outline_area(loops) == pytest.approx(1.5)

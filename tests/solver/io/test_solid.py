@@ -75,11 +75,12 @@ def test_offset_deeper_than_a_ridge_radius_is_trimmed_into_a_sound_solid(ridge, 
     area = voronoi_areas(vertices, quad_triangles(quads)).sum()
     assert 0.7 * thickness * area < check.volume_m3 < thickness * area
     # few slivers where the merged pieces meet (under 1 um high: 327 of 3,840 triangles at
-    # 2 cm before they were flipped and collapsed away, 67 of 3,652 after)
+    # 2 cm and 1,227 of 7,262 at 3 cm before they were flipped and collapsed away, 67 of 3,652
+    # and 353 of 6,662 after)
     corners = solid.vertices[solid.triangles]
     longest = np.linalg.norm(np.roll(corners, -1, axis=1) - corners, axis=2).max(axis=1)
     low = 2 * mesh.area_faces / longest < 1e-6
-    assert low.sum() < 0.25 * solid.trimmed, (low.sum(), solid.trimmed)
+    assert low.sum() < 0.07 * len(solid.triangles), (low.sum(), len(solid.triangles))
 
 
 def test_crossing_triangles_are_found_and_neighbours_are_not():

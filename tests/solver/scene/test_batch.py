@@ -68,9 +68,9 @@ def test_batch_runs_records_failures_stores_and_skips(library, tmp_path, capsys)
     result = json.loads(capsys.readouterr().out)
     assert result["counts"] == {"total": 4, "skipped": 0, "done": 4, "failed": 0,
                                 "timed_out": 0, "running": 0}
-    # a broken file among good ones: recorded, the rest done
+    # a broken file among good ones: recorded, the rest done (status 1: a job failed)
     assert main(["batch", str(broken), str(EXAMPLES / "single_seated.toml"), "--out",
-                 str(tmp_path / "mixed"), "--workers", "1", "--json"]) == 0
+                 str(tmp_path / "mixed"), "--workers", "1", "--json"]) == 1
     mixed = json.loads(capsys.readouterr().out)
     status = {Path(r["scenario"]).name: r for r in mixed["jobs"]}
     assert status["single_seated.toml"]["status"] == "ok"
@@ -119,7 +119,7 @@ def test_a_batch_on_one_local_worker_records_a_failure_stores_and_skips(library,
     out = tmp_path / "out"
     good = str(EXAMPLES / "single_seated.toml")
     assert main(["batch", str(broken), good, "--db", str(library), "--out", str(out),
-                 "--workers", "1", "--json"]) == 0
+                 "--workers", "1", "--json"]) == 1  # (a job failed)
     result = json.loads(capsys.readouterr().out)
     assert result["counts"] == {"total": 2, "skipped": 0, "done": 1, "failed": 1,
                                 "timed_out": 0, "running": 0}

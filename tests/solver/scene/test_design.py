@@ -303,7 +303,7 @@ def test_no_second_fit_when_no_calves_tuck_under_the_front(tmp_path, monkeypatch
     monkeypatch.setattr(design, "_misses", lambda report: report["misses"])
     monkeypatch.setattr(furnish, "WATERFALL", 0.0)  # (the measure gives no drop)
     report = design.run_design([MEDIUM.format(200)], tmp_path / "out", pictures=False)
-    assert fits == ["out"]
+    assert len(fits) == 1 and fits[0].startswith(".straight-")  # (then moved in whole)
     assert report["design"]["waterfall"] == {"front_drop_m": 0.0, "misses_before": 2,
                                              "kept": False, "straight_fit_s": None}
 
@@ -334,3 +334,25 @@ def test_the_first_design_is_complete_before_the_second_try(tmp_path, monkeypatc
     assert sorted(p.name for p in out.iterdir()) == ["report.json", "scenario.toml",
                                                       "surface.obj"]
 
+
+
+def test_a_design_whose_fit_fails_leaves_the_earlier_design_as_it_was(tmp_path, monkeypatch):
+    """An earlier design in the folder; the new one's fit fails: its scenario.toml, report
+    and files are the earlier design's still, nothing of the new one mixed in."""
+    import solver.scene.design as design
+    import solver.scene.run as run
+    from solver.surface.fit import FitError
+
+    out = tmp_path / "out"
+    out.mkdir()
+    for name in ("scenario.toml", "control.obj", "report.json"):
+        (out / name).write_text("earlier")
+
+    def failing(path, out, **_):
+        raise FitError("no fit")
+
+    monkeypatch.setattr(run, "run_fit", failing)
+    with pytest.raises(FitError):
+        design.run_design([MEDIUM.format(200)], out, pictures=False)
+    assert {p.name: p.read_text() for p in out.iterdir()} == {
+        "scenario.toml": "earlier", "control.obj": "earlier", "report.json": "earlier"}

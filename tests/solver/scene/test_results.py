@@ -53,3 +53,14 @@ def test_relaxing_onto_a_surface_out_of_reach_is_refused_and_writes_nothing(tmp_
                                           r"supported point is 4\d\.\d\d m"):
         run_relax(EXAMPLES / "single_seated.toml", tmp_path / "out", surface_dir=fitted)
     assert not (tmp_path / "out").exists()
+
+
+def test_a_relaxation_into_a_fit_s_folder_is_refused_and_the_fit_kept(tmp_path):
+    from solver.scene.run import run_relax
+
+    out = tmp_path / "out"
+    run_fit(EXAMPLES / "single_seated.toml", out, formats=("obj",), pictures=False)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    with pytest.raises(ValueError, match="holds a fit's results .* a folder of its own"):
+        run_relax(EXAMPLES / "single_seated.toml", out, surface_dir=out)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
