@@ -102,16 +102,22 @@ def test_a_killed_run_s_hidden_folder_goes_with_the_next_run(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([alive.name, "report.json"])
 
 
-def test_replacing_is_undone_when_a_move_fails(tmp_path, monkeypatch):
-    """`replace_results` with its fourth move failing: the folder is as it was (the earlier
-    result's stale file and the user's own file untouched), the new files are back in the
-    stage, and a second go moves them all, report.json last, and drops the stale file."""
+def _new_over_old(tmp_path):
+    """A stage holding a new a.obj, b.obj and report.json, and a folder holding an old a.obj."""
     stage, out = tmp_path / "stage", tmp_path / "out"
     stage.mkdir()
     out.mkdir()
     for name in ("report.json", "a.obj", "b.obj"):
         (stage / name).write_text("new")
     (out / "a.obj").write_text("old")
+    return stage, out
+
+
+def test_replacing_is_undone_when_a_move_fails(tmp_path, monkeypatch):
+    """`replace_results` with its fourth move failing: the folder is as it was (the earlier
+    result's stale file and the user's own file untouched), the new files are back in the
+    stage, and a second go moves them all, report.json last, and drops the stale file."""
+    stage, out = _new_over_old(tmp_path)
     (out / "report.json").write_text("old")
     (out / "old.png").write_text("old")
     (out / "notes.txt").write_text("the user's")
@@ -186,12 +192,7 @@ def test_an_interrupt_while_the_files_move_in_waits_until_they_have(tmp_path, mo
     ends the command only once every file is in place: never half the new result."""
     import signal
 
-    stage, out = tmp_path / "stage", tmp_path / "out"
-    stage.mkdir()
-    out.mkdir()
-    for name in ("a.obj", "b.obj", "report.json"):
-        (stage / name).write_text("new")
-    (out / "a.obj").write_text("old")
+    stage, out = _new_over_old(tmp_path)
     real, moves = os.replace, []
 
     def interrupted(src, dst):
