@@ -114,11 +114,14 @@ def replace_results(stage: Path, folder: Path, stale: Iterable[str] = (),
                     last: str | None = None) -> None:
     """Moves every file of `stage` into `folder`, in place of the file of the same name, `last`
     the last; then removes the files of `folder` named in `stale` (an earlier result's) that
-    `stage` did not hold. Should a move fail or be interrupted, every file moved so far goes
-    back where it was, in `stage` or in `folder` (and the error is raised); `stale` is then
-    left alone. Only plain names of files are removed (no folder, nothing outside `folder`)."""
+    `stage` did not hold and that nobody changed since that result was written (none newer
+    than its `last`, written after them: a file the user edited stays). Should a move fail or
+    be interrupted, every file moved so far goes back where it was, in `stage` or in
+    `folder` (and the error is raised); `stale` is then left alone. Only plain names of files
+    are removed (no folder, nothing outside `folder`)."""
     made = sorted((p for p in stage.iterdir() if p.is_file()),
                   key=lambda p: (p.name == last, p.name))
+    written_until = _mtime(folder / last) if last is not None else None
     for path in made:  # (a folder of the user's is never moved aside, nor lost with it)
         if (folder / path.name).is_dir() and not (folder / path.name).is_symlink():
             raise IsADirectoryError(errno.EISDIR, "Expected a file name, got a folder",
@@ -145,8 +148,17 @@ def replace_results(stage: Path, folder: Path, stale: Iterable[str] = (),
     written = {p.name for p in made}
     for name in set(stale) - written:
         old = folder / name
-        if name == Path(name).name and not name.startswith(".") and old.is_file():
+        if name == Path(name).name and not name.startswith(".") and old.is_file() and \
+                (written_until is None or _mtime(old) <= written_until):
             old.unlink(missing_ok=True)
+
+
+def _mtime(path: Path) -> float | None:
+    """When `path` was last written (None when there is no such file)."""
+    try:
+        return path.stat().st_mtime
+    except OSError:
+        return None
 
 
 @contextmanager

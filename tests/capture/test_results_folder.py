@@ -118,8 +118,10 @@ def test_replacing_is_undone_when_a_move_fails(tmp_path, monkeypatch):
     result's stale file and the user's own file untouched), the new files are back in the
     stage, and a second go moves them all, report.json last, and drops the stale file."""
     stage, out = _new_over_old(tmp_path)
-    (out / "report.json").write_text("old")
     (out / "old.png").write_text("old")
+    (out / "report.json").write_text("old")  # (an earlier result's report: written last)
+    os.utime(out / "report.json", (1e9 + 10, 1e9 + 10))
+    os.utime(out / "old.png", (1e9, 1e9))
     (out / "notes.txt").write_text("the user's")
     real, moves = os.replace, []
 
@@ -205,3 +207,19 @@ def test_an_interrupt_while_the_files_move_in_waits_until_they_have(tmp_path, mo
     with pytest.raises(KeyboardInterrupt):
         replace_results(stage, out, (), "report.json")
     assert _contents(out) == {"a.obj": "new", "b.obj": "new", "report.json": "new"}
+
+
+def test_a_file_of_the_earlier_result_the_user_changed_since_stays(tmp_path):
+    """The earlier result's old.png, edited after its report.json was written (a designer's
+    own version of it), is not the result's any more: a new result that does not write it
+    leaves it; its a.obj, untouched since, goes."""
+    out = tmp_path / "out"
+    previous = _earlier(out)
+    os.utime(out / "report.json", (1e9 + 10, 1e9 + 10))
+    os.utime(out / "a.obj", (1e9, 1e9))
+    (out / "old.png").write_text("the user's version")
+    os.utime(out / "old.png", (1e9 + 20, 1e9 + 20))
+    with results_folder(out, previous, "report.json") as stage:
+        (stage / "report.json").write_text("new")
+    assert _contents(out) == {"old.png": "the user's version", "report.json": "new",
+                              "notes.txt": "the user's"}
