@@ -85,6 +85,8 @@ def _cmd_studio(args: argparse.Namespace) -> int:
     warning = exposure_warning(args.host, "studio")
     if warning:
         _say(f"sitrelax studio: {warning}")
+    if args.port:  # (a port in use: the same one-line error as serve's, before any work)
+        _listening(args.host, args.port).close()
     studio = Studio(db=args.db, host=args.host, port=args.port, out=args.out,
                     allow_hosts=tuple(args.allow_host))
     _say(f"sitrelax studio: open http://{studio.host}:{studio.port} in a browser "

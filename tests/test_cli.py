@@ -165,16 +165,18 @@ def test_replay_port_in_use_is_one_line():
     assert out.stderr.strip() == f"sitrelax: error: TCP port {port} on 127.0.0.1 is in use"
 
 
-def test_serve_on_a_port_in_use_is_one_line(capsys):
+@pytest.mark.parametrize("command", [["serve"], ["studio", "--out", "studio-out"]])
+def test_a_server_on_a_port_in_use_is_one_line(capsys, command, tmp_path, monkeypatch):
     import socket
 
     from studio.cli import main as sitrelax
 
+    monkeypatch.chdir(tmp_path)
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         s.listen()
         port = s.getsockname()[1]
-        assert sitrelax(["serve", "--port", str(port)]) == 2
+        assert sitrelax([*command, "--port", str(port)]) == 2
     err = capsys.readouterr().err
     assert err.strip().splitlines()[-1] == (
         f"sitrelax: error: Cannot listen on 127.0.0.1:{port}: Address already in use (another "
