@@ -162,21 +162,31 @@ def _mtime(path: Path) -> float | None:
 
 
 @contextmanager
-def _interrupt_deferred() -> Iterator[None]:
-    """Ctrl-C (SIGINT) held back while the block runs and raised as KeyboardInterrupt once it
-    has ended (from the main thread; elsewhere the block runs as it is)."""
+def sigint_handled(handler) -> Iterator[None]:
+    """SIGINT (Ctrl-C) handled by `handler` (a function, or `signal.SIG_IGN`) while the block
+    runs, then as it was; from the main thread only (elsewhere the block runs as it is).
+    Processes started in the block with SIGINT ignored keep it ignored (Python leaves an
+    ignored SIGINT ignored)."""
     import signal
     import threading
 
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    caught = []
-    before = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    before = signal.signal(signal.SIGINT, handler)
     try:
         yield
     finally:
         signal.signal(signal.SIGINT, before)
+
+
+@contextmanager
+def _interrupt_deferred() -> Iterator[None]:
+    """Ctrl-C held back while the block runs and raised as KeyboardInterrupt once it has
+    ended (`sigint_handled`)."""
+    caught = []
+    with sigint_handled(lambda signum, frame: caught.append(signum)):
+        yield
     if caught:
         raise KeyboardInterrupt
 

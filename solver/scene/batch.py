@@ -31,12 +31,11 @@ import sys
 import threading
 import time
 import tomllib
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
-from capture.files import write_atomic
+from capture.files import sigint_handled, write_atomic
 
 from solver.threads import worker_environment
 
@@ -369,25 +368,11 @@ def local_cluster(workers: int = 2):
     import dask
     from distributed import LocalCluster
 
-    with dask.config.set(LOCAL_CLUSTER_CONFIG), _terminal_interrupt_ignored():
+    with dask.config.set(LOCAL_CLUSTER_CONFIG), sigint_handled(signal.SIG_IGN):
         # (its processes, and the jobs' children they start, ignore the terminal's Ctrl-C:
         # the batch stops them itself, without a traceback from each)
         return LocalCluster(n_workers=max(1, int(workers)), threads_per_worker=1,
                             processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0")
-
-
-@contextmanager
-def _terminal_interrupt_ignored():
-    """SIGINT ignored while the block starts processes (which keep that disposition: Python
-    leaves an ignored SIGINT ignored), then as it was; from the main thread only."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    before = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, before)
 
 
 def run_job(job: Job, db: str | None, out_root: str,
