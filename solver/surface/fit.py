@@ -1659,6 +1659,7 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
     cancelled between iterations does."""
     before = len(run.accepted)
     fit.programme.deadline = getattr(cancel, "deadline", None)
+    fit.programme.cancel = cancel
     try:
         return _descend(fit, run, member, floor_member, first, last, progress, tau, settle,
                         cancel, freeze)
@@ -1666,7 +1667,7 @@ def descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarr
         done = len(run.accepted) - before
         return _cancelled(done), first - 1 + done
     finally:
-        fit.programme.deadline = None
+        fit.programme.deadline = fit.programme.cancel = None
 
 
 def _descend(fit: _Fit, run: _Descent, member: np.ndarray, floor_member: np.ndarray,

@@ -20,6 +20,14 @@ NEAR_ROW = 0.01  # m: rows this close to binding at the step's start join the fi
 ROW_TOLERANCE = 1e-7  # m: a row left out that the solution breaks by more joins the next try
 BOX_TOLERANCE = 1e-9  # m: a coordinate left free that leaves its trust region by more is held
 NO_TIME_LIMIT = 1e10  # s: OSQP's time limit without a deadline (its own default)
+MAX_ITER = 20000  # OSQP's iterations per solve at most
+# Between runs of OSQP's iterations a solve asks the fit's `cancel` (a studio's newer edit): runs
+# of POLL_ITERATIONS first, then as many as take about POLL_SECONDS, a multiple of
+# POLL_ITERATIONS. OSQP goes on from where a run stopped, its step size adapted every 50
+# iterations and its stop checked every 25 as in one run, so a solve in runs is the same as one
+# solve, bit for bit (a run that ended on its time limit would not be: its step size restarts).
+POLL_ITERATIONS = 50
+POLL_SECONDS = 0.1
 
 
 NOT_A_NUMBER = ("The surface's quadratic programme has a value that is not a number in its "
@@ -31,7 +39,8 @@ class ProgrammeError(ValueError):
 
 
 class DeadlinePassed(Exception):
-    """A solve stopped at the programme's `deadline` (the caller's time is up)."""
+    """A solve stopped at the programme's `deadline` (the caller's time is up), or because the
+    fit's `cancel` said so between runs of OSQP's iterations."""
 
 
 class _Claimed:
@@ -48,6 +57,8 @@ class _Claimed:
         # time.monotonic() at which a solve stops (`DeadlinePassed`), None for none: the fit
         # sets it while it runs with one, so that a large programme's solve (seconds) ends there
         self.deadline: float | None = None
+        # the fit's cancel (a callable), asked between runs of a large programme's iterations
+        self.cancel = None
 
     def claim(self) -> bool:
         """Whether this programme is now the caller's alone (False: another fit solves it)."""
@@ -149,7 +160,8 @@ class Programme(_Claimed):
             # OSQP's step size as the last solve adapted it (a fresh set-up starts from 0.1)
             rho = {"rho": self._duals[2]} if self._duals is not None else {}
             self.solver.setup(p, q, a, low, high, verbose=False, warm_starting=True, **rho,
-                              polishing=False, eps_abs=EPS_ABS, eps_rel=EPS_REL, max_iter=20000,
+                              polishing=False, eps_abs=EPS_ABS, eps_rel=EPS_REL,
+                              max_iter=MAX_ITER,
                               adaptive_rho=True, scaling=0)
         except self._osqp.OSQPException as exc:  # (a programme that is not convex)
             self.rows = None  # set up again next time
@@ -176,6 +188,36 @@ class Programme(_Claimed):
             if not broken.any():
                 return x, status, residual
             taking |= broken
+
+    def _solve_polled(self):
+        """OSQP's solve; with a `cancel`, in runs of iterations (POLL_ITERATIONS, then about
+        POLL_SECONDS each) with `cancel` (and the `deadline`) asked between them
+        (`DeadlinePassed` when it says so, or has passed), the same solve as one run."""
+        if self.cancel is None:
+            return self.solver.solve(raise_error=False)
+        done, run = 0, POLL_ITERATIONS
+        try:
+            while True:
+                run = min(run, MAX_ITER - done)
+                self.solver.update_settings(max_iter=run)
+                began = time.monotonic()
+                res = self.solver.solve(raise_error=False)
+                done += res.info.iter
+                # (a run cut short by its iteration limit: maximum iterations, or solved
+                # inaccurate, which OSQP says at its limit when the looser tolerance holds)
+                if res.info.iter < run or done >= MAX_ITER or str(res.info.status) not in (
+                        "maximum iterations reached", "solved inaccurate"):
+                    return res
+                if self.cancel() or self.deadline is not None and \
+                        time.monotonic() >= self.deadline:
+                    raise DeadlinePassed
+                if self.deadline is not None:  # (OSQP's time limit counts from each run)
+                    self.solver.update_settings(time_limit=self.deadline - time.monotonic())
+                each = (time.monotonic() - began) / max(res.info.iter, 1)
+                run = POLL_ITERATIONS * max(1, int(POLL_SECONDS / max(each, 1e-9)) //
+                                            POLL_ITERATIONS)
+        finally:
+            self.solver.update_settings(max_iter=MAX_ITER)
 
     def _warm_duals(self, rows: np.ndarray) -> np.ndarray | None:
         """OSQP's duals to start from: each row's from the last solve where that solve held a
@@ -220,7 +262,7 @@ class Programme(_Claimed):
             raise DeadlinePassed
         left = NO_TIME_LIMIT if self.deadline is None else self.deadline - began
         self.solver.update_settings(time_limit=min(left, NO_TIME_LIMIT))
-        res = self.solver.solve(raise_error=False)
+        res = self._solve_polled()
         status = str(res.info.status)
         if status == "run time limit reached":
             raise DeadlinePassed
@@ -290,7 +332,7 @@ class DenseProgramme(_Claimed):
         if self._fallback is None:
             self._fallback = Programme(self.s, self.lap, self.n0, self.slack_weight)
         self.fallbacks += 1
-        self._fallback.deadline = self.deadline
+        self._fallback.deadline, self._fallback.cancel = self.deadline, self.cancel
         try:
             return self._fallback.solve(p_x, q, rows, normals, lower, x0, step)
         except ProgrammeError as osqp_failed:
