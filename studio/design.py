@@ -40,7 +40,7 @@ from solver.scene.run import (SURFACE_FORMATS, evaluate_fit, fit_people, relax_p
                               relax_text, run_fit, save_relaxed)
 from solver.scene.scenario import (PersonSpec, Scenario, parse_scenario, read_control_mesh,
                                    scenario_toml)
-from solver.scene.placement import PlacedPerson, place_person, scene_posture
+from solver.scene.placement import PlacedPerson, furnished, place_person, scene_posture
 from solver.surface.subdivision import subdivision
 
 PARAMETERS = ("level", "sigma", "tau_max", "margin")  # the ones the studio's panel sets
@@ -50,6 +50,10 @@ MAX_HISTORY = 200  # undo steps kept
 # a seated capture: what a new person sits in until the designer picks another pose
 DEFAULT_POSE = "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"
 SEAT_REGIONS = frozenset({"pelvis", "thighs"})  # a person supported on these sits on the surface
+# the use each template is built for (`posedb.regions.SUPPORT_USES`), as `sitrelax design` gives
+# it (a bench with a back is a chair's; a backless one is a seat)
+TEMPLATE_USES = {"chair": "chair", "bench": "seat", "stool": "stool", "floor_cushion": "floor",
+                 "lounger": "lounger", "bed": "bed"}
 
 
 class DesignError(ValueError):
@@ -251,6 +255,33 @@ class Design:
         v, f = read_control_mesh(Path(path), str(path))
         with self.edit():
             self._set_mesh(v, f)
+
+    def build_template(self, kind: str, supports: bool = True) -> str:
+        """The control mesh of a template (`solver.surface.templates`: chair, bench, stool,
+        floor_cushion, lounger, bed) built around the people as they are placed now, every
+        dimension measured on them as `sitrelax design` does (`solver.scene.furnish`), its
+        creases kept sharp; with `supports`, each person supported as the template's use (a
+        chair's back carries the back). One step; returns the use."""
+        if kind not in TEMPLATE_USES:
+            raise DesignError(f"Expected a template of {', '.join(TEMPLATE_USES)}, got {kind!r}")
+        if not self.people:
+            raise DesignError("Add a person first: a template is built around the people")
+        data = self._data()
+        data["surface"] = {"template": {"kind": kind}, **self.params}
+        if supports:
+            use = TEMPLATE_USES[kind]
+            data["person"] = [dict(p, support=use) for p in data["person"]]
+        scenario = self._parse(data)
+        built = furnished(scenario, [self.place(p) for p in data["person"]])
+        if supports and kind == "bench" and built.surface.template.built.back:
+            data["person"] = [dict(p, support="chair") for p in data["person"]]
+        with self.edit():
+            self._set_mesh(built.surface.vertices, built.surface.faces)
+            self.creases = {(min(a, b), max(a, b)) for a, b in built.surface.params.creases}
+            if supports:
+                self.people = data["person"]
+                self.relaxed = {}  # (relaxed as they were supported)
+        return self.people[0]["support"] if supports else ""
 
     def _set_mesh(self, vertices: np.ndarray, faces: np.ndarray) -> None:
         if len(vertices) > MAX_CONTROL_VERTICES:

@@ -42,7 +42,8 @@ from solver.scene import schema
 from solver.scene.run import pressure_on_skin
 
 from .context import INTERNAL, PROBLEM, LibraryWatch, StudioContext, guarded, notice
-from .design import DEFAULT_POSE, Design, DesignError, Iterate, check_name, control_edges
+from .design import (DEFAULT_POSE, TEMPLATE_USES, Design, DesignError, Iterate, check_name,
+                     control_edges)
 
 CONTROL_COLOR = (40, 40, 48)
 FIXED_COLOR = (220, 50, 40)
@@ -435,6 +436,11 @@ class DesignView:
             self.grid_height = gui.add_number("Grid height (m)", initial_value=grid.height,
                                               min=-5.0, max=5.0, step=0.01)
             self.new_grid = gui.add_button("New grid")
+            self.template = gui.add_dropdown("Template", tuple(TEMPLATE_USES),
+                                             initial_value="chair")
+            self.build = gui.add_button("Build template around people",
+                                        hint="every dimension measured on the people as "
+                                             "they are placed; each supported as its use")
             self.upload = gui.add_upload_button("Load control mesh (OBJ)", mime_type=".obj")
             self.level = gui.add_slider("Level", min=1, max=3, step=1,
                                         initial_value=params["level"])
@@ -462,6 +468,7 @@ class DesignView:
             (self.add, self._add_person), (self.apply, self._apply_person),
             (self.remove, self._remove_person), (self.relax, self._relax),
             (self.save_pose, self._save_pose), (self.new_grid, self._new_grid),
+            (self.build, self._build_template),
             (self.adopt, self._adopt), (self.fit, self.run_fit), (self.undo, self._undo),
             (self.redo, self._redo), (self.fix, lambda: self._fix(True)),
             (self.free, lambda: self._fix(False)), (self.crease, lambda: self._crease(True)),
@@ -872,6 +879,17 @@ class DesignView:
         self.redraw()
         self._edited()
         self._status(f"New {res[0]} x {res[1]} grid, {size[0]:g} x {size[1]:g} m.")
+
+    def _build_template(self) -> None:
+        kind = self.template.value
+        use = self.design.build_template(kind)
+        self.selection = []
+        self.redraw()
+        self._edited()
+        self._status(f"A {kind.replace('_', ' ')} built around the people "
+                     f"({len(self.design.vertices)} control vertices, "
+                     f"{len(self.design.creases)} crease edges); each person is supported as "
+                     f"`{use}` ({', '.join(support_regions(use))}).")
 
     def _load_mesh(self) -> None:
         import tempfile

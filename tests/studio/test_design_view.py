@@ -74,6 +74,23 @@ def _click(tab, point, modifier=None) -> None:
                                            ((0.5, 0.5),), modifier))
 
 
+def test_the_template_button_builds_one_around_the_people(tab):
+    """The Control mesh panel's Template and its button: the chair built around the person,
+    who is then supported as a chair (the support boxes show it), drawn in the tab."""
+    view = tab.view
+    view._guarded(view._build_template)
+    assert "Add a person first" in view.status_text, view.status_text
+    view.add_person(HIGH_SIT, position=[0.0, 0.02, 0.0])
+    view.template.value = "chair"
+    view._guarded(view._build_template)
+    assert view.status_text.startswith("A chair built around the people (108 control "
+                                       "vertices, 8 crease edges)"), view.status_text
+    assert view.design.people[0]["support"] == "chair"
+    assert {r for r, box in view.parts.items() if box.value} == {
+        "upper_back", "lower_back", "pelvis", "thighs"}
+    assert view.undo.disabled is False
+
+
 def test_every_tab_gets_the_three_tabs_and_its_own_session(studio):
     assert [label for label, _ in VIEWS] == ["Record", "Library", "Design"]
     first, second = Tab(studio), Tab(studio)

@@ -103,6 +103,49 @@ def test_levels_from_a_slider_and_moves_are_taken(library):
     assert d.people[0]["position"] == [0.05, 0.0, -0.1]
 
 
+def test_a_template_is_built_around_the_people_as_a_scenario_builds_it(library):
+    """A template built around the session's people is the control mesh `sitrelax fit` builds
+    from a scenario naming it (`solver.scene.furnish`), creases and all; each person is then
+    supported as its use, in one step that Undo takes back. On the high-sit pose (lifted 2 cm,
+    as `sitrelax design` lifts a sitter) the chair carries the person where the studio's default
+    grid pressed the calves (its peak on them, 1.53 of a flat seat's)."""
+    from solver.scene.placement import place_scene
+    from solver.scene.scenario import parse_scenario
+
+    d = Design(library)
+    with pytest.raises(DesignError, match="Add a person first"):
+        d.build_template("chair")
+    d.add_person(HIGH_SIT, position=[0.0, 0.02, 0.0])
+    grid, faces = d.vertices.copy(), d.faces.copy()
+    with pytest.raises(DesignError, match="Expected a template of chair, bench"):
+        d.build_template("sofa")
+    assert d.build_template("chair") == "chair"
+    scenario, _ = place_scene(parse_scenario(
+        {"surface": {"template": {"kind": "chair"}},
+         "person": [{"pose": HIGH_SIT, "position": [0.0, 0.02, 0.0], "support": "chair"}]},
+        "test"))
+    np.testing.assert_array_equal(d.vertices, scenario.surface.vertices)
+    np.testing.assert_array_equal(d.faces, scenario.surface.faces)
+    assert d.creases == {tuple(sorted(c)) for c in scenario.surface.params.creases}
+    assert len(d.creases) == 8 and d.people[0]["support"] == "chair"
+    assert d.build_template("bench") == "seat"  # backless by default
+    d.undo()
+    d.undo()
+    np.testing.assert_array_equal(d.vertices, grid)
+    np.testing.assert_array_equal(d.faces, faces)
+    assert d.people[0]["support"] == "seat" and not d.creases
+    d.build_template("chair")
+    person = d.fit().persons[0]
+    assert person["coverage"] >= 0.95 and person["contact_coverage"] >= 0.8
+    assert person["peak_region"] in ("pelvis", "thighs", "lower_back", "upper_back"), person
+    assert person["peak_of_flat"] < 0.8, person
+    # people on the floor get no cushion under them: the message says to lift them
+    d.update_person(0, position=[0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="lift them"):
+        d.build_template("floor_cushion")
+    assert d.people[0]["support"] == "chair" and len(d.vertices) == len(scenario.surface.vertices)
+
+
 def test_the_support_checkboxes_are_the_body_regions(library, tmp_path):
     """One box per body region, ticked for the schema's default (a seat); a person supported as
     a use shows its regions, and the ticked boxes become the person's support."""
