@@ -256,32 +256,27 @@ class Design:
         with self.edit():
             self._set_mesh(v, f)
 
-    def build_template(self, kind: str, supports: bool = True) -> str:
+    def build_template(self, kind: str) -> str:
         """The control mesh of a template (`solver.surface.templates`: chair, bench, stool,
         floor_cushion, lounger, bed) built around the people as they are placed now, every
         dimension measured on them as `sitrelax design` does (`solver.scene.furnish`), its
-        creases kept sharp; with `supports`, each person supported as the template's use (a
-        chair's back carries the back). One step; returns the use."""
+        creases kept sharp, and each person supported as the template's use (a chair's back
+        carries the back): one step. Returns the use."""
         if kind not in TEMPLATE_USES:
             raise DesignError(f"Expected a template of {', '.join(TEMPLATE_USES)}, got {kind!r}")
         if not self.people:
             raise DesignError("Add a person first: a template is built around the people")
-        data = self._data()
+        data = self._data(people=[dict(p, support=TEMPLATE_USES[kind]) for p in self.people])
         data["surface"] = {"template": {"kind": kind}, **self.params}
-        if supports:
-            use = TEMPLATE_USES[kind]
-            data["person"] = [dict(p, support=use) for p in data["person"]]
-        scenario = self._parse(data)
-        built = furnished(scenario, [self.place(p) for p in data["person"]])
-        if supports and kind == "bench" and built.surface.template.built.back:
-            data["person"] = [dict(p, support="chair") for p in data["person"]]
+        built = furnished(self._parse(data), [self.place(p) for p in data["person"]])
+        use = "chair" if kind == "bench" and built.surface.template.built.back else \
+            TEMPLATE_USES[kind]
         with self.edit():
             self._set_mesh(built.surface.vertices, built.surface.faces)
             self.creases = {(min(a, b), max(a, b)) for a, b in built.surface.params.creases}
-            if supports:
-                self.people = data["person"]
-                self.relaxed = {}  # (relaxed as they were supported)
-        return self.people[0]["support"] if supports else ""
+            self.people = [dict(p, support=use) for p in data["person"]]
+            self.relaxed = {}  # (relaxed as they were supported)
+        return use
 
     def _set_mesh(self, vertices: np.ndarray, faces: np.ndarray) -> None:
         if len(vertices) > MAX_CONTROL_VERTICES:
