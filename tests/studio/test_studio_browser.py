@@ -1,7 +1,7 @@
 """The studio in a real headless browser (Debian's chromium and chromedriver, started here;
-nothing is downloaded): the Design view end to end, two tabs with two sessions, and the time
-from an edit in the page to the first surface of the refit in the page (`studio_refit`: a
-streamed iterate) and to the finished refit's figures.
+nothing is downloaded): the Design view end to end, two tabs with two sessions, a template
+built from the page, and the time from an edit in the page to the first surface of the refit
+in the page (`studio_refit`: a streamed iterate) and to the finished refit's figures.
 
 Screenshots of every step go to $SITRELAX_ARTIFACTS (default test-artifacts/) under
 studio-design/."""
@@ -369,6 +369,36 @@ def test_two_tabs_edit_two_sessions(library, tmp_path):
         time.sleep(1.0)
         assert "2: person 2" not in first.text()
         first.shot("one-person")
+    finally:
+        driver.quit()
+        studio.stop()
+
+
+def test_a_template_is_built_from_the_page(library, tmp_path):
+    """The Control mesh panel's Template (a chair, the first offered) built around a person
+    added in the page: the chair's control net in the session, the status line on the page,
+    the person's support boxes ticked for a chair's use."""
+    from studio.web import Studio
+
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    studio = Studio(db=str(library), port=0, out=str(tmp_path / "out"))
+    driver = _browser()
+    try:
+        page = Page(driver, studio, ARTIFACTS, "template")
+        design = page.view.design
+        page.press("Add person")
+        _wait(lambda: len(design.people) == 1, PATIENCE, "the person")
+        page.type("Position (m)", (0, 0.02, 0))
+        _wait(lambda: design.people[0]["position"] == [0.0, 0.02, 0.0], PATIENCE,
+              "the typed position")
+        page.press("Build template around people")
+        _wait(lambda: len(design.vertices) == 108, PATIENCE, "the chair's control net")
+        _wait(lambda: "A chair built around the people" in page.text(), PATIENCE,
+              "the status line on the page")
+        assert design.people[0]["support"] == "chair" and len(design.creases) == 8
+        assert {r for r, box in page.view.parts.items() if box.value} == {
+            "upper_back", "lower_back", "pelvis", "thighs"}
+        page.shot("chair-built")
     finally:
         driver.quit()
         studio.stop()
