@@ -38,8 +38,8 @@ from solver.scene.quality import design_misses
 from solver.surface.fit import FitResult
 from solver.scene.run import (SURFACE_FORMATS, evaluate_fit, fit_people, relax_person,
                               relax_text, run_fit, save_relaxed)
-from solver.scene.scenario import (PersonSpec, Scenario, parse_scenario, read_control_mesh,
-                                   scenario_toml)
+from solver.scene.scenario import (PersonSpec, Scenario, ScenarioError, parse_scenario,
+                                   read_control_mesh, scenario_toml)
 from solver.scene.placement import PlacedPerson, furnished, place_person, scene_posture
 from solver.surface.subdivision import subdivision
 
@@ -50,10 +50,28 @@ MAX_HISTORY = 200  # undo steps kept
 # a seated capture: what a new person sits in until the designer picks another pose
 DEFAULT_POSE = "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"
 SEAT_REGIONS = frozenset({"pelvis", "thighs"})  # a person supported on these sits on the surface
-# the use each template is built for (`posedb.regions.SUPPORT_USES`), as `sitrelax design` gives
-# it (a bench with a back is a chair's; a backless one is a seat)
-TEMPLATE_USES = {"chair": "chair", "bench": "seat", "stool": "stool", "floor_cushion": "floor",
-                 "lounger": "lounger", "bed": "bed"}
+# the templates a design may start from: name -> (kind, parameters, the use each person is then
+# supported as, `posedb.regions.SUPPORT_USES`), as `sitrelax design` gives them (seated people a
+# bench with a back, supported as on a chair)
+TEMPLATES = {"chair": ("chair", {}, "chair"), "bench with back": ("bench", {"back": True}, "chair"),
+             "bench": ("bench", {}, "seat"), "stool": ("stool", {}, "stool"),
+             "floor cushion": ("floor_cushion", {}, "floor"), "lounger": ("lounger", {}, "lounger"),
+             "bed": ("bed", {}, "bed")}
+ONE_PERSON = ("chair", "stool")  # kinds for one person (several share a bench)
+
+
+def _template_problem(name: str, message: str) -> str:
+    """A template's refusal (the scenario's `ScenarioError`) in the studio's terms: what no
+    template fits, and what the designer can change here (the people's Position and Rotation)."""
+    _, _, why = message.partition(": surface.template")
+    field, _, why = why.partition(": ")
+    why = why.replace(" or give its height", "").replace(
+        "give the template's heading_deg", "turn them (Rotation) to face one way").replace(
+        "each person's position y", "each person's Position y")
+    if field:  # a dimension measured on the people that makes no such furniture
+        why = (f"its {field.lstrip('.')} measured on the people makes none ({why}): place them "
+               f"as one sits in a {name}")
+    return f"No {name} can be built around the people as they are placed: {why}"
 
 
 class DesignError(ValueError):
@@ -256,25 +274,38 @@ class Design:
         with self.edit():
             self._set_mesh(v, f)
 
-    def build_template(self, kind: str) -> str:
-        """The control mesh of a template (`solver.surface.templates`: chair, bench, stool,
-        floor_cushion, lounger, bed) built around the people as they are placed now, every
-        dimension measured on them as `sitrelax design` does (`solver.scene.furnish`), its
-        creases kept sharp, and each person supported as the template's use (a chair's back
-        carries the back): one step. Returns the use."""
-        if kind not in TEMPLATE_USES:
-            raise DesignError(f"Expected a template of {', '.join(TEMPLATE_USES)}, got {kind!r}")
+    def build_template(self, name: str) -> str:
+        """The control mesh of a template (`TEMPLATES`: chair, bench with back, bench, stool,
+        floor cushion, lounger, bed) built around the people as they are placed now, every
+        dimension measured on them as `sitrelax design` does (`solver.scene.furnish`; a bed as
+        many quads across each sleeper as a bed for one), its creases kept sharp, and each
+        person supported as the template's use (a chair's back carries the back): one step.
+        Returns the use."""
+        if name not in TEMPLATES:
+            raise DesignError(f"Expected a template of {', '.join(TEMPLATES)}, got {name!r}")
         if not self.people:
             raise DesignError("Add a person first: a template is built around the people")
-        data = self._data(people=[dict(p, support=TEMPLATE_USES[kind]) for p in self.people])
-        data["surface"] = {"template": {"kind": kind}, **self.params}
-        built = furnished(self._parse(data), [self.place(p) for p in data["person"]])
-        use = "chair" if kind == "bench" and built.surface.template.built.back else \
-            TEMPLATE_USES[kind]
+        kind, given, use = TEMPLATES[name]
+        if kind in ONE_PERSON and len(self.people) > 1:
+            raise DesignError(f"A {name} is for one person: {len(self.people)} people share a "
+                              f"bench (with a back for a chair's support)")
+        given = dict(given)
+        if kind == "bed":
+            from solver.surface.templates import TEMPLATE_PARAMS
+
+            across, along = TEMPLATE_PARAMS["bed"]().quads
+            given["quads"] = [across * len(self.people), along]
+        people = [dict(p, support=use) for p in self.people]
+        data = self._data(people=people)
+        data["surface"] = {"template": {"kind": kind, **given}, **self.params}
+        try:
+            built = furnished(self._parse(data), [self.place(p) for p in people])
+        except ScenarioError as exc:
+            raise DesignError(_template_problem(name, str(exc))) from None
         with self.edit():
             self._set_mesh(built.surface.vertices, built.surface.faces)
             self.creases = {(min(a, b), max(a, b)) for a, b in built.surface.params.creases}
-            self.people = [dict(p, support=use) for p in data["person"]]
+            self.people = people
             self.relaxed = {}  # (relaxed as they were supported)
         return use
 

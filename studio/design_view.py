@@ -42,7 +42,7 @@ from solver.scene import schema
 from solver.scene.run import pressure_on_skin
 
 from .context import INTERNAL, PROBLEM, LibraryWatch, StudioContext, guarded, notice
-from .design import (DEFAULT_POSE, TEMPLATE_USES, Design, DesignError, Iterate, check_name,
+from .design import (DEFAULT_POSE, TEMPLATES, Design, DesignError, Iterate, check_name,
                      control_edges)
 
 CONTROL_COLOR = (40, 40, 48)
@@ -436,7 +436,7 @@ class DesignView:
             self.grid_height = gui.add_number("Grid height (m)", initial_value=grid.height,
                                               min=-5.0, max=5.0, step=0.01)
             self.new_grid = gui.add_button("New grid")
-            self.template = gui.add_dropdown("Template", tuple(TEMPLATE_USES),
+            self.template = gui.add_dropdown("Template", tuple(TEMPLATES),
                                              initial_value="chair")
             self.build = gui.add_button("Build template around people",
                                         hint="every dimension measured on the people as "
@@ -881,12 +881,12 @@ class DesignView:
         self._status(f"New {res[0]} x {res[1]} grid, {size[0]:g} x {size[1]:g} m.")
 
     def _build_template(self) -> None:
-        kind = self.template.value
-        use = self.design.build_template(kind)
+        name = self.template.value
+        use = self.design.build_template(name)
         self.selection = []
         self.redraw()
         self._edited()
-        self._status(f"A {kind.replace('_', ' ')} built around the people "
+        self._status(f"A {name} built around the people "
                      f"({len(self.design.vertices)} control vertices, "
                      f"{len(self.design.creases)} crease edges); each person is supported as "
                      f"`{use}` ({', '.join(support_regions(use))}).")

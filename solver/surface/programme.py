@@ -204,15 +204,19 @@ class Programme(_Claimed):
                 res = self.solver.solve(raise_error=False)
                 done += res.info.iter
                 # (a run cut short by its iteration limit: maximum iterations, or solved
-                # inaccurate, which OSQP says at its limit when the looser tolerance holds)
+                # inaccurate, which OSQP says at its limit when the looser tolerance holds; it
+                # could say infeasible inaccurate there too, returned as a failure, but the
+                # programme is always feasible, each row with its slack, and bounded, the trust
+                # region a box)
                 if res.info.iter < run or done >= MAX_ITER or str(res.info.status) not in (
                         "maximum iterations reached", "solved inaccurate"):
                     return res
-                if self.cancel() or self.deadline is not None and \
-                        time.monotonic() >= self.deadline:
+                left = NO_TIME_LIMIT if self.deadline is None else \
+                    self.deadline - time.monotonic()  # (one reading: OSQP takes none <= 0)
+                if self.cancel() or left <= 0:
                     raise DeadlinePassed
                 if self.deadline is not None:  # (OSQP's time limit counts from each run)
-                    self.solver.update_settings(time_limit=self.deadline - time.monotonic())
+                    self.solver.update_settings(time_limit=left)
                 each = (time.monotonic() - began) / max(res.info.iter, 1)
                 run = POLL_ITERATIONS * max(1, int(POLL_SECONDS / max(each, 1e-9)) //
                                             POLL_ITERATIONS)

@@ -88,7 +88,9 @@ def test_the_template_button_builds_one_around_the_people(tab):
     assert view.design.people[0]["support"] == "chair"
     assert {r for r, box in view.parts.items() if box.value} == {
         "upper_back", "lower_back", "pelvis", "thighs"}
-    assert view.undo.disabled is False
+    view._guarded(view._undo)  # the grid and the person's support again
+    assert len(view.design.vertices) == 9 * 7 and view.design.people[0]["support"] == "seat"
+    assert {r for r, box in view.parts.items() if box.value} == {"pelvis", "thighs"}
 
 
 def test_every_tab_gets_the_three_tabs_and_its_own_session(studio):

@@ -117,7 +117,7 @@ def test_a_template_is_built_around_the_people_as_a_scenario_builds_it(library):
         d.build_template("chair")
     d.add_person(HIGH_SIT, position=[0.0, 0.02, 0.0])
     grid, faces = d.vertices.copy(), d.faces.copy()
-    with pytest.raises(DesignError, match="Expected a template of chair, bench"):
+    with pytest.raises(DesignError, match="Expected a template of chair, bench with back"):
         d.build_template("sofa")
     assert d.build_template("chair") == "chair"
     scenario, _ = place_scene(parse_scenario(
@@ -128,7 +128,11 @@ def test_a_template_is_built_around_the_people_as_a_scenario_builds_it(library):
     np.testing.assert_array_equal(d.faces, scenario.surface.faces)
     assert d.creases == {tuple(sorted(c)) for c in scenario.surface.params.creases}
     assert len(d.creases) == 8 and d.people[0]["support"] == "chair"
-    assert d.build_template("bench") == "seat"  # backless by default
+    assert d.build_template("bench") == "seat"  # backless
+    backless = len(d.vertices)
+    assert d.build_template("bench with back") == "chair" and len(d.vertices) > backless
+    assert len(d.creases) > 0  # where the seat meets its back
+    d.undo()
     d.undo()
     d.undo()
     np.testing.assert_array_equal(d.vertices, grid)
@@ -139,11 +143,24 @@ def test_a_template_is_built_around_the_people_as_a_scenario_builds_it(library):
     assert person["coverage"] >= 0.95 and person["contact_coverage"] >= 0.8
     assert person["peak_region"] in ("pelvis", "thighs", "lower_back", "upper_back"), person
     assert person["peak_of_flat"] < 0.8, person
-    # people on the floor get no cushion under them: the message says to lift them
+    # people on the floor get no cushion under them: the message says what to change here
     d.update_person(0, position=[0.0, 0.0, 0.0])
-    with pytest.raises(ValueError, match="lift them"):
-        d.build_template("floor_cushion")
+    with pytest.raises(DesignError, match=r"^No floor cushion can be built around the people "
+                       r"as they are placed: .* lift them \(each person's Position y, e\.g\. "
+                       r"0\.45 for a bed, 0\.13 for a floor cushion\)$"):
+        d.build_template("floor cushion")
     assert d.people[0]["support"] == "chair" and len(d.vertices) == len(scenario.surface.vertices)
+    # a chair is one person's; two facing each other share no bench; a bed for two is as fine
+    # across each as a bed for one
+    d.add_person(HIGH_SIT, position=[0.7, 0.0, 0.0], rotation_deg=[0.0, 180.0, 0.0])
+    with pytest.raises(DesignError, match="A chair is for one person: 2 people share a bench"):
+        d.build_template("chair")
+    with pytest.raises(DesignError, match=r"face opposite ways: turn them \(Rotation\) to face "
+                                          r"one way$"):
+        d.build_template("bench with back")
+    d.update_person(0, position=[0.0, 0.5, 0.0])
+    d.update_person(1, position=[0.7, 0.5, 0.0], rotation_deg=[0.0, 0.0, 0.0])
+    assert d.build_template("bed") == "bed" and len(d.vertices) == (2 * 8 + 1) * (16 + 1)
 
 
 def test_the_support_checkboxes_are_the_body_regions(library, tmp_path):

@@ -172,6 +172,32 @@ def test_a_cancel_stops_the_programme_s_solve_between_runs_of_its_iterations(sea
     np.testing.assert_array_equal(stopped.control, grid_v)
 
 
+def test_a_deadline_that_passes_between_runs_stops_the_fit_whatever_the_moment(seated,
+                                                                                monkeypatch):
+    """Wherever between the programme's clock readings a deadline passes, the fit ends as
+    cancelled (or done), never with OSQP refusing a time limit that is not positive: on a clock
+    that moves a second at every reading, with the deadline after each of 2 to 15 readings."""
+    import types
+
+    import solver.surface.programme as programme
+
+    scenario, _, people = seated
+    grid_v, grid_f = grid_mesh((0.6, 0.6), (16, 12), 0.42)
+    params = replace(scenario.surface.params, max_iterations=2)
+    for readings in range(2, 16):
+        ticks = [0]
+
+        def monotonic():
+            ticks[0] += 1
+            return 1000.0 + ticks[0]
+
+        monkeypatch.setattr(programme, "time", types.SimpleNamespace(monotonic=monotonic))
+        cancel = _deadline_cancel(1000.0 + readings + 0.5)
+        result = fit_surface(grid_v, grid_f, people, params, cancel=cancel)
+        assert result.stop_reason.startswith(("cancelled", "reached the iteration limit")), \
+            (readings, result.stop_reason)
+
+
 @pytest.mark.slow
 def test_a_cancel_ends_a_large_fit_within_a_second_and_a_half():
     """On a 48 x 36 grid (1,813 control vertices) a solve takes 1-6 s and one iteration's tries
