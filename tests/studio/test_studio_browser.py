@@ -199,6 +199,8 @@ def test_the_design_view_end_to_end_in_a_browser(library, tmp_path):
         page.shot("three-fixed")
         # a crease along the control edge of the first two picks (neighbours on the near row)
         page.click_vertex(picks[0])
+        # (clicks are handled on viser's threads: the next waits until this one is taken)
+        _wait(lambda: view.selection == picks[:1], PATIENCE, "a click to pick one again")
         page.click_vertex(picks[1], shift=True)
         _wait(lambda: view.selection == picks[:2], PATIENCE, "two neighbours picked")
         page.press("Crease picked edges")
