@@ -40,6 +40,7 @@ from solver.scene.run import (SURFACE_FORMATS, evaluate_fit, fit_people, relax_p
                               relax_text, run_fit, save_relaxed)
 from solver.scene.scenario import (PersonSpec, Scenario, ScenarioError, parse_scenario,
                                    read_control_mesh, scenario_toml)
+from solver.scene.design import shared_given
 from solver.scene.placement import PlacedPerson, furnished, place_person, scene_posture
 from solver.surface.subdivision import subdivision
 
@@ -51,8 +52,9 @@ MAX_HISTORY = 200  # undo steps kept
 DEFAULT_POSE = "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"
 SEAT_REGIONS = frozenset({"pelvis", "thighs"})  # a person supported on these sits on the surface
 # the templates a design may start from: name -> (kind, parameters, the use each person is then
-# supported as, `posedb.regions.SUPPORT_USES`), as `sitrelax design` gives them (seated people a
-# bench with a back, supported as on a chair)
+# supported as, `posedb.regions.SUPPORT_USES`); `sitrelax design` gives seated people a chair or
+# a bench with a back, supported as on a chair, and perched ones a stool or a backless bench,
+# supported as on a stool (the studio's backless bench supports the thighs too: a seat)
 TEMPLATES = {"chair": ("chair", {}, "chair"), "bench with back": ("bench", {"back": True}, "chair"),
              "bench": ("bench", {}, "seat"), "stool": ("stool", {}, "stool"),
              "floor cushion": ("floor_cushion", {}, "floor"), "lounger": ("lounger", {}, "lounger"),
@@ -289,12 +291,7 @@ class Design:
         if kind in ONE_PERSON and len(self.people) > 1:
             raise DesignError(f"A {name} is for one person: {len(self.people)} people share a "
                               f"bench (with a back for a chair's support)")
-        given = dict(given)
-        if kind == "bed":
-            from solver.surface.templates import TEMPLATE_PARAMS
-
-            across, along = TEMPLATE_PARAMS["bed"]().quads
-            given["quads"] = [across * len(self.people), along]
+        given = {**given, **shared_given(kind, len(self.people))}
         people = [dict(p, support=use) for p in self.people]
         data = self._data(people=people)
         data["surface"] = {"template": {"kind": kind, **given}, **self.params}

@@ -85,6 +85,17 @@ def pose_posture(pose: str, db: str | os.PathLike | None = None
     return classify_posture(figures), figures
 
 
+def shared_given(kind: str, people: int) -> dict:
+    """The parameters a template shared by `people` people gets beyond one person's: a bed as
+    many quads across each sleeper as a bed for one has (none otherwise)."""
+    if kind != "bed" or people < 2:
+        return {}
+    from solver.surface.templates import TEMPLATE_PARAMS
+
+    across, along = TEMPLATE_PARAMS["bed"]().quads
+    return {"quads": [across * people, along]}
+
+
 def design_scenario(poses: Sequence[str], db: str | os.PathLike | None = None,
                     base: Path | None = None) -> tuple[dict, dict]:
     """The scenario data a designer would start from for the poses, and what was decided.
@@ -123,11 +134,7 @@ def design_scenario(poses: Sequence[str], db: str | os.PathLike | None = None,
     one = len(poses) == 1
     kind = design.single if one else design.several
     given = dict(design.single_given if one else design.several_given)
-    if kind == "bed" and not one:  # as many quads across each sleeper as a bed for one has
-        from solver.surface.templates import TEMPLATE_PARAMS
-
-        across, along = TEMPLATE_PARAMS["bed"]().quads
-        given["quads"] = [across * len(poses), along]
+    given.update(shared_given(kind, len(poses)))
     lifts = [LIFT.get(posture, 0.0) if posture != "reclined" else
              max(RECLINED_PELVIS - figures.pelvis_height, 0.0) for _, figures in read]
     if posture in ("seated", "perched") and not one:  # one seat height: the lower sit higher
