@@ -122,6 +122,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     import sys
 
     from solver.contact.evaluate import flat_text, peak_text
+    from solver.scene.relief import relief_text
     from solver.scene.run import run_fit
 
     def progress(message: str) -> None:
@@ -140,6 +141,9 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     print(f"fitted in {timing['fit_s']:.2f} s, {report['iterations']} iterations "
           f"({timing['total_s']:.2f} s in all, with the evaluation and the files): "
           f"{report['stop_reason']}")
+    relief = relief_text(report.get("relief"))
+    if relief is not None:
+        print(relief)
     for p in report["persons"]:
         loads = ", ".join(f"{name} {round(v['load_share'] * 100) or 0} %" for name, v in
                           p["equilibrium"]["supports"].items())  # (no "-0 %")

@@ -102,6 +102,7 @@ class FitResponse(BaseModel):
     energies: list[float]
     persons: list[dict]
     fit_id: str  # a later request may refit warm from this fit: /api/fit?warm=FIT_ID
+    relief: dict | None = None  # as report.json's "relief" (the scenario's [relief] rounds)
 
 
 ERRORS = {
@@ -493,7 +494,7 @@ def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
                             "refit from its result, stopping once settled")] = None
             ) -> FitResponse:
         from solver.scene.placement import place_scene
-        from solver.scene.run import evaluate_fit, fit_people, report_parameters
+        from solver.scene.run import evaluate_fit, fit_people, relieve_fit, report_parameters
 
         start = time.perf_counter()
         check = _deadline(time_limit)
@@ -503,13 +504,18 @@ def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
         check()
         result = fit_people(scenario, people, check, cancel=check.expired, warm=last)
         check()  # a fit cancelled at the deadline is refused, not evaluated
-        _, persons, _ = evaluate_fit(scenario, people, result)
+        _, persons, maps = evaluate_fit(scenario, people, result)
+        relief = None
+        if scenario.relief.rounds:  # (stopped at the deadline with the rounds kept so far)
+            result, persons, _, relief = relieve_fit(scenario, people, result, persons, maps,
+                                                     cancel=check.expired)
         return FitResponse(control=_mesh(result.control, result.faces),
                            surface=_mesh(result.surface, result.surface_faces),
                            parameters=report_parameters(scenario),
                            iterations=result.iterations, stop_reason=result.stop_reason,
                            seconds=time.perf_counter() - start, energies=result.energies,
-                           persons=persons, fit_id=fits.keep(result))
+                           persons=persons, fit_id=fits.keep(result),
+                           relief=None if relief is None else relief.record())
 
     @app.post("/api/relax", summary="Fit, then relax one person onto the surface")
     def relax(req: RelaxRequest) -> dict:

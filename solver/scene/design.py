@@ -69,6 +69,7 @@ LIFT = {"floor": 0.13, "lying": 0.46,  # metres people are raised: cushion / bed
         # in the skin against them (captured as they are, the floor takes 40-45 %)
 RECLINED_PELVIS = 0.4  # metres: a reclined person is raised until the pelvis is this high
 GAP = 0.04  # metres between neighbours' skin, side by side
+RELIEF_ROUNDS = 6  # rounds of pressure relief after the fit (solver.scene.relief)
 
 
 def pose_posture(pose: str, db: str | os.PathLike | None = None
@@ -143,7 +144,8 @@ def design_scenario(poses: Sequence[str], db: str | os.PathLike | None = None,
     people = [{"name": f"person {k + 1}", "pose": p, "support": design.use,
                "position": [0.0, float(lift), 0.0]}
               for k, (p, lift) in enumerate(zip(poses, lifts))]
-    data = {"surface": {"template": {"kind": kind, **given}}, "person": people}
+    data = {"surface": {"template": {"kind": kind, **given}}, "person": people,
+            "relief": {"rounds": RELIEF_ROUNDS}}
     if not one:  # side by side along x, their skin GAP apart (measured over a plain grid: a
         # template built round them all overlapping could be too narrow a seat for each)
         measuring = {**data, "surface": {"grid": {"size": [1.0, 1.0], "resolution": [1, 1],

@@ -89,49 +89,61 @@ def surface_misses(guarantees: dict) -> list[str]:
 def person_misses(person: dict) -> list[str]:
     """What one person misses of its bars (see the module docstring), one line each, naming
     the person."""
+    return [text for _, text in person_miss_kinds(person)]
+
+
+def person_miss_kinds(person: dict, margin: float | None = None) -> list[tuple[str, str]]:
+    """`person_misses` as (bar, line) pairs, the bar one of "coverage", "contact", "rest",
+    "peak_region", "flat_seat", "pelvis_thighs", "calves", and with a `margin` (metres, a
+    design in progress) "cut" too (`design_misses`)."""
     name = person["name"].split(" (")[0]
     misses = []
     if person["coverage"] < COVERAGE_MIN:
-        misses.append(f"{name}: coverage {_short_of(person['coverage'], COVERAGE_MIN)} (bar "
-                      f"{COVERAGE_MIN})")
+        misses.append(("coverage", f"{name}: coverage "
+                       f"{_short_of(person['coverage'], COVERAGE_MIN)} (bar {COVERAGE_MIN})"))
     if person["contact_coverage"] < CONTACT_COVERAGE_MIN:
-        misses.append(f"{name}: contact coverage "
-                      f"{_short_of(person['contact_coverage'], CONTACT_COVERAGE_MIN)} (bar "
-                      f"{CONTACT_COVERAGE_MIN})")
+        misses.append(("contact", f"{name}: contact coverage "
+                       f"{_short_of(person['contact_coverage'], CONTACT_COVERAGE_MIN)} (bar "
+                       f"{CONTACT_COVERAGE_MIN})"))
     balance = person["equilibrium"]
     if not balance["stable"]:
-        misses.append(f"{name}: does not come to rest ({balance['reason']})")
-        return misses
+        misses.append(("rest", f"{name}: does not come to rest ({balance['reason']})"))
+        return misses + _cut(person, name, margin)
     loads = person_loads(person)
     if loads["peak_region"] is not None and loads["peak_region"] not in person["support"]:
-        misses.append(f"{name}: peak pressure {loads['peak_kpa']:.1f} kPa on the "
-                      f"{loads['peak_region']}, which are not to be supported")
+        misses.append(("peak_region", f"{name}: peak pressure {loads['peak_kpa']:.1f} kPa on "
+                       f"the {loads['peak_region']}, which are not to be supported"))
     ratio = person.get("peak_of_flat")
     if ratio is not None and ratio > PEAK_OF_FLAT_MAX and \
             person.get("posture") not in NO_SEAT_POSTURES:
         same = person["flat"]["same_load"]
-        misses.append(f"{name}: peak pressure on the seat {same['fitted_peak_kpa']:.1f} kPa, "
-                      f"{ratio:.2f} of a flat seat's at the same load "
-                      f"({same['peak_pressure_kpa']:.1f} kPa; bar {PEAK_OF_FLAT_MAX})")
+        misses.append(("flat_seat", f"{name}: peak pressure on the seat "
+                       f"{same['fitted_peak_kpa']:.1f} kPa, {ratio:.2f} of a flat seat's at "
+                       f"the same load ({same['peak_pressure_kpa']:.1f} kPa; bar "
+                       f"{PEAK_OF_FLAT_MAX})"))
     if person.get("posture") in SEATED_POSTURES:
         if loads["pelvis_thighs_share"] < SEATED_LOAD_MIN:
-            misses.append(f"{name}: {100 * loads['pelvis_thighs_share']:.0f} % of the weight "
-                          f"on pelvis and thighs (bar {100 * SEATED_LOAD_MIN:.0f} %)")
+            misses.append(("pelvis_thighs", f"{name}: "
+                           f"{100 * loads['pelvis_thighs_share']:.0f} % of the weight on pelvis "
+                           f"and thighs (bar {100 * SEATED_LOAD_MIN:.0f} %)"))
         if loads["calves_share"] >= SEATED_CALVES_MAX:
-            misses.append(f"{name}: {100 * loads['calves_share']:.0f} % of the weight on the "
-                          f"calves (bar under {100 * SEATED_CALVES_MAX:.0f} %)")
-    return misses
+            misses.append(("calves", f"{name}: {100 * loads['calves_share']:.0f} % of the "
+                           f"weight on the calves (bar under {100 * SEATED_CALVES_MAX:.0f} %)"))
+    return misses + _cut(person, name, margin)
+
+
+def _cut(person: dict, name: str, margin: float | None) -> list[tuple[str, str]]:
+    """A design's cut deeper than the `margin` (none without one)."""
+    if margin is None or person["max_penetration_m"] <= margin + CUT_TOLERANCE_M:
+        return []
+    deepest = person["max_penetration_m"]
+    where = person.get("deepest_cut_region")
+    where = f"the {where.replace('_', ' ')}" if where else "the skin"
+    return [("cut", f"{name}: the surface cuts {1000 * deepest:.0f} mm into {where} (margin "
+                    f"{1000 * margin:.0f} mm)")]
 
 
 def design_misses(person: dict, margin: float) -> list[str]:
     """`person_misses` and, for a design in progress, a cut deeper than the `margin` (metres),
     one line each, naming the person."""
-    name = person["name"].split(" (")[0]
-    misses = person_misses(person)
-    deepest = person["max_penetration_m"]
-    if deepest > margin + CUT_TOLERANCE_M:
-        where = person.get("deepest_cut_region")
-        where = f"the {where.replace('_', ' ')}" if where else "the skin"
-        misses.append(f"{name}: the surface cuts {1000 * deepest:.0f} mm into {where} (margin "
-                      f"{1000 * margin:.0f} mm)")
-    return misses
+    return [text for _, text in person_miss_kinds(person, margin)]

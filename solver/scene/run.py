@@ -276,6 +276,7 @@ def report_parameters(scenario: Scenario) -> dict:
             "creases": [list(c) for c in params.creases],
             "foam_stiffness_kpa_per_m": scenario.foam_stiffness,
             "evaluation": scenario.evaluation.model_dump(),
+            "relief": scenario.relief.model_dump(),
             "control_mesh": scenario.surface.source}
 
 
@@ -286,6 +287,23 @@ def template_table(template) -> dict:
         dict(template.given)
     return {"kind": template.kind, **{k: list(v) if isinstance(v, tuple) else v
                                       for k, v in values.items()}}
+
+
+def relieve_fit(scenario: Scenario, people: list[PlacedPerson], result: FitResult,
+                persons: list[dict], maps: list, say: Callable[[str], None] | None = None,
+                cancel: Callable[[], bool] | None = None) -> tuple:
+    """The scenario's rounds of pressure relief (`solver.scene.relief.relieve`) after its fit
+    `result` with its figures: (result, persons, maps, Relief), the fit kept and its
+    figures; `cancel` as `relieve` takes it (each fit is given it too)."""
+    from solver.scene.relief import relieve
+
+    def evaluate(candidate: FitResult):
+        return evaluate_fit(scenario, people, candidate)[1:]
+
+    return relieve(scenario, people, result, persons, maps,
+                   fit=lambda targets: fit_people(scenario, targets, cancel=cancel),
+                   evaluate=evaluate, rounds=scenario.relief.rounds,
+                   target=scenario.relief.target, say=say, cancel=cancel)
 
 
 def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathLike, *,
@@ -349,7 +367,17 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
             timing["fit_s"] = time.perf_counter() - t
             say(f"fitted in {result.iterations} iterations, {timing['fit_s']:.2f} s: "
                 f"{result.stop_reason}")
+            relief = None
+            if scenario.relief.rounds:  # evaluated first: the rounds start from its figures
+                t = time.perf_counter()
+                _, persons, maps = evaluate_fit(scenario, people, result)
+                timing["evaluate_s"] = time.perf_counter() - t
+                t = time.perf_counter()
+                result, persons, maps, relief = relieve_fit(scenario, people, result, persons,
+                                                            maps, say)
+                timing["relief_s"] = time.perf_counter() - t
         else:
+            relief = None
             if fitted.faces.shape != scenario.surface.faces.shape or \
                     not np.array_equal(fitted.faces, scenario.surface.faces):
                 raise ValueError("Expected a fit of the scenario's control mesh, got one of "
@@ -365,14 +393,16 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         with limited_threads(), ThreadPoolExecutor(1, "sitrelax-beside") as pool:
             submit = pool.submit if beside else _now
             checking = submit(_timed, fit_guarantees, result, people, scenario.surface.params)
-            t = time.perf_counter()
-            _, persons, maps = evaluate_fit(scenario, people, result)
-            timing["evaluate_s"] = time.perf_counter() - t
+            if relief is None:
+                t = time.perf_counter()
+                _, persons, maps = evaluate_fit(scenario, people, result)
+                timing["evaluate_s"] = time.perf_counter() - t
             if pictures:  # (after the check on the one thread beside: it waits for no one)
                 title = title or (Path(scenario_path).stem if scenario_path else "scenario")
                 sheet = submit(_timed, _design_sheet, out / "sheet.png", title, result,
                                people, maps, checking, persons, dict(timing),
-                               scenario.surface.params.creases)
+                               scenario.surface.params.creases,
+                               None if relief is None else relief.record())
             t = time.perf_counter()
             files = export_scene(out, result, people, maps, formats=tuple(formats),
                                  unit=unit, up=up, creases=scenario.surface.params.creases,
@@ -395,6 +425,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
             "control_vertices": int(len(result.control)),
             "surface_vertices": int(len(result.surface)),
             "persons": persons,
+            "relief": None if relief is None else relief.record(),
             "surface_limit": files.pop("surface_limit"),
             "guarantees": guarantees,
             "pictures": pictures,
@@ -457,14 +488,14 @@ def _now(func: Callable, *args) -> Future:
 
 def _design_sheet(path: Path, title: str, result: FitResult, people: list[PlacedPerson],
                   maps: list, checking: Future, persons: list[dict], timing: dict,
-                  creases=()) -> str:
+                  creases=(), relief: dict | None = None) -> str:
     """`run_fit`'s sheet.png once the guarantees' check (`checking`) is done; its name."""
     from solver.scene.sheet import write_design_sheet
 
     guarantees, _ = checking.result()
     write_design_sheet(path, title, result.limit_surface(creases), result.surface_faces, people,
                        maps, {"guarantees": guarantees, "persons": persons, "timing": timing,
-                              "iterations": result.iterations})
+                              "iterations": result.iterations, "relief": relief})
     return path.name
 
 

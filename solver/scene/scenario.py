@@ -26,6 +26,10 @@
     floor = true            # the floor (y = 0) supports the body too (the feet)
     floor_stiffness = 30000.0  # kPa per metre under feet and shoes
 
+    [relief]
+    rounds = 0         # rounds of pressure relief after the fit (0: none)
+    target = 0.5       # the pressure aimed at, as a share of the flat seat's peak
+
     [[person]]
     name = "reader"                   # optional
     pose = "db:relaxed_sit_01"        # or "bvh:path.bvh#frame=40"
@@ -137,6 +141,7 @@ class Scenario:
     evaluation: schema.Evaluation = field(default_factory=schema.Evaluation)
     path: str | None = None
     raw: dict = field(default_factory=dict, repr=False)
+    relief: schema.Relief = field(default_factory=schema.Relief)
 
     @property
     def foam_stiffness(self) -> float:
@@ -245,7 +250,8 @@ def scenario_from_model(model: schema.Scenario, where: str = "<scenario>",
     persons = tuple(_person(p, k, where, base, files) for k, p in enumerate(model.person))
     return Scenario(SurfaceSpec(verts, faces, params, source, template), persons,
                     model.evaluation, where,
-                    raw if raw is not None else model.model_dump(exclude_none=True))
+                    raw if raw is not None else model.model_dump(exclude_none=True),
+                    model.relief)
 
 
 def template_error(exc: TemplateError, where: str) -> ScenarioError:

@@ -258,11 +258,23 @@ class Evaluation(_Model):
                                               "feet and shoes")] = 30000.0
 
 
+class Relief(_Model):
+    """Rounds of pressure relief after the fit (see README, "Pressure relief"): the surface
+    eased away from the skin it presses harder than `target` of a flat seat's peak at the same
+    load, fitted again, and kept only if it misses no bar it met."""
+
+    rounds: Annotated[int, Field(strict=True, ge=0, le=10, description="rounds at most (0: "
+                                 "none, the fit alone)")] = 0
+    target: Annotated[float, _number(0.2, 1.0, "the pressure aimed at, as a share of the flat "
+                                     "seat's peak at the same load")] = 0.5
+
+
 class Scenario(_Model):
     """A scenario: the surface to fit, how to evaluate it, and the people it supports."""
 
     surface: Surface  # type: ignore[valid-type]
     evaluation: Evaluation = Evaluation()
+    relief: Relief = Relief()
     person: Annotated[list[Person], Field(min_length=1)]
 
 

@@ -23,6 +23,7 @@ from solver.io.drawing import Section, section
 from solver.io.render import MeshView, Panel
 from solver.scene.placement import PlacedPerson, person_frame
 from solver.scene.quality import person_loads, person_misses, surface_misses
+from solver.scene.relief import relief_text
 from solver.scene.run import pressure_on_skin
 
 
@@ -69,6 +70,9 @@ def sheet_lines(report: dict) -> tuple[list[str], list[str]]:
              f"a body {1000 * g['max_penetration_dense_m']:.0f} mm (margin "
              f"{1000 * g['margin_m']:.0f} mm); fitted in {report['timing']['fit_s']:.1f} s, "
              f"{report['iterations']} iterations"]
+    relief = relief_text(report.get("relief"))
+    if relief is not None:
+        notes[0] += f"; {relief}"
     for p in report["persons"]:
         loads = person_loads(p)
         text = (f"{p['name']}, {p.get('posture', '?')}, supported: "

@@ -81,6 +81,20 @@ def test_fit_of_one_person_answers_with_the_surface_and_its_evaluation(api):
     assert person["flat"]["supported"] is False and person["flat"]["peak_pressure_kpa"] is None
 
 
+def test_a_fit_with_relief_rounds_relieves_as_sitrelax_fit_does(api):
+    """The scenario's [relief] rounds run behind the API as behind `sitrelax fit`: its reply
+    says what each round did, and the seat kept presses less against its flat seat."""
+    _, plain = _request(api, "POST", "/api/fit", SINGLE)
+    status, reply = _request(api, "POST", "/api/fit", {**SINGLE, "relief": {"rounds": 1}})
+    assert status == 200, reply
+    assert plain["relief"] is None and reply["parameters"]["relief"]["rounds"] == 1
+    rounds = reply["relief"]["rounds"]
+    assert rounds and rounds[0]["round"] == 1 and reply["relief"]["stopped"] is False
+    assert reply["relief"]["kept"] == 1, rounds  # (single_seated's first round is kept)
+    assert reply["persons"][0]["peak_of_flat"] < plain["persons"][0]["peak_of_flat"] - 0.02
+    assert reply["surface"] != plain["surface"]
+
+
 def test_the_same_fit_sent_with_an_inline_control_mesh_gives_the_same_surface(api):
     _, grid_reply = _request(api, "POST", "/api/fit", SINGLE)
     inline = json.loads(json.dumps(SINGLE))

@@ -1,0 +1,182 @@
+"""Pressure relief: a fitted surface eased away from the skin it presses hardest, and fitted again.
+
+The fit shapes the surface to the skin; the evaluation then lets each body settle on it, and
+where the surface presses the skin harder than `target` times the flat seat's peak at the same
+load (`solver.contact.evaluate.flat_at_same_load`), an upholsterer would carve the foam away.
+A round does that: under each such skin point (supported or not: an unsupported part pressed
+that hard is a peak where none is wanted) the skin the fit aims at and keeps clear of moves out
+along its normal by the excess pressure over the foam's stiffness (the depth that much
+pressure presses in), at most `STEP` a round and the margin in all, and the surface is fitted
+again from the scenario's start (a warm refit settles at once: the changed target moves the
+energy too little for its settling rule). The round is evaluated on the bodies as they are and
+kept only if no person misses a bar it met before (`solver.scene.quality`: coverage, contact,
+rest, the peak on a supported part, the seated loads, the cut), no one's peak over the flat
+seat's rises by more than `RISE` and the highest of them falls; a refused round is tried again
+(`SHARES`: as long, then half and a quarter as long), each time also where the refused fit
+pressed harder than the aim (where the peak went). The rounds stop at the first refused at every
+share, when every person is at the target, or after `rounds`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Callable, Sequence
+
+import numpy as np
+
+STEP = 0.005  # metres the aimed-at skin moves out under a point in one round, at most
+SHARES = (1.0, 1.0, 0.5, 0.25)  # of its step a round is tried with, in turn, while refused
+RISE = 0.02  # a round may raise a person's peak over the flat seat's by no more than this
+
+
+@dataclass
+class Relief:
+    """Rounds run: per round the highest peak over the flat seat's (None when no one rests on
+    a seat), whether it was kept and why not, the skin moved out at most (m); the fit kept."""
+
+    rounds: list = field(default_factory=list)
+    offsets: list = field(default_factory=list)  # per person (V,) metres, of the kept round
+    stopped: bool = False  # cut short by the caller's cancel
+
+    def record(self) -> dict:
+        """The report's "relief": the rounds, how many were kept, and whether the caller's
+        cancel stopped them."""
+        return {"rounds": self.rounds, "kept": sum(r["kept"] for r in self.rounds),
+                "stopped": self.stopped}
+
+
+def relief_text(record: dict | None) -> str | None:
+    """One line on a report's "relief" (`Relief.record`) for the sheet and the command line,
+    None without rounds."""
+    if not record or not record["rounds"]:
+        return None
+    tried = record["rounds"]
+    rounds = max((r["round"] for r in tried if r["kept"]), default=0)
+    seconds = sum(r["fit_s"] for r in tried)
+    stopped = ", stopped by the time limit" if record.get("stopped") else ""
+    return (f"pressure relief: {rounds} round(s) kept, {len(tried)} fit(s) tried "
+            f"({seconds:.1f} s of fitting{stopped})")
+
+
+def excess_depth(pressure_kpa: np.ndarray, aim_kpa: float, stiffness_pa_m: float
+                 ) -> np.ndarray:
+    """(V,) metres the foam is pressed in past what `aim_kpa` would press: (p - aim) / k, 0
+    under the aim."""
+    return np.maximum(pressure_kpa - aim_kpa, 0.0) * 1e3 / stiffness_pa_m
+
+
+def _ratios(persons: Sequence[dict]) -> list:
+    return [p.get("peak_of_flat") for p in persons]
+
+
+def _worst(ratios: list) -> float | None:
+    known = [r for r in ratios if r is not None]
+    return max(known) if known else None
+
+
+def refused(before: Sequence[dict], after: Sequence[dict], margin: float) -> str | None:
+    """Why a round's figures `after` may not replace `before` (per person, as
+    `solver.scene.run.evaluate_scene` gives them), None if they may: a bar missed that was met,
+    a person's peak over the flat seat's lost or risen by more than RISE, or the highest of
+    them not lower."""
+    from solver.scene.quality import person_miss_kinds
+
+    for b, a in zip(before, after):
+        met = {kind for kind, _ in person_miss_kinds(b, margin)}
+        new = [text for kind, text in person_miss_kinds(a, margin)
+               if kind not in met and kind != "flat_seat"]
+        if new:
+            return f"misses a bar it met: {new[0]}"
+        rb, ra = b.get("peak_of_flat"), a.get("peak_of_flat")
+        if rb is not None and (ra is None or ra > rb + RISE):
+            return (f"{a['name'].split(' (')[0]}: the peak over the flat seat's rose from "
+                    f"{rb:.2f} to "
+                    f"{'none' if ra is None else f'{ra:.2f}'}")
+    worst_b, worst_a = _worst(_ratios(before)), _worst(_ratios(after))
+    if worst_b is None or worst_a is None or worst_a >= worst_b:
+        return "the highest peak over the flat seat's did not fall"
+    return None
+
+
+def _steps(people: Sequence, persons: Sequence[dict], maps: Sequence, target: float,
+           stiffness: float) -> list[np.ndarray]:
+    """Per person (V,) metres a round moves the skin out: its `excess_depth` over `target`
+    of its flat seat's peak, at most STEP (none for a person without a seat's load)."""
+    from solver.contact.evaluate import SURFACE_PARTS, skin_pressure
+
+    steps = []
+    for p, row, m in zip(people, persons, maps):
+        same = row["flat"].get("same_load")
+        if same is None or row.get("peak_of_flat") is None or m is None:
+            steps.append(np.zeros(len(p.vertices)))  # (nothing to judge the pressure by)
+            continue
+        pressure = skin_pressure(m.settled, len(p.vertices), SURFACE_PARTS)
+        steps.append(np.minimum(excess_depth(pressure, target * same["peak_pressure_kpa"],
+                                             stiffness), STEP))
+    return steps
+
+
+def relieve(scenario, people: Sequence, result, persons: list[dict], maps: list, *,
+            fit: Callable, evaluate: Callable, rounds: int, target: float,
+            say: Callable[[str], None] | None = None,
+            cancel: Callable[[], bool] | None = None) -> tuple:
+    """Rounds of relief (module docstring) after the fit `result` of `people` with its figures
+    `persons` and pressure `maps` (`evaluate_scene`'s).
+
+    Parameters
+    ----------
+    scenario : the scenario (its margin and foam).
+    people : the placed people (`PlacedPerson`), as fitted and evaluated.
+    fit : fit(targets) -> FitResult, the scenario's fit of the people with their skin moved.
+    evaluate : evaluate(result) -> (persons, maps) on the people as they are.
+    rounds, target : the scenario's `relief`.
+    say : optional progress lines.
+    cancel : optional, asked before each fit and after it: when it says so the rounds stop
+        with what was kept so far (`Relief.stopped`), a fit it cut short unused.
+
+    Returns
+    -------
+    (result, persons, maps, Relief): the fit kept (the first when no round was) with its
+    figures, and the rounds run.
+    """
+    margin = scenario.surface.params.margin
+    stiffness = scenario.evaluation.foam_stiffness * 1e3  # Pa per metre
+    relief = Relief(offsets=[np.zeros(len(p.vertices)) for p in people])
+    for k in range(1, rounds + 1):
+        ratios = _ratios(persons)
+        if all(r is None or r <= target for r in ratios):
+            break
+        steps = _steps(people, persons, maps, target, stiffness)
+        for share in SHARES:
+            offsets = [np.minimum(before + share * step, margin)
+                       for before, step in zip(relief.offsets, steps)]
+            targets = [replace(p, vertices=p.vertices + o[:, None] * p.normals)
+                       for p, o in zip(people, offsets)]
+            if cancel is not None and cancel():
+                relief.stopped = True
+                return result, persons, maps, relief
+            candidate = fit(targets)
+            if cancel is not None and cancel():
+                relief.stopped = True
+                return result, persons, maps, relief
+            after, after_maps = evaluate(candidate)
+            why = refused(persons, after, margin)
+            moved = max(float(o.max(initial=0.0)) for o in offsets)
+            worst = _worst(_ratios(after))
+            relief.rounds.append({"round": k, "share": share, "worst_peak_of_flat": worst,
+                                  "peak_of_flat": _ratios(after), "kept": why is None,
+                                  "refused": why, "moved_out_m": moved,
+                                  "fit_s": candidate.seconds})
+            if say is not None:
+                say(f"relief round {k}: skin aimed at moved out up to {1000 * moved:.1f} mm, "
+                    f"highest peak {'none' if worst is None else f'{worst:.2f}'} of a flat "
+                    f"seat's: {'kept' if why is None else 'refused (' + why + ')'}")
+            if why is None:
+                break
+            # tried again where the refused fit pressed too hard as well (a peak moved there)
+            steps = [np.maximum(a, b) for a, b in zip(steps, _steps(people, after, after_maps,
+                                                                    target, stiffness))]
+        if why is not None:
+            break
+        result, persons, maps, relief.offsets = candidate, after, after_maps, offsets
+    return result, persons, maps, relief

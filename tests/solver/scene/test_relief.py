@@ -1,0 +1,110 @@
+"""Pressure relief (solver.scene.relief): what a round eases, when one is refused, and a whole
+relief run on an example judged by the evaluation against the plain fit."""
+
+import json
+
+import numpy as np
+import pytest
+
+from solver.scene.relief import RISE, excess_depth, refused
+from solver.scene.scenario import ScenarioError, parse_scenario
+
+SCENARIOS = __import__("pathlib").Path(__file__).resolve().parents[3] / "solver" / "data" / \
+    "scenarios"
+
+
+def test_the_excess_is_the_depth_the_pressure_over_the_aim_presses():
+    pressure = np.array([0.0, 4.0, 5.0, 10.0])  # kPa
+    depth = excess_depth(pressure, 4.0, 200e3)  # 200 kPa per metre
+    np.testing.assert_allclose(depth, [0.0, 0.0, 0.005, 0.03])
+
+
+def _person(name="sitter", ratio=0.7, **change) -> dict:
+    """A report row as person_miss_kinds reads it (reclined: no seated loads asked)."""
+    row = {"name": name, "posture": "reclined", "support": ["pelvis", "thighs"],
+           "coverage": 0.97, "contact_coverage": 0.9, "peak_pressure_kpa": 7.0,
+           "peak_region": "thighs", "equilibrium": {"stable": True, "reason": None},
+           "mat": {"total": {"regions": {}}, "supports": {}}, "max_penetration_m": 0.02,
+           "peak_of_flat": ratio,
+           "flat": {"same_load": None if ratio is None else {
+               "fitted_peak_kpa": 10.0 * ratio, "peak_pressure_kpa": 10.0}}}
+    row.update(change)
+    return row
+
+
+def test_a_round_that_lowers_the_peak_and_misses_nothing_new_is_kept():
+    assert refused([_person(ratio=0.7)], [_person(ratio=0.62)], 0.03) is None
+    # a bar missed before may stay missed
+    before = [_person(ratio=0.7, coverage=0.93)]
+    assert refused(before, [_person(ratio=0.6, coverage=0.94)], 0.03) is None
+
+
+@pytest.mark.parametrize("after, words", [
+    (_person(ratio=0.6, coverage=0.94), "coverage 0.94"),
+    (_person(ratio=0.6, contact_coverage=0.7), "contact coverage"),
+    (_person(ratio=0.6, peak_region="calves"), "on the calves"),
+    (_person(ratio=0.6, max_penetration_m=0.035), "cuts 35 mm"),
+    (_person(ratio=None, equilibrium={"stable": False, "reason": "tips over"}),
+     "does not come to rest"),
+    (_person(ratio=0.7), "did not fall"),
+    (_person(ratio=0.71), "did not fall"),
+    (_person(ratio=0.75), "rose from 0.70 to 0.75"),
+])
+def test_a_round_that_misses_a_bar_it_met_or_does_not_lower_the_peak_is_refused(after, words):
+    why = refused([_person(ratio=0.7)], [after], 0.03)
+    assert why is not None and words in why, why
+
+
+def test_one_person_may_not_pay_for_another():
+    before = [_person("a", 0.8), _person("b", 0.5)]
+    worse = [_person("a", 0.7), _person("b", 0.5 + 2 * RISE)]
+    assert "b: the peak over the flat seat's rose from 0.50" in refused(before, worse, 0.03)
+    assert refused(before, [_person("a", 0.7), _person("b", 0.5 + RISE / 2)], 0.03) is None
+    lost = [_person("a", 0.7), _person("b", None)]
+    assert "rose from 0.50 to none" in refused(before, lost, 0.03)
+
+
+@pytest.mark.parametrize("relief, field", [({"rounds": -1}, "relief.rounds"),
+                                           ({"rounds": 11}, "relief.rounds"),
+                                           ({"target": 0.1}, "relief.target"),
+                                           ({"aim": 0.5}, "relief.aim")])
+def test_a_bad_relief_names_its_field(relief, field):
+    data = {"surface": {"grid": {"size": [0.5, 0.5], "resolution": [4, 4], "height": 0.4}},
+            "person": [{"pose": "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"}],
+            "relief": relief}
+    with pytest.raises(ScenarioError, match=field):
+        parse_scenario(data, "test")
+
+
+def test_relief_is_off_unless_asked_for():
+    data = {"surface": {"grid": {"size": [0.5, 0.5], "resolution": [4, 4], "height": 0.4}},
+            "person": [{"pose": "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"}]}
+    assert parse_scenario(data, "test").relief.rounds == 0
+
+
+def test_relief_lowers_the_seated_peak_and_keeps_every_bar_the_fit_met(tmp_path):
+    """single_seated fitted plainly and with two rounds of relief: the evaluation (the body
+    settled on each surface, the flat seat at the same load) finds the relieved seat's peak
+    lower against its flat seat, and the relieved person misses no bar the plain fit met."""
+    from solver.scene.quality import person_miss_kinds
+    from solver.scene.run import run_fit
+
+    plain_toml = (SCENARIOS / "single_seated.toml").read_text()
+    plain = run_fit(SCENARIOS / "single_seated.toml", tmp_path / "plain", pictures=False,
+                    formats=("obj",))
+    scenario = tmp_path / "relieved.toml"
+    scenario.write_text(plain_toml + "\n[relief]\nrounds = 2\n")
+    relieved = run_fit(scenario, tmp_path / "relieved", pictures=False, formats=("obj",))
+    assert plain["relief"] is None
+    rounds = relieved["relief"]["rounds"]
+    assert 1 <= len(rounds) <= 2 and rounds[0]["kept"], rounds
+    before, after = plain["persons"][0], relieved["persons"][0]
+    assert after["peak_of_flat"] < before["peak_of_flat"] - 0.02, (before["peak_of_flat"],
+                                                                     after["peak_of_flat"])
+    margin = plain["parameters"]["margin"]
+    met = {kind for kind, _ in person_miss_kinds(before, margin)}
+    assert {kind for kind, _ in person_miss_kinds(after, margin)} <= met | {"flat_seat"}
+    # what was kept is what the report says: the last kept round's figures
+    kept = [r for r in rounds if r["kept"]][-1]
+    assert kept["peak_of_flat"][0] == pytest.approx(after["peak_of_flat"])
+    json.dumps(relieved, allow_nan=False)
