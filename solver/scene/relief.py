@@ -53,7 +53,7 @@ def relief_text(record: dict | None) -> str | None:
     tried = record["rounds"]
     rounds = max((r["round"] for r in tried if r["kept"]), default=0)
     seconds = sum(r["fit_s"] for r in tried)
-    stopped = ", stopped by the time limit" if record.get("stopped") else ""
+    stopped = ", stopped early: out of time" if record.get("stopped") else ""
     return (f"pressure relief: {rounds} round(s) kept, {len(tried)} fit(s) tried "
             f"({seconds:.1f} s of fitting{stopped})")
 
@@ -148,13 +148,13 @@ def relieve(scenario, people: Sequence, result, persons: list[dict], maps: list,
             break
         steps = _steps(people, persons, maps, target, stiffness)
         for share in SHARES:
+            if cancel is not None and cancel():
+                relief.stopped = True
+                return result, persons, maps, relief
             offsets = [np.minimum(before + share * step, margin)
                        for before, step in zip(relief.offsets, steps)]
             targets = [replace(p, vertices=p.vertices + o[:, None] * p.normals)
                        for p, o in zip(people, offsets)]
-            if cancel is not None and cancel():
-                relief.stopped = True
-                return result, persons, maps, relief
             candidate = fit(targets)
             if cancel is not None and cancel():
                 relief.stopped = True

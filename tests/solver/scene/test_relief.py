@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from solver.scene.relief import RISE, excess_depth, refused
+from solver.scene.relief import RISE, excess_depth, refused, relief_text, relieve
 from solver.scene.scenario import ScenarioError, parse_scenario
 
 SCENARIOS = __import__("pathlib").Path(__file__).resolve().parents[3] / "solver" / "data" / \
@@ -74,6 +74,30 @@ def test_a_bad_relief_names_its_field(relief, field):
             "relief": relief}
     with pytest.raises(ScenarioError, match=field):
         parse_scenario(data, "test")
+
+
+def test_a_cancel_stops_the_rounds_with_what_was_kept_and_says_so():
+    """Asked before each fit: a cancel that says so at once leaves the fit as it was."""
+    from types import SimpleNamespace
+
+    scenario = SimpleNamespace(surface=SimpleNamespace(params=SimpleNamespace(margin=0.03)),
+                               evaluation=SimpleNamespace(foam_stiffness=200.0))
+    people = [SimpleNamespace(vertices=np.zeros((3, 3)), normals=np.zeros((3, 3)))]
+    persons = [{"peak_of_flat": 0.8, "flat": {"same_load": None}}]
+
+    def never(*_):
+        raise AssertionError("no fit after the cancel")
+
+    result, kept, maps, relief = relieve(scenario, people, "fit", persons, [None], fit=never,
+                                         evaluate=never, rounds=3, target=0.5,
+                                         cancel=lambda: True)
+    assert (result, kept, maps) == ("fit", persons, [None])
+    assert relief.record() == {"rounds": [], "kept": 0, "stopped": True}
+    assert relief_text(relief.record()) is None  # (nothing tried: no line)
+    tried = {"rounds": [{"round": 1, "kept": True, "fit_s": 0.5},
+                        {"round": 2, "kept": False, "fit_s": 0.25}], "stopped": True}
+    assert relief_text(tried) == ("pressure relief: 1 round(s) kept, 2 fit(s) tried (0.8 s of "
+                                  "fitting, stopped early: out of time)")
 
 
 def test_relief_is_off_unless_asked_for():
