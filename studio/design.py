@@ -37,10 +37,10 @@ from solver.scene import schema
 from solver.scene.quality import design_misses
 from solver.surface.fit import FitResult
 from solver.scene.run import (SURFACE_FORMATS, evaluate_fit, fit_people, relax_person,
-                              relax_text, run_fit, save_relaxed)
+                              relax_text, relieve_fit, run_fit, save_relaxed)
 from solver.scene.scenario import (PersonSpec, Scenario, ScenarioError, parse_scenario,
                                    read_control_mesh, scenario_toml)
-from solver.scene.design import shared_given
+from solver.scene.design import RELIEF_ROUNDS, shared_given
 from solver.scene.placement import PlacedPerson, furnished, place_person, scene_posture
 from solver.surface.subdivision import subdivision
 
@@ -126,6 +126,7 @@ class FitOutcome:
     seconds: float
     limit: np.ndarray | None = None  # (ns, 3) m: the level-s vertices' limit points (exported)
     data: dict | None = None  # the scenario data (`Design.scenario_data`) it is the fit of
+    relief: dict | None = None  # the `[relief]` asked (rounds, target) when rounds were kept
 
 
 @dataclass(frozen=True)
@@ -532,6 +533,31 @@ class Design:
         self.relaxed = {}  # relaxed onto the surface before
         return self.last
 
+    def relieve(self, rounds: int = RELIEF_ROUNDS, target: float | None = None,
+                say: Callable[[str], None] | None = None) -> dict:
+        """Rounds of pressure relief (`solver.scene.relief`, as a scenario's `[relief]` asks
+        `sitrelax fit` for them) after the last fit, which must be of the session as it is
+        now: the fit kept becomes `last` (the relaxed poses, relaxed onto the surface before,
+        go), and the scenario saved of it asks for the same rounds (`save_toml`). Returns
+        report.json's `relief` (`Relief.record`)."""
+        if not self.fitted:
+            raise DesignError("Fit first: relief eases the fitted surface where it presses "
+                              "hardest (the session has no fit, or was edited since)")
+        start = time.perf_counter()
+        relief = schema.Relief(rounds=rounds, **({} if target is None else {"target": target}))
+        scenario = dataclasses.replace(self._parse(self.last.data), relief=relief)
+        people, result = self.last.people, self.last.result
+        _, persons, maps = evaluate_fit(scenario, people, result)  # (the settles again)
+        result, persons, maps, done = relieve_fit(scenario, people, result, persons, maps, say)
+        if any(r["kept"] for r in done.rounds):
+            self.last = FitOutcome(result, people, persons, [m.pressure_kpa for m in maps],
+                                   time.perf_counter() - start,
+                                   result.limit_surface(scenario.surface.params.creases),
+                                   self.last.data, relief.model_dump())
+            self.resume = None
+            self.relaxed = {}
+        return done.record()
+
     def _keep_resume(self, result: FitResult, resumable: int) -> None:
         """A cancelled fit's result for the next warm fit to go on from, if it got somewhere
         and nothing since its start dropped the fits (another control mesh, a person removed,
@@ -605,7 +631,10 @@ class Design:
         path = Path(path)
         if path.suffix.lower() != ".toml":
             raise DesignError(f"Expected a .toml file name, got {path.name!r}")
-        text = scenario_toml(self.scenario_data())
+        data = self.scenario_data()
+        if self.fitted and self.last.relief is not None:  # (the fit on screen was relieved)
+            data["relief"] = self.last.relief
+        text = scenario_toml(data)
         self._parse(tomllib.loads(text))  # what is written reads back
         path.parent.mkdir(parents=True, exist_ok=True)
         write_atomic(path, text.encode())

@@ -39,6 +39,7 @@ from solver.contact.evaluate import flat_text, peak_text
 from solver.io.render import SKIN, SURFACE
 from solver.mesh import quad_triangles
 from solver.scene import schema
+from solver.scene.relief import relief_text
 from solver.scene.run import pressure_on_skin
 
 from .context import INTERNAL, PROBLEM, LibraryWatch, StudioContext, guarded, notice
@@ -385,6 +386,10 @@ class DesignView:
         with gui.add_folder("Run"):
             self.fit = gui.add_button("Fit")
             self.cancel = gui.add_button("Cancel fit")
+            self.relieve = gui.add_button(
+                "Relieve pressure", hint="Rounds of pressure relief after the fit on screen "
+                "(README, 'Pressure relief'): eased where the bodies press hardest, refitted, "
+                "kept only if no bar met is missed; seconds a round")
             self.live = gui.add_checkbox("Refit while dragging", initial_value=True)
             self.undo = gui.add_button("Undo", disabled=True)
             self.redo = gui.add_button("Redo", disabled=True)
@@ -470,6 +475,7 @@ class DesignView:
             (self.save_pose, self._save_pose), (self.new_grid, self._new_grid),
             (self.build, self._build_template),
             (self.adopt, self._adopt), (self.fit, self.run_fit), (self.undo, self._undo),
+            (self.relieve, self._relieve),
             (self.redo, self._redo), (self.fix, lambda: self._fix(True)),
             (self.free, lambda: self._fix(False)), (self.crease, lambda: self._crease(True)),
             (self.smooth, lambda: self._crease(False)), (self.split, self._split),
@@ -971,6 +977,21 @@ class DesignView:
         if not self.session.fit(source=self):
             self._status("The fit was cancelled: the surface shown is the last finished fit's."
                          if self.session.stopped else "The fit was overtaken by a newer edit.")
+
+    def _relieve(self) -> None:
+        """Rounds of pressure relief after the fit on screen (the Relieve pressure button)."""
+        self._status("Relieving pressure...")
+
+        def say(line: str) -> None:
+            self.progress.content = f"*{line[0].upper()}{line[1:]}*"
+
+        record = self.design.relieve(say=say)
+        self.fitted()
+        line = relief_text(record)
+        self._status(("No round ran: every peak is at the aim already (half the flat seat's)"
+                      if line is None else f"{line[0].upper()}{line[1:]}") +
+                     f".\n\n{self._figures()}")
+        self._show_warnings()
 
     def fitting(self, iteration: int | None, energy: float | None) -> None:
         """A fit's news: started (None) or one more accepted iteration."""

@@ -255,6 +255,23 @@ def test_fit_shows_the_fitted_net_relax_saves_and_removal_clears(tab, library):
 
 
 @pytest.mark.slow
+def test_the_relieve_button_relieves_the_fit_on_screen_and_says_what_it_did(tab):
+    view = tab.view
+    _seat(view)
+    view._guarded(view._relieve)  # nothing fitted yet: said so
+    assert "Fit first" in view.status_text, view.status_text
+    view._guarded(view.run_fit)
+    plain = view.design.last
+    view._guarded(view._relieve)
+    assert "Pressure relief:" in view.status_text and "round(s) kept" in view.status_text, \
+        view.status_text
+    relieved = view.design.last  # (single_seated's seat: its first round is kept)
+    assert relieved is not plain and view._drawn_fit is relieved
+    assert relieved.persons[0]["peak_of_flat"] < plain.persons[0]["peak_of_flat"]
+    assert view.progress.content == ""  # the rounds' news gone with the drawing
+
+
+@pytest.mark.slow
 def test_export_downloads_one_zip_of_every_format(tab):
     view = tab.view
     _seat(view)

@@ -35,6 +35,30 @@ def test_a_design_fits_relaxes_and_saves_what_reads_back(library, tmp_path):
     assert stored["result"]["persons"][0]["coverage"] == outcome.persons[0]["coverage"]
 
 
+def test_relief_after_the_fit_on_screen_lowers_the_seat_s_peak_and_saves_its_rounds(library,
+                                                                                     tmp_path):
+    """The studio's relief is `sitrelax fit`'s (single_seated's start and person): its rounds
+    lower the seat's peak against the flat seat's, the relieved fit is the one on screen, and
+    the scenario saved of it asks for the rounds; an edit since the fit is refused first."""
+    d = Design(library)
+    d.new_grid((0.5, 0.6), (8, 6), 0.42)
+    d.add_person("db:perch", position=[0.0, 0.0, -0.1], support=["seat"])
+    with pytest.raises(DesignError, match="Fit first"):
+        d.relieve()
+    plain = d.fit()
+    record = d.relieve(rounds=2)
+    assert record["kept"] >= 1, record
+    assert d.last is not plain and d.fitted
+    assert d.last.persons[0]["peak_of_flat"] < plain.persons[0]["peak_of_flat"] - 0.02
+    assert d.last.relief == {"rounds": 2, "target": 0.5}
+    saved = tomllib.loads(d.save_toml(tmp_path / "relieved.toml").read_text())
+    assert saved["relief"] == {"rounds": 2, "target": 0.5}
+    d.update_person(0, position=[0.0, 0.0, -0.09])
+    with pytest.raises(DesignError, match="edited since"):
+        d.relieve()
+    assert "relief" not in tomllib.loads(d.save_toml(tmp_path / "edited.toml").read_text())
+
+
 def test_design_edits_are_checked(library):
     d = Design(library)
     with pytest.raises(DesignError, match="empty"):
