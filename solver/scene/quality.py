@@ -69,20 +69,26 @@ def _short_of(value: float, bar: float) -> str:
 
 def surface_misses(guarantees: dict) -> list[str]:
     """What the surface misses of its bars (report.json's `guarantees`), one line each."""
+    return [text for _, text in surface_miss_kinds(guarantees)]
+
+
+def surface_miss_kinds(guarantees: dict) -> list[tuple[str, str]]:
+    """`surface_misses` as (bar, line) pairs, the bar one of "crossing", "fold", "floor",
+    "cut"."""
     g, misses = guarantees, []
     if g["self_intersections"]:
-        misses.append(f"the surface crosses itself ({g['self_intersections']} pairs of "
-                      f"triangles)")
+        misses.append(("crossing", f"the surface crosses itself ({g['self_intersections']} "
+                                   f"pairs of triangles)"))
     if g["folds"]:
-        misses.append(f"{g['folds']} folds: neighbouring faces up to {g['max_fold_deg']:.0f} "
-                      f"degrees apart (a fold is over 60)")
+        misses.append(("fold", f"{g['folds']} folds: neighbouring faces up to "
+                               f"{g['max_fold_deg']:.0f} degrees apart (a fold is over 60)"))
     if g["below_floor"]:
-        misses.append(f"dips {1000 * (g['floor_m'] - g['min_height_m']):.0f} mm under the "
-                      f"floor")
+        misses.append(("floor", f"dips {1000 * (g['floor_m'] - g['min_height_m']):.0f} mm "
+                                f"under the floor"))
     deepest, margin = g["max_penetration_dense_m"], g["margin_m"]
     if deepest > margin + CUT_TOLERANCE_M:
-        misses.append(f"cuts {1000 * deepest:.0f} mm into a body (margin {1000 * margin:.0f} "
-                      f"mm)")
+        misses.append(("cut", f"cuts {1000 * deepest:.0f} mm into a body (margin "
+                              f"{1000 * margin:.0f} mm)"))
     return misses
 
 
@@ -134,8 +140,8 @@ def person_miss_kinds(person: dict, margin: float | None = None) -> list[tuple[s
 
 def _cut(person: dict, name: str, margin: float | None) -> list[tuple[str, str]]:
     """A design's cut deeper than the `margin` (none without one)."""
-    if margin is None or person["max_penetration_m"] <= margin + CUT_TOLERANCE_M:
-        return []
+    if margin is None or not person["max_penetration_m"] > margin + CUT_TOLERANCE_M:
+        return []  # (as `surface_misses`: a cut is a depth past the margin)
     deepest = person["max_penetration_m"]
     where = person.get("deepest_cut_region")
     where = f"the {where.replace('_', ' ')}" if where else "the skin"

@@ -52,7 +52,7 @@ def relief_text(record: dict | None) -> str | None:
         return None
     tried = record["rounds"]
     rounds = max((r["round"] for r in tried if r["kept"]), default=0)
-    seconds = sum(r["fit_s"] for r in tried)
+    seconds = sum(r["fit_s"] or 0.0 for r in tried)  # (None: a fit that failed)
     stopped = ", stopped early: out of time" if record.get("stopped") else ""
     return (f"pressure relief: {rounds} round(s) kept, {len(tried)} fit(s) tried "
             f"({seconds:.1f} s of fitting{stopped})")
@@ -66,7 +66,12 @@ def excess_depth(pressure_kpa: np.ndarray, aim_kpa: float, stiffness_pa_m: float
 
 
 def _ratios(persons: Sequence[dict]) -> list:
-    return [p.get("peak_of_flat") for p in persons]
+    """Each person's peak over the flat seat's (None for a person standing, who sits on no
+    seat and is not held to it, or without one)."""
+    from solver.scene.quality import NO_SEAT_POSTURES
+
+    return [None if p.get("posture") in NO_SEAT_POSTURES else p.get("peak_of_flat")
+            for p in persons]
 
 
 def _worst(ratios: list) -> float | None:
@@ -74,23 +79,44 @@ def _worst(ratios: list) -> float | None:
     return max(known) if known else None
 
 
-def refused(before: Sequence[dict], after: Sequence[dict], margin: float) -> str | None:
+JUDGED_WITHOUT_REST = {"coverage", "contact", "rest", "cut"}  # the bars judged of a body that
+# does not rest (`person_miss_kinds` judges the others on the body at rest)
+WORSE = {"coverage": 0.01, "contact_coverage": 0.01}  # a share a bar missed may lose, at most
+WORSE_CUT_M = 0.001  # metres a cut deeper than the margin may deepen, at most
+
+
+def refused(before: Sequence[dict], after: Sequence[dict], margin: float,
+            first: Sequence[dict] | None = None) -> str | None:
     """Why a round's figures `after` may not replace `before` (per person, as
     `solver.scene.run.evaluate_scene` gives them), None if they may: a bar missed that was met
-    (the flat seat's too), a person's peak over the flat seat's lost or risen by more than
-    RISE, or the highest of them not lower."""
+    (the flat seat's too; of a body that did not rest, those judged without a rest), a bar
+    missed that gets worse (coverage or contact by more than 0.01, the cut by more than 1
+    mm), a person's peak over the flat seat's lost or more than RISE over its figure in
+    `first` (the fit before any round; `before` when not given), or the highest of them not
+    lower."""
     from solver.scene.quality import person_miss_kinds
 
-    for b, a in zip(before, after):
-        met = {kind for kind, _ in person_miss_kinds(b, margin)}
-        new = [text for kind, text in person_miss_kinds(a, margin) if kind not in met]
+    first = before if first is None else first
+    for b, a, f in zip(before, after, first):
+        missed = {kind for kind, _ in person_miss_kinds(b, margin)}
+        judged = None if b["equilibrium"]["stable"] else JUDGED_WITHOUT_REST
+        new = [text for kind, text in person_miss_kinds(a, margin)
+               if kind not in missed and (judged is None or kind in judged)]
         if new:
             return f"misses a bar it met: {new[0]}"
-        rb, ra = b.get("peak_of_flat"), a.get("peak_of_flat")
-        if rb is not None and (ra is None or ra > rb + RISE):
-            return (f"{a['name'].split(' (')[0]}: the peak over the flat seat's rose from "
-                    f"{rb:.2f} to "
-                    f"{'none' if ra is None else f'{ra:.2f}'}")
+        name = a["name"].split(" (")[0]
+        for figure, kind in (("coverage", "coverage"), ("contact_coverage", "contact")):
+            if kind in missed and a[figure] < b[figure] - WORSE[figure]:
+                return f"{name}: {figure.replace('_', ' ')} fell further, {b[figure]:.3f} " \
+                       f"-> {a[figure]:.3f}"
+        if "cut" in missed and a["max_penetration_m"] > b["max_penetration_m"] + WORSE_CUT_M:
+            return (f"{name}: the cut deepened, {1000 * b['max_penetration_m']:.0f} -> "
+                    f"{1000 * a['max_penetration_m']:.0f} mm")
+        (rf,), (ra,) = _ratios([f]), _ratios([a])
+        if _ratios([b])[0] is not None and ra is None:
+            return f"{name}: the peak over the flat seat's is lost"
+        if rf is not None and ra is not None and ra > rf + RISE:
+            return f"{name}: the peak over the flat seat's rose from {rf:.2f} to {ra:.2f}"
     worst_b, worst_a = _worst(_ratios(before)), _worst(_ratios(after))
     if worst_b is None or worst_a is None or worst_a >= worst_b:
         return "the highest peak over the flat seat's did not fall"
@@ -104,9 +130,9 @@ def _steps(people: Sequence, persons: Sequence[dict], maps: Sequence, target: fl
     from solver.contact.evaluate import SURFACE_PARTS, skin_pressure
 
     steps = []
-    for p, row, m in zip(people, persons, maps):
+    for p, row, m, ratio in zip(people, persons, maps, _ratios(persons)):
         same = row["flat"].get("same_load")
-        if same is None or row.get("peak_of_flat") is None or m is None:
+        if same is None or ratio is None or m is None:
             steps.append(np.zeros(len(p.vertices)))  # (nothing to judge the pressure by)
             continue
         pressure = skin_pressure(m.settled, len(p.vertices), SURFACE_PARTS)
@@ -118,7 +144,8 @@ def _steps(people: Sequence, persons: Sequence[dict], maps: Sequence, target: fl
 def relieve(scenario, people: Sequence, result, persons: list[dict], maps: list, *,
             fit: Callable, evaluate: Callable, rounds: int, target: float,
             say: Callable[[str], None] | None = None,
-            cancel: Callable[[], bool] | None = None) -> tuple:
+            cancel: Callable[[], bool] | None = None,
+            check: Callable[[object], str | None] | None = None) -> tuple:
     """Rounds of relief (module docstring) after the fit `result` of `people` with its figures
     `persons` and pressure `maps` (`evaluate_scene`'s).
 
@@ -132,15 +159,20 @@ def relieve(scenario, people: Sequence, result, persons: list[dict], maps: list,
     say : optional progress lines.
     cancel : optional, asked before each fit and after it: when it says so the rounds stop
         with what was kept so far (`Relief.stopped`), a fit it cut short unused.
+    check : optional check(result) -> why the surface may not be kept (its own bars: crossing,
+        folds, the floor, the dense cut) or None, asked of a fit the people's figures keep.
 
     Returns
     -------
     (result, persons, maps, Relief): the fit kept (the first when no round was) with its
     figures, and the rounds run.
     """
+    from solver.surface.fit import FitError
+
     margin = scenario.surface.params.margin
     stiffness = scenario.evaluation.foam_stiffness * 1e3  # Pa per metre
     relief = Relief(offsets=[np.zeros(len(p.vertices)) for p in people])
+    first = persons
     for k in range(1, rounds + 1):
         ratios = _ratios(persons)
         if all(r is None or r <= target for r in ratios):
@@ -152,29 +184,47 @@ def relieve(scenario, people: Sequence, result, persons: list[dict], maps: list,
                 return result, persons, maps, relief
             offsets = [np.minimum(before + share * step, margin)
                        for before, step in zip(relief.offsets, steps)]
+            if all(np.array_equal(o, before) for o, before in zip(offsets, relief.offsets)):
+                why = "nothing left to ease: the skin is out by the margin where it presses"
+                if say is not None:
+                    say(f"relief round {k}: {why}")
+                break  # (the same fit again: no try)
             targets = [replace(p, vertices=p.vertices + o[:, None] * p.normals)
                        for p, o in zip(people, offsets)]
-            candidate = fit(targets)
+            moved = max(float(o.max(initial=0.0)) for o in offsets)
+            try:
+                candidate = fit(targets)
+            except FitError as exc:  # (the fit before stands)
+                why, after = f"the fit failed: {exc}", None
+                relief.rounds.append({"round": k, "share": share, "worst_peak_of_flat": None,
+                                      "peak_of_flat": None, "kept": False, "refused": why,
+                                      "moved_out_m": moved, "fit_s": None,
+                                      "iterations": None})
+                if say is not None:
+                    say(f"relief round {k}: refused ({why})")
+                continue
             if cancel is not None and cancel():
                 relief.stopped = True
                 return result, persons, maps, relief
             after, after_maps = evaluate(candidate)
-            why = refused(persons, after, margin)
-            moved = max(float(o.max(initial=0.0)) for o in offsets)
+            why = refused(persons, after, margin, first)
+            if why is None and check is not None:  # (the surface's bars: only for a keeper)
+                why = check(candidate)
             worst = _worst(_ratios(after))
             relief.rounds.append({"round": k, "share": share, "worst_peak_of_flat": worst,
                                   "peak_of_flat": _ratios(after), "kept": why is None,
                                   "refused": why, "moved_out_m": moved,
-                                  "fit_s": candidate.seconds})
+                                  "fit_s": candidate.seconds,
+                                  "iterations": candidate.iterations})
             if say is not None:
                 say(f"relief round {k}: skin aimed at moved out up to {1000 * moved:.1f} mm, "
                     f"highest peak {'none' if worst is None else f'{worst:.2f}'} of a flat "
                     f"seat's: {'kept' if why is None else 'refused (' + why + ')'}")
             if why is None:
                 break
-            # tried again where the refused fit pressed too hard as well (a peak moved there)
-            steps = [np.maximum(a, b) for a, b in zip(steps, _steps(people, after, after_maps,
-                                                                    target, stiffness))]
+            if after is not None:  # tried again where the refused fit pressed too hard too
+                steps = [np.maximum(a, b) for a, b in zip(steps, _steps(
+                    people, after, after_maps, target, stiffness))]
         if why is not None:
             break
         result, persons, maps, relief.offsets = candidate, after, after_maps, offsets

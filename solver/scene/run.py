@@ -294,16 +294,30 @@ def relieve_fit(scenario: Scenario, people: list[PlacedPerson], result: FitResul
                 cancel: Callable[[], bool] | None = None) -> tuple:
     """The scenario's rounds of pressure relief (`solver.scene.relief.relieve`) after its fit
     `result` with its figures: (result, persons, maps, Relief), the fit kept and its
-    figures; `cancel` as `relieve` takes it (each fit is given it too)."""
+    figures; `cancel` as `relieve` takes it (each fit is given it too); a fit kept must also
+    miss none of the surface's bars (`fit_guarantees`) that the first met."""
     from solver.scene.relief import relieve
 
     def evaluate(candidate: FitResult):
         return evaluate_fit(scenario, people, candidate)[1:]
 
+    from solver.scene.quality import surface_miss_kinds
+
+    params, missed = scenario.surface.params, []
+
+    def check(candidate: FitResult) -> str | None:  # the surface's bars the first fit met
+        if not missed:
+            missed.append({k for k, _ in surface_miss_kinds(fit_guarantees(result, people,
+                                                                           params))})
+        new = [text for kind, text in surface_miss_kinds(fit_guarantees(candidate, people,
+                                                                        params))
+               if kind not in missed[0]]
+        return f"the surface misses a bar it met: {new[0]}" if new else None
+
     return relieve(scenario, people, result, persons, maps,
                    fit=lambda targets: fit_people(scenario, targets, cancel=cancel),
                    evaluate=evaluate, rounds=scenario.relief.rounds,
-                   target=scenario.relief.target, say=say, cancel=cancel)
+                   target=scenario.relief.target, say=say, cancel=cancel, check=check)
 
 
 def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathLike, *,
@@ -376,6 +390,8 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
                 result, persons, maps, relief = relieve_fit(scenario, people, result, persons,
                                                             maps, say)
                 timing["relief_s"] = time.perf_counter() - t
+                if any(r["kept"] for r in relief.rounds):  # (the report is of the kept fit)
+                    timing["first_fit_s"], timing["fit_s"] = timing["fit_s"], result.seconds
         else:
             relief = None
             if fitted.faces.shape != scenario.surface.faces.shape or \
