@@ -296,14 +296,13 @@ def relieve_fit(scenario: Scenario, people: list[PlacedPerson], result: FitResul
     `result` with its figures: (result, persons, maps, Relief), the fit kept and its
     figures; `cancel` as `relieve` takes it (each fit is given it too); a fit kept must also
     miss none of the surface's bars (`fit_guarantees`) that the first met."""
+    from solver.scene.quality import surface_miss_kinds
     from solver.scene.relief import relieve
+
+    params, missed = scenario.surface.params, []
 
     def evaluate(candidate: FitResult):
         return evaluate_fit(scenario, people, candidate)[1:]
-
-    from solver.scene.quality import surface_miss_kinds
-
-    params, missed = scenario.surface.params, []
 
     def check(candidate: FitResult) -> str | None:  # the surface's bars the first fit met
         if not missed:
