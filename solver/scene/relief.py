@@ -9,12 +9,14 @@ along its normal by the excess pressure over the foam's stiffness (the depth tha
 pressure presses in), at most `STEP` a round and the margin in all, and the surface is fitted
 again from the scenario's start (a warm refit settles at once: the changed target moves the
 energy too little for its settling rule). The round is evaluated on the bodies as they are and
-kept only if no person misses a bar it met before (`solver.scene.quality`: coverage, contact,
-rest, the peak on a supported part, the flat seat's, the seated loads, the cut), no one's peak
-over the flat seat's rises by more than `RISE` and the highest of them falls; a refused round is tried again
-(`SHARES`: as long, then half and a quarter as long), each time also where the refused fit
-pressed harder than the aim (where the peak went). The rounds stop at the first refused at every
-share, when every person is at the target, or after `rounds`.
+kept only if `refused` finds nothing: no bar a person met is missed (`solver.scene.quality`),
+no bar missed gets worse, no one's peak over the flat seat's comes to more than `RISE` over its
+figure before the first round, the highest of them falls, and (the caller's `check`) the
+surface misses none of its own bars it met. A refused round is tried again (`SHARES`: as long,
+then half and a quarter as long), each time also where the refused fit pressed harder than the
+aim (where the peak went); a fit that fails is a refused try. The rounds stop at the first
+refused at every share, when every person is at the target, when nothing is left to ease (the
+skin out by the margin), or after `rounds`.
 """
 
 from __future__ import annotations
@@ -26,13 +28,14 @@ import numpy as np
 
 STEP = 0.005  # metres the aimed-at skin moves out under a point in one round, at most
 SHARES = (1.0, 1.0, 0.5, 0.25)  # of its step a round is tried with, in turn, while refused
-RISE = 0.05  # a round may raise a person's peak over the flat seat's by no more than this
+RISE = 0.05  # the most a person's peak over the flat seat's may come to over its first figure
 
 
 @dataclass
 class Relief:
-    """Rounds run: per round the highest peak over the flat seat's (None when no one rests on
-    a seat), whether it was kept and why not, the skin moved out at most (m); the fit kept."""
+    """The fits tried (`rounds`: per fit its round, share of the step, peaks over the flat
+    seat's, whether it was kept and why not, the skin moved out at most (m), seconds and
+    iterations), the kept round's skin offsets per person, and whether a cancel stopped them."""
 
     rounds: list = field(default_factory=list)
     offsets: list = field(default_factory=list)  # per person (V,) metres, of the kept round
