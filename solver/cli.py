@@ -437,7 +437,8 @@ def _register_fitting(sub) -> None:
     batch.add_argument("--template", help="scenario whose people take each pose of --from-db")
     batch.add_argument("--grid", action="append", default=[],
                        help="KEY=V1,V2,...: sigma, tau_max, margin, level, surface.KEY, "
-                            "evaluation.KEY, body.KEY, person.KEY (repeatable)")
+                            "evaluation.KEY, relief.KEY, body.KEY, person.KEY "
+                            "(repeatable)")
     batch.add_argument("--db", default=None, help="pose library: db: poses, and where the "
                        "results are stored as scenarios")
     batch.add_argument("--out", required=True, help="output folder (a re-run skips what "

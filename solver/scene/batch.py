@@ -93,11 +93,12 @@ def parse_grid(items: Sequence[str]) -> dict[str, list]:
 
 def _apply(data: dict, key: str, value) -> None:
     """Sets one grid key in scenario data: `sigma` (a surface shortcut), `surface.X`,
-    `evaluation.X`, or `body.X` / `person.X` for every person."""
+    `evaluation.X`, `relief.X` (rounds, target), or `body.X` / `person.X` for every
+    person."""
     parts = key.split(".")
     if len(parts) == 1 and parts[0] in SURFACE_SHORTCUTS:
         parts = ["surface", parts[0]]
-    if parts[0] in ("surface", "evaluation") and len(parts) == 2:
+    if parts[0] in ("surface", "evaluation", "relief") and len(parts) == 2:
         data.setdefault(parts[0], {})[parts[1]] = value
     elif parts[0] == "body" and len(parts) == 2:
         for person in data.get("person", []):
@@ -107,7 +108,7 @@ def _apply(data: dict, key: str, value) -> None:
             person[parts[1]] = value
     else:
         raise BatchError(f"--grid {key}: expected sigma, tau_max, margin, level, surface.KEY, "
-                         "evaluation.KEY, body.KEY or person.KEY")
+                         "evaluation.KEY, relief.KEY, body.KEY or person.KEY")
 
 
 def _job_id(scenario: str, data: dict, parameters: dict) -> str:

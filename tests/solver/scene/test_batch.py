@@ -51,6 +51,16 @@ def test_grid_and_template_expand_to_jobs(library, tmp_path):
     assert type(parse_grid(["level=3.0"])["level"][0]) is int
     with pytest.raises(BatchError, match="--grid colour"):
         expand_jobs([EXAMPLES / "single_seated.toml"], grid={"colour": [1]})
+    # relief swept like any other table: each job's scenario asks for its rounds and aim
+    relief = expand_jobs([EXAMPLES / "single_seated.toml"],
+                         grid=parse_grid(["relief.rounds=0,3", "relief.target=0.4,0.5"]))
+    assert sorted((j.data["relief"]["rounds"], j.data["relief"]["target"]) for j in relief) == \
+        [(0, 0.4), (0, 0.5), (3, 0.4), (3, 0.5)]
+    from solver.scene.scenario import parse_scenario
+
+    (job,) = [j for j in relief if j.parameters == {"relief.rounds": 3, "relief.target": 0.4}]
+    assert parse_scenario(job.data, "job", EXAMPLES).relief.model_dump() == \
+        {"rounds": 3, "target": 0.4}
     with pytest.raises(BatchError, match="No pose"):
         expand_jobs(from_db="lying", template=EXAMPLES / "single_seated.toml", db=library)
 
