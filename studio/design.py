@@ -543,6 +543,8 @@ class Design:
         if not self.fitted:
             raise DesignError("Fit first: relief eases the fitted surface where it presses "
                               "hardest (the session has no fit, or was edited since)")
+        if self.last.relief is not None:  # (a scenario saved of it must give it again)
+            raise DesignError("The fit on screen is relieved already: press Fit to start over")
         start = time.perf_counter()
         relief = schema.Relief(rounds=rounds, **({} if target is None else {"target": target}))
         scenario = dataclasses.replace(self._parse(self.last.data), relief=relief)

@@ -53,6 +53,8 @@ def test_relief_after_the_fit_on_screen_lowers_the_seat_s_peak_and_saves_its_rou
     assert d.last.relief == {"rounds": 2, "target": 0.5}
     saved = tomllib.loads(d.save_toml(tmp_path / "relieved.toml").read_text())
     assert saved["relief"] == {"rounds": 2, "target": 0.5}
+    with pytest.raises(DesignError, match="relieved already"):  # (the file gives it again)
+        d.relieve()
     d.update_person(0, position=[0.0, 0.0, -0.09])
     with pytest.raises(DesignError, match="edited since"):
         d.relieve()
