@@ -551,7 +551,7 @@ class Design:
         people, result = self.last.people, self.last.result
         _, persons, maps = evaluate_fit(scenario, people, result)  # (the settles again)
         result, persons, maps, done = relieve_fit(scenario, people, result, persons, maps, say)
-        if any(r["kept"] for r in done.rounds):
+        if done.kept:
             self.last = FitOutcome(result, people, persons, [m.pressure_kpa for m in maps],
                                    time.perf_counter() - start,
                                    result.limit_surface(scenario.surface.params.creases),

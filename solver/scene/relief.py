@@ -41,11 +41,15 @@ class Relief:
     offsets: list = field(default_factory=list)  # per person (V,) metres, of the kept round
     stopped: bool = False  # cut short by the caller's cancel
 
+    @property
+    def kept(self) -> int:
+        """How many rounds were kept."""
+        return sum(r["kept"] for r in self.rounds)
+
     def record(self) -> dict:
         """The report's "relief": the rounds, how many were kept, and whether the caller's
         cancel stopped them."""
-        return {"rounds": self.rounds, "kept": sum(r["kept"] for r in self.rounds),
-                "stopped": self.stopped}
+        return {"rounds": self.rounds, "kept": self.kept, "stopped": self.stopped}
 
 
 def relief_text(record: dict | None) -> str | None:
@@ -100,7 +104,8 @@ def refused(before: Sequence[dict], after: Sequence[dict], margin: float,
     from solver.scene.quality import person_miss_kinds
 
     first = before if first is None else first
-    for b, a, f in zip(before, after, first):
+    ratios_b, ratios_a = _ratios(before), _ratios(after)
+    for b, a, rb, ra, rf in zip(before, after, ratios_b, ratios_a, _ratios(first)):
         missed = {kind for kind, _ in person_miss_kinds(b, margin)}
         judged = None if b["equilibrium"]["stable"] else JUDGED_WITHOUT_REST
         new = [text for kind, text in person_miss_kinds(a, margin)
@@ -115,12 +120,11 @@ def refused(before: Sequence[dict], after: Sequence[dict], margin: float,
         if "cut" in missed and a["max_penetration_m"] > b["max_penetration_m"] + WORSE_CUT_M:
             return (f"{name}: the cut deepened, {1000 * b['max_penetration_m']:.0f} -> "
                     f"{1000 * a['max_penetration_m']:.0f} mm")
-        (rf,), (ra,) = _ratios([f]), _ratios([a])
-        if _ratios([b])[0] is not None and ra is None:
+        if rb is not None and ra is None:
             return f"{name}: the peak over the flat seat's is lost"
         if rf is not None and ra is not None and ra > rf + RISE:
             return f"{name}: the peak over the flat seat's rose from {rf:.2f} to {ra:.2f}"
-    worst_b, worst_a = _worst(_ratios(before)), _worst(_ratios(after))
+    worst_b, worst_a = _worst(ratios_b), _worst(ratios_a)
     if worst_b is None or worst_a is None or worst_a >= worst_b:
         return "the highest peak over the flat seat's did not fall"
     return None
@@ -135,7 +139,7 @@ def _steps(people: Sequence, persons: Sequence[dict], maps: Sequence, target: fl
     steps = []
     for p, row, m, ratio in zip(people, persons, maps, _ratios(persons)):
         same = row["flat"].get("same_load")
-        if same is None or ratio is None or m is None:
+        if same is None or ratio is None:
             steps.append(np.zeros(len(p.vertices)))  # (nothing to judge the pressure by)
             continue
         pressure = skin_pressure(m.settled, len(p.vertices), SURFACE_PARTS)
@@ -198,7 +202,7 @@ def relieve(scenario, people: Sequence, result, persons: list[dict], maps: list,
             try:
                 candidate = fit(targets)
             except FitError as exc:  # (the fit before stands)
-                why, after = f"the fit failed: {exc}", None
+                why = f"the fit failed: {exc}"
                 relief.rounds.append({"round": k, "share": share, "worst_peak_of_flat": None,
                                       "peak_of_flat": None, "kept": False, "refused": why,
                                       "moved_out_m": moved, "fit_s": None,
@@ -213,9 +217,10 @@ def relieve(scenario, people: Sequence, result, persons: list[dict], maps: list,
             why = refused(persons, after, margin, first)
             if why is None and check is not None:  # (the surface's bars: only for a keeper)
                 why = check(candidate)
-            worst = _worst(_ratios(after))
+            now = _ratios(after)
+            worst = _worst(now)
             relief.rounds.append({"round": k, "share": share, "worst_peak_of_flat": worst,
-                                  "peak_of_flat": _ratios(after), "kept": why is None,
+                                  "peak_of_flat": now, "kept": why is None,
                                   "refused": why, "moved_out_m": moved,
                                   "fit_s": candidate.seconds,
                                   "iterations": candidate.iterations})
@@ -225,9 +230,9 @@ def relieve(scenario, people: Sequence, result, persons: list[dict], maps: list,
                     f"seat's: {'kept' if why is None else 'refused (' + why + ')'}")
             if why is None:
                 break
-            if after is not None:  # tried again where the refused fit pressed too hard too
-                steps = [np.maximum(a, b) for a, b in zip(steps, _steps(
-                    people, after, after_maps, target, stiffness))]
+            # tried again where the refused fit pressed too hard as well (a peak moved there)
+            steps = [np.maximum(a, b) for a, b in zip(steps, _steps(people, after, after_maps,
+                                                                    target, stiffness))]
         if why is not None:
             break
         result, persons, maps, relief.offsets = candidate, after, after_maps, offsets

@@ -291,26 +291,33 @@ def template_table(template) -> dict:
 
 def relieve_fit(scenario: Scenario, people: list[PlacedPerson], result: FitResult,
                 persons: list[dict], maps: list, say: Callable[[str], None] | None = None,
-                cancel: Callable[[], bool] | None = None) -> tuple:
+                cancel: Callable[[], bool] | None = None,
+                checked: list | None = None) -> tuple:
     """The scenario's rounds of pressure relief (`solver.scene.relief.relieve`) after its fit
     `result` with its figures: (result, persons, maps, Relief), the fit kept and its
     figures; `cancel` as `relieve` takes it (each fit is given it too); a fit kept must also
-    miss none of the surface's bars (`fit_guarantees`) that the first met."""
+    miss none of the surface's bars (`fit_guarantees`) that the first met. `checked`, a list,
+    receives (fit, guarantees, seconds) of every fit whose guarantees were checked (the kept
+    fit's among them: the caller need not check it again)."""
     from solver.scene.quality import surface_miss_kinds
     from solver.scene.relief import relieve
 
-    params, missed = scenario.surface.params, []
+    params, first_missed = scenario.surface.params, None
+    checked = [] if checked is None else checked
 
     def evaluate(candidate: FitResult):
         return evaluate_fit(scenario, people, candidate)[1:]
 
+    def missed(fit: FitResult) -> dict:
+        guarantees, seconds = _timed(fit_guarantees, fit, people, params)
+        checked.append((fit, guarantees, seconds))
+        return {kind: text for kind, text in surface_miss_kinds(guarantees)}
+
     def check(candidate: FitResult) -> str | None:  # the surface's bars the first fit met
-        if not missed:
-            missed.append({k for k, _ in surface_miss_kinds(fit_guarantees(result, people,
-                                                                           params))})
-        new = [text for kind, text in surface_miss_kinds(fit_guarantees(candidate, people,
-                                                                        params))
-               if kind not in missed[0]]
+        nonlocal first_missed
+        if first_missed is None:  # (checked only once a fit gets this far)
+            first_missed = missed(result)
+        new = [text for kind, text in missed(candidate).items() if kind not in first_missed]
         return f"the surface misses a bar it met: {new[0]}" if new else None
 
     return relieve(scenario, people, result, persons, maps,
@@ -380,19 +387,19 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
             timing["fit_s"] = time.perf_counter() - t
             say(f"fitted in {result.iterations} iterations, {timing['fit_s']:.2f} s: "
                 f"{result.stop_reason}")
-            relief = None
+            relief, checked = None, []
             if scenario.relief.rounds:  # evaluated first: the rounds start from its figures
                 t = time.perf_counter()
                 _, persons, maps = evaluate_fit(scenario, people, result)
                 timing["evaluate_s"] = time.perf_counter() - t
                 t = time.perf_counter()
                 result, persons, maps, relief = relieve_fit(scenario, people, result, persons,
-                                                            maps, say)
+                                                            maps, say, checked=checked)
                 timing["relief_s"] = time.perf_counter() - t
-                if any(r["kept"] for r in relief.rounds):  # (the report is of the kept fit)
+                if relief.kept:  # (the report is of the kept fit)
                     timing["first_fit_s"], timing["fit_s"] = timing["fit_s"], result.seconds
         else:
-            relief = None
+            relief, checked = None, []
             if fitted.faces.shape != scenario.surface.faces.shape or \
                     not np.array_equal(fitted.faces, scenario.surface.faces):
                 raise ValueError("Expected a fit of the scenario's control mesh, got one of "
@@ -407,7 +414,9 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         beside = (os.cpu_count() or 1) > 1 if beside is None else beside
         with limited_threads(), ThreadPoolExecutor(1, "sitrelax-beside") as pool:
             submit = pool.submit if beside else _now
-            checking = submit(_timed, fit_guarantees, result, people, scenario.surface.params)
+            known = [(g, seconds) for fit, g, seconds in checked if fit is result]
+            checking = _now(lambda: known[0]) if known else \
+                submit(_timed, fit_guarantees, result, people, scenario.surface.params)
             if relief is None:
                 t = time.perf_counter()
                 _, persons, maps = evaluate_fit(scenario, people, result)
