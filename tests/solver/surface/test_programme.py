@@ -210,3 +210,34 @@ def test_osqp_starts_from_the_duals_of_the_rows_on_the_same_points():
     expected, _ = _clarabel(s, p_upper, q * 1.01, rows, normals, lower, x0, STEP, WEIGHT)
     np.testing.assert_allclose(again, expected, atol=2e-3)
     assert rho > 0
+
+
+def test_osqp_set_up_at_a_step_size_factors_it_once_to_the_same_solve():
+    """The programme's OSQP solver takes its first step size at set-up (`initial_rho`) rather
+    than OSQP's `rho` setting, which builds the solver with that step size and then sets it
+    again (a second factoring of the same system): the solver holds that step size and solves
+    to the same bits in as many iterations."""
+    import osqp
+
+    from solver.surface.programme import _osqp_solver
+
+    rng = np.random.default_rng(3)
+    m = sp.random(60, 60, density=0.1, random_state=4)
+    p = sp.triu(m @ m.T + sp.identity(60), format="csc")
+    a = sp.random(80, 60, density=0.1, random_state=5, format="csc")
+    q, low = rng.normal(size=60), -rng.random(80)
+    high = np.full(80, np.inf)
+    settings = dict(verbose=False, polishing=False, eps_abs=1e-6, eps_rel=1e-6, scaling=0)
+    theirs = osqp.OSQP()
+    theirs.setup(p, q, a, low, high, rho=0.037, **settings)
+    ours = _osqp_solver(osqp)()
+    ours.setup(p, q, a, low, high, initial_rho=0.037, **settings)
+    assert ours.settings.rho == theirs.settings.rho == 0.037
+    mine, other = ours.solve(raise_error=False), theirs.solve(raise_error=False)
+    assert mine.info.iter == other.info.iter
+    np.testing.assert_array_equal(mine.x, other.x)
+    np.testing.assert_array_equal(mine.y, other.y)
+    # a solver set up without it starts from OSQP's default, as before
+    plain = _osqp_solver(osqp)()
+    plain.setup(p, q, a, low, high, **settings)
+    assert plain.settings.rho == 0.1
