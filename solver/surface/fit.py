@@ -799,9 +799,18 @@ class _Rim:
         within reach + slack of it then)."""
         if self.where is None or \
                 np.max(np.einsum("ij,ij->i", p - self.where, p - self.where)) > RIM_SLACK ** 2:
-            dist, _ = cKDTree(p).query(self.points, distance_upper_bound=RIM_REACH + RIM_SLACK)
-            self.near, self.where = np.flatnonzero(np.isfinite(dist)), p.copy()
+            self.near, self.where = within(self.points, p, RIM_REACH + RIM_SLACK), p.copy()
         return self.near
+
+
+def within(points: np.ndarray, others: np.ndarray, reach: float) -> np.ndarray:
+    """The indices (ascending) of `points` (P, 3) nearer than `reach` to one of `others`
+    (k, 3): sought only among those within the others' box grown by `reach` (the others are a
+    rim, the points a body's skin, most of it far above or beside the rim)."""
+    box = np.flatnonzero(np.all((points > others.min(axis=0) - reach) &
+                                (points < others.max(axis=0) + reach), axis=1))
+    dist, _ = cKDTree(others).query(points[box], distance_upper_bound=reach)
+    return box[np.isfinite(dist)]
 
 
 def _rim_topology(faces: np.ndarray, sampled: np.ndarray) -> tuple:
@@ -838,8 +847,7 @@ def _make_rim(sub: Subdivision, sampled: np.ndarray, targets: Sequence[Supported
     ids, before, after = sub.kept("fit.rim", lambda: _rim_topology(sub.faces, sampled))
     if not len(ids):
         return None
-    near, _ = cKDTree((sub.matrix @ control)[ids]).query(points, distance_upper_bound=RIM_SPAN)
-    kept = np.isfinite(near)
+    kept = within(points, (sub.matrix @ control)[ids], RIM_SPAN)
     return _Rim(ids, before, after, points[kept], np.concatenate(unnamed)[kept],
                 member.copy() if member is not None and len(member) == 2 * len(ids) else
                 np.zeros(2 * len(ids), dtype=bool))
