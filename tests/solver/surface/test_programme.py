@@ -212,7 +212,7 @@ def test_osqp_starts_from_the_duals_of_the_rows_on_the_same_points():
     assert rho > 0
 
 
-def test_osqp_set_up_at_a_step_size_factors_it_once_to_the_same_solve():
+def test_osqp_takes_its_first_step_size_at_set_up_and_solves_to_the_same_bits():
     """The programme's OSQP solver takes its first step size at set-up (`initial_rho`) rather
     than OSQP's `rho` setting, which builds the solver with that step size and then sets it
     again (a second factoring of the same system): the solver holds that step size and solves
