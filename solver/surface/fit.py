@@ -806,7 +806,8 @@ class _Rim:
 def within(points: np.ndarray, others: np.ndarray, reach: float) -> np.ndarray:
     """The indices (ascending) of `points` (P, 3) nearer than `reach` to one of `others`
     (k, 3): sought only among those within the others' box grown by `reach` (the others are a
-    rim, the points a body's skin, most of it far above or beside the rim)."""
+    rim, the points the bodies' free skin: on six_overlapping's bench 41 % of it, the heads
+    and shoulders, lies outside that box)."""
     box = np.flatnonzero(np.all((points > others.min(axis=0) - reach) &
                                 (points < others.max(axis=0) + reach), axis=1))
     dist, _ = cKDTree(others).query(points[box], distance_upper_bound=reach)
