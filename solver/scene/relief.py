@@ -131,13 +131,15 @@ def refused(before: Sequence[dict], after: Sequence[dict], margin: float,
 
 
 def _steps(people: Sequence, persons: Sequence[dict], maps: Sequence, target: float,
-           stiffness: float) -> list[np.ndarray]:
+           stiffness: float, ratios: list | None = None) -> list[np.ndarray]:
     """Per person (V,) metres a round moves the skin out: its `excess_depth` over `target`
-    of its flat seat's peak, at most STEP (none for a person without a seat's load)."""
+    of its flat seat's peak, at most STEP (none for a person without a seat's load);
+    `ratios`: the persons' `_ratios` when known."""
     from solver.contact.evaluate import SURFACE_PARTS, skin_pressure
 
     steps = []
-    for p, row, m, ratio in zip(people, persons, maps, _ratios(persons)):
+    ratios = _ratios(persons) if ratios is None else ratios
+    for p, row, m, ratio in zip(people, persons, maps, ratios):
         same = row["flat"].get("same_load")
         if same is None or ratio is None:
             steps.append(np.zeros(len(p.vertices)))  # (nothing to judge the pressure by)
@@ -184,7 +186,7 @@ def relieve(scenario, people: Sequence, result, persons: list[dict], maps: list,
         ratios = _ratios(persons)
         if all(r is None or r <= target for r in ratios):
             break
-        steps = _steps(people, persons, maps, target, stiffness)
+        steps = _steps(people, persons, maps, target, stiffness, ratios)
         for share in SHARES:
             if cancel is not None and cancel():
                 relief.stopped = True
@@ -232,7 +234,7 @@ def relieve(scenario, people: Sequence, result, persons: list[dict], maps: list,
                 break
             # tried again where the refused fit pressed too hard as well (a peak moved there)
             steps = [np.maximum(a, b) for a, b in zip(steps, _steps(people, after, after_maps,
-                                                                    target, stiffness))]
+                                                                    target, stiffness, now))]
         if why is not None:
             break
         result, persons, maps, relief.offsets = candidate, after, after_maps, offsets

@@ -381,13 +381,13 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         timing["pose_s"] = time.perf_counter() - t
         say(f"posed {len(people)} person(s) in {timing['pose_s']:.2f} s")
         t = time.perf_counter()
+        relief, checked = None, []  # (the rounds of relief, and the fits they checked)
         if fitted is None:
             result = fit_people(scenario, people, lambda i, e, tau: say(
                 f"iteration {i}: energy {e:.6g} (tau {tau:.2f})"))
             timing["fit_s"] = time.perf_counter() - t
             say(f"fitted in {result.iterations} iterations, {timing['fit_s']:.2f} s: "
                 f"{result.stop_reason}")
-            relief, checked = None, []
             if scenario.relief.rounds:  # evaluated first: the rounds start from its figures
                 t = time.perf_counter()
                 _, persons, maps = evaluate_fit(scenario, people, result)
@@ -399,7 +399,6 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
                 if relief.kept:  # (the report is of the kept fit)
                     timing["first_fit_s"], timing["fit_s"] = timing["fit_s"], result.seconds
         else:
-            relief, checked = None, []
             if fitted.faces.shape != scenario.surface.faces.shape or \
                     not np.array_equal(fitted.faces, scenario.surface.faces):
                 raise ValueError("Expected a fit of the scenario's control mesh, got one of "
@@ -411,6 +410,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         # writes let go of the interpreter; libigl's queries do not); the BLAS limit is held
         # around both, so the second thread's stays at the solver's count while the
         # evaluation's own limits come and go
+        record = None if relief is None else relief.record()
         beside = (os.cpu_count() or 1) > 1 if beside is None else beside
         with limited_threads(), ThreadPoolExecutor(1, "sitrelax-beside") as pool:
             submit = pool.submit if beside else _now
@@ -425,8 +425,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
                 title = title or (Path(scenario_path).stem if scenario_path else "scenario")
                 sheet = submit(_timed, _design_sheet, out / "sheet.png", title, result,
                                people, maps, checking, persons, dict(timing),
-                               scenario.surface.params.creases,
-                               None if relief is None else relief.record())
+                               scenario.surface.params.creases, record)
             t = time.perf_counter()
             files = export_scene(out, result, people, maps, formats=tuple(formats),
                                  unit=unit, up=up, creases=scenario.surface.params.creases,
@@ -449,7 +448,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
             "control_vertices": int(len(result.control)),
             "surface_vertices": int(len(result.surface)),
             "persons": persons,
-            "relief": None if relief is None else relief.record(),
+            "relief": record,
             "surface_limit": files.pop("surface_limit"),
             "guarantees": guarantees,
             "pictures": pictures,

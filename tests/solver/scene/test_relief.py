@@ -3,6 +3,7 @@ relief run on an example judged by the evaluation against the plain fit."""
 
 import dataclasses
 import json
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -11,8 +12,7 @@ import pytest
 from solver.scene.relief import RISE, excess_depth, refused, relief_text, relieve
 from solver.scene.scenario import ScenarioError, parse_scenario
 
-SCENARIOS = __import__("pathlib").Path(__file__).resolve().parents[3] / "solver" / "data" / \
-    "scenarios"
+SCENARIOS = Path(__file__).resolve().parents[3] / "solver" / "data" / "scenarios"
 
 
 def test_the_excess_is_the_depth_the_pressure_over_the_aim_presses():
@@ -122,8 +122,6 @@ def test_a_bad_relief_names_its_field(relief, field):
 
 def test_a_cancel_stops_the_rounds_with_what_was_kept_and_says_so():
     """Asked before each fit: a cancel that says so at once leaves the fit as it was."""
-    from types import SimpleNamespace
-
     scenario = SimpleNamespace(surface=SimpleNamespace(params=SimpleNamespace(margin=0.03)),
                                evaluation=SimpleNamespace(foam_stiffness=200.0))
     people = [SimpleNamespace(vertices=np.zeros((3, 3)), normals=np.zeros((3, 3)))]
@@ -147,8 +145,6 @@ def test_a_cancel_stops_the_rounds_with_what_was_kept_and_says_so():
 def _stub_scene(ratios):
     """relieve's inputs for stand-in fits: a person per ratio on a seat, pressed 8 kPa over
     its 3 vertices against a flat seat's 10 kPa (a step of 5 mm at the aim of 5 kPa)."""
-    from types import SimpleNamespace
-
     from solver.contact.settle import Settled
     from solver.contact.mat import SupportContact
 
