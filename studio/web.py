@@ -87,6 +87,10 @@ class Studio:
         self.server.gui.configure_theme(show_share_button=False, control_width="large")
         scene = self.server.scene
         scene.set_up_direction("+y")
+        # no shadows: viser's key light casts three cascades of them, which draws the scene four
+        # times a frame; in a software-rendered browser that took a frame with two
+        # pressure-coloured bodies from about 0.5 to 0.7-0.8 s (the lighting stays)
+        scene.configure_default_lights(True, cast_shadow=False)
         self.server.initial_camera.position, self.server.initial_camera.look_at = \
             FRAMING[SHOWN]
         scene.add_grid("/floor", width=4.0, height=4.0, plane="xz", position=(0.0, 0.0, 0.0))

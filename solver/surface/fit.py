@@ -618,10 +618,12 @@ def assemble(fit: _Fit, pairing: Pairing, surf_n: np.ndarray, tau: float
         ga = w_p * ((1 - tau) * t_p[:, a] + tau * n_p[:, a] * nt)
         g[a * n0:(a + 1) * n0] = s_p.T @ ga + fit.fixed * v0[:, a]
         blocks[a][a] = blocks[a][a] + fit.diagonal
-    if fit.dense:  # only the upper blocks are read
-        zero = np.zeros((n0, n0))
-        return np.block([[blk if blk is not None else zero for blk in row]
-                         for row in blocks]), g
+    if fit.dense:  # only the upper blocks are read (the lower stay zero)
+        h = np.zeros((3 * n0, 3 * n0))
+        for a in range(3):
+            for b in range(a, 3):
+                h[a * n0:(a + 1) * n0, b * n0:(b + 1) * n0] = blocks[a][b]
+        return h, g
     return sp.bmat(blocks, format="csr"), g
 
 

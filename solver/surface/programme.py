@@ -297,12 +297,6 @@ def _osqp_solver(osqp) -> type:
     return Solver
 
 
-@functools.lru_cache(maxsize=8)
-def _lower(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """The indices of an (n, n) matrix's entries below its diagonal."""
-    return np.tril_indices(n, -1)
-
-
 def _normals_dot(normals: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", normals, points)
 
@@ -380,9 +374,8 @@ class DenseProgramme(_Claimed):
     def _mirrored(self, p_x: np.ndarray) -> np.ndarray:
         """The symmetric Hessian whose upper triangle `p_x`'s is (the caller fills the upper
         blocks), checked for values that are not numbers."""
-        hessian = p_x.copy()
-        below = _lower(3 * self.n0)
-        hessian[below] = p_x.T[below]
+        hessian = np.triu(p_x)
+        hessian += np.triu(p_x, 1).T  # (onto zeros: the entries themselves)
         if not np.all(np.isfinite(hessian)):
             raise ProgrammeError(NOT_A_NUMBER)
         return hessian
