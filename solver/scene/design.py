@@ -5,6 +5,7 @@ around them, and the scenario written (scenario.toml, loadable by `sitrelax fit`
 
     posture    one person       several (side by side)           support (a use)
     seated     chair (back)     bench with a back, a seat each   chair
+                                (each measured as their chair)
     perched    stool            bench (backless)                 stool
     reclined   lounger          lounger, as wide as all          lounger
     floor      floor cushion    floor cushion, as wide as all    floor
@@ -16,7 +17,9 @@ regions that kind of furniture carries), so the scenario says `support = "chair"
 People sitting on the floor or lying are lifted by the cushion's or the bed's height (`LIFT`),
 a reclined person until the pelvis is `RECLINED_PELVIS` high, so there is furniture under them;
 seated and perched people 2 cm (so the seat, not the floor under the feet, takes most of the
-weight), several of them each to the highest pelvis (one seat height serves them all). Every
+weight); several perched people each to the highest pelvis (one seat height serves them all),
+while several seated people keep their own heights (their bench's seats are each measured as
+the sitter's own chair would be: `BenchParams.seat_each`). Every
 control vertex is free. A chair or bench whose fit puts a peak on the calves is tried again with
 a waterfall front (`run_design`). Standing poses and poses of different postures stop with a
 `DesignError`: there is nothing to sit on, or no one piece for them all.
@@ -57,7 +60,7 @@ class Design:
 
 
 DESIGNS = {
-    "seated": Design("chair", "bench", "chair", (), (("back", True),)),
+    "seated": Design("chair", "bench", "chair", (), (("back", True), ("seat_each", True))),
     "perched": Design("stool", "bench", "stool"),
     "reclined": Design("lounger", "lounger", "lounger"),
     "floor": Design("floor_cushion", "floor_cushion", "floor"),
@@ -138,7 +141,8 @@ def design_scenario(poses: Sequence[str], db: str | os.PathLike | None = None,
     given.update(shared_given(kind, len(poses)))
     lifts = [LIFT.get(posture, 0.0) if posture != "reclined" else
              max(RECLINED_PELVIS - figures.pelvis_height, 0.0) for _, figures in read]
-    if posture in ("seated", "perched") and not one:  # one seat height: the lower sit higher
+    if posture in ("seated", "perched") and not one and not given.get("seat_each"):
+        # one seat height for all: the lower sit higher
         top = max(figures.pelvis_height for _, figures in read)
         lifts = [lift + top - figures.pelvis_height for lift, (_, figures) in zip(lifts, read)]
     people = [{"name": f"person {k + 1}", "pose": p, "support": design.use,

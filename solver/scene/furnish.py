@@ -248,6 +248,8 @@ def _back_line(skin: _Skin, z_rear: float, seat_y: float, angle_deg: float, top:
 
 def _seat_measures(kind: str, given: dict, people: Sequence, frame: _Local,
                    waterfall: bool = False) -> dict:
+    if kind == "bench" and given.get("seat_each") and "seat_profiles" not in given:
+        return _seat_each_measures(given, people, frame, waterfall)
     skin = _Skin(people, frame)
     defaults = TEMPLATE_PARAMS[kind]()
     seat = skin.region("pelvis", "thighs")
@@ -288,6 +290,41 @@ def _seat_measures(kind: str, given: dict, people: Sequence, frame: _Local,
         elbows = np.concatenate([skin.joint("LeftForeArm"), skin.joint("RightForeArm")])
         out["arm_height"] = float(np.clip(elbows[:, 1].min() - 0.05 - height, 0.1, 0.4))
     return out
+
+
+SEAT_OWN = ("seat_height", "seat_depth", "seat_tilt_deg", "back_angle_deg", "back_height")
+
+
+def _seat_each_measures(given: dict, people: Sequence, frame: _Local, waterfall: bool
+                        ) -> dict:
+    """A bench with a seat each (`BenchParams.seat_each`): the bench's measures for them all,
+    then each sitter's seat measured as a chair of their own (its height, depth, tilt and
+    back, the given ones as they are), side by side from -x to +x, each as wide as the sitter's
+    chair up to the seams, halfway between neighbouring chairs' edges; the bench's rear line
+    the rearmost seat's, its front edge dropped (a waterfall) if any seat's is."""
+    common = _seat_measures("bench", {k: v for k, v in given.items() if k != "seat_each"},
+                            people, frame, waterfall)
+    own = {k: v for k, v in given.items() if k in SEAT_OWN + ("back", "front_drop")}
+    order = sorted(people, key=lambda p: float(np.mean(frame.points(p.vertices)[:, 0])))
+    seats = [_seat_measures("chair", own, [p], frame, waterfall) for p in order]
+    local = [frame.points(np.array([[s["position"][0], 0.0, s["position"][1]]]))[0]
+             for s in seats]
+    x0, z_rear = np.array([p[0] for p in local]), np.array([p[2] for p in local])
+    half = np.array([s["seat_width"] for s in seats]) / 2
+    bounds = np.concatenate([[x0[0] - half[0]], ((x0 + half)[:-1] + (x0 - half)[1:]) / 2,
+                             [x0[-1] + half[-1]]])
+    widths = np.diff(bounds)
+    if np.any(widths < 0.1):
+        raise TemplateError("bench.seat_each: the sitters overlap too far for a seat each "
+                            "(set them further apart)")
+    ref = float(z_rear.min())
+    common["seat_profiles"] = tuple(
+        {**{k: float(s[k]) for k in SEAT_OWN if k in s}, "seat_width": float(w),
+         "rear": float(z - ref)} for s, w, z in zip(seats, widths, z_rear))
+    common["seat_width"] = float(widths.mean())
+    common["front_drop"] = max(float(s.get("front_drop", 0.0)) for s in seats)
+    common["position"] = frame.position(float(bounds[0] + bounds[-1]) / 2, ref)
+    return common
 
 
 def _stool_measures(kind: str, given: dict, people: Sequence, frame: _Local) -> dict:

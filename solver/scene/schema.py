@@ -148,12 +148,26 @@ ControlMesh = Annotated[
 _TAGS = {"file", "inline"}
 
 
+class SeatProfile(_Model):
+    """One seat of a bench with a profile of its own (`BenchParams.seat_profiles`): any of
+    these, the others as the bench's."""
+
+    seat_height: Number | None = None
+    seat_depth: Number | None = None
+    seat_tilt_deg: Number | None = None
+    back_angle_deg: Number | None = None
+    back_height: Number | None = None
+    seat_width: Number | None = None
+    rear: Number | None = None
+
+
 _TEMPLATE_TYPES = {  # a template parameter's type; its bounds are the template's own checks
     "float": Number, "int": Annotated[int, Field(strict=True)],
     "bool": Annotated[bool, Field(strict=True)],
     "tuple[int, int]": Annotated[list[Annotated[int, Field(strict=True)]],
                                  Field(min_length=2, max_length=2)],
     "tuple[float, float]": Annotated[list[Number], Field(min_length=2, max_length=2)],
+    "tuple[dict, ...]": Annotated[list[SeatProfile], Field(max_length=20)],
 }
 
 

@@ -97,20 +97,63 @@ class ChairParams:
         _check_seat(self, "chair")
 
 
+SEAT_PROFILE_KEYS = ("seat_height", "seat_depth", "seat_tilt_deg", "back_angle_deg",
+                     "back_height", "seat_width", "rear")
+
+
 @dataclass(frozen=True)
 class BenchParams(ChairParams):
     """A bench for `seats` people side by side, each `seat_width` wide: a chair's seat
-    across all of them (see `ChairParams`), backless by default, arms at the ends."""
+    across all of them (see `ChairParams`), backless by default, arms at the ends.
+
+    `seat_profiles`: a table per seat, from -x to +x, that gives that seat its own
+    `seat_height`, `seat_depth`, `seat_tilt_deg`, `back_angle_deg`, `back_height`,
+    `seat_width` and `rear` (how far its rear line lies in front of the bench's, metres), any
+    of them (the others as the bench's): each sitter a chair of their own, side by side in one
+    sheet (the seams between seats take the mean of both profiles). `seat_each`: measure
+    those tables on each sitter (`solver.scene.furnish`), as for a chair of their own."""
 
     seat_width: float = 0.55
     seat_tilt_deg: float = 3.0
     back: bool = False
     back_height: float = 0.45
     seats: int = 2
+    seat_profiles: tuple[dict, ...] = ()
+    seat_each: bool = False
 
     def __post_init__(self):
         _check("bench", "seats", self.seats, 1, 20, whole=True)
         _check_seat(self, "bench")
+        _check_flag("bench", "seat_each", self.seat_each)
+        if not self.seat_profiles:
+            return
+        if len(self.seat_profiles) != self.seats:
+            raise TemplateError(f"bench.seat_profiles: expected one table per seat "
+                                f"({self.seats}), got {len(self.seat_profiles)}")
+        for k in range(self.seats):
+            _seat_of(self, k)
+            _check(f"bench.seat_profiles[{k}]", "rear",
+                   self.seat_profiles[k].get("rear", 0.0), -1.0, 1.0)
+
+
+def _seat_of(p: BenchParams, k: int) -> ChairParams:
+    """Seat k of a bench with `seat_profiles`: a chair of the bench's parameters and the
+    seat's own (TemplateError naming the seat's table for a bad one)."""
+    where = f"bench.seat_profiles[{k}]"
+    entry = p.seat_profiles[k]
+    if not isinstance(entry, dict):
+        raise TemplateError(f"{where}: expected a table of {list(SEAT_PROFILE_KEYS)}, got "
+                            f"{entry!r}")
+    unknown = sorted(set(entry) - set(SEAT_PROFILE_KEYS))
+    if unknown:
+        raise TemplateError(f"{where}: unknown parameter {unknown[0]!r} (expected one of "
+                            f"{list(SEAT_PROFILE_KEYS)})")
+    values = {f.name: getattr(p, f.name) for f in dataclasses.fields(ChairParams)}
+    values.update({key: v for key, v in entry.items() if key != "rear"})
+    try:
+        return ChairParams(**values)
+    except TemplateError as exc:
+        raise TemplateError(str(exc).replace("chair.", f"{where}.", 1)) from None
 
 
 @dataclass(frozen=True)
@@ -421,18 +464,22 @@ def _miter_normals(points: np.ndarray) -> np.ndarray:
 def _sweep(columns: np.ndarray, keys: np.ndarray, counts, crease_cols, crease_key_rows
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The grid of a side profile swept across columns (k, 2) of (x, offset): column i's
-    profile is the key polyline (m, 2) of (z, y) offset by its offset along the keys' normals
+    profile is the key polyline (m, 2) of (z, y) (or, `keys` a list, column i's own, all with
+    the same steps) offset by its offset along the keys' normals
     (so an arm's profile keeps its corners where the seat's are, never folding over an inner
     corner), with `counts[s]` equal steps on key segment s. Quads run so that their normal is
     +x cross the profile's direction (towards the body); creases along whole lines: the
     columns `crease_cols`, and the rows through the keys `crease_key_rows`."""
-    normals = _miter_normals(keys)
-    if counts[0] == 1 and len(keys) > 2:
-        # a rounded front edge: bands offset from it (arms) are the rounded edge moved along
-        # the seat's normal, not rolled forward around it
-        normals[:2] = _miter_normals(keys[1:3])[0]
-    rows = [_polyline(keys + h * normals, counts)[0] for h in columns[:, 1]]
-    _, at = _polyline(keys, counts)
+    each = keys if isinstance(keys, list) else [keys] * len(columns)
+    rows = []
+    for profile, h in zip(each, columns[:, 1]):
+        normals = _miter_normals(profile)
+        if counts[0] == 1 and len(profile) > 2:
+            # a rounded front edge: bands offset from it (arms) are the rounded edge moved
+            # along the seat's normal, not rolled forward around it
+            normals[:2] = _miter_normals(profile[1:3])[0]
+        rows.append(_polyline(profile + h * normals, counts)[0])
+    _, at = _polyline(each[0], counts)
     zy = np.stack(rows)  # (nu, nv, 2)
     nu, nv = zy.shape[:2]
     verts = np.stack([np.broadcast_to(columns[:, None, 0], (nu, nv)), zy[..., 1], zy[..., 0]],
@@ -465,7 +512,35 @@ def _chair(p: ChairParams):
 
 
 def _bench(p: BenchParams):
-    return _seat_with_back(p, p.seat_width * p.seats, p.seat_quads[0] * p.seats)
+    if not p.seat_profiles:
+        return _seat_with_back(p, p.seat_width * p.seats, p.seat_quads[0] * p.seats)
+    seats = [_seat_of(p, k) for k in range(p.seats)]
+    profiles = []
+    for seat, entry in zip(seats, p.seat_profiles):
+        keys, counts, junction = _seat_profile(
+            seat.seat_height, seat.seat_depth, seat.seat_tilt_deg, p.front_drop, 0.0,
+            (seat.back_angle_deg, seat.back_height) if p.back else None, p.seat_quads[1],
+            p.back_quads)
+        profiles.append(keys + [float(entry.get("rear", 0.0)), 0.0])
+    # the seats side by side, centred on the bench's origin, each its own width in
+    # seat_quads[0] columns; a seam column between two seats takes the mean of their profiles
+    widths = np.array([seat.seat_width for seat in seats])
+    edges = np.concatenate([[0.0], np.cumsum(widths)]) - widths.sum() / 2
+    nq = p.seat_quads[0]
+    xs, keys = [edges[0]], [profiles[0]]
+    for k in range(p.seats):
+        for j in range(1, nq + 1):
+            xs.append(edges[k] + widths[k] * j / nq)
+            seam = j == nq and k + 1 < p.seats
+            keys.append((profiles[k] + profiles[k + 1]) / 2 if seam else profiles[k])
+    columns, _, crease_cols = _across(widths.sum(), nq * p.seats,
+                                      arms=(p.arm_height, p.arm_width) if p.arms else None)
+    first = 2 if p.arms else 0  # (an arm's two columns come before the seat's)
+    columns[first:first + len(xs), 0] = xs
+    keys = [profiles[0]] * first + keys + [profiles[-1]] * (len(columns) - first - len(xs))
+    if not p.seams:
+        return columns, keys, counts, [], []
+    return columns, keys, counts, crease_cols, [junction] if junction is not None else []
 
 
 def _stool(p: StoolParams):

@@ -32,6 +32,11 @@ def test_a_template_is_read_with_its_faces_and_creases_but_no_vertices_yet():
     ({"kind": "sofa"}, r"surface\.template: expected a table with kind one of"),
     ({"kind": "bed", "lenght": 2.0}, r"surface\.template\.lenght: unknown field \(did you "
                                      r"mean length\?"),
+    ({"kind": "bench", "seat_profiles": [{"seat_heigt": 0.4}, {}]},
+     r"surface\.template\.seat_profiles\[0\]\.seat_heigt: unknown field \(did you mean "
+     r"seat_height\?"),
+    ({"kind": "bench", "seat_profiles": [{"seat_height": 0.4}, {}]},  # (one sitter)
+     r"surface\.template\.seat_profiles: expected one table per seat \(1\), got 2"),
 ])
 def test_bad_template_parameters_name_the_field(template, message):
     with pytest.raises(ScenarioError, match=message):
@@ -65,6 +70,48 @@ def test_a_bench_spans_its_sitters():
     xs = s.surface.vertices[:, 0]
     hips = [p.vertices[p.body.regions == BODY_REGIONS.index("thighs"), 0] for p in people]
     assert xs.min() < min(h.min() for h in hips) and xs.max() > max(h.max() for h in hips)
+
+
+def test_a_bench_with_a_seat_each_measures_each_seat_as_its_sitters_chair():
+    """`seat_each`: the seats side by side, each as the chair measured on its sitter alone
+    (height, depth, tilt, back), from -x to +x whatever the order of the people, the seams
+    halfway between neighbouring chairs' edges; a scenario given the tables keeps them."""
+    medium = "bvh:bundled:cmu_75_17_medium_sit.bvh#frame=200"
+    pair = parse_scenario({"surface": {"template": {"kind": "bench", "back": True,
+                                                    "seat_each": True}},
+                           "person": [{"pose": medium, "position": [0.35, 0.0, 0.0]},
+                                      {"pose": SITTER, "position": [-0.35, 0.0, 0.0]}]},
+                          "test.toml")
+    s, people = place_scene(pair)
+    built = s.surface.template.built
+    assert built.seat_each and len(built.seat_profiles) == 2
+    for k, (pose, x) in enumerate(((SITTER, -0.35), (medium, 0.35))):  # left to right
+        alone = parse_scenario({"surface": {"template": {"kind": "chair", "back": True}},
+                                "person": [{"pose": pose, "position": [x, 0.0, 0.0]}]},
+                               "test.toml")
+        chair = place_scene(alone)[0].surface.template.built
+        for key in ("seat_height", "seat_depth", "seat_tilt_deg", "back_angle_deg"):
+            assert built.seat_profiles[k][key] == pytest.approx(getattr(chair, key), abs=1e-9)
+    assert built.seat_profiles[0]["seat_height"] > built.seat_profiles[1]["seat_height"] + 0.05
+    assert min(p["rear"] for p in built.seat_profiles) == 0.0
+    # the seats span the people's thighs, and the seam lies between them
+    xs = s.surface.vertices[:, 0]
+    thighs = [p.vertices[p.body.regions == BODY_REGIONS.index("thighs"), 0] for p in people]
+    assert xs.min() < min(t.min() for t in thighs) and xs.max() > max(t.max() for t in thighs)
+    width = built.seat_profiles[0]["seat_width"]
+    seam = xs.min() + width
+    assert thighs[1].max() < seam < thighs[0].min()  # (people[0] is the one on the right)
+    # given the tables, a scenario keeps them as they are
+    given = {"kind": "bench", "back": True, "seat_each": True,
+             "seat_profiles": [dict(p) for p in built.seat_profiles]}
+    again, _ = place_scene(parse_scenario({**pair_data(pair), "surface": {"template": given}},
+                                          "test.toml"))
+    assert again.surface.vertices == pytest.approx(s.surface.vertices, abs=1e-9)
+
+
+def pair_data(scenario) -> dict:
+    return {"person": [{"pose": p.pose, "position": list(p.position)}
+                       for p in scenario.persons]}
 
 
 def test_a_bed_needs_lifted_sleepers():

@@ -16,10 +16,14 @@ from solver.surface.templates import (KINDS, TEMPLATE_PARAMS, TemplateError, mak
 
 VARIANTS = [("chair", {}), ("chair", {"arms": True}), ("chair", {"back": False}),
             ("bench", {}), ("bench", {"seats": 3, "back": True, "arms": True}),
+            ("bench", {"back": True, "arms": True, "seat_profiles": (
+                {"seat_height": 0.40, "seat_width": 0.5},
+                {"seat_height": 0.34, "rear": 0.03, "back_angle_deg": 8.0})}),
             ("stool", {}), ("stool", {"seat_tilt_deg": -10.0}),
             ("floor_cushion", {}), ("floor_cushion", {"back": True}),
             ("lounger", {}), ("bed", {}), ("bed", {"edge_drop": 0.0})]
-IDS = [f"{k}-{'-'.join(f'{a}={b}' for a, b in v.items()) or 'defaults'}" for k, v in VARIANTS]
+IDS = [f"{k}-{'-'.join(f'{a}={b}' for a, b in v.items() if a != 'seat_profiles') or 'defaults'}"
+       f"{'-seat_profiles' if 'seat_profiles' in v else ''}" for k, v in VARIANTS]
 
 
 def _trimesh(vertices, quads) -> trimesh.Trimesh:
@@ -117,6 +121,32 @@ def test_bench_spans_its_seats():
     assert len(five.quads) == pytest.approx(2.5 * len(two.quads))
 
 
+def test_a_bench_with_a_seat_each_is_its_seats_chairs_side_by_side():
+    """`seat_profiles`: each seat's columns are the profile of a chair of that seat's own
+    parameters (moved to its place), the seam column between two seats the mean of both;
+    empty tables give the bench of the common values, the same mesh."""
+    common = make_template("bench", back=True, seat_height=0.42)
+    same = make_template("bench", back=True, seat_height=0.42, seat_profiles=({}, {}))
+    assert same.vertices == pytest.approx(common.vertices, abs=1e-12)
+    assert np.array_equal(same.quads, common.quads)
+    assert np.array_equal(same.creases, common.creases)
+    own = ({"seat_height": 0.44, "seat_depth": 0.42, "seat_width": 0.5, "back_angle_deg": 10.0},
+           {"seat_height": 0.36, "seat_width": 0.62, "rear": 0.05})
+    bench = make_template("bench", back=True, seat_profiles=own)
+    assert np.array_equal(bench.quads, common.quads)  # the same topology as without
+    assert np.ptp(bench.vertices[:, 0]) == pytest.approx(0.5 + 0.62)
+    columns = bench.vertices[bench.grid]  # (columns across, rows along the profile, 3)
+    for k, (x0, entry) in enumerate(zip((-0.56, 0.0), own)):  # each seat's first columns
+        chair = make_template("chair", **{**{key: getattr(bench.params, key) for key in (
+            "seat_tilt_deg", "front_drop", "back_height", "back_angle_deg", "seat_quads",
+            "back_quads")}, **{key: v for key, v in entry.items() if key != "rear"}})
+        profile = chair.vertices[chair.grid[0]][:, 1:]  # its (y, z) profile
+        column = columns[1 if k == 0 else 9][:, 1:]  # a column inside seat k
+        assert column == pytest.approx(profile + [0.0, entry.get("rear", 0.0)], abs=1e-9)
+    seam = columns[8][:, 1:]
+    assert seam == pytest.approx((columns[7][:, 1:] + columns[9][:, 1:]) / 2, abs=1e-9)
+
+
 def test_back_angle_and_height_of_a_chair():
     for angle in (0.0, 20.0):
         t = make_template("chair", back_angle_deg=angle, back_height=0.6, seat_tilt_deg=0.0)
@@ -171,6 +201,15 @@ def test_position_and_heading_move_and_turn_the_template():
      r"chair\.seat_tilt_deg: expected a tilt that keeps the seat above the floor"),
     ("bench", {"seats": 0}, r"bench\.seats: expected a whole number >= 1, got 0"),
     ("bench", {"seats": 2.5}, r"bench\.seats: expected a whole number, got 2\.5"),
+    ("bench", {"seat_profiles": ({},)},
+     r"bench\.seat_profiles: expected one table per seat \(2\), got 1"),
+    ("bench", {"seat_profiles": ({"seat_heigt": 0.4}, {})},
+     r"bench\.seat_profiles\[0\]: unknown parameter 'seat_heigt'"),
+    ("bench", {"seat_profiles": ({}, {"seat_height": 0.01})},
+     r"bench\.seat_profiles\[1\]\.seat_height: expected a number >= 0\.05, got 0\.01"),
+    ("bench", {"seat_profiles": ({}, {"rear": 2.0})},
+     r"bench\.seat_profiles\[1\]\.rear: expected a number <= 1, got 2"),
+    ("bench", {"seat_each": "yes"}, r"bench\.seat_each: expected true or false, got 'yes'"),
     ("bed", {"width": float("nan")}, r"bed\.width: expected a number, got nan"),
     ("lounger", {"knee_height": 1.0}, r"lounger\.knee_height: expected within thigh_length"),
     ("stool", {"position": (0.0,)}, r"stool\.position: expected \[x, z\]"),
