@@ -55,7 +55,8 @@ SEAT_REGIONS = frozenset({"pelvis", "thighs"})  # a person supported on these si
 # supported as, `posedb.regions.SUPPORT_USES`); `sitrelax design` gives seated people a chair or
 # a bench with a back, supported as on a chair, and perched ones a stool or a backless bench,
 # supported as on a stool (the studio's backless bench supports the thighs too: a seat)
-TEMPLATES = {"chair": ("chair", {}, "chair"), "bench with back": ("bench", {"back": True}, "chair"),
+TEMPLATES = {"chair": ("chair", {}, "chair"),
+             "bench with back": ("bench", {"back": True, "seat_each": True}, "chair"),
              "bench": ("bench", {}, "seat"), "stool": ("stool", {}, "stool"),
              "floor cushion": ("floor_cushion", {}, "floor"), "lounger": ("lounger", {}, "lounger"),
              "bed": ("bed", {}, "bed")}
