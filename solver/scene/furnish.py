@@ -302,6 +302,9 @@ def _seat_each_measures(given: dict, people: Sequence, frame: _Local, waterfall:
     back, the given ones as they are), side by side from -x to +x, each as wide as the sitter's
     chair up to the seams, halfway between neighbouring chairs' edges; the bench's rear line
     the rearmost seat's, its front edge dropped (a waterfall) if any seat's is."""
+    if given.get("seats", len(people)) != len(people):
+        raise TemplateError(f"bench.seat_each: a seat each needs a seat per sitter, got seats = "
+                            f"{given['seats']} for {len(people)} people")
     common = _seat_measures("bench", {k: v for k, v in given.items() if k != "seat_each"},
                             people, frame, waterfall)
     own = {k: v for k, v in given.items() if k in SEAT_OWN + ("back", "front_drop")}

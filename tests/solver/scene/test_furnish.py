@@ -109,6 +109,13 @@ def test_a_bench_with_a_seat_each_measures_each_seat_as_its_sitters_chair():
     assert again.surface.vertices == pytest.approx(s.surface.vertices, abs=1e-9)
 
 
+def test_a_seat_each_needs_a_seat_per_sitter():
+    with pytest.raises(ScenarioError, match=r"surface\.template\.seat_each: a seat each needs "
+                                            r"a seat per sitter, got seats = 3 for 2 people"):
+        place_scene(_scenario({"kind": "bench", "seat_each": True, "seats": 3},
+                              persons=(SITTER, SITTER)))
+
+
 def pair_data(scenario) -> dict:
     return {"person": [{"pose": p.pose, "position": list(p.position)}
                        for p in scenario.persons]}
