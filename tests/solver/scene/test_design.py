@@ -187,8 +187,9 @@ def test_every_design_meets_the_bars_of_a_finished_piece(tmp_path, which, templa
     relief, but for the known misses of that last bar (`over_flat` people: none now; the bench
     with one seat height for both sitters was at 0.67 and 0.78, and a seat each measured as
     their own chair brought it to 0.54 and 0.56) and of the peak's region (`calf` people: none
-    now): one more, or one fewer, fails the test, so that the counts are kept true. No design needs a waterfall front now: the medium-sit chair's
-    straight front put 19.0 kPa on a calf before relief, which its first round relieves."""
+    now): one more, or one fewer, fails the test, so that the counts are kept true. No design
+    needs a waterfall front now: the medium-sit chair's straight front put 19.0 kPa on a calf
+    before relief, which its first round relieves."""
     from solver.scene.design import run_design
     from solver.scene.quality import person_misses, surface_misses
 
