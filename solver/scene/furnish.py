@@ -307,7 +307,8 @@ def _seat_each_measures(given: dict, people: Sequence, frame: _Local, waterfall:
                             f"{given['seats']} for {len(people)} people")
     common = _seat_measures("bench", {k: v for k, v in given.items() if k != "seat_each"},
                             people, frame, waterfall)
-    own = {k: v for k, v in given.items() if k in SEAT_OWN + ("back", "front_drop")}
+    own = {**{k: v for k, v in given.items() if k in SEAT_OWN + ("front_drop",)},
+           "back": common["back"]}  # (a chair's back is the bench's: none on a backless one)
     order = sorted(people, key=lambda p: float(np.mean(frame.points(p.vertices)[:, 0])))
     seats = [_seat_measures("chair", own, [p], frame, waterfall) for p in order]
     local = [frame.points(np.array([[s["position"][0], 0.0, s["position"][1]]]))[0]

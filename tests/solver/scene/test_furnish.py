@@ -109,6 +109,19 @@ def test_a_bench_with_a_seat_each_measures_each_seat_as_its_sitters_chair():
     assert again.surface.vertices == pytest.approx(s.surface.vertices, abs=1e-9)
 
 
+def test_a_backless_bench_with_a_seat_each_has_backless_seats():
+    """Each seat is measured as a backless chair then: its rear line where the buttocks end,
+    not moved for a back (and the mesh has no back rows)."""
+    s, _ = place_scene(_scenario({"kind": "bench", "seat_each": True}, persons=(SITTER, SITTER)))
+    built = s.surface.template.built
+    assert not built.back and len(built.seat_profiles) == 2
+    alone, _ = place_scene(_scenario({"kind": "chair", "back": False}))
+    chair = alone.surface.template.built
+    for seat in built.seat_profiles:
+        assert seat["seat_depth"] == pytest.approx(chair.seat_depth, abs=1e-9)
+    assert s.surface.vertices[:, 1].max() < 0.6  # a seat, no back
+
+
 def test_a_seat_each_needs_a_seat_per_sitter():
     with pytest.raises(ScenarioError, match=r"surface\.template\.seat_each: a seat each needs "
                                             r"a seat per sitter, got seats = 3 for 2 people"):
