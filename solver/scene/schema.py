@@ -36,7 +36,7 @@ from posedb.regions import DEFAULT_SUPPORT, SUPPORT_NAMES, SupportNameError, sup
 
 from solver.body import model as body_model
 from solver.surface.fit import FitParams
-from solver.surface.templates import TEMPLATE_PARAMS
+from solver.surface.templates import SEAT_PROFILE_KEYS, TEMPLATE_PARAMS
 
 MAX_INLINE_VERTICES = 20_000
 
@@ -148,17 +148,10 @@ ControlMesh = Annotated[
 _TAGS = {"file", "inline"}
 
 
-class SeatProfile(_Model):
-    """One seat of a bench with a profile of its own (`BenchParams.seat_profiles`): any of
-    these, the others as the bench's."""
-
-    seat_height: Number | None = None
-    seat_depth: Number | None = None
-    seat_tilt_deg: Number | None = None
-    back_angle_deg: Number | None = None
-    back_height: Number | None = None
-    seat_width: Number | None = None
-    rear: Number | None = None
+# one seat of a bench with a profile of its own (`BenchParams.seat_profiles`): any of its keys,
+# the others as the bench's
+SeatProfile = create_model("SeatProfile", __base__=_Model,
+                           **{key: (Union[Number, None], None) for key in SEAT_PROFILE_KEYS})
 
 
 _TEMPLATE_TYPES = {  # a template parameter's type; its bounds are the template's own checks
