@@ -471,13 +471,16 @@ def _sweep(columns: np.ndarray, keys: np.ndarray, counts, crease_cols, crease_ke
     +x cross the profile's direction (towards the body); creases along whole lines: the
     columns `crease_cols`, and the rows through the keys `crease_key_rows`."""
     each = keys if isinstance(keys, list) else [keys] * len(columns)
+    normals_of: dict[int, np.ndarray] = {}  # per distinct profile (most columns share one)
     rows = []
     for profile, h in zip(each, columns[:, 1]):
-        normals = _miter_normals(profile)
-        if counts[0] == 1 and len(profile) > 2:
-            # a rounded front edge: bands offset from it (arms) are the rounded edge moved
-            # along the seat's normal, not rolled forward around it
-            normals[:2] = _miter_normals(profile[1:3])[0]
+        normals = normals_of.get(id(profile))
+        if normals is None:
+            normals = normals_of[id(profile)] = _miter_normals(profile)
+            if counts[0] == 1 and len(profile) > 2:
+                # a rounded front edge: bands offset from it (arms) are the rounded edge moved
+                # along the seat's normal, not rolled forward around it
+                normals[:2] = _miter_normals(profile[1:3])[0]
         rows.append(_polyline(profile + h * normals, counts)[0])
     _, at = _polyline(each[0], counts)
     zy = np.stack(rows)  # (nu, nv, 2)

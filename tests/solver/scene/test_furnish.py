@@ -104,7 +104,7 @@ def test_a_bench_with_a_seat_each_measures_each_seat_as_its_sitters_chair():
     # given the tables, a scenario keeps them as they are
     given = {"kind": "bench", "back": True, "seat_each": True,
              "seat_profiles": [dict(p) for p in built.seat_profiles]}
-    again, _ = place_scene(parse_scenario({**pair_data(pair), "surface": {"template": given}},
+    again, _ = place_scene(parse_scenario({**_pair_data(pair), "surface": {"template": given}},
                                           "test.toml"))
     assert again.surface.vertices == pytest.approx(s.surface.vertices, abs=1e-9)
 
@@ -129,7 +129,7 @@ def test_a_seat_each_needs_a_seat_per_sitter():
                               persons=(SITTER, SITTER)))
 
 
-def pair_data(scenario) -> dict:
+def _pair_data(scenario) -> dict:
     return {"person": [{"pose": p.pose, "position": list(p.position)}
                        for p in scenario.persons]}
 
