@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from .files import write_atomic
+from .recordings import resolve_path
 from .profiles import identify_profile
 from .skeleton import CHANNEL_NAMES, Skeleton, WorldPose, depth_first_order, skeleton_fk
 from .units import resolve_unit
@@ -640,12 +641,13 @@ def _choose_unit(unit: str | float | None, profile: str | None) -> float | None:
 def read_bvh(path: str | os.PathLike, *, unit: str | float | None = "auto") -> Bvh:
     """Reads a BVH file.
 
-    path : a file path.
+    path : a file path, or `bundled:NAME` for a recording bundled with the package
+        (`capture.recordings`).
     unit : metres per file unit or a unit name; "auto" (default) takes the unit of the
         recognised skeleton profile (Perception Neuron: cm; CMU: 0.056444 m) and leaves it
         unknown (None) otherwise, so metric quantities then raise instead of guessing.
     """
-    path = Path(path)
+    path = resolve_path(path) if isinstance(path, str) else Path(path)
     try:
         data = path.read_bytes()
     except IsADirectoryError:

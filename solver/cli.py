@@ -161,6 +161,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 def _cmd_design(args: argparse.Namespace) -> int:
     from solver.contact.evaluate import peak_text
     from solver.scene.design import run_design
+    from solver.scene.relief import relief_text
 
     def progress(message: str) -> None:
         print(f"design: {message}", file=sys.stderr, flush=True)
@@ -177,6 +178,9 @@ def _cmd_design(args: argparse.Namespace) -> int:
         tried.get("kept") and tried.get("straight_fit_s") is not None else ""
     print(f"{', '.join(design['postures'])}: {design['template']}{waterfall}, fitted in "
           f"{report['timing']['fit_s']:.2f} s ({report['iterations']} iterations{before})")
+    relief = relief_text(report.get("relief"))
+    if relief is not None:
+        print(relief)
     for p in report["persons"]:
         print(f"{p['name']}: coverage {p['coverage']:.2f}, penetration "
               f"{p['max_penetration_m'] * 1000:.0f} mm, peak {peak_text(p)}")

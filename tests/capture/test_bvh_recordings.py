@@ -32,6 +32,17 @@ def test_bundled_copies_are_the_shared_files():
         assert (bundled_dir() / name).read_bytes() == (SHARED_BVH / name).read_bytes()
 
 
+def test_read_bvh_takes_bundled_names():
+    """`bundled:NAME` reads the bundled file (as the command line's paths do); an unknown name
+    says which are bundled."""
+    named = read_bvh("bundled:cmu_75_18_high_sit.bvh")
+    assert named.path == str(bundled_dir() / "cmu_75_18_high_sit.bvh")
+    assert np.array_equal(named.motion.channels,
+                          read_bvh(bundled_dir() / "cmu_75_18_high_sit.bvh").motion.channels)
+    with pytest.raises(FileNotFoundError, match="bundled are"):
+        read_bvh("bundled:nothing.bvh")
+
+
 @pytest.mark.parametrize(
     "name, joints, frames, channels, profile",
     [

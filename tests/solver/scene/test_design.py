@@ -123,11 +123,14 @@ def test_the_designer_refuses_what_it_has_no_furniture_for(poses, message):
 
 
 @pytest.mark.slow
-def test_a_design_is_fitted_and_its_scenario_fits_again(tmp_path):
+def test_a_design_is_fitted_and_its_scenario_fits_again(tmp_path, capsys):
     from solver.cli import main
 
     assert main(["design", FLOOR.format(8), "--out", str(tmp_path / "d"), "--no-pictures"]) == 0
     report = json.loads((tmp_path / "d" / "report.json").read_text())
+    # the command line says how many rounds of relief were kept, as `sitrelax fit` does
+    kept = max([r["round"] for r in report["relief"]["rounds"] if r["kept"]], default=0)
+    assert f"pressure relief: {kept} round(s) kept" in capsys.readouterr().out
     assert report["design"]["template"] == "floor_cushion"
     assert report["parameters"]["template"]["kind"] == "floor_cushion"
     assert report["guarantees"]["self_intersections"] == 0
