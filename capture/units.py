@@ -21,6 +21,9 @@ UNITS: dict[str, float] = {
 }
 
 
+MIN_UNIT, MAX_UNIT = 1e-6, 1e3  # metres per file unit: a micrometre to a kilometre
+
+
 class UnitError(ValueError):
     """A length unit that is neither a known name nor a positive number."""
 
@@ -44,6 +47,7 @@ def resolve_unit(unit: str | float) -> float:
             ) from None
     else:
         value = float(unit)
-    if not math.isfinite(value) or value <= 0:
-        raise UnitError(f"Expected a positive, finite number of metres per unit, got {unit!r}")
+    if not (math.isfinite(value) and MIN_UNIT <= value <= MAX_UNIT):
+        raise UnitError(f"Expected a positive, finite number of metres per unit "
+                        f"({MIN_UNIT:g}..{MAX_UNIT:g}), got {unit!r}")
     return value

@@ -495,7 +495,7 @@ def _register_checks(sub) -> None:
 
     bench = sub.add_parser("bench", help="run the benchmarks (medians, speed-ups)")
     bench.add_argument("names", nargs="*", help="entries to run (default: all)")
-    bench.add_argument("--repeats", type=int, default=None,
+    bench.add_argument("--repeats", type=number(1, 10000, whole=True), default=None,
                        help="timed runs per entry (default: per entry)")
     bench.add_argument("--json", action="store_true", help="machine-readable output")
     bench.set_defaults(func=_cmd_bench)
@@ -506,7 +506,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
-    """Parses and runs one command; errors become one line and exit status 2."""
+    """Parses and runs one command; errors become one line and exit status 2 (with `--json`,
+    also a JSON object `{"error": ..., "exit_status": 2}` on standard output)."""
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
@@ -536,6 +537,8 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
         else:
             message = exc
         print(f"sitrelax: error: {message}", file=sys.stderr)
+        if getattr(args, "json", False):  # a reader of --json output gets the error as JSON
+            print(json.dumps({"error": str(message), "exit_status": 2}))
         return 2
 
 

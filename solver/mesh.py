@@ -69,8 +69,9 @@ def faces_problem(vertices: np.ndarray, faces: np.ndarray) -> str | None:
     if np.any(ordered[:, 1:] == ordered[:, :-1]):
         return "expected distinct vertices in every face"
     corner = vertices[faces]
-    area = np.linalg.norm(np.cross(corner[:, 2] - corner[:, 0], corner[:, -1] - corner[:, 1]),
-                          axis=1)
+    with np.errstate(over="ignore", invalid="ignore"):  # (huge coordinates: inf, not none)
+        area = np.linalg.norm(np.cross(corner[:, 2] - corner[:, 0], corner[:, -1] - corner[:, 1]),
+                              axis=1)
     if np.any(area < 1e-10):
         return f"expected faces of non-zero area; face {int(np.argmin(area))} has none"
     return None

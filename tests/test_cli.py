@@ -55,6 +55,23 @@ def test_errors_are_one_line(capsys, tmp_path):
     assert "No bundled recording 'nope.bvh'" in capsys.readouterr().err
 
 
+def test_an_error_with_json_asked_for_is_json_on_standard_output(capsys, tmp_path):
+    """A reader of `--json` output gets a failure as a JSON object too (the one line on
+    standard error stays)."""
+    import json
+
+    bad = tmp_path / "bad.bvh"
+    bad.write_text("HIERARCHY\nROOT Hips\n{\n\tOFFSET 0 0\n")
+    assert main(["bvh", "info", str(bad), "--json"]) == 2
+    out, err = capsys.readouterr()
+    assert json.loads(out) == {"error": f"{bad}:4: expected 3 numbers after OFFSET, got 2",
+                               "exit_status": 2}
+    assert err.startswith("sitrelax: error: ")
+    assert main(["fit", str(tmp_path / "none.toml"), "--out", str(tmp_path / "o"),
+                 "--json"]) == 2
+    assert "No scenario file" in json.loads(capsys.readouterr().out)["error"]
+
+
 def test_debug_shows_the_exception(tmp_path):
     with pytest.raises(ValueError):
         main(["--debug", "bvh", "info", "bundled:cmu_75_18_high_sit.bvh", "--unit", "furlong"])
@@ -196,6 +213,8 @@ def test_a_server_on_a_port_in_use_is_one_line(capsys, command, tmp_path, monkey
       "--pelvis", "1e308"], "--pelvis: expected a number <= 100, got '1e308'"),
     (["pose", "show", "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39", "--out", "p.png",
       "--pelvis", "1", "--lowest", "0"], "not allowed with argument"),
+    (["bench", "subdivision", "--repeats", "0"], "--repeats: expected a whole number >= 1"),
+    (["bench", "subdivision", "--repeats", "-1"], "--repeats: expected a whole number >= 1"),
 ])
 def test_options_out_of_range_are_refused_by_name_before_any_work(argv, words, capsys,
                                                                    tmp_path, monkeypatch):

@@ -100,6 +100,8 @@ def load_pose(spec: str, db: str | os.PathLike | None = None, *,
     chosen = unit if unit is not None else m["unit"]
     bvh = read_bvh(path, unit="auto" if chosen is None else chosen)
     frame = int(m["frame"])
+    if bvh.motion.num_frames == 0:
+        raise PoseSourceError(f"{m['path']} has no frames (its MOTION section says Frames: 0)")
     if not 0 <= frame < bvh.motion.num_frames:
         raise PoseSourceError(f"Expected a frame in 0..{bvh.motion.num_frames - 1} of "
                               f"{m['path']}, got {frame}")  # (the file as named, not resolved)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
@@ -26,8 +27,12 @@ def read_quad_obj(path: str | os.PathLike, sitrelax_frame: bool = False
     -------
     vertices : (V, 3) float, in the file's units (metres, Y up with `sitrelax_frame`);
     faces : (F, 4) int, 0-based.
-    Raises MeshFileError with `file:line` for a malformed vertex or a face that is no quad.
+    Raises MeshFileError with `file:line` for a malformed or non-finite vertex or a face that
+    is no quad, and naming the file for faces out of range, with repeated corners or without
+    area (`solver.mesh.faces_problem`).
     """
+    from solver.mesh import faces_problem
+
     path = Path(path)
     if not path.exists():
         raise MeshFileError(f"no such file {path}")
@@ -38,21 +43,36 @@ def read_quad_obj(path: str | os.PathLike, sitrelax_frame: bool = False
             continue
         if parts[0] == "v":
             try:
-                verts.append([float(x) for x in parts[1:4]])
+                if len(parts) < 4:
+                    raise ValueError
+                xyz = [float(x) for x in parts[1:4]]
             except ValueError:
                 raise MeshFileError(f"{path}:{no}: expected 'v x y z', got "
                                     f"{line.strip()!r}") from None
+            if not all(math.isfinite(x) for x in xyz):
+                raise MeshFileError(f"{path}:{no}: expected finite coordinates, got "
+                                    f"{line.strip()!r}")
+            verts.append(xyz)
         elif parts[0] == "f":
-            idx = [int(p.split("/")[0]) for p in parts[1:]]
+            try:
+                idx = [int(p.split("/")[0]) for p in parts[1:]]
+                if 0 in idx:
+                    raise ValueError
+            except ValueError:
+                raise MeshFileError(f"{path}:{no}: expected 'f' and vertex numbers (from 1, "
+                                    f"or negative from the last), got {line.strip()!r}") from None
             if len(idx) != 4:
                 raise MeshFileError(f"{path}:{no}: expected a quad control mesh, got a face "
                                     f"of {len(idx)} vertices")
             faces.append([i - 1 if i > 0 else len(verts) + i for i in idx])
     if not faces:
         raise MeshFileError(f"{path}: expected quad faces, found none")
-    v, f = np.array(verts, dtype=float), np.array(faces, dtype=np.int64)
+    v, f = np.array(verts, dtype=float).reshape(-1, 3), np.array(faces, dtype=np.int64)
     if f.min() < 0 or f.max() >= len(v):
         raise MeshFileError(f"{path}: face indices out of range")
+    problem = faces_problem(v, f)
+    if problem:
+        raise MeshFileError(f"{path}: {problem}")
     if sitrelax_frame:
         from solver.io.export import frame_matrix
 

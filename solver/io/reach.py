@@ -21,6 +21,8 @@ import numpy as np
 
 from solver.mesh import quad_triangles, voronoi_areas
 
+MAX_TOOL_RADIUS = 0.1  # metres: no ball-nose cutter is larger (routers use up to about 25 mm)
+
 
 class ReachError(ValueError):
     """A surface or a tool that the reach check cannot take."""
@@ -106,8 +108,9 @@ def cutter_reach(vertices: np.ndarray, faces: np.ndarray, tool_radius: float) ->
     -------
     CutterReach
     """
-    if not np.isfinite(tool_radius) or tool_radius <= 0:
-        raise ReachError(f"Expected a tool radius > 0 m, got {tool_radius}")
+    if not (np.isfinite(tool_radius) and 0 < tool_radius <= MAX_TOOL_RADIUS):
+        raise ReachError(f"Expected a tool radius in (0, {MAX_TOOL_RADIUS:g}] m, got "
+                         f"{tool_radius}")
     v, tris = _triangles(vertices, faces)
     bend = bending_towards_normal(v, tris)
     towards, away = bend[:, 0], -bend[:, 1]

@@ -121,7 +121,7 @@ def place_person(spec: PersonSpec, db: str | os.PathLike | None = None,
         If a supported part is unknown.
     """
     body = make_body(spec.body)
-    captured = load_pose(spec.pose, db)
+    captured = load_pose(spec.pose, db, joint_map=dict(spec.joint_map) or None)
     motion = place(retarget_captured(captured, body), lowest=0.0)
     verts, _ = skin(body, motion.frame(0), normals=False)  # the one full skinning
     pelvis = motion.world.positions[0, 0]

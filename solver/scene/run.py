@@ -710,7 +710,6 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
 
     from solver.body.relax import RelaxError
     from solver.body.rig import pose_channels, rig_skeleton
-    from solver.io.obj import read_quad_obj
 
     say = progress or (lambda message: None)
     start = time.perf_counter()
@@ -725,8 +724,7 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
                         "report.json") as out:
         scenario, people = place_scene(scenario, db)
         if surface_dir is not None:
-            surface, faces = read_quad_obj(Path(surface_dir) / "surface.obj",
-                                           sitrelax_frame=True)
+            surface, faces = _read_surface(Path(surface_dir) / "surface.obj")
             _within_reach(surface, [people[k] for k in chosen])
             say(f"surface from {surface_dir}")
         else:
@@ -770,6 +768,26 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
                   "files": ["relax.png"] + [name for row in rows for name in row["files"]]}
         write_atomic(out / "report.json", json.dumps(report, indent=2, allow_nan=False).encode())
     return report
+
+
+def _read_surface(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """A fitted surface to relax onto (`sitrelax relax --surface`), in metres, Y up; a
+    RelaxError naming the file when it cannot be read or reaches past MAX_COORDINATE."""
+    from solver.body.relax import RelaxError
+    from solver.io.obj import MeshFileError, read_quad_obj
+    from solver.scene.schema import MAX_COORDINATE
+
+    try:
+        surface, faces = read_quad_obj(path, sitrelax_frame=True)
+    except MeshFileError as exc:
+        raise RelaxError(f"Expected a fitted surface: {exc}") from None
+    far = np.flatnonzero(~(np.abs(surface) <= MAX_COORDINATE).all(axis=1))
+    if len(far):
+        raise RelaxError(f"Expected a fitted surface within {MAX_COORDINATE:g} m of the "
+                         f"origin: {path} has vertex {far[0] + 1} at "
+                         f"{surface[far[0]].tolist()} m" +
+                         (f" and {len(far) - 1} more beyond" if len(far) > 1 else ""))
+    return surface, faces
 
 
 def _within_reach(surface: np.ndarray, people: list[PlacedPerson]) -> None:

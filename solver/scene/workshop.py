@@ -15,7 +15,8 @@ import numpy as np
 
 from solver.io.drawing import (overall_dimensions, render_sections, section,
                                write_overall_dxf, write_section_dxf)
-from solver.io.reach import bending_towards_normal, cutter_reach, render_reach
+from solver.io.reach import (MAX_TOOL_RADIUS, bending_towards_normal, cutter_reach,
+                             render_reach)
 from solver.io.solid import SolidError, check_solid, plinth, thicken, write_3mf, write_stl
 from solver.scene.placement import person_frame
 
@@ -44,9 +45,10 @@ class WorkshopOptions:
             raise SolidError(f"Expected a solid thickness in (0, {MAX_SOLID_THICKNESS:g}] m, "
                              f"got {t} (trimming a thicker offset where the surface bends takes "
                              "longer than half a minute; --plinth fills down to the floor)")
-        if self.tool_radius is not None and not (np.isfinite(self.tool_radius) and
-                                                 self.tool_radius > 0):
-            raise SolidError(f"Expected a tool radius > 0 m, got {self.tool_radius}")
+        r = self.tool_radius
+        if r is not None and not (np.isfinite(r) and 0 < r <= MAX_TOOL_RADIUS):
+            raise SolidError(f"Expected a tool radius in (0, {MAX_TOOL_RADIUS:g}] m, got {r} "
+                             "(a ball-nose cutter's radius)")
 
     @property
     def any(self) -> bool:

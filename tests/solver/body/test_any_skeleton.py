@@ -217,3 +217,29 @@ def test_the_same_pose_in_any_capture_heading_fits_the_same_surface(tmp_path):
     left = turned.transform[:3, :3] @ (turned.motion.world.positions[0, hips[0]]
                                        - turned.motion.world.positions[0, hips[1]])
     assert abs(left[2]) > 0.8 * np.linalg.norm(left)  # the hip axis along z: facing +-X
+
+
+def test_a_scenario_s_joint_map_is_the_one_its_person_is_posed_by(course_file):
+    """A person's `joint_map` in a scenario is checked against the skeleton and used: the
+    automatic map's own joints pose the body alike, the left wrist named as the forearm's
+    joint (the elbow, bent 50 degrees, left out) moves the left arm; a joint the skeleton
+    lacks is refused by name."""
+    from solver.body.poses import PoseSourceError
+    from solver.scene.placement import place_person
+    from solver.scene.scenario import parse_scenario
+
+    def placed(joint_map):
+        person = {"pose": f"bvh:{course_file}#frame=1&unit=m"}
+        if joint_map is not None:
+            person["joint_map"] = joint_map
+        scenario = parse_scenario({"surface": {"grid": {}}, "person": [person]})
+        return place_person(scenario.persons[0])
+
+    guessed, same = placed(None), placed({"left_hand": "l_hand", "right_hand": "r_hand"})
+    assert np.allclose(guessed.vertices, same.vertices)
+    straight = placed({"left_forearm": "l_wrist", "left_hand": "l_hand"})
+    moved = np.linalg.norm(straight.vertices - guessed.vertices, axis=1)
+    assert moved.max() > 0.02
+    with pytest.raises(PoseSourceError, match="left_hand names 'NoSuchJoint', which is no "
+                                              "joint of the skeleton"):
+        placed({"left_hand": "NoSuchJoint"})

@@ -44,7 +44,7 @@ def test_reach_picture_is_a_png(tmp_path, trough):
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-@pytest.mark.parametrize("radius", [0.0, -1.0, float("inf")])
+@pytest.mark.parametrize("radius", [0.0, -1.0, float("inf"), float("nan"), 1e308, 0.2])
 def test_bad_tool_radius_is_named(trough, radius):
-    with pytest.raises(ReachError, match="tool radius > 0"):
+    with pytest.raises(ReachError, match=r"tool radius in \(0, 0.1\] m"):
         cutter_reach(trough[0], trough[1], radius)

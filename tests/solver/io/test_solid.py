@@ -343,3 +343,18 @@ def test_the_fit_command_bounds_the_solid_it_will_trim(tmp_path, capsys, thickne
     err = capsys.readouterr().err
     assert "solid thickness in (0, 0.1] m" in err and "--plinth" in err, err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("radius", ["1e308", "0", "-0.01", "nan"])
+def test_fit_refuses_a_tool_radius_past_any_cutter_before_fitting(tmp_path, capsys, radius):
+    """`--tool-radius` is bounded as `--solid` is: the command stops before fitting, naming the
+    bound, and writes nothing."""
+    from pathlib import Path
+
+    from solver.cli import main
+
+    example = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios" / "single_seated.toml"
+    out = tmp_path / "out"
+    assert main(["fit", str(example), "--out", str(out), "--tool-radius", radius]) == 2
+    assert "tool radius in (0, 0.1] m" in capsys.readouterr().err
+    assert not out.exists()

@@ -55,6 +55,23 @@ def test_relaxing_onto_a_surface_out_of_reach_is_refused_and_writes_nothing(tmp_
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("vertex, message", [
+    ("v 1 0.4 nan", r"surface.obj:3: expected finite coordinates"),
+    ("v 1 0.4", r"surface.obj:3: expected 'v x y z'"),
+    ("v 1e300 0.4 -1", r"within 1000 m of the origin: .*surface.obj has vertex 3 at")])
+def test_relaxing_onto_a_malformed_surface_file_is_refused_naming_it(tmp_path, vertex, message):
+    from solver.body.relax import RelaxError
+    from solver.scene.run import run_relax
+
+    fitted = tmp_path / "fitted"
+    fitted.mkdir()
+    (fitted / "surface.obj").write_text(f"v 0 0.4 0\nv 1 0.4 0\n{vertex}\nv 0 0.4 -1\n"
+                                        "f 1 2 3 4\n")
+    with pytest.raises(RelaxError, match=message):
+        run_relax(EXAMPLES / "single_seated.toml", tmp_path / "out", surface_dir=fitted)
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_relaxation_into_a_fit_s_folder_is_refused_and_the_fit_kept(tmp_path):
     from solver.scene.run import run_relax
 

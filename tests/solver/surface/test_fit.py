@@ -203,16 +203,41 @@ def test_non_quad_control_mesh_is_refused(tmp_path):
         load_scenario(path)
 
 
-@pytest.mark.parametrize("value", ["nan", "1e308"])
-def test_a_control_mesh_file_with_a_coordinate_out_of_bounds_is_refused(tmp_path, value):
+@pytest.mark.parametrize("value, message", [
+    ("nan", r"quad.obj:3: expected finite coordinates, got 'v 1 0.4 nan'$"),
+    ("1e308", r"quad.obj: expected vertex coordinates within 1000 m, got .* \(vertex 3\)$")])
+def test_a_control_mesh_file_with_a_coordinate_out_of_bounds_is_refused(tmp_path, value,
+                                                                        message):
     (tmp_path / "quad.obj").write_text(f"v 0 0.4 0\nv 1 0.4 0\nv 1 0.4 {value}\nv 0 0.4 1\n"
                                        "f 1 2 3 4\n")
     path = tmp_path / "s.toml"
     path.write_text(SCENARIO.replace(
         "grid = { size = [1.2, 0.8], resolution = [8, 6], height = 0.45 }",
         "control_mesh = 'quad.obj'"))
-    with pytest.raises(ScenarioError, match=r"surface.control_mesh: quad.obj: expected vertex "
-                                            r"coordinates within 1000 m, got .* \(vertex 3\)$"):
+    with pytest.raises(ScenarioError, match=r"surface.control_mesh: .*" + message):
+        load_scenario(path)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("v 0 0.4 0\nv 0 0.4 0\nv 0 0.4 0\nv 0 0.4 0\nf 1 2 3 4\n",
+     r"quad.obj: expected faces of non-zero area; face 0 has none"),
+    ("v 0 0.4 0\nv 1 0.4 0\nv 1 0.4\nv 0 0.4 1\nf 1 2 3 4\n",
+     r"quad.obj:3: expected 'v x y z', got 'v 1 0.4'"),
+    ("v 0 0.4 0\nv 1 0.4 0\nv 1 0.4 1\nv 0 0.4 1\nf 1 2 x 4\n",
+     r"quad.obj:5: expected 'f' and vertex numbers .* got 'f 1 2 x 4'"),
+    ("v 0 0.4 0\nv 1 0.4 0\nv 1 0.4 1\nv 0 0.4 1\nf 0 1 2 3\n",
+     r"quad.obj:5: expected 'f' and vertex numbers"),
+    ("v 0 0.4 0\nv 1 0.4 0\nv 1 0.4 1\nv 0 0.4 1\nf 1 2 2 4\n",
+     r"quad.obj: expected distinct vertices in every face")])
+def test_a_malformed_control_mesh_file_is_refused_naming_file_and_line(tmp_path, text, message):
+    """An OBJ control mesh is checked as an inline one is: a degenerate quad, a short vertex
+    line or a face index that is no vertex number stops with the file (and line) named."""
+    (tmp_path / "quad.obj").write_text(text)
+    path = tmp_path / "s.toml"
+    path.write_text(SCENARIO.replace(
+        "grid = { size = [1.2, 0.8], resolution = [8, 6], height = 0.45 }",
+        "control_mesh = 'quad.obj'"))
+    with pytest.raises(ScenarioError, match=r"surface.control_mesh: .*" + message):
         load_scenario(path)
 
 
@@ -225,6 +250,17 @@ def test_missing_scenario_and_unknown_pose(tmp_path):
 
     with pytest.raises(PoseSourceError, match="needs a pose library"):
         place_person(scenario.persons[0])
+
+
+def test_a_pose_from_a_file_without_frames_says_so(tmp_path):
+    from solver.body.poses import PoseSourceError, load_pose
+
+    text = (Path(__file__).resolve().parents[3] / "capture" / "data" /
+            "cmu_75_18_high_sit.bvh").read_text()
+    header = text[:text.index("Frames:")]
+    (tmp_path / "empty.bvh").write_text(header + "Frames: 0\nFrame Time: 0.0333333\n")
+    with pytest.raises(PoseSourceError, match=r"empty.bvh has no frames"):
+        load_pose(f"bvh:{tmp_path / 'empty.bvh'}#frame=0")
 
 
 def test_a_fit_that_cannot_pose_its_people_leaves_no_results_folder(tmp_path, capsys):
