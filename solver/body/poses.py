@@ -30,6 +30,9 @@ _FRAME = re.compile(r"^(?P<path>(?:(?!#frame=).)+)#frame=(?P<frame>-?\d+)"
                     r"(?:&unit=(?P<unit>[^&#]+))?$")
 
 
+MAX_SPAN = 10.0  # metres: no captured body's joints lie farther apart
+
+
 class PoseSourceError(ValueError):
     """A pose reference that cannot be resolved."""
 
@@ -89,6 +92,7 @@ def load_pose(spec: str, db: str | os.PathLike | None = None, *,
         rot = Rotation.from_quat(quats).as_matrix()
         world = forward_kinematics(skeleton.parents, rot[None], trans[None], skeleton.levels)
         skeleton = _mapped(skeleton, joint_map, f"pose {spec[3:]!r}")
+        _check_span(world, f"pose {spec[3:]!r}")
         return CapturedPose(skeleton, world, f"{info.name} (frame {info.frame})")
     text = spec[4:] if spec.startswith("bvh:") else spec
     m = _FRAME.match(text)
@@ -110,7 +114,19 @@ def load_pose(spec: str, db: str | os.PathLike | None = None, *,
                               "profile): give it, e.g. --unit cm or #frame=N&unit=cm")
     skeleton = _mapped(bvh.skeleton, joint_map, str(path))
     world = skeleton_fk(skeleton, bvh.motion.channels[frame:frame + 1])
+    _check_span(world, f"{m['path']} frame {frame}")
     return CapturedPose(skeleton, world, f"{Path(path).name} frame {frame}")
+
+
+def _check_span(world: WorldPose, where: str) -> None:
+    """A PoseSourceError for a captured pose whose joints lie farther apart than any body's
+    (MAX_SPAN metres), or not at finite places: a wrong length unit, most often."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        span = float(np.ptp(world.positions[0], axis=0).max())
+    if not span <= MAX_SPAN:  # (NaN fails it too)
+        raise PoseSourceError(f"{where}: its joints span {span:.3g} m, more than any body's "
+                              f"{MAX_SPAN:g} m: is the file's length unit right? (give it as "
+                              "#frame=N&unit=U or --unit)")
 
 
 def _mapped(skeleton: Skeleton, joint_map: Mapping[str, str] | None, where: str) -> Skeleton:

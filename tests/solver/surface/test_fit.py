@@ -263,6 +263,15 @@ def test_a_pose_from_a_file_without_frames_says_so(tmp_path):
         load_pose(f"bvh:{tmp_path / 'empty.bvh'}#frame=0")
 
 
+def test_a_pose_read_in_the_wrong_unit_says_to_check_it():
+    """CMU units (0.056 m) read as metres make a 16 m skeleton: refused, naming the unit."""
+    from solver.body.poses import PoseSourceError, load_pose
+
+    with pytest.raises(PoseSourceError, match=r"frame 39: its joints span 15.\d m, more than "
+                                              r"any body's 10 m: is the file's length unit"):
+        load_pose("bvh:bundled:cmu_75_18_high_sit.bvh#frame=39&unit=m")
+
+
 def test_a_fit_that_cannot_pose_its_people_leaves_no_results_folder(tmp_path, capsys):
     from solver.cli import main
 
