@@ -155,7 +155,9 @@ def _cmd_listen(args: argparse.Namespace) -> int:
     finally:
         signal.signal(signal.SIGINT, previous)
     if args.json:
-        print(json.dumps(summary, indent=2))
+        # the monitor gives None for a figure it cannot compute; the guard keeps the output
+        # valid JSON whatever a future field holds
+        print(json.dumps(_json_safe(summary), indent=2, allow_nan=False))
     else:
         _print_listen_summary(summary)
     return _no_frame_status(summary)
@@ -177,10 +179,12 @@ def _print_listen_summary(summary: dict) -> None:
     fps = f"{summary['fps']:.1f}" if summary["fps"] else "-"
     lat = (f"{summary['latency_ms']:.2f} ms mean, {summary['latency_max_ms']:.2f} ms max"
            if summary["latency_ms"] is not None else "-")
+    duration = (f"{summary['duration_s']:.2f} s" if summary["duration_s"] is not None
+                else "n/a")
     print(f"source      {summary['source']}")
     print(f"frames      {summary['frames']} (indices {summary['first_index']} .. "
           f"{summary['last_index']})")
-    print(f"fps         {fps} over {summary['duration_s']:.2f} s")
+    print(f"fps         {fps} over {duration}")
     print(f"dropped     {summary['dropped']}   corrupt {summary['corrupt']}   resynced "
           f"{summary['resynced']}   reconnects {summary['reconnects']}")
     print(f"latency     {lat}")

@@ -17,12 +17,21 @@ Record kinds: 0 data (one read from a stream, or one datagram), 1 connected, 2 d
 its bytes a UTF-8 JSON object of that program's; its time is the receive time of the frame
 marked). A record cut short at the end of the file (a writer killed mid-write) is ignored and
 reported as `truncated`.
+
+Times are checked as they are read, since a damaged time would stall a replay or reach a take:
+the time origin must be a finite Unix time (up to the year 9999, as `started_at` can state), and
+a record's time finite, a time between two such Unix times, and, after the first record, at
+most `MAX_BACKWARDS_S` before the latest time before it (a clock corrected while a capture ran)
+and at most `MAX_GAP_S` after it (a machine suspended while a capture ran). The first record
+may lie far from the time origin: a capture of a replayed capture keeps the replayed receive
+times. `check_raw_capture` checks a whole file before anything of it is used.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
 import json
+import math
 import os
 import re
 import struct
@@ -36,6 +45,10 @@ DATA, CONNECTED, DISCONNECTED, MARK = 0, 1, 2, 3
 KIND_NAMES = {DATA: "data", CONNECTED: "connected", DISCONNECTED: "disconnected", MARK: "mark"}
 _RECORD = struct.Struct("<BdI")
 _MAX_RECORD = 64 * 1024 * 1024
+MAX_BACKWARDS_S = 86_400.0  # a record's time at most 1 day before the latest before it
+MAX_GAP_S = 30 * 86_400.0  # and at most 30 days after it
+_MAX_ORIGIN = 253_402_300_799.0  # 9999-12-31T23:59:59Z: the last time `started_at` can state
+_MAX_TIME = 2 * _MAX_ORIGIN  # a record's time: between two such Unix times
 
 
 _MOTION = re.compile(r"^[ \t]*MOTION\b", re.MULTILINE)
@@ -94,6 +107,9 @@ class RawCaptureWriter:
             raise RawCaptureError(f"Expected transport 'stream' or 'datagram', got {transport!r}")
         self.path = Path(path)
         self.time_origin = float(time_origin)
+        if not -_MAX_ORIGIN <= self.time_origin <= _MAX_ORIGIN:  # (NaN fails too)
+            raise RawCaptureError(f"{self.path}: expected a finite Unix time as the time "
+                                  f"origin, got {time_origin!r}")
         header = {
             "source": source,
             "transport": transport,
@@ -119,7 +135,11 @@ class RawCaptureWriter:
         """Appends one record; `t_abs` is a Unix time, stored relative to the time origin."""
         if kind not in KIND_NAMES:
             raise RawCaptureError(f"Expected a record kind in {sorted(KIND_NAMES)}, got {kind}")
-        record = _RECORD.pack(kind, t_abs - self.time_origin, len(data)) + bytes(data)
+        t = t_abs - self.time_origin
+        if not -_MAX_TIME <= t <= _MAX_TIME:  # (NaN fails too; a reader refuses it)
+            raise RawCaptureError(f"{self.path}: expected a finite record time (Unix s, up to "
+                                  f"the year 9999), got {t_abs!r}")
+        record = _RECORD.pack(kind, t, len(data)) + bytes(data)
         with self._lock:  # one record's bytes never interleave with another's
             self._fh.write(record)
 
@@ -163,7 +183,49 @@ def _read_header(fh, path) -> dict:
     if not isinstance(header, dict) or header.get("transport", "stream") not in (
             "stream", "datagram"):
         raise RawCaptureError(f"{path}: expected a header object with a valid transport")
+    origin = header.get("time_origin", 0.0)
+    if isinstance(origin, bool) or not isinstance(origin, (int, float)) or not (
+            -_MAX_ORIGIN <= origin <= _MAX_ORIGIN):  # (NaN fails the comparison too)
+        raise RawCaptureError(f"{path}: expected a finite Unix time as the header's "
+                              f"time_origin, got {origin!r}")
     return header
+
+
+class _RecordTimes:
+    """Checks the times of a capture's records in file order (see the module docstring)."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.index = 0  # of the next record, counting from 0
+        self.latest = math.nan  # the latest time so far
+
+    def check(self, t: float, offset: int) -> None:
+        """Refuses the time `t` of the next record, which starts at byte `offset`."""
+        if not -_MAX_TIME <= t <= _MAX_TIME:  # (NaN fails too)
+            raise RawCaptureError(self._problem(t, offset))
+        if self.index == 0:
+            self.latest = t
+        elif t > self.latest:
+            if t > self.latest + MAX_GAP_S:
+                raise RawCaptureError(self._problem(t, offset))
+            self.latest = t
+        elif t < self.latest - MAX_BACKWARDS_S:
+            raise RawCaptureError(self._problem(t, offset))
+        self.index += 1
+
+    def _problem(self, t: float, offset: int) -> str:
+        where = f"{self.path}: record {self.index} (counting from 0, at byte {offset})"
+        if not math.isfinite(t):
+            return f"{where}: expected a finite time (s since the time origin), got {t!r}"
+        if not -_MAX_TIME <= t <= _MAX_TIME:
+            return (f"{where}: expected a time within {_MAX_TIME:.6g} s of the time origin, "
+                    f"got {t:.6g} s")
+        latest = f"the latest time before it ({self.latest:.6g} s)"
+        if t < self.latest:
+            return (f"{where}: expected a time at most {MAX_BACKWARDS_S / 86400:g} day before "
+                    f"{latest}, got {t:.6g} s")
+        return (f"{where}: expected a time at most {MAX_GAP_S / 86400:g} days after {latest}, "
+                f"got {t:.6g} s")
 
 
 class RawRecords:
@@ -181,23 +243,28 @@ class RawRecords:
 
     def __iter__(self) -> Iterator[RawRecord]:
         fh = self._fh
+        times = _RecordTimes(self._path)
         with fh:
             while True:
+                offset = fh.tell()
                 head = fh.read(_RECORD.size)
                 if len(head) < _RECORD.size:
                     self.truncated = len(head) > 0
                     return
-                kind, t, n = _RECORD.unpack(head)
-                if kind not in KIND_NAMES or n > _MAX_RECORD:
-                    raise RawCaptureError(
-                        f"{self._path}: damaged record at byte {fh.tell() - _RECORD.size} "
-                        f"(kind {kind}, length {n})"
-                    )
+                kind, t, n = _check_head(head, offset, self._path)
                 data = fh.read(n)
                 if len(data) < n:
-                    self.truncated = True
+                    self.truncated = True  # (its time is not checked: it is not used)
                     return
+                times.check(t, offset)
                 yield RawRecord(kind, t, data)
+
+
+def _check_head(head: bytes, offset: int, path: Path) -> tuple[int, float, int]:
+    kind, t, n = _RECORD.unpack(head)
+    if kind not in KIND_NAMES or n > _MAX_RECORD:
+        raise RawCaptureError(f"{path}: damaged record at byte {offset} (kind {kind}, length {n})")
+    return kind, t, n
 
 
 def iter_raw_capture(path: str | os.PathLike) -> tuple[dict, RawRecords]:
@@ -213,6 +280,31 @@ def iter_raw_capture(path: str | os.PathLike) -> tuple[dict, RawRecords]:
         fh.close()
         raise
     return header, RawRecords(fh, path)
+
+
+def check_raw_capture(path: str | os.PathLike) -> tuple[dict, int, bool]:
+    """Checks a whole raw capture before it is used: its header, and every record's kind,
+    length and time (the records' bytes are skipped, not read).
+
+    Returns (header, number of whole records, whether a record is cut short at the end).
+    Raises `RawCaptureError` naming the file and the first bad record.
+    """
+    header, records = iter_raw_capture(path)
+    path = Path(path)
+    times = _RecordTimes(path)
+    with records._fh as fh:
+        size = os.fstat(fh.fileno()).st_size  # (a file still written to: checked this far)
+        offset = fh.tell()
+        while True:
+            head = fh.read(_RECORD.size)
+            if len(head) < _RECORD.size:
+                return header, times.index, len(head) > 0
+            kind, t, n = _check_head(head, offset, path)
+            end = offset + _RECORD.size + n
+            if end > size:
+                return header, times.index, True
+            times.check(t, offset)
+            offset = fh.seek(end)
 
 
 def raw_header(path: str | os.PathLike) -> dict:

@@ -267,20 +267,24 @@ class Replay:
 
     @classmethod
     def from_raw(cls, path: str | Path) -> "Replay":
+        """A raw capture's data and disconnect records at their recorded times (the reader
+        refuses a capture whose times are not finite or implausible, before anything is
+        sent); a record stamped before the one ahead of it (a clock set back) goes at once."""
         cap = read_raw_capture(path)
         records = [r for r in cap.records if r.kind in (DATA, DISCONNECTED)]
         if not records:
             raise ReplayError(f"{path}: expected recorded data to replay, got none")
         t0 = records[0].t
         times = np.array([r.t - t0 for r in records])
-        step = float(np.median(np.diff(times))) if len(times) > 1 else 0.0
+        span = float(times.max())
+        step = max(0.0, float(np.median(np.diff(times)))) if len(times) > 1 else 0.0
 
         def make(k: int, loop: int) -> tuple[int, bytes]:
             return records[k].kind, records[k].data
 
         cut = " (its last record, cut short, is left out)" if cap.truncated else ""
-        return cls(times, make, float(times[-1]) + step,
-                   f"{Path(path).name}: {len(records)} records over {times[-1]:.2f} s{cut}")
+        return cls(times, make, span + step,
+                   f"{Path(path).name}: {len(records)} records over {span:.2f} s{cut}")
 
     @classmethod
     def from_file(cls, path: str | Path, **kw) -> "Replay":

@@ -23,7 +23,8 @@ from typing import Callable, Iterator
 from urllib.parse import parse_qs, urlsplit
 
 from .neuron import TOKEN, NeuronFrame, StreamDecoder
-from .rawcapture import CONNECTED, DATA, DISCONNECTED, RawCaptureWriter, iter_raw_capture
+from .rawcapture import (CONNECTED, DATA, DISCONNECTED, RawCaptureWriter, check_raw_capture,
+                         iter_raw_capture)
 from .stream_layout import StreamLayout
 
 log = logging.getLogger(__name__)
@@ -210,10 +211,15 @@ class SerialTransport:
 
 
 class RawFileTransport:
-    """Plays back the records of a raw capture as fast as they are asked for."""
+    """Plays back the records of a raw capture as fast as they are asked for.
+
+    The whole file is checked first (`check_raw_capture`): a damaged one raises
+    `RawCaptureError` before any of its records is delivered.
+    """
 
     def __init__(self, path: str | Path, batch: int = 256):
         self.path = Path(path)
+        check_raw_capture(self.path)
         self.header, self._records = iter_raw_capture(self.path)
         self._iter = iter(self._records)
         self.datagram = self.header.get("transport", "stream") == "datagram"
