@@ -7,17 +7,29 @@ import os
 import signal
 import sys
 
-from capture.cli_output import print_event, print_status
+from capture.cli_output import number, print_event, print_status
 
 # the library (numpy, h5py) loads when a command runs: `sitrelax --help` stays fast
-from .constants import DEFAULT_MAX_SPEED, DEFAULT_MIN_DURATION
+from .constants import DEFAULT_MAX_SPEED, DEFAULT_MIN_DURATION, MAX_HOLD_DURATION
 from .regions import BODY_REGIONS, DEFAULT_SUPPORT, SUPPORT_GROUPS, SUPPORT_NAMES, SUPPORT_USES
 
 DEFAULT_DB = os.environ.get("SITRELAX_DB", "poses.h5")
 
 
+def _json(obj) -> str:
+    """`obj` as JSON text, refusing a number that is not finite (JSON has none: `NaN` would
+    break the reader) with an error that says where to look."""
+    try:
+        return json.dumps(obj, indent=2, allow_nan=False)
+    except ValueError:
+        from .schema import LibraryError
+
+        raise LibraryError("Expected finite numbers to write as JSON, got NaN or infinity (a "
+                           "damaged library? `sitrelax db check` lists what is wrong)") from None
+
+
 def _print(obj, as_json: bool, text: str) -> None:
-    print(json.dumps(obj, indent=2) if as_json else text)
+    print(_json(obj) if as_json else text)
 
 
 def _lock_timeout(args) -> float | None:
@@ -117,7 +129,7 @@ def _cmd_list(args) -> int:
     if args.kind in (None, "recording") and not args.tag:
         rows += [r.as_dict() for r in recordings(args.db)]
     if args.json:
-        print(json.dumps(rows, indent=2))
+        print(_json(rows))
         return 0
     for r in rows:
         tags = " ".join(r.get("tags", []))
@@ -246,8 +258,10 @@ def _cmd_recover(args) -> int:
     from .record import recover
 
     rows = recover(args.db, lock_timeout=_lock_timeout(args), on_wait=_waiting(args.db))
-    _print(rows, args.json, "\n".join(f"{r['take']}: {r['status']}" for r in rows)
-           or "nothing to recover")
+    _print(rows, args.json, "\n".join(
+        f"{r['take']}: {r['status']}" + (f" (its journal {r['journal']} is kept)"
+                                         if r["status"].startswith("failed") else "")
+        for r in rows) or "nothing to recover")
     return 1 if any(r["status"].startswith("failed") for r in rows) else 0
 
 
@@ -392,10 +406,12 @@ def _register_pose_commands(sub) -> None:
     p.add_argument("--accept", action="store_true", help="store the proposals as poses")
     p.add_argument("--tag", action="append", default=[], help="tags for accepted poses")
     _support_option(p, "the body regions accepted poses need supported")
-    p.add_argument("--max-speed", type=float, default=DEFAULT_MAX_SPEED,
-                   help=f"stillness threshold, m/s (default {DEFAULT_MAX_SPEED})")
-    p.add_argument("--min-duration", type=float, default=DEFAULT_MIN_DURATION,
-                   help=f"shortest held posture, s (default {DEFAULT_MIN_DURATION})")
+    p.add_argument("--max-speed", type=number(0, low_open=True), default=DEFAULT_MAX_SPEED,
+                   help=f"stillness threshold, m/s > 0 (default {DEFAULT_MAX_SPEED})")
+    p.add_argument("--min-duration", type=number(0, MAX_HOLD_DURATION),
+                   default=DEFAULT_MIN_DURATION,
+                   help=f"shortest held posture, s, 0 to {MAX_HOLD_DURATION:g} (default "
+                        f"{DEFAULT_MIN_DURATION})")
     p.set_defaults(func=_cmd_suggest)
 
 

@@ -6,3 +6,4 @@
 # held-posture detection (posedb.suggest)
 DEFAULT_MAX_SPEED = 0.2  # m/s: settling and fidgeting while seated stay under it; walking ~1 m/s
 DEFAULT_MIN_DURATION = 0.5  # s
+MAX_HOLD_DURATION = 86_400.0  # s: the longest min_duration asked for (a day: no take is longer)

@@ -11,7 +11,11 @@ before), and wait for a long writer (reporting the wait) up to `lock_timeout` se
 The copy keeps the file's mode, owner and symbolic link (`posedb.files`); a file without write
 permission is refused. Before a change the library is verified (`posedb.verify`: fully for a
 file up to 64 MB, its structure for a larger one), so damage is reported rather than carried
-into the new copy; every error of the storage layer names the file.
+into the new copy; every error of the storage layer names the file. Readers refuse damage too:
+opening checks the values of the index it reads (each take's frame time; each pose's take,
+frame, supports and root position), and reading a take or pose checks its skeleton and arrays,
+so a value that is not a number is reported (`db check` lists all) rather than divided by or
+printed.
 """
 
 from __future__ import annotations
@@ -38,7 +42,7 @@ from .posetable import PoseTable
 from .regions import DEFAULT_SUPPORT
 from .schema import LibraryError, NotFoundError, decode_supports, encode_supports
 from .tags import compile_expression, membership, normalise_tags
-from .verify import verify, verify_file
+from .verify import pose_table_problems, verify, verify_file
 
 # seconds a writer waits for another one before giving up ($SITRELAX_LOCK_TIMEOUT overrides)
 DEFAULT_LOCK_TIMEOUT = 600.0
@@ -304,6 +308,15 @@ class PoseLibrary:
                     kind=str(a.get("origin", "bvh")),
                 )
             self._table = PoseTable.read(f["poses"])
+            # the index is checked as read: a value no reader can use (a frame time of 0 or
+            # NaN, a pose of a missing take) is reported here rather than divided by or printed
+            problems = [f"/takes/{t.id}: {p}" for t in self._takes.values()
+                        if (p := schema.frame_time_problem(t.frame_time))]
+            frames = {_parse_id(k, "take-"): t.frames for k, t in self._takes.items()
+                      if _parse_id(k, "take-") is not None}
+            problems += pose_table_problems(self._table, frames, f["poses"]["rotations"].shape[0])
+            if problems:
+                raise schema.damaged_content(self.path, problems)
 
     @contextmanager
     def _writer_lock(self) -> Iterator[None]:
@@ -329,7 +342,29 @@ class PoseLibrary:
 
     def skeleton(self, key: str) -> Skeleton:
         with schema.open_checked(self.path) as f:
-            return schema.read_skeleton(f["skeletons"][key])
+            return self._read_skeleton(f, key)
+
+    def _read_skeleton(self, f: h5py.File, key: str) -> Skeleton:
+        """A stored skeleton, refused (as damage) when its offsets are not numbers or its unit
+        is unknown: an export would write them, a take's metres could not be had."""
+        sk = schema.read_skeleton(f["skeletons"][key])
+        problems = schema.skeleton_problems(sk, f"/skeletons/{key}")
+        if problems:
+            raise schema.damaged_content(self.path, problems)
+        return sk
+
+    def _finite(self, arrays: dict[str, np.ndarray | None], where: str, start: int) -> None:
+        """Refuses (as damage) arrays read from the library holding values that are not
+        numbers; frames along the first axis, counted from `start`."""
+        problems = []
+        for name, values in arrays.items():
+            if values is not None and values.dtype.kind == "f":
+                bad = ~np.isfinite(values.reshape(len(values), -1)).all(axis=1)
+                if bad.any():
+                    problems.append(f"{where}/{name}: values that are not numbers in frame "
+                                    f"{start + int(np.argmax(bad))}")
+        if problems:
+            raise schema.damaged_content(self.path, problems)
 
     def take_data(self, ref: str, start: int = 0, stop: int | None = None) -> TakeData:
         """A take's arrays for frames [start, stop) (0-based)."""
@@ -344,12 +379,16 @@ class PoseLibrary:
             )
         with schema.open_checked(self.path) as f:
             g = f["takes"][info.id]
-            sk = schema.read_skeleton(f["skeletons"][info.skeleton])
-            return TakeData(
+            sk = self._read_skeleton(f, info.skeleton)
+            data = TakeData(
                 info, sk, g["channels"][start:stop], g["local_rotations"][start:stop],
                 g["root_positions"][start:stop], g["frame_indices"][start:stop],
                 g["received_at"][start:stop] if "received_at" in g else None, start,
             )
+        self._finite({"channels": data.channels, "local_rotations": data.local_rotations,
+                      "root_positions": data.root_positions, "received_at": data.received_at},
+                     f"/takes/{info.id}", start)
+        return data
 
     def take_bvh(self, ref: str, start: int = 0, stop: int | None = None) -> Bvh:
         data = self.take_data(ref, start, stop)
@@ -377,7 +416,11 @@ class PoseLibrary:
         start, count = t.value("rotation_start", row), t.value("rotation_count", row)
         with schema.open_checked(self.path) as f:
             rot = f["poses"]["rotations"][start:start + count]
-            sk = schema.read_skeleton(f["skeletons"][self.take(info.take).skeleton])
+            sk = self._read_skeleton(f, self.take(info.take).skeleton)
+        if not np.isfinite(rot).all():
+            raise schema.damaged_content(self.path, [
+                f"pose {info.name!r}: /poses/rotations rows {start}..{start + count} hold "
+                "values that are not numbers"])
         return info, sk, np.asarray(rot, dtype=np.float64), t.root[row].copy()
 
     def find_poses(self, expr: str | None = None, *, take: str | None = None,
@@ -458,10 +501,7 @@ class PoseLibrary:
         with schema.open_checked(target) as f:
             problems = verify_file(f, target, full=full)
         if problems:
-            raise schema.StorageError(
-                f"{target} is damaged, so it was not changed: {problems[0]}"
-                + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else "")
-                + f"; `sitrelax db check --db {self.path}` lists what is wrong")
+            raise schema.damaged_content(self.path, problems, refused_change=True)
 
     @contextmanager
     def edit(self) -> Iterator["Editor"]:
@@ -582,7 +622,14 @@ class Editor:
                  notes: str = "", recorded_at: str | None = None, origin: str = "bvh",
                  frame_indices: np.ndarray | None = None,
                  received_at: np.ndarray | None = None) -> str:
-        """Stores a take; returns its id. channels : (T, C) raw channels of `skeleton`."""
+        """Stores a take; returns its id.
+
+        channels : (T, C) raw channels of `skeleton`; frame_time : s between frames;
+        frame_indices : (T,) the sender's frame indices (default 0..T-1); received_at : (T,)
+        Unix seconds of a streamed take. Every array is checked before anything is written
+        (`schema.take_arrays`: finite, and within the range of the type it is stored as), so a
+        take that would damage the library is refused with the take and the problem named.
+        """
         name = self._check_name(name, "take")
         tags = normalise_tags(tags, new=True, known=self._known_tags())
         if skeleton.unit_m is None:
@@ -590,42 +637,27 @@ class Editor:
                 f"Expected a skeleton with a known length unit for take {name!r}: give the unit "
                 "when importing (for example --unit cm)"
             )
-        channels = np.asarray(channels)
-        if channels.ndim == 2 and channels.shape[1] == skeleton.num_channels and \
-                not len(channels):
-            raise LibraryError(f"Expected at least one frame for take {name!r}, got none (a "
-                               f"header-only file, `Frames: 0`, holds no motion to store)")
-        if channels.ndim != 2 or channels.shape[1] != skeleton.num_channels:
-            raise LibraryError(f"Expected channels (T > 0, {skeleton.num_channels}) for take "
-                               f"{name!r}, got {channels.shape}")
-        if not np.isfinite(channels).all():
-            raise LibraryError(f"Expected finite channels for take {name!r}")
+        origin_file = str(source).split("#recording=")[0]
+        what = f"take {name!r}" + (f" (from {origin_file})" if origin_file else "")
+        arrays = schema.take_arrays(skeleton, channels, frame_time, what,
+                                    frame_indices=frame_indices, received_at=received_at)
+        frame_time = float(frame_time)
         sk_key = self._store_skeleton(skeleton)
         tid = _take_id(self.next_take)
         self.next_take += 1
         g = self.f["takes"].create_group(tid)
         recorded_at = _utc_stamp(recorded_at) if recorded_at else \
             time.strftime(UTC_STAMP, time.gmtime())
-        for key, value in dict(name=name, skeleton=sk_key, frame_time=float(frame_time),
+        for key, value in dict(name=name, skeleton=sk_key, frame_time=frame_time,
                                source=source, subject=subject, tags=" ".join(tags), notes=notes,
                                recorded_at=recorded_at, origin=origin).items():
             g.attrs[key] = value
-        t = channels.shape[0]
+        t = arrays["channels"].shape[0]
         chunk = min(t, 256)
         opts = dict(compression="gzip", compression_opts=4, shuffle=True)
-        g.create_dataset("channels", data=channels, chunks=(chunk, channels.shape[1]), **opts)
-        g.create_dataset("local_rotations",
-                         data=skeleton.local_rotations(channels).astype(np.float32),
-                         chunks=(chunk, skeleton.num_joints, 4), **opts)
-        g.create_dataset("root_positions",
-                         data=skeleton.root_positions(channels).astype(np.float32),
-                         chunks=(chunk, 3), **opts)
-        idx = np.arange(t) if frame_indices is None else np.asarray(frame_indices)
-        g.create_dataset("frame_indices", data=idx.astype(np.int64), chunks=(chunk,), **opts)
-        if received_at is not None:
-            g.create_dataset("received_at", data=np.asarray(received_at, dtype=np.float64),
-                             chunks=(chunk,), **opts)
-        self.takes[tid] = TakeInfo(tid, name, sk_key, t, float(frame_time), source, subject,
+        for key, data in arrays.items():
+            g.create_dataset(key, data=data, chunks=(chunk,) + data.shape[1:], **opts)
+        self.takes[tid] = TakeInfo(tid, name, sk_key, t, frame_time, source, subject,
                                    recorded_at, tags, notes, origin)
         return tid
 
@@ -675,6 +707,10 @@ class Editor:
         tags = normalise_tags(tags, new=True, known=self._known_tags())
         mask = encode_supports(supports)
         rot, root = self._frame_arrays(info, frame)
+        if not (np.isfinite(rot).all() and np.isfinite(root).all()):  # (a pose copies them)
+            raise schema.damaged_content(self.lib.path, [
+                f"/takes/{info.id}: frame {frame}'s rotations or root position are not numbers"],
+                refused_change=True)
         pid = self.next_pose
         self.next_pose += 1
         self.table.append(id=pid, name=name, take=_parse_id(info.id, "take-"), frame=frame,

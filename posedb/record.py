@@ -43,7 +43,7 @@ from capture.stream_layout import StreamLayout
 from .library import DuplicateNameError, Editor, PoseLibrary, TakeInfo, checked_name
 from .locking import LockedError, exclusive, lock_path, try_exclusive
 from .regions import DEFAULT_SUPPORT, support_regions
-from .schema import LibraryError
+from .schema import InvalidDataError, LibraryError
 from .tags import normalise_tags
 
 _SYNC_EVERY = 0.5  # seconds between fsyncs of the journal
@@ -119,15 +119,20 @@ def recordings(library: str | os.PathLike) -> list[Recording]:
 def _frame_time(frames, header_frame_time: float) -> float:
     """The stream's frame period: from the sender's indices and arrival times (split into
     segments where the index restarts), snapped to a common rate within 2 %; the header's
-    frame time when the stream cannot tell."""
+    frame time when the stream cannot tell (too few frames, receive times that are not all
+    finite, a period no BVH file could give). The take's one check (`schema.take_arrays`)
+    refuses the receive times themselves when they are not finite."""
+    from capture.bvh import MAX_FRAME_TIME, MIN_FRAME_TIME
+
+    received = np.array([f.received_at for f in frames], dtype=np.float64)
+    if not np.isfinite(received).all():
+        return header_frame_time
     idx = [f.frame_index for f in frames if f.frame_index is not None]
     t = [f.received_at for f in frames if f.frame_index is not None]
     period = sender_timing(idx, t)[0]
     if period is None and len(frames) >= 2:
-        period = float(np.median(np.diff([f.received_at for f in frames])))
-    if period is None:
-        return header_frame_time
-    if period <= 0:
+        period = float(np.median(np.diff(received)))
+    if period is None or not MIN_FRAME_TIME <= period <= MAX_FRAME_TIME:
         return header_frame_time
     rate = 1.0 / period
     best = min(_COMMON_RATES, key=lambda r: abs(r - rate))
@@ -146,6 +151,9 @@ def import_journal(lib: PoseLibrary, path: Path) -> TakeInfo | None:
     if stored is not None:
         path.unlink()  # the take was stored; only the journal's removal was missed
         return stored
+    if not isinstance(header.get("skeleton_bvh"), str):
+        raise LibraryError(f"{path}: the journal's header holds no skeleton, so its frames "
+                           "cannot be read")
     unit = meta.get("unit_m")
     skeleton = parse_bvh(header["skeleton_bvh"], unit=unit if unit else "auto").skeleton
     layout = StreamLayout(skeleton)
@@ -248,7 +256,7 @@ def _recover_one(lib: PoseLibrary, rec: Recording) -> dict:
         if not rec.path.exists():  # its recorder stored it meanwhile
             return row | {"status": "stored by its recorder"}
         take = import_journal(lib, rec.path)
-    except (LibraryError, RawCaptureError, ValueError) as exc:
+    except (ValueError, OSError) as exc:  # (LibraryError and RawCaptureError among them)
         return row | {"status": f"failed: {exc}"}
     finally:
         lock.release()
@@ -268,12 +276,16 @@ def recover(library: str | os.PathLike, *, lock_timeout: float | None | str = "d
 
 
 def _store_journal(lib: PoseLibrary, journal: Path, take: str) -> TakeInfo | None:
-    """The recording's final commit; on failure the journal stays and the error says so."""
+    """The recording's final commit; on failure the journal stays and the error says so (and,
+    unless its data was refused, which command stores it)."""
     try:
         return import_journal(lib, journal)
-    except (LibraryError, OSError) as exc:
+    except (ValueError, OSError) as exc:  # (LibraryError and RawCaptureError among them)
         if not journal.exists():
             raise
+        if isinstance(exc, InvalidDataError):  # (`recover` would refuse it again)
+            raise LibraryError(f"The recording of take {take!r} was not stored in {lib.path} "
+                               f"({exc}); it is kept as received in {journal}") from exc
         why = "another writer kept the library locked" if isinstance(exc, LockedError) else exc
         raise LibraryError(
             f"The recording of take {take!r} was not stored in {lib.path} ({why}); it is kept "

@@ -37,6 +37,10 @@ bit keeps its meaning, so a version 1 mask reads unchanged in version 2: bit 1 (
 the upper back, lower back and pelvis together. Version 2 writes region bits only (torso, arms
 and legs as their regions); the coarse bits 1, 2 and 4 are only ever read.
 
+Every take is written through `take_arrays`, which checks each array against the type it is
+stored as (finite, within float32's range for the rotations and root positions, whole for the
+frame indices) and the frame time, before anything is written.
+
 A file of a newer schema is refused; an older one is read as it is and, before its first change,
 brought up to this version by the functions in `MIGRATIONS` (`upgrade`), step by step.
 """
@@ -84,6 +88,11 @@ class StorageError(LibraryError):
     """A library whose bytes cannot be read back as written (damaged, truncated)."""
 
 
+class InvalidDataError(LibraryError):
+    """Data a library write refuses: values that are not finite numbers, or that the type they
+    are stored as cannot hold (float32 overflows to infinity beyond about 3.4e38)."""
+
+
 # what h5py raises for damaged files: OSError (unreadable objects, failed filters), KeyError
 # (missing links), RuntimeError (broken B-trees), ValueError and TypeError (garbled shapes,
 # types or UTF-8), and zlib's own errors through OSError
@@ -95,6 +104,17 @@ def damaged(path: Path, exc: BaseException) -> StorageError:
     what = str(exc).strip() or type(exc).__name__
     return StorageError(f"{path} is damaged and cannot be read ({what}); `sitrelax db check "
                         f"--db {path}` lists what is wrong")
+
+
+def damaged_content(path: Path, problems: list[str], *,
+                    refused_change: bool = False) -> StorageError:
+    """The one message of a library whose content `posedb.verify` (or a reader) finds wrong:
+    the file, the first problem and how many more, what to run (`refused_change`: and that a
+    change to it was refused)."""
+    more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+    state = "is damaged, so it was not changed" if refused_change else "is damaged"
+    return StorageError(f"{path} {state}: {problems[0]}{more}; `sitrelax db check --db {path}` "
+                        "lists what is wrong")
 
 
 @contextmanager
@@ -198,6 +218,133 @@ def read_skeleton(g: h5py.Group) -> Skeleton:
         unit_m=None if np.isnan(unit) else unit,
         joint_map=tuple(json.loads(g.attrs.get("joint_map", "{}")).items()),
     )
+
+
+def skeleton_problems(sk: Skeleton, where: str) -> list[str]:
+    """What makes a skeleton unfit to store or use (empty when nothing does): offsets and end
+    sites that are not numbers (an export would write a BVH file no reader takes) and a length
+    unit that is unknown or not a positive number of metres (the library stores only skeletons
+    of a known unit: a take's lengths are read in metres). `where` names it in the messages."""
+    problems = []
+    for name, values in (("offsets", sk.offsets), ("end_sites", sk.end_sites)):
+        bad = ~np.isfinite(np.asarray(values, dtype=np.float64))
+        if bad.any():
+            problems.append(f"{where}/{name}: {int(bad.sum())} value(s) that are not numbers")
+    unit = sk.unit_m
+    if unit is None or not (np.isfinite(unit) and unit > 0):
+        shown = "unknown (nan)" if unit is None else unit
+        problems.append(f"{where}: attribute 'unit_m' is {shown}, not a positive number of "
+                        "metres per file unit")
+    return problems
+
+
+def frame_time_problem(frame_time) -> str | None:
+    """Why a take's frame time cannot be stored or used, as "frame_time is ..." (None when it
+    can): it must be a number of seconds in the range a BVH file may give
+    (`capture.bvh.MIN_FRAME_TIME` to `MAX_FRAME_TIME`), so that durations, frame counts and an
+    export are all well defined."""
+    from capture.bvh import MAX_FRAME_TIME, MIN_FRAME_TIME
+
+    try:
+        seconds = float(frame_time)
+    except (TypeError, ValueError):
+        seconds = None
+    if seconds is not None and MIN_FRAME_TIME <= seconds <= MAX_FRAME_TIME:  # (NaN fails)
+        return None
+    shown = frame_time if seconds is None else seconds
+    return (f"frame_time is {shown!r}, not a number of seconds from {MIN_FRAME_TIME:g} to "
+            f"{MAX_FRAME_TIME:g}")
+
+
+def _first(mask: np.ndarray, values: np.ndarray) -> tuple[int, object]:
+    """The frame (first index) and the value of the first element where `mask` is true."""
+    at = np.unravel_index(int(np.argmax(mask)), mask.shape)
+    return (int(at[0]) if at else 0), values[at].item()
+
+
+def stored_array(values, dtype, name: str, what: str, *, hint: str = "") -> np.ndarray:
+    """`values` (frames along the first axis) as the library stores them, in `dtype`, after
+    checking that they are numbers, finite and within the range of `dtype` (and whole for an
+    integer dtype), so that the cast never overflows to infinity nor wraps. An
+    InvalidDataError names `what` (the take), the dataset `name`, the first bad frame and
+    value; `hint` ends the message."""
+    values = np.asarray(values)
+    target = np.dtype(dtype)
+    hint = f" ({hint})" if hint else ""
+    if values.dtype.kind not in "biuf":
+        raise InvalidDataError(f"Expected numbers as {name} of {what}, got {values.dtype} "
+                               f"values{hint}")
+    if values.dtype.kind == "f":
+        bad = ~np.isfinite(values)
+        if bad.any():
+            frame, value = _first(bad, values)
+            raise InvalidDataError(f"Expected finite {name} for {what}, got {value} in frame "
+                                   f"{frame}{hint}")
+        if target.kind in "iu":
+            bad = values != np.floor(values)
+            if bad.any():
+                frame, value = _first(bad, values)
+                raise InvalidDataError(f"Expected whole numbers as {name} of {what}, got "
+                                       f"{value} in frame {frame}{hint}")
+    info = np.finfo(target) if target.kind == "f" else np.iinfo(target)
+    if values.size and values.dtype != target:
+        if values.dtype.kind == "f":  # (as a float, an integer type's maximum rounds up)
+            wide = values.astype(np.float64)
+            bad = (wide < float(info.min)) | (wide > float(info.max)) if target.kind == "f" \
+                else (wide < float(info.min)) | (wide >= float(info.max) + 1)
+        else:
+            bad = (values < info.min) | (values > info.max)
+        if bad.any():
+            frame, value = _first(bad, values)
+            raise InvalidDataError(
+                f"Expected {name} of {what} within {float(info.min):.4g}..{float(info.max):.4g} "
+                f"(stored as {target.name}), got {value:.4g} in frame {frame}{hint}")
+    return values.astype(target)
+
+
+def take_arrays(skeleton: Skeleton, channels, frame_time, what: str, *,
+                frame_indices=None, received_at=None) -> dict[str, np.ndarray]:
+    """The datasets of a take as they are stored (see the module docstring), each checked
+    before anything is written: the one check every writer of takes goes through (an import,
+    a live recording, the recovery of a journal). Raises a LibraryError naming `what` (the
+    take, and its file) and the problem: no frame, a wrong shape, values that are not finite or
+    that their stored type cannot hold, a frame time out of range, a skeleton unfit to store.
+
+    channels : (T, C) raw channels of `skeleton` (stored float32 when given so, else float64).
+    frame_time : seconds between frames.
+    frame_indices : (T,) whole numbers (default 0..T-1); received_at : (T,) Unix seconds.
+    """
+    channels = np.asarray(channels)
+    c = skeleton.num_channels
+    if channels.ndim == 2 and channels.shape[1] == c and not len(channels):
+        raise LibraryError(f"Expected at least one frame for {what}, got none (a header-only "
+                           "file, `Frames: 0`, holds no motion to store)")
+    if channels.ndim != 2 or channels.shape[1] != c:
+        raise LibraryError(f"Expected channels (T > 0, {c}) for {what}, got {channels.shape}")
+    problems = [p for p in (frame_time_problem(frame_time),) if p]
+    problems += skeleton_problems(skeleton, "skeleton")
+    if problems:
+        raise InvalidDataError(f"Expected a take fit to store for {what}, got {problems[0]}")
+    t = channels.shape[0]
+    kind = np.float32 if channels.dtype == np.float32 else np.float64
+    out = {"channels": stored_array(channels, kind, "channels", what)}
+    with np.errstate(all="ignore"):  # (an overflow is found below, not warned about)
+        rotations = skeleton.local_rotations(out["channels"])
+        roots = skeleton.root_positions(out["channels"])
+    out["local_rotations"] = stored_array(rotations, np.float32, "local rotations", what)
+    out["root_positions"] = stored_array(
+        roots, np.float32, "root positions (m)", what,
+        hint="check the file's numbers and its length unit")
+    for name, values in (("frame_indices", np.arange(t) if frame_indices is None
+                          else frame_indices), ("received_at", received_at)):
+        if values is None:
+            continue
+        values = np.asarray(values)
+        if values.shape != (t,):
+            raise LibraryError(f"Expected {name} ({t},) for {what}, got {values.shape}")
+        out[name] = stored_array(values, np.int64 if name == "frame_indices" else np.float64,
+                                 name, what)
+    return out
 
 
 def encode_supports(names: Iterable[str] | str) -> int:

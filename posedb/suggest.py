@@ -19,7 +19,7 @@ import numpy as np
 from capture import PROFILES, Skeleton, skeleton_fk
 from capture.profiles import strip_namespace
 
-from .constants import DEFAULT_MAX_SPEED, DEFAULT_MIN_DURATION
+from .constants import DEFAULT_MAX_SPEED, DEFAULT_MIN_DURATION, MAX_HOLD_DURATION
 from .regions import DEFAULT_SUPPORT
 
 DEFAULT_SMOOTH = 0.2  # s
@@ -61,7 +61,8 @@ def joint_speed(skeleton: Skeleton, channels: np.ndarray, frame_time: float,
         return np.zeros(t)
     step = np.linalg.norm(np.diff(positions, axis=0), axis=-1).mean(axis=1) / frame_time
     speed = np.concatenate([[step[0]], step])  # speed at frame k: from k-1 to k
-    width = max(1, int(round(smooth / frame_time)))
+    # a window longer than the take is cut to it (and its frame count cannot overflow)
+    width = max(1, min(int(round(min(smooth / frame_time, 2.0 ** 53))), t))
     if width > 1:
         kernel = np.ones(width) / width
         padded = np.pad(speed, (width // 2, width - 1 - width // 2), mode="edge")
@@ -70,8 +71,9 @@ def joint_speed(skeleton: Skeleton, channels: np.ndarray, frame_time: float,
 
 
 def _frames(seconds: float, frame_time: float) -> int:
-    # BVH frame times are rounded (.0333333 for 1/30 s): allow that much slack
-    return max(1, int(np.ceil(seconds / frame_time * (1 - 1e-4))))
+    # BVH frame times are rounded (.0333333 for 1/30 s): allow that much slack; a count beyond
+    # any take's (a day at a millionth of a second) is capped rather than overflowing
+    return max(1, int(min(np.ceil(seconds / frame_time * (1 - 1e-4)), 2.0 ** 53)))
 
 
 def _is_bottom(height: np.ndarray, start: int, end: int, window: int, drop: float) -> bool:
@@ -85,6 +87,30 @@ def _is_bottom(height: np.ndarray, start: int, end: int, window: int, drop: floa
     return before.max() - low >= drop and after.max() - low >= drop
 
 
+def _check_options(**options) -> None:
+    """Refuses an option of `held_postures` out of its range, naming it: the frame time and
+    max_speed finite and > 0, the durations from 0 to MAX_HOLD_DURATION seconds, bottom_drop
+    finite and >= 0 (min_bottom_duration may be None)."""
+    from .schema import LibraryError
+
+    for name, value in options.items():
+        if value is None and name == "min_bottom_duration":
+            continue
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            number = float("nan")
+        if name in ("frame_time", "max_speed"):
+            ok, wanted = np.isfinite(number) and number > 0, "a finite number > 0"
+        elif name == "bottom_drop":
+            ok, wanted = np.isfinite(number) and number >= 0, "a finite number >= 0"
+        else:
+            ok = 0 <= number <= MAX_HOLD_DURATION
+            wanted = f"a finite number of seconds from 0 to {MAX_HOLD_DURATION:g}"
+        if not ok:
+            raise LibraryError(f"Expected {name} as {wanted}, got {value!r}")
+
+
 def held_postures(skeleton: Skeleton, channels: np.ndarray, frame_time: float,
                   profile: str | None = None, *, max_speed: float = DEFAULT_MAX_SPEED,
                   min_duration: float = DEFAULT_MIN_DURATION,
@@ -94,17 +120,15 @@ def held_postures(skeleton: Skeleton, channels: np.ndarray, frame_time: float,
     """The held postures of a take, in time order (see the module docstring).
 
     channels : (T, C) raw channels of `skeleton` (its unit must be known).
-    min_bottom_duration : s, shortest still stretch at the bottom of a motion; None: none.
+    frame_time : s between frames (> 0); max_speed : m/s (> 0); bottom_drop : m (>= 0).
+    min_duration, smooth : s, from 0 to MAX_HOLD_DURATION (a day).
+    min_bottom_duration : s, shortest still stretch at the bottom of a motion, from 0 to
+        MAX_HOLD_DURATION; None: none.
+    Raises a LibraryError naming an option out of its range.
     """
-    for name, value in (("max_speed", max_speed), ("min_duration", min_duration),
-                        ("smooth", smooth), ("min_bottom_duration", min_bottom_duration),
-                        ("bottom_drop", bottom_drop)):
-        if value is not None and not (np.isfinite(value) and value >= 0) or \
-                name == "max_speed" and not value > 0:
-            from .schema import LibraryError
-
-            raise LibraryError(f"Expected {name} as a finite number >= 0 (max_speed > 0), got "
-                               f"{value!r}")
+    _check_options(frame_time=frame_time, max_speed=max_speed, min_duration=min_duration,
+                   smooth=smooth, min_bottom_duration=min_bottom_duration,
+                   bottom_drop=bottom_drop)
     speed = joint_speed(skeleton, channels, frame_time, profile, smooth)
     height = skeleton.root_positions(channels)[:, 1]
     min_frames = _frames(min_duration, frame_time)
