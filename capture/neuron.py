@@ -9,7 +9,8 @@ sender's frame index) and the old one (1.0.x, without it). See
 The decoder reads a byte stream in pieces of any size. It resynchronises on the next plausible
 header after garbage, rejects impossible headers (a DataCount over `MAX_DATA_COUNT` is never
 allocated), and, because the format has no checksum, accepts a binary frame only when its
-framing is confirmed: the bytes after it start another frame, the datagram ends exactly there,
+framing is confirmed: the bytes after it start another frame (its token and, once they have
+arrived, version bytes of major version 1), the datagram ends exactly there,
 or its DataCount is the one the paired skeleton expects for its flags, and no other header
 begins inside it (which would mean it was cut short): neither a valid one nor the token and
 version of its own header, the start of a fragment. A bit flipped inside a value, or a frame
@@ -558,9 +559,15 @@ class StreamDecoder:
         """Accepts the whole, plausible frame at buf[pos:end] if what follows confirms it."""
         n = len(buf)
         final = edge == _FINAL
-        # The format has no checksum: only what follows a frame confirms where it ends.
-        if end + 2 <= n:
-            confirmed = buf[end:end + 2] == TOKEN
+        # The format has no checksum: only what follows a frame confirms where it ends, the
+        # token and (once they have arrived) the version bytes of a next header (major 1): a
+        # value whose bytes hold the token alone is no header
+        if end + 2 <= n and buf[end:end + 2] != TOKEN:
+            confirmed = False
+        elif end + _OWN_START <= n:
+            confirmed = buf[end + 5] == 1
+        elif end + 2 <= n and final:
+            confirmed = True  # (the token, and no more bytes to judge it by)
         elif end == n and edge != _OPEN:
             confirmed = True
         elif final:

@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from capture import parse_bvh
 from capture.neuron import (
     MAX_DATA_COUNT,
+    TOKEN,
     NeuronStreamError,
     StreamDecoder,
     decode_all,
@@ -275,6 +276,24 @@ def test_damage_never_invents_frames_and_spares_intact_ones(n, seed, ops, splits
 CUT_THEN_LONG_TAIL = dict(n=1, seed=0, ops=[("cut", 0, b"\x00", 62499),
                                             ("cut_long_tail", 0, b"\x00", 0)],
                           splits=[], strict=False)
+
+
+def test_a_token_inside_a_value_confirms_no_frame_without_a_header_version():
+    # Found by the property test: 8 stray bytes after a frame's header shift its values, and
+    # the two that spill past its end begin with the token's bytes (a value's); with no
+    # version of a header after that token, the frame is not taken as whole
+    case = dict(n=1, seed=28120, ops=[("insert", 0, b"\x00", 0), ("insert", 0, b"\x00", 0)],
+                splits=[], strict=False)
+    sent = _frames(1, 28120)[0]
+    blob = _encode([sent])[0]
+    assert blob[92:94] == TOKEN  # the last two values' bytes begin with the token
+    out, stats = _check_damage(**case)
+    assert out == [] and stats.corrupt >= 1
+    # the same token followed by a header's version still confirms the frame before it
+    stream = blob + encode_binary(sent, frame_index=101, with_displacement=False,
+                                  avatar_name="Seat")
+    (first, second), _ = decode_all(stream)
+    assert _same(first, sent, 100) and _same(second, sent, 101)
 
 
 def test_a_cut_made_up_by_a_long_tail_is_a_whole_frame_no_reader_can_question():
