@@ -246,6 +246,10 @@ class Person(_Model):
                     "skeleton no profile knows")] = None
 
 
+MAX_STIFFNESS = 1e6  # kPa per metre: stiffer than any floor's covering (a rigid floor's
+# contact is all it can be; beyond, the settle's products overflow)
+
+
 def _number(ge: float, le: float | None, description: str):
     return Field(strict=True, allow_inf_nan=False, ge=ge, le=le, description=description)
 
@@ -253,16 +257,16 @@ def _number(ge: float, le: float | None, description: str):
 class Evaluation(_Model):
     """How the body settles on the surface (see README, "Contact in equilibrium")."""
 
-    foam_stiffness: Annotated[float, _number(1e-3, None, "the seat foam's kPa of pressure per "
-                                             "metre pressed in")] = 200.0
+    foam_stiffness: Annotated[float, _number(1e-3, MAX_STIFFNESS, "the seat foam's kPa of "
+                                             "pressure per metre pressed in")] = 200.0
     foam_thickness: Annotated[float, _number(1e-3, 1.0, "metres of foam; past it the foam is "
                                              "bottomed out")] = 0.1
     friction: Annotated[float, _number(0.0, 2.0, "Coulomb friction between body and "
                                        "supports")] = 0.5
     floor: Annotated[bool, Field(strict=True, description="whether the floor (y = 0) supports "
                                                           "the body too")] = True
-    floor_stiffness: Annotated[float, _number(1e-3, None, "kPa per metre of the floor under "
-                                              "feet and shoes")] = 30000.0
+    floor_stiffness: Annotated[float, _number(1e-3, MAX_STIFFNESS, "kPa per metre of the floor "
+                                              "under feet and shoes")] = 30000.0
 
 
 class Relief(_Model):

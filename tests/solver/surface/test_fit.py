@@ -252,6 +252,19 @@ def test_missing_scenario_and_unknown_pose(tmp_path):
         place_person(scenario.persons[0])
 
 
+@pytest.mark.parametrize("key", ["floor_stiffness", "foam_stiffness"])
+def test_a_stiffness_past_any_floor_s_is_refused_by_name(key):
+    """A floor or foam stiffer than 1e6 kPa per metre is refused where it is given (1e308 made
+    the settle's products overflow into NaN, and the person "found no balance")."""
+    from solver.scene.scenario import parse_scenario
+
+    data = {"surface": {"grid": {}}, "evaluation": {key: 1e308},
+            "person": [{"pose": "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"}]}
+    with pytest.raises(ScenarioError, match=rf"s.toml: evaluation.{key}: expected a number "
+                                            r"<= 1e\+06, got 1e\+308"):
+        parse_scenario(data, "s.toml")
+
+
 def test_a_pose_from_a_file_without_frames_says_so(tmp_path):
     from solver.body.poses import PoseSourceError, load_pose
 
