@@ -2,7 +2,9 @@
 run on a local Dask cluster (processes) or on an existing Dask scheduler.
 
 Each job fits, evaluates and exports as `sitrelax fit` does, into `OUT/jobs/<job id>/`, whose
-`result.json` marks it finished (a re-run skips it). A job that raises is recorded with its
+`result.json` marks it finished (a re-run skips it: a job's id covers its scenario, its grid
+point and what the files it reads hold, and a result.json is trusted only when whole). A job that
+raises is recorded with its
 error and the batch goes on; a job whose worker dies is given to another worker by Dask. Workers
 only read the pose library; the client alone writes (the results, as scenarios, in one commit).
 
@@ -87,8 +89,24 @@ def parse_grid(items: Sequence[str]) -> dict[str, list]:
             # (a whole number is one however written: level=3.0 is level 3)
             parsed.append(int(number) if number.is_integer() and abs(number) < 2 ** 53 else
                           number)
+        setting = _setting(key)
+        same = [k for k in grid if _setting(k) == setting]
+        if same:
+            named = key if same[0] == key else f"{same[0]} and {key}"
+            raise BatchError(f"--grid {named}: the same setting given twice; give its values "
+                             f"once, as {setting}=V1,V2,...")
+        repeated = sorted({v for v in parsed if parsed.count(v) > 1})
+        if repeated:
+            raise BatchError(f"--grid {key}: expected each value once, got "
+                             f"{', '.join(f'{v:g}' for v in repeated)} more than once")
         grid[key] = parsed
     return grid
+
+
+def _setting(key: str) -> str:
+    """The setting a grid key names: `sigma` and `surface.sigma` are one."""
+    key = key.strip()
+    return f"surface.{key}" if key in SURFACE_SHORTCUTS else key
 
 
 def _apply(data: dict, key: str, value) -> None:
@@ -111,19 +129,112 @@ def _apply(data: dict, key: str, value) -> None:
                          "evaluation.KEY, relief.KEY, body.KEY or person.KEY")
 
 
-def _job_id(scenario: str, data: dict, parameters: dict) -> str:
+def _job_id(scenario: str, data: dict, parameters: dict, inputs: dict | None = None) -> str:
+    """`<scenario stem>-<hash>`: the hash of the scenario's data, the grid point and what the
+    files the scenario reads hold (`_input_digests`), so a changed input is a new job."""
     stem = Path(scenario.split("#")[0]).stem or "job"
-    digest = hashlib.sha1(json.dumps([scenario, data, parameters], sort_keys=True,
-                                     default=str).encode()).hexdigest()[:10]
+    digest = hashlib.sha1(json.dumps([scenario, data, parameters] + ([inputs] if inputs else []),
+                                     sort_keys=True, default=str).encode()).hexdigest()[:10]
     return f"{stem}-{digest}"
+
+
+def _file_digest(path: Path, cache: dict) -> str:
+    """The SHA-1 of a regular file's bytes; for what is not one (missing, a FIFO, a folder),
+    a word saying so: such a file is not read here, where it could block (its job reads it)."""
+    key = str(path)
+    if key not in cache:
+        try:
+            info = path.stat()
+        except OSError:
+            cache[key] = "missing"
+        else:
+            if not stat.S_ISREG(info.st_mode):
+                cache[key] = "not a regular file"
+            else:
+                sha = hashlib.sha1()
+                try:
+                    with open(path, "rb") as fh:
+                        for chunk in iter(lambda: fh.read(1 << 20), b""):
+                            sha.update(chunk)
+                    cache[key] = sha.hexdigest()
+                except OSError as exc:
+                    cache[key] = f"unreadable ({exc.strerror or exc})"
+    return cache[key]
+
+
+def _input_digests(data: dict, base: Path, library, cache: dict) -> dict:
+    """What the files a scenario reads hold, by what the scenario calls them: its control mesh
+    file, its people's joint-map files and BVH files (a bundled recording's too), each as the
+    SHA-1 of its bytes, and each `db:` pose as the SHA-1 of its data in the library (`library`,
+    a `PoseLibrary` or None: then the pose is named only)."""
+    from capture import resolve_path
+
+    inputs = {}
+    surface = data.get("surface")
+    mesh = surface.get("control_mesh") if isinstance(surface, dict) else None
+    if isinstance(mesh, str):
+        inputs[f"control_mesh:{mesh}"] = _file_digest(base / mesh, cache)
+    people = data.get("person")
+    for person in people if isinstance(people, list) else []:
+        if not isinstance(person, dict):
+            continue
+        joint_map = person.get("joint_map")
+        if isinstance(joint_map, str):
+            inputs[f"joint_map:{joint_map}"] = _file_digest(base / joint_map, cache)
+        pose = person.get("pose")
+        if not isinstance(pose, str):
+            continue
+        if pose.startswith("bvh:"):
+            file_part = pose[4:].split("#", 1)[0]
+            try:
+                path = resolve_path(file_part)
+            except (FileNotFoundError, ValueError):
+                inputs[pose] = "missing"
+                continue
+            inputs[pose] = _file_digest(path if file_part.startswith("bundled:")
+                                        else base / file_part, cache)
+        elif pose.startswith("db:"):
+            inputs[pose] = _pose_digest(library, pose[3:], cache)
+    return inputs
+
+
+def _pose_digest(library, name: str, cache: dict) -> str:
+    """The SHA-1 of a library pose's data (skeleton, rotations, root position)."""
+    key = f"db:{name}"
+    if library is None:
+        return "no library given"
+    if key not in cache:
+        try:
+            _info, skeleton, rotations, root = library.pose_data(name)
+        except (KeyError, ValueError, OSError) as exc:
+            cache[key] = f"unreadable ({type(exc).__name__})"
+        else:
+            import numpy as np
+
+            sha = hashlib.sha1()
+            sha.update(json.dumps([list(skeleton.names), np.asarray(skeleton.parents).tolist(),
+                                   skeleton.unit_m, skeleton.joint_map], default=str).encode())
+            for array in (skeleton.offsets, rotations, root):
+                sha.update(np.ascontiguousarray(array, dtype=np.float64).tobytes())
+            cache[key] = sha.hexdigest()
+    return cache[key]
 
 
 def expand_jobs(scenarios: Sequence[str | os.PathLike] = (), *, grid: dict | None = None,
                 from_db: str | None = None, template: str | os.PathLike | None = None,
                 db: str | os.PathLike | None = None) -> list[Job]:
     """The batch's jobs: every scenario (or every library pose matching `from_db`, put into
-    each person of `template`) at every point of `grid`."""
+    each person of `template`) at every point of `grid`. A job's id covers the scenario, the
+    grid point and what the files the scenario reads hold (its control mesh, joint maps and
+    BVH files, and its `db:` poses' data in `db`), so a re-run runs again a job whose inputs
+    changed."""
     grid = grid or {}
+    settings = {}
+    for key in grid:
+        if _setting(key) in settings:
+            raise BatchError(f"--grid {settings[_setting(key)]} and {key}: the same setting "
+                             "given twice")
+        settings[_setting(key)] = key
     sources: list[tuple[str, dict, Path]] = []
     if from_db is not None:
         if template is None or db is None:
@@ -147,6 +258,15 @@ def expand_jobs(scenarios: Sequence[str | os.PathLike] = (), *, grid: dict | Non
     if not sources:
         raise BatchError("Expected scenario files, or --from-db with --template")
     keys = list(grid)
+    library = None
+    if db is not None and Path(db).is_file():
+        from posedb import PoseLibrary
+
+        try:
+            library = PoseLibrary(db)
+        except (OSError, ValueError):  # (its jobs fail, each with the library's reason)
+            library = None
+    digests: dict = {}
     jobs = []
     for scenario, data, base in sources:
         for values in itertools.product(*(grid[k] for k in keys)) if keys else [()]:
@@ -157,7 +277,8 @@ def expand_jobs(scenarios: Sequence[str | os.PathLike] = (), *, grid: dict | Non
                 for k, v in point.items():
                     _apply(job_data, k, v)
                 problem = _problem(job_data, scenario, base)  # checked before anything runs
-            jobs.append(Job(_job_id(scenario, job_data, point), scenario, job_data,
+            inputs = _input_digests(job_data, base, library, digests) if not problem else {}
+            jobs.append(Job(_job_id(scenario, job_data, point, inputs), scenario, job_data,
                             str(base.resolve()), point, problem))
     return jobs
 
@@ -198,6 +319,12 @@ def _read_toml(path: str | os.PathLike) -> dict:
         raise BatchError(f"{path}: not a valid TOML scenario: {exc}") from None
 
 
+def _full_row(row: dict) -> dict:
+    """A summary row with every field of `SUMMARY_FIELDS` (None where it has no value: a failed
+    job has no coverage), in that order, then any others it has."""
+    return {**{field: row.get(field) for field in SUMMARY_FIELDS}, **row}
+
+
 def _run_here(job: Job, db: str | None, out_root: str) -> dict:
     """Runs one job in this process; returns its summary row (a failure is a row too)."""
     from solver.scene.run import run_fit
@@ -218,6 +345,7 @@ def _run_here(job: Job, db: str | None, out_root: str) -> dict:
     else:
         row.update(status="ok", seconds=time.perf_counter() - start, error="",
                    iterations=report["iterations"], **summary_figures(report["persons"]))
+    row = _full_row(row)
     write_atomic(folder / "result.json", json.dumps(row, indent=2).encode())
     return row
 
@@ -394,20 +522,39 @@ def run_job(job: Job, db: str | None, out_root: str,
                                     f"of {time_limit:g} s and was stopped")
     else:
         status, error = "failed", f"ChildProcessError: {got}"
-    row = {"job": job.id, "scenario": job.scenario, "parameters": job.parameters,
-           "status": status, "seconds": time.perf_counter() - start, "error": error}
+    row = _full_row({"job": job.id, "scenario": job.scenario, "parameters": job.parameters,
+                     "status": status, "seconds": time.perf_counter() - start, "error": error})
     folder = Path(out_root) / "jobs" / job.id
     folder.mkdir(parents=True, exist_ok=True)
     write_atomic(folder / "result.json", json.dumps(row, indent=2).encode())
     return row
 
 
+# what a finished job's result.json must hold to be trusted: every field of a summary row,
+# with these of these types (a record cut short, or edited by hand, is run again)
+_OK_RECORD_TYPES = {"job": str, "scenario": str, "parameters": dict, "seconds": (int, float),
+                    "coverage_min": (int, float), "max_penetration_m": (int, float),
+                    "iterations": int, "all_rest": bool}
+
+
 def _finished(out: Path, job: Job) -> dict | None:
-    path = out / "jobs" / job.id / "result.json"
+    """The row of a job that finished before (`ok`, its record whole and its report there), or
+    None: then the job runs (again)."""
+    folder = out / "jobs" / job.id
     try:
-        return json.loads(path.read_text())
+        row = json.loads((folder / "result.json").read_text())
     except (OSError, ValueError):
         return None
+    if not isinstance(row, dict) or row.get("status") != "ok" or row.get("job") != job.id:
+        return None
+    if any(field not in row for field in SUMMARY_FIELDS):
+        return None
+    if any(not isinstance(row[field], kind) or (kind is not bool and isinstance(row[field], bool))
+           for field, kind in _OK_RECORD_TYPES.items()):
+        return None
+    if not (folder / "report.json").is_file():  # (the library stores the report's people)
+        return None
+    return _full_row(row)
 
 
 def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *,
@@ -427,7 +574,7 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *,
     todo = []
     for job in jobs:
         done = _finished(out, job)
-        if done is not None and done.get("status") == "ok":
+        if done is not None:
             rows[job.id] = done
         else:
             todo.append(job)
@@ -437,17 +584,18 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *,
     cluster = None
     if todo:
         if scheduler is None:
-            cluster = local_cluster(workers)
+            cluster = local_cluster(min(workers, len(todo)))  # (an idle worker costs a start)
             client = Client(cluster)
         else:
             client = Client(scheduler)
+        quieted: dict[str, int] = {}
         try:
             futures = [client.submit(run_job, job, db_path, str(out.resolve()), time_limit,
                                      key=f"sitrelax-job-{job.id}", pure=False, retries=2)
                        for job in todo]
             for future in as_completed(futures):
                 row = future.result()
-                rows[row["job"]] = row
+                rows[row["job"]] = row = _full_row(row)
                 counts["done" if row["status"] == "ok" else "failed"] += 1
                 counts["timed_out"] += row["status"] == "timeout"
                 counts["running"] -= 1
@@ -456,8 +604,16 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *,
                     elapsed = time.perf_counter() - start
                     progress({**counts, "elapsed_s": elapsed,
                               "left_s": elapsed / finished * counts["running"]})
-        except KeyboardInterrupt:  # (Ctrl-C: the jobs finished so far, the others interrupted)
-            _write_summary(out, [rows.get(job.id) or {
+        except KeyboardInterrupt:
+            # Ctrl-C: the running jobs are stopped first, so that the summary (the jobs
+            # finished so far, the others interrupted) says what the disk holds; a job that
+            # finished while the batch stopped counts as finished
+            if cluster is not None:
+                for name in QUIET_WHEN_STOPPED:  # (the workers' end is no news: it is meant)
+                    quieted[name] = logging.getLogger(name).level
+                    logging.getLogger(name).setLevel(logging.CRITICAL)
+                _stop_local_jobs(cluster)
+            _write_summary(out, [rows.get(job.id) or _finished(out, job) or {
                 "job": job.id, "scenario": job.scenario, "parameters": job.parameters,
                 "status": "interrupted", "error": "the batch was interrupted before it finished"}
                 for job in jobs])
@@ -466,6 +622,8 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *,
             client.close()
             if cluster is not None:
                 cluster.close()
+            for name, level in quieted.items():
+                logging.getLogger(name).setLevel(level)
     ordered = [rows[job.id] for job in jobs]
     _write_summary(out, ordered)
     stored = _store(db_path, jobs, ordered, out) if (db_path and store) else []
@@ -473,7 +631,39 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *,
             "seconds": time.perf_counter() - start}
 
 
+# the loggers of a local cluster that say, as the batch stops it, that its workers went
+QUIET_WHEN_STOPPED = ("distributed.scheduler", "distributed.nanny", "distributed.core",
+                      "distributed.worker")
+
+
+def _stop_local_jobs(cluster, timeout: float = 10.0) -> None:
+    """Kills a local cluster's worker processes and their jobs' processes, and waits until
+    they have ended: a job cut short writes no result (its results folder stays as it was, a
+    hidden folder of partial files aside), and no worker is started in a killed one's place.
+    (The jobs of workers of a scheduler not started here cannot be stopped from here.)"""
+    import psutil
+
+    processes = []
+    for nanny in list(cluster.workers.values()):
+        nanny.close_gracefully(reason="the batch was interrupted")  # (not restarted)
+        pid = getattr(nanny, "pid", None)
+        if not pid:
+            continue
+        try:
+            worker = psutil.Process(pid)
+            processes += [worker, *worker.children(recursive=True)]
+        except psutil.NoSuchProcess:
+            continue
+    for process in processes:  # (the worker first: it could record its job as failed)
+        try:
+            process.kill()
+        except psutil.NoSuchProcess:
+            pass
+    psutil.wait_procs(processes, timeout=timeout)
+
+
 def _write_summary(out: Path, rows: list[dict]) -> None:
+    rows = [_full_row(row) for row in rows]
     write_atomic(out / "summary.json", json.dumps(rows, indent=2).encode())
     text = io.StringIO()
     writer = csv.DictWriter(text, fieldnames=SUMMARY_FIELDS, extrasaction="ignore")
