@@ -50,7 +50,9 @@ MAX_PEOPLE = 6
 MAX_WORK = 3_000_000
 MAX_EVAL_VERTICES = 200_000
 MAX_EVAL_WORK = 600_000  # evaluated surface vertices x people
-MAX_ERRORS, MAX_MESSAGE = 10, 300  # an error body lists this many problems of this length
+# an error body lists this many problems; a message is sent whole (the values it quotes
+# shortened to MAX_QUOTED characters), and only one longer than MAX_MESSAGE even so is cut
+MAX_ERRORS, MAX_MESSAGE = 10, 1000
 MAX_QUOTED = 40  # characters of a quoted value an error may send back
 COORD = 100.0  # metres: the largest coordinate a request may give
 # the server's own ceilings on top of the scenario schema's bounds, so no request runs long
@@ -109,7 +111,8 @@ ERRORS = {
     400: {"description": "A request the solver cannot run (the reason in `detail`)"},
     403: {"description": "A Host or Origin header naming another site"},
     404: {"description": "An unknown pose or bundled recording (the field in `detail`)"},
-    409: {"description": "No pose library on this server, or it is gone or locked"},
+    409: {"description": "No pose library on this server, or it is gone, locked or "
+                         "unreadable (not a pose library, damaged)"},
     413: {"description": "A body over the size limit, or a fit over the compute budget: "
                          f"control vertices x 4^level x max_iterations x people over "
                          f"{MAX_WORK:,}, or past the time limit (default "
@@ -255,7 +258,10 @@ def _short(text: str) -> str:
 # a path with at least one folder (POSIX or Windows): its last part is kept (not the API's own
 # routes, which messages name)
 _PATH = re.compile(r"(?:\b[A-Za-z]:)?(?!/api/)[/\\](?:[^\s'\",:;()/\\]+[/\\])+([^\s'\",:;()/\\]+)")
-_QUOTED = re.compile(r"'([^']{%d,})'" % (MAX_QUOTED + 1))
+# a value quoted as Python quotes it ('...' or "..."), not the text between two apostrophes
+# ("the people's lowest point ... each person's position"): a quote after no letter or digit
+_QUOTED = re.compile(r"""(?<!\w)(?:'([^']{%d,})'|"([^"]{%d,})")(?!\w)"""
+                     % (MAX_QUOTED + 1, MAX_QUOTED + 1))
 
 
 def _scrubbed(text: str, db: str | None) -> str:
@@ -266,11 +272,12 @@ def _scrubbed(text: str, db: str | None) -> str:
         for path in {os.path.abspath(db), db}:
             text = text.replace(path, "the server's pose library")
     text = _PATH.sub(lambda m: m.group(1), text)
-    return _QUOTED.sub(lambda m: repr(m.group(1)[:MAX_QUOTED - 3] + "..."), text)
+    return _QUOTED.sub(lambda m: repr((m.group(1) or m.group(2))[:MAX_QUOTED - 3] + "..."),
+                       text)
 
 
 def _error_handlers(app: FastAPI, db: str | None = None) -> None:
-    from posedb.schema import LibraryError, NotFoundError
+    from posedb.schema import NotFoundError
 
     def reply(status: int, detail) -> JSONResponse:
         if isinstance(detail, list):
@@ -305,8 +312,7 @@ def _error_handlers(app: FastAPI, db: str | None = None) -> None:
 
     @app.exception_handler(ValueError)
     async def bad_value(_: Request, exc: ValueError):
-        status = 409 if isinstance(exc, LibraryError) and "locked" in str(exc).lower() else 400
-        return reply(status, str(exc))
+        return reply(409 if _server_fault(exc) else 400, str(exc))
 
     @app.exception_handler(OSError)
     async def unreadable(_: Request, exc: OSError):
@@ -335,20 +341,34 @@ def _deadline(seconds: float):
 
 
 def _placer(db: str | None):
-    """place(spec, index): a posed person, reused while the same person (and library file)
-    comes again."""
+    """place(spec, index, loc): a posed person, reused while the same person (and library file)
+    comes again. A pose that cannot be loaded (an unknown library pose: 404; a frame out of
+    range: 400) is refused naming the request's field `loc` + ["pose"] (default
+    ["person", index])."""
+    from posedb.schema import LibraryError, NotFoundError
+    from solver.body.poses import PoseSourceError
     from solver.scene.placement import place_person
 
     cache: dict[tuple, object] = {}
     lock = threading.Lock()
 
-    def place(spec, index: int):
+    def place(spec, index: int, loc: list | None = None):
         stamp = _library_stamp(db) if spec.pose.startswith("db:") else 0
         key = (spec, index, stamp)
         with lock:
             hit = cache.get(key)
         if hit is None:
-            hit = place_person(spec, db, index)
+            at = [*(loc if loc is not None else ["person", index]), "pose"]
+            try:
+                hit = place_person(spec, db, index)
+            except NotFoundError as exc:
+                if spec.pose.startswith("db:"):
+                    _library_stamp(db)  # (409 for a library gone since, not the pose)
+                raise _limit(at, str(exc), 404, "not_found") from None
+            except (PoseSourceError, LibraryError) as exc:
+                if _server_fault(exc):
+                    raise  # (409, as any request's)
+                raise _limit(at, str(exc), 400, "value") from None
             with lock:
                 if len(cache) >= 32:
                     cache.pop(next(iter(cache)))
@@ -358,15 +378,59 @@ def _placer(db: str | None):
     return place
 
 
+def _server_fault(exc: Exception) -> bool:
+    """Whether a library's error is the server's, not the request's: its library locked by
+    another program, damaged, or not a pose library at all (409 rather than 400)."""
+    from posedb.schema import LibraryError, SchemaError, StorageError
+
+    return isinstance(exc, (SchemaError, StorageError)) or (
+        isinstance(exc, LibraryError) and "locked" in str(exc).lower())
+
+
+_READABLE: dict[tuple, str | None] = {}  # (path, stamp) -> why that file cannot be read
+_READABLE_LOCK = threading.Lock()
+
+
 def _library_stamp(db: str | None) -> int:
-    """The library file's modification time (409 when the server has none or it is gone)."""
+    """The library file's modification time; 409 when the server has none, it is gone, or it
+    cannot be opened as a pose library (not HDF5, damaged, another schema: checked once per
+    version of the file)."""
+    from posedb.schema import LibraryError, open_checked
+
     if db is None:
         raise HTTPException(409, "This server has no pose library (start it with --db)")
     try:
-        return os.stat(db).st_mtime_ns
+        info = os.stat(db)
     except OSError:
         raise HTTPException(409, "This server's pose library is gone (moved or deleted); "
                                  "restart the server with its new --db") from None
+    key = (db, info.st_mtime_ns, info.st_size, info.st_ino)
+    with _READABLE_LOCK:
+        known = key in _READABLE
+        problem = _READABLE.get(key)
+    if not known:
+        try:
+            with open_checked(db):
+                problem = None
+        except (LibraryError, OSError) as exc:
+            problem = str(exc)
+        with _READABLE_LOCK:
+            if len(_READABLE) >= 32:
+                _READABLE.pop(next(iter(_READABLE)))
+            _READABLE[key] = problem
+    if problem is not None:
+        raise HTTPException(409, f"This server's pose library cannot be read ({problem}); "
+                                 "restart the server with a working --db")
+    return info.st_mtime_ns
+
+
+def library_state(db: str | None) -> bool:
+    """Whether the server's pose library is there and readable as a pose library."""
+    try:
+        _library_stamp(db)
+    except HTTPException:
+        return False
+    return True
 
 
 def _library_routes(app: FastAPI, db: str | None) -> None:
@@ -376,9 +440,10 @@ def _library_routes(app: FastAPI, db: str | None) -> None:
         _library_stamp(db)
         return PoseLibrary(db)
 
-    @app.get("/api/health", summary="Whether the server runs, and its library")
+    @app.get("/api/health", summary="Whether the server runs, and whether its pose library "
+                                    "is there and readable")
     def health() -> dict:
-        return {"status": "ok", "library": db is not None}
+        return {"status": "ok", "library": library_state(db)}
 
     @app.get("/api/recordings", summary="The bundled recordings (bvh:bundled:NAME#frame=N)")
     def recordings() -> dict:
@@ -409,7 +474,7 @@ def _person_routes(app: FastAPI, place, time_limit: float) -> None:
     def placed(person: schema.Person, loc: list):
         _check_person(person, loc)
         data = {"surface": {"grid": {}}, "person": [person.model_dump(exclude_none=True)]}
-        return place(parse_scenario(data, "request", files=False).persons[0], 0)
+        return place(parse_scenario(data, "request", files=False).persons[0], 0, loc)
 
     @app.post("/api/body", summary="A person's posed body mesh, placed in the scene")
     def body(req: PersonRequest) -> dict:
@@ -527,13 +592,15 @@ def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
             raise HTTPException(400, f"Expected index in 0..{len(scenario.persons) - 1}, got "
                                      f"{req.index}")
         check = _deadline(time_limit)
-        scenario, people = place_scene(scenario, place=place)
+        scenario, people = place_scene(  # (an error names the field under "scenario")
+            scenario, place=lambda spec, k: place(spec, k, ["scenario", "person", k]))
         check()
-        result = fit_people(scenario, people, check)
+        result = fit_people(scenario, people, check, cancel=check.expired)
+        check()  # a fit cancelled at the deadline is refused, not relaxed on
         person = people[req.index]
         res, before, after, seconds = relax_person(  # onto the limit surface, as evaluated
             scenario, person, result.limit_surface(scenario.surface.params.creases),
-            result.surface_faces)
+            result.surface_faces, check=check)
         return {"label": person.label, "evaluations": res.evaluations,
                 "parameters_at_limit": res.at_limit, "seconds": seconds,
                 "before": before, "after": after, "relaxation": relax_record(res),

@@ -7,8 +7,8 @@ from __future__ import annotations
 import asyncio
 import ipaddress
 import json
+import re
 import socket
-from urllib.parse import urlsplit
 
 from .loopback import LOOPBACK, LOOPBACK_NAMES  # noqa: F401 (studio.net.LOOPBACK, as before)
 HEAD_TIMEOUT = 10.0  # seconds a client has to send a request head
@@ -49,15 +49,23 @@ def allowed_names(host: str, extra=()) -> frozenset[str]:
     return frozenset(names)
 
 
+# a Host header exactly (RFC 9110: a name or an IPv4 address, or an IPv6 one in brackets, with
+# an optional port) or an Origin (RFC 6454: scheme://host[:port]): no user part, path, query
+# or anything else, which a lenient URL parser would read past to a name of ours
+_HOST = r"(?:\[(?P<v6>[0-9A-Fa-f:.]+)\]|(?P<name>[A-Za-z0-9](?:[A-Za-z0-9.-]*[A-Za-z0-9])?))" \
+        r"(?::[0-9]{1,5})?"
+_HOST_HEADER = re.compile(_HOST)
+_ORIGIN = re.compile(r"[A-Za-z][A-Za-z0-9+.-]*://" + _HOST)
+
+
 def host_name(value: str) -> str | None:
     """The name part of a Host header (`name`, `name:port`, `[v6]:port`) or of an Origin
-    (`scheme://name:port`); None when it has none."""
+    (`scheme://name:port`), lower case; None when the value is not exactly one of these."""
     value = value.strip()
-    try:
-        name = urlsplit(value if "://" in value else f"//{value}").hostname
-    except ValueError:
+    match = (_ORIGIN if "://" in value else _HOST_HEADER).fullmatch(value)
+    if match is None:
         return None
-    return name.lower() if name else None
+    return (match.group("v6") or match.group("name")).lower()
 
 
 def foreign(headers: dict, names: frozenset[str]) -> str | None:

@@ -207,23 +207,41 @@ def guarded_vertices(person: PlacedPerson, surface: SurfaceMesh, threshold: floa
     return np.sort(guarded[deepest_first[first]])
 
 
+class _CheckedGate(SupportGate):
+    """A `SupportGate` that calls `check()` before it judges a pose (a caller's deadline: the
+    relaxation's rounds are bounded in evaluations, not in time)."""
+
+    def __init__(self, check: Callable[[], None], *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._check = check
+
+    def figures(self, vertices, reference=None):
+        self._check()
+        return super().figures(vertices, reference)
+
+
 def relax_person(scenario: Scenario, person: PlacedPerson, surface: np.ndarray,
-                 quads: np.ndarray):
+                 quads: np.ndarray, check: Callable[[], None] | None = None):
     """Relaxes one posed person onto a surface (vertices, quads), accepting only what the
     evaluation's support figures find none worse (`SupportGate`): the solver's result, the
     person's figures before and after (as `evaluate_person` gives them), and the solver's
     seconds. When no round was accepted, the person keeps the captured pose exactly (its
-    figures after are those before)."""
+    figures after are those before). `check`, when given, is called between the stages (the
+    evaluations, and before each pose the relaxation judges): a caller's deadline raises
+    there."""
     from solver.body.relax import relax
 
+    check = check or (lambda: None)
     margin, (foam, floor) = scenario.surface.params.margin, foams(scenario.evaluation)
     problem = relax_problem(person, surface, quad_triangles(quads), margin=margin, foam=foam)
     mesh = problem.surface_mesh()
     before = evaluate_person(mesh, person, margin, foam, floor)[0]
-    gate = SupportGate(mesh, person.importance, person.triangles, margin, foam)
+    check()
+    gate = _CheckedGate(check, mesh, person.importance, person.triangles, margin, foam)
     t = time.perf_counter()
     res = relax(problem, gate=gate, figures_before={k: before[k] for k in SUPPORT_FIGURES})
     seconds = time.perf_counter() - t
+    check()
     if not res.accepted:
         res = dataclasses.replace(res, vertices=person.vertices)
         return res, before, before, seconds

@@ -340,6 +340,7 @@ class DenseProgramme(_Claimed):
               ) -> tuple[np.ndarray, str, float]:
         failures = []
         for factored in (True, False):
+            self._check_deadline()
             try:
                 return self._solve_daqp(p_x, q, rows, normals, lower, x0, step, factored)
             except ProgrammeError as exc:
@@ -353,6 +354,13 @@ class DenseProgramme(_Claimed):
         except ProgrammeError as osqp_failed:
             raise ProgrammeError(f"{'; '.join(failures)}; {osqp_failed} (tried instead)"
                                  ) from None
+
+    def _check_deadline(self) -> None:
+        """`DeadlinePassed` once the `deadline` has passed (asked before each DAQP run: one on a
+        stiff programme takes a second or more; the fit's `cancel` is asked between its
+        iterations, as before)."""
+        if self.deadline is not None and time.monotonic() >= self.deadline:
+            raise DeadlinePassed
 
     def release(self) -> None:
         """Gives the claimed programme back, without what was made ahead for a solve that did
@@ -438,6 +446,7 @@ class DenseProgramme(_Claimed):
                 high = np.concatenate([x0 + step, high])
                 low = np.concatenate([x0 - step, low])
                 sense = np.concatenate([np.zeros(n, dtype=np.int32), sense])
+            self._check_deadline()  # (each DAQP run cannot be stopped: one at a time is asked)
             model = self._daqp.Model()
             flag, _ = model.setup(identity if factored else hessian, f if factored else q, a,
                                   high, low, sense)  # (exit flag, set-up seconds)

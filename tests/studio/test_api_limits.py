@@ -103,7 +103,14 @@ def test_a_fit_past_the_time_limit_is_stopped_and_refused(api):
 
 @pytest.mark.parametrize("headers", [{"Host": "rebound.example:8765"},
                                      {"Origin": "http://evil.example"},
-                                     {"Origin": "http://127.0.0.1.evil.example"}])
+                                     {"Origin": "http://127.0.0.1.evil.example"},
+                                     # not exactly a name of ours with a port: a URL parser
+                                     # would read past the user part or stop at the path
+                                     {"Host": "evil.com@127.0.0.1"},
+                                     {"Host": "127.0.0.1/evil"},
+                                     {"Host": "127.0.0.1:80:80"},
+                                     {"Origin": "http://evil.com@localhost"},
+                                     {"Origin": "http://localhost/evil"}])
 def test_a_foreign_host_or_origin_is_refused(api, headers):
     status, payload = _request(api, "GET", "/api/health", headers=headers)
     assert status == 403 and b"not one this server answers" in payload
@@ -131,11 +138,17 @@ def test_a_hundred_idle_connections_do_not_block_a_client(api):
             sock.close()
 
 
-def test_a_library_moved_away_gives_409(tmp_path):
+def _library_with_a_pose(tmp_path):
+    """A pose library holding one pose, `perch`; its path."""
     db = tmp_path / "poses.h5"
     lib = PoseLibrary(db, create=True)
     take = lib.import_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"), name="high_sit")
     lib.add_pose(take.id, 39, "perch", tags=["sit"])
+    return db
+
+
+def test_a_library_moved_away_gives_409(tmp_path):
+    db = _library_with_a_pose(tmp_path)
     server = ApiThread(db)
     try:
         assert _request(server, "GET", "/api/poses")[0] == 200
@@ -144,5 +157,73 @@ def test_a_library_moved_away_gives_409(tmp_path):
                            ("/api/body", {"person": {"pose": "db:perch"}})):
             status, payload = _request(server, "POST" if body else "GET", path, body)
             assert status == 409 and b"gone" in payload, payload
+    finally:
+        server.stop()
+
+
+def _fit_until_cancelled(scenario, people, progress=None, *, warm=None, cancel=None,
+                         iterates=None):
+    """A fit that takes as long as it is let: until its `cancel` says so (10 s at most)."""
+    assert cancel is not None and cancel.deadline > time.monotonic(), "no deadline given"
+    end = time.monotonic() + 10.0
+    while not cancel() and time.monotonic() < end:
+        time.sleep(0.02)
+    assert cancel(), "the fit was not cancelled"
+
+
+@pytest.mark.parametrize("path", ["/api/fit", "/api/relax"])
+def test_the_fit_of_a_request_is_cancelled_at_the_time_limit(api, path, monkeypatch):
+    import solver.scene.run
+
+    monkeypatch.setattr(solver.scene.run, "fit_people", _fit_until_cancelled)
+    body = _scenario() if path == "/api/fit" else {"scenario": _scenario(), "index": 0}
+    start = time.monotonic()
+    status, payload = _request(api, "POST", path, body)
+    assert status == 413 and b"time limit of 2 s" in payload, payload[:300]
+    assert time.monotonic() - start < 2.0 + 1.0
+
+
+def test_the_relaxation_after_a_fit_stops_at_the_time_limit_between_its_stages(api,
+                                                                               monkeypatch):
+    """A relaxation still judging poses at the deadline is stopped at its next judgement (the
+    fit here a small one, well within the limit)."""
+    import numpy as np
+    import solver.body.relax
+
+    judged = []
+
+    def slow_relax(problem, *args, gate=None, **kwargs):
+        time.sleep(2.0)  # (the whole limit: the fit took some of it)
+        judged.append(gate.figures(np.zeros((1, 3))))
+
+    monkeypatch.setattr(solver.body.relax, "relax", slow_relax)
+    small = _scenario({"grid": {"size": [0.5, 0.6], "resolution": [4, 4], "height": 0.42},
+                       "max_iterations": 2})
+    status, payload = _request(api, "POST", "/api/relax", {"scenario": small, "index": 0})
+    assert status == 413 and b"time limit of 2 s" in payload, payload[:300]
+    assert not judged
+
+
+def test_health_says_whether_the_library_is_there_and_readable_and_a_damaged_one_is_409(
+        tmp_path):
+    """A library moved away or replaced by a file that is not one is the server's fault (409
+    for the requests that need it, as with no library), and health says so."""
+    db = _library_with_a_pose(tmp_path)
+    server = ApiThread(db)
+    try:
+        assert json.loads(_request(server, "GET", "/api/health")[1])["library"] is True
+        shutil.move(db, tmp_path / "elsewhere.h5")
+        assert json.loads(_request(server, "GET", "/api/health")[1])["library"] is False
+        db.write_bytes(b"not a pose library\n" * 100)
+        assert json.loads(_request(server, "GET", "/api/health")[1])["library"] is False
+        for path, body in (("/api/poses", None), ("/api/poses/perch", None),
+                           ("/api/body", {"person": {"pose": "db:perch"}}),
+                           ("/api/fit", _scenario(person={"pose": "db:perch"}))):
+            status, payload = _request(server, "POST" if body else "GET", path, body)
+            assert status == 409 and b"not an HDF5 file" in payload, (path, payload)
+            assert b"poses.h5" not in payload and b"/" not in payload, payload
+        shutil.move(tmp_path / "elsewhere.h5", db)  # put back: readable again
+        assert json.loads(_request(server, "GET", "/api/health")[1])["library"] is True
+        assert _request(server, "GET", "/api/poses/perch")[0] == 200
     finally:
         server.stop()

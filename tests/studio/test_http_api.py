@@ -185,9 +185,44 @@ def test_errors_name_no_path_on_the_server_and_send_back_no_long_value(api, chan
     body = json.loads(json.dumps(SINGLE))
     body["person"][0].update(change)
     got, reply = _request(api, "POST", "/api/fit", body)
-    assert got == status and words in reply["detail"], reply
-    assert "/" not in reply["detail"] and "poses.h5" not in reply["detail"]
-    assert "x" * 41 not in reply["detail"]
+    assert got == status, reply
+    [error] = reply["detail"]
+    assert error["loc"] == ["body", "person", 0, "pose"] and words in error["msg"], reply
+    assert "/" not in error["msg"] and "poses.h5" not in error["msg"]
+    assert "x" * 41 not in error["msg"]
+
+
+@pytest.mark.parametrize("pose, status, words", [
+    ("db:nosuch", 404, "No pose 'nosuch' in the server's pose library"),
+    ("bvh:bundled:cmu_75_18_high_sit.bvh#frame=99999", 400, "Expected a frame in 0..76"),
+    ("bvh:bundled:nosuch.bvh#frame=0", 404, "No bundled recording 'nosuch.bvh'"),
+])
+@pytest.mark.parametrize("path", ["/api/fit", "/api/relax", "/api/body"])
+def test_a_pose_that_cannot_be_loaded_is_refused_naming_its_field(api, path, pose, status,
+                                                                  words):
+    person = {**SINGLE["person"][0], "pose": pose}
+    body, loc = {
+        "/api/fit": ({**SINGLE, "person": [person]}, ["body", "person", 0, "pose"]),
+        "/api/relax": ({"scenario": {**SINGLE, "person": [person]}},
+                       ["body", "scenario", "person", 0, "pose"]),
+        "/api/body": ({"person": person}, ["body", "person", "pose"])}[path]
+    got, reply = _request(api, "POST", path, body)
+    assert got == status, reply
+    [error] = reply["detail"]
+    assert error["loc"] == loc and words in error["msg"], reply
+
+
+def test_a_message_with_apostrophes_is_sent_whole(api):
+    """Only a quoted value is shortened: the text between the apostrophes of "people's" and
+    "person's" is the message's own."""
+    body = json.loads(json.dumps(SINGLE))
+    body["surface"].pop("grid", None)
+    body["surface"]["template"] = {"kind": "bed"}
+    got, reply = _request(api, "POST", "/api/fit", body)
+    assert got == 400, reply
+    assert "...'" not in reply["detail"] and "lowest point is 0.000 m above the floor, " \
+        "leaving no room for a bed under them: lift them (each person's position y" \
+        in reply["detail"], reply
 
 
 def test_a_body_nested_too_deep_for_the_json_reader_is_malformed_422(api):

@@ -111,6 +111,32 @@ def _deadline_cancel(deadline: float):
     return cancel
 
 
+def test_a_deadline_stops_the_small_mesh_s_solve_before_each_daqp_run(seated, monkeypatch):
+    """The small meshes' exact solver (DAQP, one run of which cannot be stopped and takes a
+    second or more on a stiff programme) asks the deadline before each run: a deadline that
+    passes while a solve is under way stops the fit before the next run, cancelled."""
+    import time
+
+    import solver.surface.programme as P
+
+    scenario, _, people = seated
+    runs = []
+    real = P.DenseProgramme._solve_daqp
+
+    def slow_run(self, *args):
+        runs.append(1)
+        time.sleep(0.3)  # (a stiff programme's run)
+        return real(self, *args)
+
+    monkeypatch.setattr(P.DenseProgramme, "_solve_daqp", slow_run)
+    cancel = _deadline_cancel(time.monotonic() + 0.5)
+    start = time.monotonic()
+    result = fit_surface(scenario.surface.vertices, scenario.surface.faces, people,
+                         scenario.surface.params, cancel=cancel)
+    assert result.stop_reason.startswith("cancelled"), result.stop_reason
+    assert 1 <= len(runs) <= 3 and time.monotonic() - start < 0.5 + 0.3 + 2.0
+
+
 def test_a_deadline_stops_the_programme_s_solve(seated):
     """A fit on a mesh large enough for OSQP (16 x 12 quads, 221 control vertices) whose
     cancel's deadline has passed stops at its first solve, as a fit cancelled between
