@@ -60,6 +60,12 @@ class _Claimed:
         # the fit's cancel (a callable), asked between runs of a large programme's iterations
         self.cancel = None
 
+    def _check_deadline(self) -> None:
+        """`DeadlinePassed` once the `deadline` has passed: asked before each solver run (one
+        DAQP run on a stiff programme takes a second or more and cannot be stopped)."""
+        if self.deadline is not None and time.monotonic() >= self.deadline:
+            raise DeadlinePassed
+
     def claim(self) -> bool:
         """Whether this programme is now the caller's alone (False: another fit solves it)."""
         return self._in_use.acquire(blocking=False)
@@ -262,8 +268,7 @@ class Programme(_Claimed):
         self.solver.warm_start(x=np.concatenate([x0, slack0]), y=self._warm_duals(rows))
         # OSQP's own time limit (its default, 1e10 s, without a deadline): a solve that ends
         # before it is the same either way
-        if self.deadline is not None and time.monotonic() >= self.deadline:
-            raise DeadlinePassed
+        self._check_deadline()
         left = NO_TIME_LIMIT if self.deadline is None else self.deadline - began
         self.solver.update_settings(time_limit=min(left, NO_TIME_LIMIT))
         res = self._solve_polled()
@@ -340,7 +345,6 @@ class DenseProgramme(_Claimed):
               ) -> tuple[np.ndarray, str, float]:
         failures = []
         for factored in (True, False):
-            self._check_deadline()
             try:
                 return self._solve_daqp(p_x, q, rows, normals, lower, x0, step, factored)
             except ProgrammeError as exc:
@@ -354,13 +358,6 @@ class DenseProgramme(_Claimed):
         except ProgrammeError as osqp_failed:
             raise ProgrammeError(f"{'; '.join(failures)}; {osqp_failed} (tried instead)"
                                  ) from None
-
-    def _check_deadline(self) -> None:
-        """`DeadlinePassed` once the `deadline` has passed (asked before each DAQP run: one on a
-        stiff programme takes a second or more; the fit's `cancel` is asked between its
-        iterations, as before)."""
-        if self.deadline is not None and time.monotonic() >= self.deadline:
-            raise DeadlinePassed
 
     def release(self) -> None:
         """Gives the claimed programme back, without what was made ahead for a solve that did
