@@ -328,8 +328,10 @@ class Design:
         for j in js:
             self._vertex(j)
         p = np.asarray(positions, dtype=np.float64)
-        if p.shape != (len(js), 3) or not np.all(np.isfinite(p)):
-            raise DesignError(f"Expected a finite [x, y, z] for each of control vertices {js}, "
+        # (the scenario's own bound: a control mesh beyond it would fail every fit after)
+        if p.shape != (len(js), 3) or not np.all(np.abs(p) <= schema.MAX_COORDINATE):
+            raise DesignError(f"Expected a finite [x, y, z] (each from -{schema.MAX_COORDINATE:g} "
+                              f"to {schema.MAX_COORDINATE:g} m) for each of control vertices {js}, "
                               f"got {np.asarray(positions).tolist()!r}")
         moved = self.vertices.copy()  # the history holds the old array; a fit reads either
         moved[js] = p

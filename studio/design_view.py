@@ -39,6 +39,7 @@ from solver.contact.evaluate import flat_text, peak_text
 from solver.io.render import SKIN, SURFACE
 from solver.mesh import quad_triangles
 from solver.scene import schema
+from solver.scene.quality import NO_SEAT_POSTURES
 from solver.scene.relief import relief_text
 from solver.scene.run import pressure_on_skin
 
@@ -332,6 +333,9 @@ class DesignView:
         self.scene = client.scene
         self.context = context
         self.out = Path(context.out)
+        # the view's nodes hang under one frame, which the studio hides with its tab (the
+        # 3D view's clicks are then another view's: they pick nothing here)
+        self.root = self.scene.add_frame(self.prefix, show_axes=False)
         self.session = Session(context.db)
         self.session.views.append(self)
         self.selection: list[int] = []
@@ -349,6 +353,9 @@ class DesignView:
         self._gizmo = None
         self._gizmo_start: tuple[np.ndarray, np.ndarray] | None = None
         self._leaving: str | None = None  # the session a join was warned about (pressed again)
+        self._unread: Exception | None = None  # why the library could not be read at the start
+        self._saved: set = set()  # the files and scenarios this tab saved (saved again freely)
+        self._replacing = None  # the one a save was warned about (pressed again: replaced)
         with tab:
             self._build_gui()
         self._wire()
@@ -359,7 +366,9 @@ class DesignView:
             lambda e: self._guarded(lambda: self._boxed(e)))
         self.redraw()
         self._status("Add people (a seated pose is chosen), then press **Fit**, or drag with "
-                     "**Refit while dragging** on.")
+                     "**Refit while dragging** on." if self._unread is None else
+                     f"{PROBLEM} the pose library cannot be read ({self._unread}): its poses "
+                     f"are listed once it can be; the bundled recordings are.")
         # the pose list follows the library (renames, recordings)
         self._watch = LibraryWatch(context.db, self._relist, "design-poll") \
             if context.db is not None else None
@@ -400,7 +409,11 @@ class DesignView:
             self.tags = gui.add_text("Tags", initial_value="",
                                      hint="a tag expression, e.g. sit and not high")
             self.search = gui.add_button("Search library")
-            options = self._pose_options("")
+            try:
+                options = self._pose_options("")
+            except (ValueError, OSError) as exc:  # (a library unreadable: said once built)
+                self._unread = exc
+                options = self._pose_options("", library=False)
             self.pose = gui.add_dropdown("Pose", options, initial_value=self._default(options))
             self.frame = gui.add_number("Frame (recordings)", initial_value=39, min=0, step=1)
             self.add = gui.add_button("Add person")
@@ -499,7 +512,7 @@ class DesignView:
                              self._guarded(lambda: self._set_parameter(name, handle.value)))
         self.upload.on_upload(lambda _e: self._guarded(self._load_mesh))
         # (not guarded: the Fit button's fit holds the session's lock while it runs)
-        self.cancel.on_click(lambda _e: self.session.cancel_fit())
+        self.cancel.on_click(lambda _e: self._cancel())
 
     def _guarded(self, action) -> None:
         """Runs one action at a time in the session; a problem becomes the status line."""
@@ -533,11 +546,11 @@ class DesignView:
         self.redo.disabled = not self.design.can_redo
 
     # people ---------------------------------------------------------------------------------
-    def _pose_options(self, expr: str) -> list[str]:
+    def _pose_options(self, expr: str, library: bool = True) -> list[str]:
         from capture.recordings import bundled_recordings
 
         names: list[str] = []
-        if self.design.db is not None:
+        if self.design.db is not None and library:
             from posedb import PoseLibrary
 
             names = PoseLibrary(self.design.db).search_poses(expr.strip() or None)
@@ -603,7 +616,11 @@ class DesignView:
         k = self.selected_person()
         support = [part for part, box in self.parts.items() if box.value]
         body = {key: float(s.value) for key, s in self.shape.items()}
-        self.design.update_person(k, body=body, support=support)
+        try:
+            self.design.update_person(k, body=body, support=support)
+        except ValueError:
+            self._show_person()  # the panel shows what the person keeps
+            raise
         self.redraw()
         self._edited()
         self._status(f"{self.design.people[k]['name']}: shape and support set.")
@@ -612,7 +629,11 @@ class DesignView:
         k = self.selected_person()
         position = [round(float(c), 4) for c in self.position.value]
         rotation = [round(float(c), 3) for c in self.rotation.value]
-        self.design.update_person(k, position=position, rotation_deg=rotation)
+        try:
+            self.design.update_person(k, position=position, rotation_deg=rotation)
+        except ValueError:
+            self._show_person()  # the fields show where the person stays
+            raise
         gizmo = self._people[k]
         gizmo.position, gizmo.wxyz = tuple(position), tuple(quat_wxyz(rotation))
         self._draw_relaxed()
@@ -763,6 +784,8 @@ class DesignView:
         self.pick(js)
 
     def _clicked(self, event, add: bool) -> None:
+        if not self.root.visible:
+            return
         j = ray_pick(self.design.vertices, event.ray_origin, event.ray_direction)
         if j is None:
             if not add:
@@ -773,6 +796,8 @@ class DesignView:
                                                     if len(self.selection) > 1 else "."))
 
     def _boxed(self, event) -> None:
+        if not self.root.visible:
+            return
         camera = event.client.camera
         uv, front = project(self.design.vertices, camera.position, camera.wxyz, camera.fov,
                             camera.aspect)
@@ -822,7 +847,11 @@ class DesignView:
         js = self._picked()
         v = self.design.vertices[js]
         target = np.asarray(self.centroid.value, dtype=np.float64)
-        self.design.move_vertices(js, v + (target - v.mean(axis=0)))
+        try:
+            self.design.move_vertices(js, v + (target - v.mean(axis=0)))
+        except ValueError:
+            self._draw_control()  # the field shows where the picks stay
+            raise
         self._draw_control()
         self._edited(refit=True)
         self._status(f"Moved {len(js)} vertices' centroid to {np.round(target, 4).tolist()} m.")
@@ -978,6 +1007,14 @@ class DesignView:
             self._status("The fit was cancelled: the surface shown is the last finished fit's."
                          if self.session.stopped else "The fit was overtaken by a newer edit.")
 
+    def _cancel(self) -> None:
+        """The Cancel fit button: stops the running fit (or the refit asked for)."""
+        session = self.session
+        if not (session.fit_lock.locked() or session.refitter.busy or session.refitter.wanted):
+            self._status("No fit is running: nothing to cancel.")
+            return
+        session.cancel_fit()
+
     def _relieve(self) -> None:
         """Rounds of pressure relief after the fit on screen (the Relieve pressure button)."""
         self._status("Relieving pressure...")
@@ -988,9 +1025,13 @@ class DesignView:
         record = self.design.relieve(say=say)
         self.fitted()
         line = relief_text(record)
-        self._status(("No round ran: every peak is at the aim already (half the flat seat's)"
-                      if line is None else f"{line[0].upper()}{line[1:]}") +
-                     f".\n\n{self._figures()}")
+        if line is None:  # a peak set against a flat seat's is what relief lowers
+            measured = [p for p in self.design.last.persons if p.get("peak_of_flat") is not None
+                        and p.get("posture") not in NO_SEAT_POSTURES]
+            line = ("no round ran: every peak is at the aim already (half the flat seat's)"
+                    if measured else "no round ran: no seated body rests on the surface, so "
+                    "no peak is set against a flat seat's to lower")
+        self._status(f"{line[0].upper()}{line[1:]}.\n\n{self._figures()}")
         self._show_warnings()
 
     def fitting(self, iteration: int | None, energy: float | None) -> None:
@@ -1096,13 +1137,39 @@ class DesignView:
         self.warning_lines = lines
 
     # files --------------------------------------------------------------------------------
+    def _may_replace(self, key: tuple, exists: bool, what: str, button: str) -> bool:
+        """Whether a save may write `key`: what this tab did not save itself (another tab's,
+        an earlier studio's, a batch's: every tab starts with the same Name) is replaced only
+        when the save is pressed again after a warning."""
+        if not exists or key in self._saved or self._replacing == key:
+            self._replacing = None
+            return True
+        self._replacing = key
+        self._status(f"{what} exists already, not saved by this tab: press **{button}** again "
+                     f"to replace it, or change the Name.")
+        return False
+
     def _save_db(self) -> None:
+        from posedb import PoseLibrary
+
+        name = check_name(self.name.value)
         with self.context.library_lock:
-            name = self.design.save_to_library(check_name(self.name.value))
+            taken = self.design.db is not None and name in {
+                s["name"] for s in PoseLibrary(self.design.db).scenarios()}
+            if not self._may_replace(("library", name), taken,
+                                     f"A scenario named {name!r} in {self.design.db}",
+                                     "Save to library"):
+                return
+            name = self.design.save_to_library(name)
+        self._saved.add(("library", name))
         self._status(f"Saved the scenario {name!r} to {self.design.db}.")
 
     def _save_toml(self) -> None:
-        path = self.design.save_toml(self.out / f"{check_name(self.name.value)}.toml")
+        path = self.out / f"{check_name(self.name.value)}.toml"
+        if not self._may_replace(("toml", path), path.exists(), str(path), "Save TOML"):
+            return
+        path = self.design.save_toml(path)
+        self._saved.add(("toml", path))
         self._status(f"Wrote {path}.")
 
     def _export(self) -> None:
@@ -1134,6 +1201,8 @@ class DesignView:
             check_name(name)
         old = self.session
         if name == old.name:
+            self._status(f"This tab is in the session {name!r} already." if name else
+                         "This tab is in its own session already.")
             return
         new = self.context.designs.get(name) if name else None
         alone = old.views == [self]  # (this tab's design goes when it leaves)
@@ -1147,12 +1216,15 @@ class DesignView:
         self._leaving = None
         carried = None
         if new is None:
-            new = Session(self.context.db, name)
-            if name:
-                self.context.designs[name] = new
-            with old.lock:  # a new session starts from this tab's design (its fit with it)
-                carried = old.design.snapshot()
-            new.design.restore(carried)
+            fresh = Session(self.context.db, name)
+            # (two tabs joining one new name at once: the first made is the one both join)
+            new = self.context.designs.setdefault(name, fresh) if name else fresh
+            if new is fresh:
+                with old.lock:  # a new session starts from this tab's design (its fit with it)
+                    carried = old.design.snapshot()
+                new.design.restore(carried)
+            else:
+                fresh.close()
         self._leave()
         with new.lock:
             self.session = new

@@ -76,6 +76,7 @@ class LibraryView:
         self.data: TakeData | None = None  # the take on the timeline
         self.holds: list[HeldPosture] = []
         self.expr = ""
+        self._closed = False  # the tab went away
         self._lock = threading.RLock()
         self._centre = np.zeros(3)  # subtracted from the take's positions: it plays at the origin
         # the view's nodes hang under one frame, which the studio can hide with its tab
@@ -173,12 +174,17 @@ class LibraryView:
     def _reread(self) -> None:
         """Lists again what changed in the library, keeping what is chosen."""
         with self._lock:
+            if self._closed:  # (the tab went away while the file was looked at)
+                return
             self.lib = PoseLibrary(self.context.db)
             self._list(keep=True)
 
     def do_search(self) -> None:
-        self.expr = self.search_text.value.strip()
-        self._library()
+        expr = self.search_text.value.strip()
+        # a bad expression is refused here and the last one kept: the lists every edit makes
+        # again would fail on it, an edit made then saying so as if it had failed
+        self._library().find_poses(expr or None)
+        self.expr = expr
         self._list()
 
     def _list(self, keep: bool = False) -> None:
@@ -239,13 +245,13 @@ class LibraryView:
         if self.take.value != info.name:
             self.take.value = info.name  # (its update calls here again: nothing changes)
         marks = tuple((h.frame, f"{h.frame}") for h in self.holds)
-        last = max(1, info.frames - 1)
+        last = max(1, info.frames - 1)  # (a one-frame take, as a relaxed pose's: held still)
         self.frame.remove()
         with self.take_folder:
             self.frame = self.gui.add_slider("Frame", min=0, max=last, step=1,
                                              initial_value=self.holds[0].frame
                                              if self.holds else 0, marks=marks or None,
-                                             order=3.0)
+                                             order=3.0, disabled=info.frames < 2)
         self._wire_frame()
         labels = [hold_label(h, info.frame_time) for h in self.holds]
         self._set_options(self.hold, labels)
@@ -259,8 +265,9 @@ class LibraryView:
     def _show_frame(self) -> None:
         if self.data is None:
             return
-        k = int(self.frame.value)
-        world = skeleton_fk(self.data.skeleton, self.data.motion().channels[k])
+        channels = self.data.motion().channels
+        k = min(int(self.frame.value), len(channels) - 1)
+        world = skeleton_fk(self.data.skeleton, channels[k])
         self._draw(self.data.skeleton, world, self._centre)
 
     def _draw(self, skeleton, world, centre: np.ndarray) -> None:
@@ -289,7 +296,7 @@ class LibraryView:
     def do_save_frame(self) -> None:
         if self.data is None:
             raise ValueError("Choose a take first")
-        self._add_pose(int(self.frame.value))
+        self._add_pose(min(int(self.frame.value), self.data.take.frames - 1))
 
     def _add_pose(self, frame: int) -> None:
         """A pose at `frame` of the take on the timeline, named as `db suggest --accept` names
@@ -312,8 +319,12 @@ class LibraryView:
         return self.pose.value
 
     def _pose_chosen(self) -> None:
-        if self.pose.value == NONE:
+        if self.pose.value == NONE:  # (none left, say after a delete: the timeline's frame)
             self.pose_info.content = ""
+            if self.data is not None:
+                self._show_frame()
+            else:
+                self.figure.hide()
             return
         info, skeleton, rot, root = self._library().pose_data(self.pose.value)
         take = self._library().take(info.take)
@@ -350,6 +361,8 @@ class LibraryView:
         self._status(f"Deleted pose {name}.")
 
     def close(self) -> None:
-        """Stops looking at the library file."""
+        """Stops looking at the library file (a list under way is finished first)."""
         if self._watch is not None:
             self._watch.close()
+        with self._lock:
+            self._closed = True

@@ -26,6 +26,7 @@ from capture.replay import Replay, ReplayThread, TcpServerSink
 from capture.monitor import StreamMonitor
 from capture.sources import Source, UnknownProtocolError, open_transport
 from capture.stream_layout import StreamLayout
+from posedb import PoseLibrary
 from posedb.record import TakeRecorder
 from posedb.regions import BODY_REGIONS, DEFAULT_SUPPORT, support_regions
 
@@ -182,6 +183,7 @@ class RecordView:
         self._readout_stop = threading.Event()
         self._body_wanted = threading.Event()  # a frame waits for the body's thread
         self._latest = None  # (skeleton, world) of the frame last drawn
+        self._closing = False  # the tab went away: its panel is not updated
         # the view's nodes hang under one frame, which the studio can hide with its tab
         self.root = client.scene.add_frame(self.prefix, show_axes=False)
         self.figure = SceneFigure(client.scene, self.prefix)
@@ -242,7 +244,8 @@ class RecordView:
         guarded(self._lock, action, self._status, self.client, self.status.content)
 
     def _status(self, text: str) -> None:
-        self.status.content = text
+        if not self._closing:
+            self.status.content = text
 
     def do_connect(self) -> None:
         """Connects to the chosen source (a practice replay starts its server first)."""
@@ -265,15 +268,22 @@ class RecordView:
         self._status(f"Connected to {url}.")
 
     def do_disconnect(self, quiet: bool = False) -> None:
+        """Disconnects; a take recording is stored first, as Stop take stores it."""
         stream, self.stream = self.stream, None
         try:
             if stream is not None:
-                recording = stream.recorder is not None
-                stream.close()
-                if recording:
-                    self._status("Disconnected; the take recording was stored first.")
-                elif not quiet:
-                    self._status("Disconnected.")
+                try:
+                    if stream.recorder is not None:
+                        self._store(stream, "Disconnected. ")
+                    elif not quiet:
+                        self._status("Disconnected.")
+                finally:
+                    stream.close()
+                    self._latest = None
+                    if not self._closing:  # (a tab gone: nobody to show it to)
+                        # no figures of a stream that is gone, nor its frozen skeleton
+                        self.readout.content = "Not connected."
+                        self.figure.hide()
         finally:
             self._stop_replay()
 
@@ -312,16 +322,22 @@ class RecordView:
                      f"{' '.join(mark['tags']) or '-'}; stored with the take when it stops.")
 
     def do_stop(self) -> None:
-        stream = self._need_stream()
+        self._store(self._need_stream())
+
+    def _store(self, stream: LiveStream, before: str = "") -> None:
+        """Stores the take `stream` records and says what was stored (`before` it)."""
         self._status("Storing the take (waiting for the library if another writer holds it)...")
         with self.context.library_lock:
             take = stream.stop_take()
         self.last_take = take
         if take is None:
-            self._status("No frame arrived: no take stored.")
+            self._status(f"{before}No frame arrived: no take stored.")
             return
-        self._status(f"Stored take **{take.name}**: {take.frames} frames, "
-                     f"{take.duration:.1f} s, {len(self.marked)} marked pose(s).")
+        # the poses as stored (a name another pose took meanwhile got a suffix)
+        names = [p.name for p in PoseLibrary(self.context.db).find_poses(take=take.name)]
+        self._status(f"{before}Stored take **{take.name}**: {take.frames} frames, "
+                     f"{take.duration:.1f} s, {len(names)} marked pose(s)"
+                     + (f": {', '.join(names)}." if names else "."))
         self.take_name.value = _next_name(take.name)
 
     # drawing -------------------------------------------------------------------------------
@@ -352,6 +368,7 @@ class RecordView:
 
     def _lost(self, message: str) -> None:
         self._status(f"**Problem:** the stream stopped: {message}")
+        self.readout.content = "Not connected: the stream stopped."
 
     def _readout_loop(self) -> None:
         while not self._readout_stop.wait(READOUT_EVERY):
@@ -359,7 +376,9 @@ class RecordView:
             if stream is None or stream.error is not None:
                 continue
             try:
-                self.readout.content = readout_text(stream.summary(), stream)
+                text = readout_text(stream.summary(), stream)
+                if self.stream is stream:  # (not one disconnected meanwhile)
+                    self.readout.content = text
             except Exception:  # noqa: BLE001 (a closing stream: the next tick shows it)
                 continue
 
@@ -367,6 +386,7 @@ class RecordView:
         self._readout_stop.set()
         self._body_wanted.set()
         with self._lock:
+            self._closing = True
             self.do_disconnect(quiet=True)
 
 
@@ -381,6 +401,10 @@ def readout_text(s: dict, stream: LiveStream) -> str:
     if recorder is not None:
         text += (f"  \n**recording {recorder.take}**: {stream.frames_in_take} frames, "
                  f"{len(recorder.marks)} marked")
+    events = stream.source.events
+    if events and (stream.shown_at is None or events[-1][0] > stream.shown_at):
+        # no frame since the source's last word: why (cannot connect, the peer went away)
+        text += f"  \n*{events[-1][1]}*"
     return text
 
 

@@ -139,6 +139,14 @@ class SceneFigure:
         else:
             self.bones.points = segments
             self.joints.points = points
+            self.bones.visible = self.joints.visible = True
+
+    def hide(self) -> None:
+        """Hides the skeleton and the body (the next `show` draws them again)."""
+        for handle in (self.bones, self.joints):
+            if handle is not None:
+                handle.visible = False
+        self.show_body(None)
 
     def show_body(self, vertices: np.ndarray | None, triangles: np.ndarray | None = None
                   ) -> None:

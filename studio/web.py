@@ -15,7 +15,7 @@ import threading
 import time
 from pathlib import Path
 
-from .context import StudioContext
+from .context import INTERNAL, StudioContext
 from .design_view import DesignView
 from .library_view import LibraryView
 from .net import LOOPBACK, Front, allowed_names
@@ -111,7 +111,15 @@ class Studio:
         for label, view_class in VIEWS:
             tab = group.add_tab(label)
             frame = client.scene.add_frame(view_class.prefix, show_axes=False)
-            view = view_class(client, tab, self.context)
+            try:
+                view = view_class(client, tab, self.context)
+            except Exception as exc:  # noqa: BLE001 (the tab says so; its other views work)
+                with tab:
+                    client.gui.add_markdown(f"{INTERNAL} the {label} view could not be built: "
+                                            f"{type(exc).__name__}: {exc}")
+                roots[label] = frame
+                frame.visible = label == SHOWN
+                continue
             roots[label] = getattr(view, "root", None) or frame
             roots[label].visible = label == SHOWN
             views.append(view)

@@ -39,14 +39,20 @@ def _stop(server) -> None:
         server.stop()
 
 
-@pytest.fixture
-def library(tmp_path) -> Path:
-    path = tmp_path / "poses.h5"
+def high_sit_library(path: Path, poses=((10, "early", ["test"]),)) -> Path:
+    """A new pose library at `path` with the bundled high-sit recording as a take and `poses`
+    (frame, name, tags) of it."""
     lib = PoseLibrary(path, create=True)
     take = lib.import_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"), name="high_sit",
                           tags=["sit"])
-    lib.add_pose(take.id, 10, "early", tags=["test"])
+    for frame, name, tags in poses:
+        lib.add_pose(take.id, frame, name, tags=tags)
     return path
+
+
+@pytest.fixture
+def library(tmp_path) -> Path:
+    return high_sit_library(tmp_path / "poses.h5")
 
 
 def test_record_view_records_a_replay_and_stores_the_marked_poses(library, tmp_path):
