@@ -185,25 +185,27 @@ def run_design(poses: Sequence[str], out_dir: str | os.PathLike, *,
     from solver.scene.run import previous_results
 
     say = progress or (lambda message: None)
+    if not os.fspath(out_dir).strip():  # (as `run_fit` and `run_relax` refuse it)
+        raise ValueError("Expected a results folder, got an empty name")
     with made_folder(out_dir) as out:  # (gone again if nothing can be designed or fitted)
+        stale = previous_results(out)  # (a relaxation's folder is refused before any work)
         absolute = [_absolute(p) for p in poses]
         data, decisions = design_scenario(absolute, db)
         say(f"{', '.join(decisions['postures'])}: a {decisions['template']}")
         header = (f"# sitrelax design {' '.join(poses)}\n# postures: "
                   f"{', '.join(decisions['postures'])}; template: {decisions['template']}\n")
-        for stale in [*out.glob(".waterfall-*"), *out.glob(".straight-*")]:
-            shutil.rmtree(stale, ignore_errors=True)  # an earlier run's unfinished try
+        _drop_unfinished(out)  # an earlier run's unfinished try (not one running beside)
         designed = {**decisions, "poses": list(poses), "scenario_file": "scenario.toml",
                     "waterfall": None}
         # the design whole, scenario.toml and report.json with it, in place of an earlier
         # one only once complete; and complete before any second try (it may not finish)
-        stage = Path(tempfile.mkdtemp(prefix=".straight-", dir=out))
+        stage = _stage(out, "straight")
         try:
             report = _fit_design(stage, header, data, db, say, pictures)
             report["scenario"] = str(out / "scenario.toml")
             report["design"] = designed
             _write_report(stage, report)
-            replace_results(stage, out, previous_results(out), "report.json")
+            replace_results(stage, out, stale, "report.json")
         finally:
             shutil.rmtree(stage, ignore_errors=True)
     if decisions["template"] in ("chair", "bench") and _on_calves(report):
@@ -213,6 +215,33 @@ def run_design(poses: Sequence[str], out_dir: str | os.PathLike, *,
         report["design"] = {**designed, "waterfall": tried}
         _write_report(out, report)
     return report
+
+
+def _stage(out: Path, kind: str) -> Path:
+    """A new hidden folder in `out` for one try ("straight" or "waterfall"), its name carrying
+    this process's id (`_drop_unfinished` leaves it alone while this process runs); an OSError
+    naming `out` when it cannot be made there (as `sitrelax fit` names its folder)."""
+    try:
+        return Path(tempfile.mkdtemp(prefix=f".{kind}-{os.getpid()}-", dir=out))
+    except OSError as exc:
+        raise OSError(exc.errno, f"Cannot write the results into this folder "
+                                 f"({exc.strerror or exc})", str(out)) from None
+
+
+def _drop_unfinished(out: Path) -> None:
+    """Removes the tries (`_stage`) that designs since stopped left in `out`; one whose process
+    still runs is a design working there beside this one, and stays."""
+    for stage in [*out.glob(".waterfall-*"), *out.glob(".straight-*")]:
+        pid = stage.name.split("-")[1]
+        if pid.isdigit():
+            try:
+                os.kill(int(pid), 0)
+                continue  # (still running)
+            except ProcessLookupError:
+                pass
+            except (PermissionError, OverflowError, OSError):
+                continue  # (running as someone else, or no telling)
+        shutil.rmtree(stage, ignore_errors=True)
 
 
 def _write_report(out: Path, report: dict) -> None:
@@ -254,7 +283,7 @@ def _try_waterfall(out: Path, header: str, data: dict, db, report: dict, designe
                 **template, "front_drop": tried["front_drop_m"]}}}
             say(f"a peak on the calves: the design again, its front edge dropped "
                 f"{100 * tried['front_drop_m']:.0f} cm (a waterfall front)")
-            stage = Path(tempfile.mkdtemp(prefix=".waterfall-", dir=out))
+            stage = _stage(out, "waterfall")
             again = _fit_design(stage, header, trial, db, say, pictures)
             tried["misses_after"] = _misses(again)
             if tried["misses_after"] < tried["misses_before"]:

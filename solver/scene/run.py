@@ -714,7 +714,7 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
     out_dir : folder for the relaxed bodies (OBJ), their poses (BVH), relax.png and
         report.json (made if missing).
     surface_dir : folder of an earlier `sitrelax fit` result whose surface.obj is used (None:
-        fit the scenario now).
+        fit the scenario now, with its rounds of relief, as `run_fit` writes surface.obj).
     person : only this person (1-based; None: everybody).
     db : the pose library for `db:` poses, and where `save` stores the relaxed poses.
     save : store each relaxed pose in `db`, linked to its origin (see `save_relaxed`).
@@ -747,9 +747,12 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
             say(f"surface from {surface_dir}")
         else:
             result = fit_people(scenario, people)  # relaxed onto its limit surface, as evaluated
+            say(f"fitted the surface in {result.iterations} iterations")
+            if scenario.relief.rounds:  # and relieved, as `run_fit` writes it (surface.obj)
+                _, persons, maps = evaluate_fit(scenario, people, result)
+                result = relieve_fit(scenario, people, result, persons, maps, say)[0]
             surface = result.limit_surface(scenario.surface.params.creases)
             faces = result.surface_faces
-            say(f"fitted the surface in {result.iterations} iterations")
         keys = ("mean_support_distance_m", "max_penetration_m", "coverage", "contact_coverage",
                 "peak_pressure_kpa", "supported", "equilibrium")
         rows, meshes_before, meshes_after, relaxed = [], [], [], []
