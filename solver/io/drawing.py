@@ -22,6 +22,9 @@ from capture.files import write_atomic
 from solver.mesh import quad_triangles
 
 LAYERS = {"SURFACE": 5, "BODY": 1, "SOLID": 8, "FLOOR": 3, "DIMENSIONS": 7}  # ACI colours
+# the dimensions' look: millimetres shown as they are, whole (the EZDXF style's own values,
+# and each dimension's override as well)
+DIMENSION_STYLE = {"dimtxt": 12.0, "dimasz": 8.0, "dimdec": 0, "dimlfac": 1.0}
 
 
 class DrawingError(ValueError):
@@ -167,6 +170,12 @@ def _new_document():
     doc.header["$MEASUREMENT"] = 1
     for name, color in LAYERS.items():
         doc.layers.add(name, color=color)
+    # ezdxf's EZDXF style shows metres in centimetres (a length factor of 100): here the
+    # style itself shows the drawing's millimetres, whole, as they are, for a CAD program
+    # that draws a dimension from its style and not from each entity's override
+    style = doc.dimstyles.get("EZDXF")
+    for key, value in DIMENSION_STYLE.items():
+        style.dxf.set(key, value)
     return doc
 
 
@@ -179,11 +188,8 @@ def _polyline(msp, points: np.ndarray, layer: str) -> None:
 
 
 def _dimension(msp, p1, p2, base, angle: float) -> None:
-    # (ezdxf's EZDXF style shows metres in centimetres, a length factor of 100: the
-    # drawings are in millimetres, shown as they are)
     dim = msp.add_linear_dim(base=base, p1=p1, p2=p2, angle=angle, dimstyle="EZDXF",
-                             override={"dimtxt": 12.0, "dimasz": 8.0, "dimdec": 0,
-                                       "dimlfac": 1.0},
+                             override=dict(DIMENSION_STYLE),
                              dxfattribs={"layer": "DIMENSIONS"})
     dim.render()
 
