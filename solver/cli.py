@@ -151,6 +151,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
               f"{p['max_penetration_m'] * 1000:.0f} mm, peak {peak_text(p)} "
               f"(flat seat {flat_text(p)}), contact {p['contact_area_m2']:.3f} m^2"
               + (f"; load on {loads}" if loads else ""))
+    _print_misses(report["misses"])
     print(f"wrote {args.out}/report.json and the surface, control mesh, bodies"
           + (" and pictures" if report["pictures"] else " (pictures skipped: --no-pictures)"))
     if "fabrication" in report:
@@ -188,9 +189,20 @@ def _cmd_design(args: argparse.Namespace) -> int:
           f"{g['self_intersections']} self-intersections, "
           f"{'below the floor' if g['below_floor'] else 'above the floor'}, dense penetration "
           f"{g['max_penetration_dense_m'] * 1000:.0f} mm")
+    _print_misses(report["misses"])
     print(f"wrote {args.out}/scenario.toml (go on with `sitrelax fit`), report.json and the "
           f"surface, control mesh, bodies" + (" and pictures" if report["pictures"] else ""))
     return 0
+
+
+def _print_misses(misses: list[str]) -> None:
+    """The bars a fit misses (report.json's `misses`), or that it meets every one."""
+    if not misses:
+        print("meets every bar")
+        return
+    print(f"misses {len(misses)} bar(s):")
+    for line in misses:
+        print(f"  {line}")
 
 
 def _workshop_options(args: argparse.Namespace):

@@ -469,6 +469,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
             "relief": record,
             "surface_limit": files.pop("surface_limit"),
             "guarantees": guarantees,
+            "misses": report_misses(guarantees, persons),
             "pictures": pictures,
             "files": files,
         }
@@ -477,6 +478,14 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         write_atomic(out / "report.json",
                      json.dumps(report, indent=2, allow_nan=False).encode())
     return report
+
+
+def report_misses(guarantees: dict, persons: list[dict]) -> list[str]:
+    """Every bar the fit misses (`solver.scene.quality`: the surface's, then each person's),
+    one line each; none when it meets them all."""
+    from solver.scene.quality import person_misses, surface_misses
+
+    return surface_misses(guarantees) + [m for p in persons for m in person_misses(p)]
 
 
 SURFACE_FORMATS = ("obj", "ply", "glb", "3dm")

@@ -96,6 +96,20 @@ def test_a_fit_with_relief_rounds_relieves_the_seat(api):
     assert reply["surface"] != plain["surface"]
 
 
+def test_relax_relaxes_onto_the_relieved_surface_that_fit_answers_with(api):
+    """/api/relax of a scenario with [relief] rounds relaxes onto the surface /api/fit answers
+    with, relieved (as `sitrelax relax` does): its figures before are the fit's."""
+    relieved = {**SINGLE, "relief": {"rounds": 1}}
+    _, fit = _request(api, "POST", "/api/fit", relieved)
+    assert fit["relief"]["kept"] == 1  # (else both would be the plain fit's)
+    status, relaxed = _request(api, "POST", "/api/relax", {"scenario": relieved, "index": 0})
+    assert status == 200, relaxed
+    assert relaxed["surface"] == fit["surface"]
+    before, figures = relaxed["before"], fit["persons"][0]
+    for key in ("coverage", "contact_coverage", "max_penetration_m", "peak_pressure_kpa"):
+        assert before[key] == pytest.approx(figures[key], abs=1e-9), key
+
+
 def test_the_same_fit_sent_with_an_inline_control_mesh_gives_the_same_surface(api):
     _, grid_reply = _request(api, "POST", "/api/fit", SINGLE)
     inline = json.loads(json.dumps(SINGLE))

@@ -85,3 +85,25 @@ def test_a_peak_over_six_tenths_of_the_flat_seat_s_at_the_same_load_is_said_but_
                       "same load (10.0 kPa; bar 0.6)"]
     assert person_misses(_person(peak_of_flat=0.75, flat=flat, posture="standing")) == []
     assert person_misses(_person(peak_of_flat=None, flat={"same_load": None})) == []
+
+
+def test_fit_and_its_report_say_every_bar_missed(tmp_path, capsys):
+    """`sitrelax fit` prints the bars its fit misses, one line each, and report.json holds
+    them (`misses`): single_seated's sitter, on a seat without a back, presses it harder
+    than 0.6 of a flat seat's; a fit that meets them all says so."""
+    import json
+
+    from solver.bench import _example_path
+    from solver.cli import _print_misses, main
+
+    out = tmp_path / "fit"
+    assert main(["fit", str(_example_path("single_seated")), "--out", str(out),
+                 "--no-pictures"]) == 0
+    printed = capsys.readouterr().out
+    report = json.loads((out / "report.json").read_text())
+    expected = surface_misses(report["guarantees"]) + person_misses(report["persons"][0])
+    assert report["misses"] == expected and len(expected) == 1
+    assert "of a flat seat's at the same load" in expected[0]
+    assert f"misses 1 bar(s):\n  {expected[0]}\n" in printed
+    _print_misses([])
+    assert capsys.readouterr().out == "meets every bar\n"
