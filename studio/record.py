@@ -248,8 +248,11 @@ class RecordView:
             self.status.content = text
 
     def do_connect(self) -> None:
-        """Connects to the chosen source (a practice replay starts its server first)."""
+        """Connects to the chosen source (a practice replay starts its server first); a take
+        recording from the source before is stored first, and the status says so."""
+        recording = self.stream is not None and self.stream.recorder is not None
         self.do_disconnect(quiet=True)
+        stored = f"{self.status.content} " if recording else ""
         choice = self.choice.value
         if choice.startswith(REPLAY_PREFIX):
             name = choice[len(REPLAY_PREFIX):]
@@ -265,7 +268,7 @@ class RecordView:
         except BaseException:
             self._stop_replay()
             raise
-        self._status(f"Connected to {url}.")
+        self._status(f"{stored}Connected to {url}.")
 
     def do_disconnect(self, quiet: bool = False) -> None:
         """Disconnects; a take recording is stored first, as Stop take stores it."""

@@ -178,7 +178,7 @@ def _write(model, path: Path) -> Path:
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
     os.close(fd)
     try:
-        if not model.Write(tmp, 8):
+        if not model.Write(tmp, 7):  # (Rhino 7 and later open it)
             raise ExportError(f"rhino3dm could not write {path}")
         os.chmod(tmp, 0o644)  # mkstemp's 0600 would keep the document from others
         os.replace(tmp, path)

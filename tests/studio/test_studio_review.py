@@ -99,8 +99,15 @@ def test_disconnecting_while_recording_stores_the_take_and_says_what_it_stored(l
         time.sleep(0.6)  # (a readout tick)
         assert view.readout.content == "Not connected."
         assert not view.figure.bones.visible and not view.figure.joints.visible
+        # connecting elsewhere while a take records stores it first, and says so
+        view._guarded(view.do_connect)
+        view._guarded(view.do_start)
+        _wait(lambda: view.stream.frames_in_take > 5, 10, "frames of the second take")
         view.choice.value, view.url.value = URL_CHOICE, "tcp://127.0.0.1:1"
         view._guarded(view.do_connect)
+        assert view.status.content.startswith("Disconnected. Stored take **take-2**: ") and \
+            view.status.content.endswith(" Connected to tcp://127.0.0.1:1."), \
+            view.status.content
         _wait(lambda: "cannot connect to 127.0.0.1:1" in view.readout.content, 5,
               f"the reason in the readout (it reads {view.readout.content!r})")
     finally:

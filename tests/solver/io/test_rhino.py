@@ -40,6 +40,8 @@ def test_3dm_reads_back_with_layers_millimetres_and_z_up(tmp_path):
     srf = bspline_of_grid(v, grid_layout(len(v), f))
     path = write_3dm(tmp_path / "scene.3dm", v, f, srf, bodies, body_names=["ann", "bob"])
     model = rhino3dm.File3dm.Read(str(path))
+    # a Rhino 7 file: Rhino 7 opens it, and Rhino 8 (a version 8 file Rhino 7 cannot read)
+    assert rhino3dm.File3dm.ReadArchiveVersion(str(path)) == 70
     assert model.Settings.ModelUnitSystem == rhino3dm.UnitSystem.Millimeters
     assert model.Settings.ModelAbsoluteTolerance == pytest.approx(0.01)
     names, found = _by_layer(model)
