@@ -26,6 +26,8 @@ WORKSHOP_UNITS = ("STL, 3MF and DXF in millimetres, Z up: a scene point (x, y, z
 
 
 MAX_SOLID_THICKNESS = 0.1  # metres: trimming a 0.1 m offset of a seat takes about 30 s
+MIN_SOLID_THICKNESS = 0.001  # metres: a thinner sheet is no workshop's, and its check (0.1 mm
+# on the thickness, corners 10 um apart for single precision) could not pass
 
 
 @dataclass(frozen=True)
@@ -41,10 +43,12 @@ class WorkshopOptions:
 
     def __post_init__(self):
         t = self.solid_thickness
-        if t is not None and not (np.isfinite(t) and 0 < t <= MAX_SOLID_THICKNESS):
-            raise SolidError(f"Expected a solid thickness in (0, {MAX_SOLID_THICKNESS:g}] m, "
-                             f"got {t} (trimming a thicker offset where the surface bends takes "
-                             "longer than half a minute; --plinth fills down to the floor)")
+        if t is not None and not (np.isfinite(t) and
+                                  MIN_SOLID_THICKNESS <= t <= MAX_SOLID_THICKNESS):
+            raise SolidError(f"Expected a solid thickness in [{MIN_SOLID_THICKNESS:g}, "
+                             f"{MAX_SOLID_THICKNESS:g}] m, got {t} (trimming a thicker offset "
+                             "where the surface bends takes longer than half a minute; --plinth "
+                             "fills down to the floor)")
         r = self.tool_radius
         if r is not None and not (np.isfinite(r) and 0 < r <= MAX_TOOL_RADIUS):
             raise SolidError(f"Expected a tool radius in (0, {MAX_TOOL_RADIUS:g}] m, got {r} "

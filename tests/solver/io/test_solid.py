@@ -322,10 +322,12 @@ def test_lengthening_never_turns_a_sliver_over():
     assert np.all(np.einsum("ij,ij->i", before[big], after[big]) > 0)
 
 
-@pytest.mark.parametrize("thickness, fine", [(0.1, True), (0.3, False), (float("inf"), False)])
+@pytest.mark.parametrize("thickness, fine", [(0.1, True), (0.001, True), (0.3, False),
+                                             (float("inf"), False), (1e-9, False)])
 def test_the_fit_command_bounds_the_solid_it_will_trim(tmp_path, capsys, thickness, fine):
     """An offset 0.1 m thick takes about half a minute to trim on a seat that bends; a thicker
-    one is refused before anything is fitted, saying so and pointing to the plinth."""
+    one, or one under a millimetre, is refused before anything is fitted, saying so and
+    pointing to the plinth."""
     from solver.scene.workshop import MAX_SOLID_THICKNESS, WorkshopOptions
 
     assert MAX_SOLID_THICKNESS == 0.1
@@ -341,7 +343,7 @@ def test_the_fit_command_bounds_the_solid_it_will_trim(tmp_path, capsys, thickne
     assert main(["fit", str(example), "--out", str(out),
                  "--solid", str(thickness)]) == 2
     err = capsys.readouterr().err
-    assert "solid thickness in (0, 0.1] m" in err and "--plinth" in err, err
+    assert "solid thickness in [0.001, 0.1] m" in err and "--plinth" in err, err
     assert not out.exists()
 
 
