@@ -193,9 +193,9 @@ def _relax_setup():
     person = place_person(heavy.persons[0], None, 0)
     foam, _ = foams(heavy.evaluation)
     problem = relax_problem(person, fit.surface, quad_triangles(fit.surface_faces),
-                            margin=params.margin, foam=foam)
+                            margin=params.margin, foam=foam, floor=0.0)
     gate = SupportGate(problem.surface_mesh(), person.importance, person.triangles,
-                       params.margin, foam)
+                       params.margin, foam, 0.0)
     return problem, gate, gate.figures(person.vertices)
 
 

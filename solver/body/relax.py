@@ -26,6 +26,11 @@ it may not sink deeper than it was at the start of a round, or into the surface,
 `GUARD_TOLERANCE`, with weight `GUARD_WEIGHT`: pulling the thighs down must not push the
 calves into the seat.
 
+With a floor (`RelaxProblem.floor`, its height), the skin near it (`floor_ids`: the feet) is
+held likewise: it may not sink under the floor by more than it was at the start of a round or
+than `FLOOR_TOLERANCE`, with weight `GUARD_WEIGHT`: a body pulled down onto a seat bends its
+legs rather than pushing its feet through the floor.
+
 Only the vertices facing the surface (their closest point is the foot of the perpendicular, not a
 point on a border they lie beside) can be behind it: a thigh below the level of an armrest's
 edge has not cut into the armrest.
@@ -66,6 +71,7 @@ GUARD_WEIGHT = 0.3  # of the penetration term, for the skin with no importance t
 GUARD_TOLERANCE = 3e-4  # metres such skin may sink past where a round found it
 GUARD_BAND = 0.01  # metres in front of the surface within which such skin is guarded too
 GUARD_SPACING = 0.015  # metres: one guarded vertex per cube of this side, the deepest
+FLOOR_TOLERANCE = 0.001  # metres the skin near the floor may sink under it (its foam is stiff)
 ROOT_RANGE = 0.15  # metres the root may move
 FTOL = 1e-5  # relative cost change at which a round stops
 TR_OPTIONS = {"maxiter": 10}  # lsmr iterations per trust-region step: a rough step is enough
@@ -94,7 +100,8 @@ class RelaxProblem:
     vertex_ids : (m,) the supportable vertices; importance : (m,) their r_i;
     surface_vertices (N, 3), surface_triangles (F, 3): the surface (normals towards the body);
     margin : metres the skin may sink into the surface before the penetration term pushes it;
-    guard_ids : (g,) vertices with no importance that may not sink deeper (module docstring).
+    guard_ids : (g,) vertices with no importance that may not sink deeper (module docstring);
+    floor : the floor's height (m), or None; floor_ids : (f,) the vertices held above it.
     """
 
     body: Body
@@ -107,6 +114,8 @@ class RelaxProblem:
     lambdas: tuple[float, float, float, float] = LAMBDAS
     margin: float = DEFAULT_MARGIN
     guard_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    floor: float | None = None
+    floor_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     def __post_init__(self):
         joints, count = len(self.body.joint_names), len(self.body.vertices)
@@ -117,13 +126,16 @@ class RelaxProblem:
                                  f"{np.shape(value)}")
         ids = np.asarray(self.vertex_ids)
         guard = np.asarray(self.guard_ids)
-        for name, value in (("vertex_ids", ids), ("guard_ids", guard)):
+        for name, value in (("vertex_ids", ids), ("guard_ids", guard),
+                            ("floor_ids", np.asarray(self.floor_ids))):
             if value.ndim != 1 or value.size and (
                     not np.issubdtype(value.dtype, np.integer) or value.min() < 0 or
                     value.max() >= count):
                 raise RelaxError(f"Expected {name} as (m,) integer indices in 0..{count - 1}, "
                                  f"got {value.dtype} of shape {value.shape}")
         surface = np.asarray(self.surface_vertices)
+        if self.floor is not None and not np.isfinite(self.floor):
+            raise RelaxError(f"Expected a finite floor height, got {self.floor}")
         if surface.ndim != 2 or surface.shape[1:] != (3,):
             raise RelaxError(f"Expected surface_vertices of shape (N, 3), got {surface.shape}")
         both = np.intersect1d(self.vertex_ids, self.guard_ids)
@@ -145,15 +157,19 @@ class RelaxProblem:
 
 
 class _Model:
-    """Forward model and analytic Jacobian of the supportable vertices, then the guarded ones
-    (`ids`; the first `supported` are the supportable)."""
+    """Forward model and analytic Jacobian of the supportable vertices, then the guarded ones,
+    then those held above the floor (`ids`; the first `supported` are the supportable, the
+    last `floored` the floor's)."""
 
     def __init__(self, problem: RelaxProblem):
         self.p = problem
         body = problem.body
         self.n = len(body.joint_names)
-        self.ids = np.concatenate([problem.vertex_ids, problem.guard_ids]).astype(np.int64)
+        floor_ids = problem.floor_ids if problem.floor is not None else problem.floor_ids[:0]
+        self.ids = np.concatenate([problem.vertex_ids, problem.guard_ids,
+                                   floor_ids]).astype(np.int64)
         self.supported = len(problem.vertex_ids)
+        self.floored = len(floor_ids)
         w = body.weights[self.ids].tocsr()
         w.sum_duplicates()  # one entry per (vertex, joint): the Jacobian assigns, not adds
         w = w.tocoo()
@@ -314,14 +330,23 @@ def pairing(model: _Model, theta: np.ndarray, surface: SurfaceMesh):
     """A round's pairing at theta, the arguments of `residuals` after the model: the closest
     surface points (m, 3), their faces' normals (m, 3), the penetration term's weights (m,)
     and the depths (m,) each vertex may sink (the margin; for a guarded vertex where it is
-    now, at least 0, and `GUARD_TOLERANCE` more)."""
-    p, k = model.p, model.supported
+    now, at least 0, and `GUARD_TOLERANCE` more; for one held above the floor, paired with
+    the floor's plane under it, where it is now or `FLOOR_TOLERANCE`, the more)."""
+    p, k, f = model.p, model.supported, model.floored
     v = model.vertices(theta)[0]
     closest, normals, facing = _surface_frames(v, surface)
+    if f:  # the floor's rows: the plane y = floor under each, facing up
+        on = slice(model.m - f, model.m)
+        closest[on] = v[on]
+        closest[on, 1] = p.floor
+        normals[on] = (0.0, 1.0, 0.0)
+        facing[on] = 1.0
     weights = np.concatenate([p.importance, np.full(model.m - k, GUARD_WEIGHT)]) * facing
     allowed = np.full(model.m, float(p.margin))
     depth = -np.einsum("ij,ij->i", normals[k:], v[k:] - closest[k:])
     allowed[k:] = np.maximum(depth, 0.0) + GUARD_TOLERANCE
+    if f:
+        allowed[model.m - f:] = np.maximum(depth[-f:], FLOOR_TOLERANCE)
     return closest, normals, weights, allowed
 
 

@@ -339,27 +339,48 @@ def worse_figures(before: dict, after: dict) -> list[str]:
     return worse
 
 
+FLOOR_SINK = 0.001  # metres a relaxed pose's skin may lie under the floor (its foam is stiff)
+
+
 @dataclass(frozen=True, eq=False)
 class SupportGate:
     """Judges a posed body on a surface by the evaluation's own `support_figures`, what a
     relaxation may not make worse (`solver.body.relax.Gate`): the surface, the body's
-    importance (V,) and closed skin (F, 3), the softness margin (m) and the surface's foam."""
+    importance (V,) and closed skin (F, 3), the softness margin (m) and the surface's foam;
+    with a `floor` (its height, m), also how far the skin lies under it (`below_floor_m`),
+    which may not grow past `FLOOR_SINK` (a body pulled down onto a seat must not push its
+    feet through the floor)."""
 
     surface: SurfaceMesh
     importance: np.ndarray
     triangles: np.ndarray
     margin: float
     foam: Foam
+    floor: float | None = None
 
     def figures(self, vertices: np.ndarray, reference: dict | None = None) -> dict:
         """`support_figures` of the skin posed at `vertices` (V, 3), metres, cut short when
-        worse than `reference`."""
-        return support_figures(self.surface, vertices, self.importance, self.triangles,
-                               self.margin, self.foam, reference=reference)
+        worse than `reference`, and `floor_figures`."""
+        return {**support_figures(self.surface, vertices, self.importance, self.triangles,
+                                  self.margin, self.foam, reference=reference),
+                **self.floor_figures(vertices)}
+
+    def floor_figures(self, vertices: np.ndarray) -> dict:
+        """`below_floor_m`, how far the skin at `vertices` (V, 3) lies under the floor (0 on
+        or above it); nothing without a floor."""
+        if self.floor is None:
+            return {}
+        return {"below_floor_m": max(0.0, self.floor - float(np.min(vertices[:, 1])))}
 
     def worse(self, before: dict, after: dict) -> list[str]:
-        """`worse_figures`: the names of the figures worse in `after` than in `before`."""
-        return worse_figures(before, after)
+        """`worse_figures`: the names of the figures worse in `after` than in `before`, and
+        `below_floor_m` when the skin goes deeper under the floor than before and than
+        `FLOOR_SINK`."""
+        worse = worse_figures(before, after)
+        if "below_floor_m" in before and "below_floor_m" in after and \
+                after["below_floor_m"] > max(before["below_floor_m"], FLOOR_SINK):
+            worse.append("below_floor_m")
+        return worse
 
 
 @with_limited_threads  # small products: one BLAS thread (SITRELAX_THREADS), see solver.threads

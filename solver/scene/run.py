@@ -144,12 +144,17 @@ def fit_people(scenario: Scenario, people: list[PlacedPerson],
                        iterates=iterates)
 
 
+FLOOR_BAND = 0.05  # metres above the floor within which skin is held above it in a relaxation
+
+
 def relax_problem(person: PlacedPerson, surface_vertices: np.ndarray,
                   surface_triangles: np.ndarray, threshold: float = 0.02,
-                  margin: float | None = None, foam: Foam | None = None) -> RelaxProblem:
+                  margin: float | None = None, foam: Foam | None = None,
+                  floor: float | None = None) -> RelaxProblem:
     """The relaxation problem of a placed person: its rig in the scene frame, its vertices of
     importance above `threshold`, the rest of its skin that the surface cuts into or that lies
-    within `GUARD_BAND` in front of it (guarded: it may not sink deeper), and the surface to
+    within `GUARD_BAND` in front of it (guarded: it may not sink deeper), the skin within
+    `FLOOR_BAND` of the `floor` (a height, m; held above it: the feet), and the surface to
     settle on.
 
     Parameters
@@ -161,6 +166,7 @@ def relax_problem(person: PlacedPerson, surface_vertices: np.ndarray,
         pushed out (None: the paper's 1 cm).
     foam : the surface's foam, whose reach behind it bounds where it can cut into the body
         (None: the scenario's default).
+    floor : the floor's height (m; None: no floor).
 
     Returns
     -------
@@ -182,7 +188,16 @@ def relax_problem(person: PlacedPerson, surface_vertices: np.ndarray,
                            margin=DEFAULT_MARGIN if margin is None else margin)
     guards = guarded_vertices(person, problem.surface_mesh(), threshold,
                               foam or foams(Evaluation())[0])
-    return dataclasses.replace(problem, guard_ids=guards)
+    held = np.zeros(0, dtype=np.int64)
+    if floor is not None:  # one per GUARD_SPACING cube, the lowest
+        from solver.body.relax import GUARD_SPACING
+
+        near = np.flatnonzero(person.vertices[:, 1] <= floor + FLOOR_BAND)
+        near = near[np.argsort(person.vertices[near, 1], kind="stable")]
+        _, first = np.unique(np.floor(person.vertices[near] / GUARD_SPACING).astype(np.int64),
+                             axis=0, return_index=True)
+        held = np.sort(near[first])
+    return dataclasses.replace(problem, guard_ids=guards, floor=floor, floor_ids=held)
 
 
 def guarded_vertices(person: PlacedPerson, surface: SurfaceMesh, threshold: float,
@@ -233,13 +248,16 @@ def relax_person(scenario: Scenario, person: PlacedPerson, surface: np.ndarray,
 
     check = check or (lambda: None)
     margin, (foam, floor) = scenario.surface.params.margin, foams(scenario.evaluation)
-    problem = relax_problem(person, surface, quad_triangles(quads), margin=margin, foam=foam)
+    problem = relax_problem(person, surface, quad_triangles(quads), margin=margin, foam=foam,
+                            floor=0.0 if floor is not None else None)
     mesh = problem.surface_mesh()
     before = evaluate_person(mesh, person, margin, foam, floor)[0]
     check()
-    gate = _CheckedGate(check, mesh, person.importance, person.triangles, margin, foam)
+    gate = _CheckedGate(check, mesh, person.importance, person.triangles, margin, foam,
+                        0.0 if floor is not None else None)  # (the evaluation's floor, y = 0)
     t = time.perf_counter()
-    res = relax(problem, gate=gate, figures_before={k: before[k] for k in SUPPORT_FIGURES})
+    res = relax(problem, gate=gate, figures_before={
+        **{k: before[k] for k in SUPPORT_FIGURES}, **gate.floor_figures(person.vertices)})
     seconds = time.perf_counter() - t
     check()
     if not res.accepted:
@@ -256,7 +274,8 @@ def relax_text(result) -> str:
     the share of its step accepted and the figures it improved, or the figures that made
     every tried step worse."""
     names = {"mean_support_distance_m": "support distance", "coverage": "coverage",
-             "contact_coverage": "contact coverage", "max_penetration_m": "deepest cut"}
+             "contact_coverage": "contact coverage", "max_penetration_m": "deepest cut",
+             "below_floor_m": "depth under the floor"}
     parts = []
     for run in sorted({s.round for s in result.steps}):
         tried = [s for s in result.steps if s.round == run]

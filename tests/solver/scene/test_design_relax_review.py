@@ -119,3 +119,38 @@ def test_a_folder_design_cannot_write_into_is_named_as_fit_names_it(tmp_path, mo
         design.run_design([HIGH], out, pictures=False)
     assert caught.value.filename == str(out)
     assert "Cannot write the results into this folder" in caught.value.strerror
+
+
+def test_the_gate_refuses_skin_sunk_further_under_the_floor():
+    """A relaxed pose may not put skin more than 1 mm under the floor, nor deeper than the
+    pose before it was (`SupportGate.floor`); without a floor nothing is said of it."""
+    import numpy as np
+
+    from solver.contact.evaluate import FLOOR_SINK, SupportGate
+
+    gate = SupportGate(None, None, None, 0.03, None, 0.0)
+    assert gate.floor_figures(np.array([[0.0, -0.004, 0.0], [0.0, 1.0, 0.0]])) == \
+        {"below_floor_m": 0.004}
+    assert gate.floor_figures(np.array([[0.0, 0.2, 0.0]])) == {"below_floor_m": 0.0}
+    on, within, under = ({"below_floor_m": d} for d in (0.0, 0.5 * FLOOR_SINK, 2 * FLOOR_SINK))
+    assert gate.worse(on, within) == [] and gate.worse(on, under) == ["below_floor_m"]
+    assert gate.worse(under, under) == [] and gate.worse(under, on) == []
+    assert SupportGate(None, None, None, 0.03, None).floor_figures(np.zeros((1, 3))) == {}
+
+
+@pytest.mark.slow  # two fits with relief and a relaxation (about 15 s)
+def test_a_relaxed_body_keeps_its_feet_on_the_floor(tmp_path):
+    """The thin body of figure 8 relaxed onto the overweight body's relieved seat: the
+    relaxation pulled it down onto the seat with its feet 18 mm through the floor; the floor
+    is held now (and the gate refuses what sinks under it)."""
+    import trimesh
+
+    from solver.contact.evaluate import FLOOR_SINK
+
+    run_fit(EXAMPLES / "seat_for_heavy.toml", tmp_path / "heavy", pictures=False)
+    report = run_relax(EXAMPLES / "seat_for_thin.toml", tmp_path / "thin_on_heavy",
+                       surface_dir=tmp_path / "heavy")
+    body = trimesh.load(tmp_path / "thin_on_heavy" / "person_1_relaxed.obj", process=False)
+    assert body.vertices[:, 1].min() >= -FLOOR_SINK - 1e-6, body.vertices[:, 1].min()
+    before, after = report["persons"][0]["before"], report["persons"][0]["after"]
+    assert after["mean_support_distance_m"] <= before["mean_support_distance_m"]
