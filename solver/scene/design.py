@@ -72,6 +72,9 @@ LIFT = {"floor": 0.13, "lying": 0.46,  # metres people are raised: cushion / bed
         # in the skin against them (captured as they are, the floor takes 40-45 %)
 RECLINED_PELVIS = 0.4  # metres: a reclined person is raised until the pelvis is this high
 GAP = 0.04  # metres between neighbours' skin, side by side
+MOVING_TRUNK_DEG = 45.0  # a seated or perched body whose trunk leans further forward is sitting
+# down or rising (the bundled recordings' held sitting frames lean at most 10 degrees; a chair
+# designed under medium sit frame 75, 62 degrees forward, holds no one)
 RELIEF_ROUNDS = 6  # rounds of pressure relief after the fit (solver.scene.relief)
 
 
@@ -130,6 +133,14 @@ def design_scenario(poses: Sequence[str], db: str | os.PathLike | None = None,
     if standing:
         raise DesignError(f"{standing[0]} is a standing pose: there is nothing to design under "
                           f"it (choose a seated, perched, reclined, floor or lying frame)")
+    moving = [(p, f) for p, (kind, f) in zip(poses, read) if kind in ("seated", "perched")
+              and f.trunk_angle_deg < -MOVING_TRUNK_DEG]
+    if moving:
+        pose, f = moving[0]
+        raise DesignError(f"{pose} leans {-f.trunk_angle_deg:.0f} degrees forward, its pelvis "
+                          f"{f.pelvis_height:.2f} m up: a body sitting down or rising, not a "
+                          f"posture to design under (choose a held frame: `sitrelax db "
+                          f"suggest` finds them)")
     if len(set(postures)) > 1:
         raise DesignError("Expected poses of one posture (one piece of furniture), got "
                           + ", ".join(f"{p}: {k}" for p, k in zip(poses, postures)))

@@ -116,6 +116,9 @@ def test_lying_people_get_a_bed_they_are_lifted_onto(tmp_path):
     ([], r"Expected at least one pose, got none"),
     ([STANDING.format(0)], r"is a standing pose: there is nothing to design under it"),
     ([HIGH.format(39), FLOOR.format(8)], r"Expected poses of one posture .*: seated, .*: floor"),
+    ([MEDIUM.format(75)], r"frame=75 leans 62 degrees forward, its pelvis 0.67 m up: a body "
+                          r"sitting down or rising"),
+    ([HIGH.format(39), MEDIUM.format(60)], r"frame=60 leans 50 degrees forward"),
 ])
 def test_the_designer_refuses_what_it_has_no_furniture_for(poses, message):
     with pytest.raises(DesignError, match=message):
