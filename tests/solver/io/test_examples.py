@@ -39,9 +39,10 @@ def fitted():
 
 
 # Examples whose solids are refused: the trimmed offset under `reclining`'s tight bends reaches
-# up through its own top, 1-4 mm in front of the surface at 11-68 of its triangles (found by
-# `check_solid`'s `over_surface` since 2026-12-07; written as sound before). Still open.
-THROUGH_THE_TOP = {"reclining"}
+# up through its own top, 1-4 mm in front of the surface at 11-68 of its triangles, and under
+# `six_overlapping`'s (bends down to a 3 mm radius) at one triangle, at 1 cm and at 3 cm (found
+# by `check_solid`'s `over_surface` since 2026-12-07; written as sound before). Still open.
+THROUGH_THE_TOP = {"reclining", "six_overlapping"}
 
 
 @pytest.mark.slow
