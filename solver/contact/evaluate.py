@@ -339,17 +339,14 @@ def worse_figures(before: dict, after: dict) -> list[str]:
     return worse
 
 
-FLOOR_SINK = 0.001  # metres a relaxed pose's skin may lie under the floor (its foam is stiff)
-
-
 @dataclass(frozen=True, eq=False)
 class SupportGate:
     """Judges a posed body on a surface by the evaluation's own `support_figures`, what a
     relaxation may not make worse (`solver.body.relax.Gate`): the surface, the body's
     importance (V,) and closed skin (F, 3), the softness margin (m) and the surface's foam;
     with a `floor` (its height, m), also how far the skin lies under it (`below_floor_m`),
-    which may not grow past `FLOOR_SINK` (a body pulled down onto a seat must not push its
-    feet through the floor)."""
+    which may not grow past `solver.body.relax.FLOOR_TOLERANCE` (a body pulled down onto a
+    seat must not push its feet through the floor)."""
 
     surface: SurfaceMesh
     importance: np.ndarray
@@ -374,11 +371,13 @@ class SupportGate:
 
     def worse(self, before: dict, after: dict) -> list[str]:
         """`worse_figures`: the names of the figures worse in `after` than in `before`, and
-        `below_floor_m` when the skin goes deeper under the floor than before and than
-        `FLOOR_SINK`."""
+        `below_floor_m` when the skin goes deeper under the floor than before and than the
+        relaxation's `FLOOR_TOLERANCE`."""
+        from solver.body.relax import FLOOR_TOLERANCE
+
         worse = worse_figures(before, after)
         if "below_floor_m" in before and "below_floor_m" in after and \
-                after["below_floor_m"] > max(before["below_floor_m"], FLOOR_SINK):
+                after["below_floor_m"] > max(before["below_floor_m"], FLOOR_TOLERANCE):
             worse.append("below_floor_m")
         return worse
 

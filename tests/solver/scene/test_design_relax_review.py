@@ -126,13 +126,14 @@ def test_the_gate_refuses_skin_sunk_further_under_the_floor():
     pose before it was (`SupportGate.floor`); without a floor nothing is said of it."""
     import numpy as np
 
-    from solver.contact.evaluate import FLOOR_SINK, SupportGate
+    from solver.body.relax import FLOOR_TOLERANCE
+    from solver.contact.evaluate import SupportGate
 
     gate = SupportGate(None, None, None, 0.03, None, 0.0)
     assert gate.floor_figures(np.array([[0.0, -0.004, 0.0], [0.0, 1.0, 0.0]])) == \
         {"below_floor_m": 0.004}
     assert gate.floor_figures(np.array([[0.0, 0.2, 0.0]])) == {"below_floor_m": 0.0}
-    on, within, under = ({"below_floor_m": d} for d in (0.0, 0.5 * FLOOR_SINK, 2 * FLOOR_SINK))
+    on, within, under = ({"below_floor_m": d} for d in (0.0, 0.5 * FLOOR_TOLERANCE, 2 * FLOOR_TOLERANCE))
     assert gate.worse(on, within) == [] and gate.worse(on, under) == ["below_floor_m"]
     assert gate.worse(under, under) == [] and gate.worse(under, on) == []
     assert SupportGate(None, None, None, 0.03, None).floor_figures(np.zeros((1, 3))) == {}
@@ -145,12 +146,12 @@ def test_a_relaxed_body_keeps_its_feet_on_the_floor(tmp_path):
     is held now (and the gate refuses what sinks under it)."""
     import trimesh
 
-    from solver.contact.evaluate import FLOOR_SINK
+    from solver.body.relax import FLOOR_TOLERANCE
 
     run_fit(EXAMPLES / "seat_for_heavy.toml", tmp_path / "heavy", pictures=False)
     report = run_relax(EXAMPLES / "seat_for_thin.toml", tmp_path / "thin_on_heavy",
                        surface_dir=tmp_path / "heavy")
     body = trimesh.load(tmp_path / "thin_on_heavy" / "person_1_relaxed.obj", process=False)
-    assert body.vertices[:, 1].min() >= -FLOOR_SINK - 1e-6, body.vertices[:, 1].min()
+    assert body.vertices[:, 1].min() >= -FLOOR_TOLERANCE - 1e-6, body.vertices[:, 1].min()
     before, after = report["persons"][0]["before"], report["persons"][0]["after"]
     assert after["mean_support_distance_m"] <= before["mean_support_distance_m"]
