@@ -164,8 +164,11 @@ def write_3dm(path: str | os.PathLike, control_vertices: np.ndarray, control_fac
 
 
 def _layer_names(body_names, count: int) -> list[str]:
-    names = list(body_names) if body_names is not None else \
-        [f"person {k}" for k in range(1, count + 1)]
+    """The bodies' layer names: each run of whitespace (a line break, a tab) one space and
+    none at either end (Rhino refuses a layer name with control characters: rhino3dm named
+    such a layer "Layer 03"), "::" one colon (Rhino reads it as a sublayer's path)."""
+    names = [" ".join(str(n).split()).replace("::", ":") for n in body_names] \
+        if body_names is not None else [f"person {k}" for k in range(1, count + 1)]
     if len(names) != count or len(set(names)) != len(names) or \
             {"control net", "surface"} & set(names):
         raise ExportError(f"Expected {count} distinct body names other than the "

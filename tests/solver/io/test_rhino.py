@@ -87,6 +87,17 @@ def test_nurbs_point_at_is_the_limit_surface_within_0_05_mm(tmp_path):
     assert np.sqrt(d2).max() < 0.05  # mm
 
 
+def test_body_names_rhino_refuses_become_layer_names_it_takes(tmp_path):
+    """A name with a line break or a tab (which Rhino refuses: rhino3dm called that layer
+    "Layer 03") and one with "::" (a sublayer's path to Rhino) are layers named as written
+    on one line."""
+    v, f, bodies = _scene()
+    path = write_3dm(tmp_path / "scene.3dm", v, f, None, bodies,
+                     body_names=["ann\nlee  smith", "bob::\tjr "])
+    names, _ = _by_layer(rhino3dm.File3dm.Read(str(path)))
+    assert names == ["control net", "surface", "ann lee smith", "bob: jr"]
+
+
 def test_mesh_surface_and_metres_y_up(tmp_path):
     v, f, bodies = _scene()
     path = write_3dm(tmp_path / "mesh.3dm", v, f, (v, f), [], unit="m", up="y")
