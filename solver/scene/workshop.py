@@ -45,10 +45,13 @@ class WorkshopOptions:
         t = self.solid_thickness
         if t is not None and not (np.isfinite(t) and
                                   MIN_SOLID_THICKNESS <= t <= MAX_SOLID_THICKNESS):
+            why = ("a thickness is a finite number" if not np.isfinite(t) else
+                   "no workshop cuts a thinner sheet" if t < MIN_SOLID_THICKNESS else
+                   "trimming a thicker offset where the surface bends takes longer than half "
+                   "a minute")
             raise SolidError(f"Expected a solid thickness in [{MIN_SOLID_THICKNESS:g}, "
-                             f"{MAX_SOLID_THICKNESS:g}] m, got {t} (trimming a thicker offset "
-                             "where the surface bends takes longer than half a minute; --plinth "
-                             "fills down to the floor)")
+                             f"{MAX_SOLID_THICKNESS:g}] m, got {t} ({why}; --plinth fills down "
+                             "to the floor)")
         r = self.tool_radius
         if r is not None and not (np.isfinite(r) and 0 < r <= MAX_TOOL_RADIUS):
             raise SolidError(f"Expected a tool radius in (0, {MAX_TOOL_RADIUS:g}] m, got {r} "
