@@ -89,12 +89,7 @@ def parse_grid(items: Sequence[str]) -> dict[str, list]:
             # (a whole number is one however written: level=3.0 is level 3)
             parsed.append(int(number) if number.is_integer() and abs(number) < 2 ** 53 else
                           number)
-        setting = _setting(key)
-        same = [k for k in grid if _setting(k) == setting]
-        if same:
-            named = key if same[0] == key else f"{same[0]} and {key}"
-            raise BatchError(f"--grid {named}: the same setting given twice; give its values "
-                             f"once, as {setting}=V1,V2,...")
+        _check_once(list(grid), key)
         repeated = sorted({v for v in parsed if parsed.count(v) > 1})
         if repeated:
             raise BatchError(f"--grid {key}: expected each value once, got "
@@ -107,6 +102,15 @@ def _setting(key: str) -> str:
     """The setting a grid key names: `sigma` and `surface.sigma` are one."""
     key = key.strip()
     return f"surface.{key}" if key in SURFACE_SHORTCUTS else key
+
+
+def _check_once(earlier: Sequence[str], key: str) -> None:
+    """A BatchError when grid `key` names the setting one of the `earlier` keys names."""
+    same = [k for k in earlier if _setting(k) == _setting(key)]
+    if same:
+        named = key if same[0] == key else f"{same[0]} and {key}"
+        raise BatchError(f"--grid {named}: the same setting given twice; give its values "
+                         f"once, as {_setting(key)}=V1,V2,...")
 
 
 def _apply(data: dict, key: str, value) -> None:
@@ -229,12 +233,9 @@ def expand_jobs(scenarios: Sequence[str | os.PathLike] = (), *, grid: dict | Non
     BVH files, and its `db:` poses' data in `db`), so a re-run runs again a job whose inputs
     changed."""
     grid = grid or {}
-    settings = {}
-    for key in grid:
-        if _setting(key) in settings:
-            raise BatchError(f"--grid {settings[_setting(key)]} and {key}: the same setting "
-                             "given twice")
-        settings[_setting(key)] = key
+    keys = list(grid)
+    for k, key in enumerate(keys):
+        _check_once(keys[:k], key)
     sources: list[tuple[str, dict, Path]] = []
     if from_db is not None:
         if template is None or db is None:
@@ -257,7 +258,6 @@ def expand_jobs(scenarios: Sequence[str | os.PathLike] = (), *, grid: dict | Non
             sources.append((str(path), {"problem": str(exc)}, Path(path).parent))
     if not sources:
         raise BatchError("Expected scenario files, or --from-db with --template")
-    keys = list(grid)
     library = None
     if db is not None and Path(db).is_file():
         from posedb import PoseLibrary

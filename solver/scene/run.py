@@ -189,14 +189,9 @@ def relax_problem(person: PlacedPerson, surface_vertices: np.ndarray,
     guards = guarded_vertices(person, problem.surface_mesh(), threshold,
                               foam or foams(Evaluation())[0])
     held = np.zeros(0, dtype=np.int64)
-    if floor is not None:  # one per GUARD_SPACING cube, the lowest
-        from solver.body.relax import GUARD_SPACING
-
+    if floor is not None:  # the lowest in each cube
         near = np.flatnonzero(person.vertices[:, 1] <= floor + FLOOR_BAND)
-        near = near[np.argsort(person.vertices[near, 1], kind="stable")]
-        _, first = np.unique(np.floor(person.vertices[near] / GUARD_SPACING).astype(np.int64),
-                             axis=0, return_index=True)
-        held = np.sort(near[first])
+        held = _one_per_cube(person.vertices, near, person.vertices[near, 1])
     return dataclasses.replace(problem, guard_ids=guards, floor=floor, floor_ids=held)
 
 
@@ -205,7 +200,7 @@ def guarded_vertices(person: PlacedPerson, surface: SurfaceMesh, threshold: floa
     """(g,) the person's vertices of importance up to `threshold` that face the surface (their
     closest point is no border point) and that it cuts into (`cut_vertices`) or that lie within
     `GUARD_BAND` in front of it: of those in each `GUARD_SPACING` cube, the deepest."""
-    from solver.body.relax import GUARD_BAND, GUARD_SPACING
+    from solver.body.relax import GUARD_BAND
 
     rest = np.flatnonzero(person.importance <= threshold)
     reach = max(reach_depth(foam), GUARD_BAND)
@@ -214,12 +209,19 @@ def guarded_vertices(person: PlacedPerson, surface: SurfaceMesh, threshold: floa
     _, signed, over, _, closest = surface.closest(person.vertices[rest])
     cut = cut_vertices(person.vertices, person.triangles, signed, closest, foam)
     keep = over & (cut | ((signed >= 0) & (signed <= GUARD_BAND)))
-    guarded, signed = rest[keep], signed[keep]
-    # one per GUARD_SPACING cell, the deepest: neighbours move together
-    deepest_first = np.argsort(signed, kind="stable")
-    cells = np.floor(person.vertices[guarded[deepest_first]] / GUARD_SPACING).astype(np.int64)
+    # one per cube, the deepest: neighbours move together
+    return _one_per_cube(person.vertices, rest[keep], signed[keep])
+
+
+def _one_per_cube(vertices: np.ndarray, ids: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """Of the vertices `ids`, the one of least `order` (per id) in each `GUARD_SPACING` cube,
+    ascending."""
+    from solver.body.relax import GUARD_SPACING
+
+    first_ids = ids[np.argsort(order, kind="stable")]
+    cells = np.floor(vertices[first_ids] / GUARD_SPACING).astype(np.int64)
     _, first = np.unique(cells, axis=0, return_index=True)
-    return np.sort(guarded[deepest_first[first]])
+    return np.sort(first_ids[first])
 
 
 class _CheckedGate(SupportGate):
