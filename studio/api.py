@@ -585,8 +585,7 @@ def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
     @app.post("/api/relax", summary="Fit, then relax one person onto the surface")
     def relax(req: RelaxRequest) -> dict:
         from solver.scene.placement import place_scene
-        from solver.scene.run import (evaluate_fit, fit_people, relax_person, relax_record,
-                                      relieve_fit)
+        from solver.scene.run import fit_people, relax_person, relax_record, relieved
 
         scenario = request_scenario(req.scenario, ("scenario",))
         if req.index >= len(scenario.persons):
@@ -598,11 +597,9 @@ def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
         check()
         result = fit_people(scenario, people, check, cancel=check.expired)
         check()  # a fit cancelled at the deadline is refused, not relaxed on
-        if scenario.relief.rounds:  # the surface /api/fit answers with, relieved as it is
-            _, persons, maps = evaluate_fit(scenario, people, result)
-            result = relieve_fit(scenario, people, result, persons, maps,
-                                 cancel=check.expired)[0]
-            check()
+        # the surface /api/fit answers with (relieved, stopped at the deadline as it is)
+        result = relieved(scenario, people, result, cancel=check.expired)
+        check()
         person = people[req.index]
         res, before, after, seconds = relax_person(  # onto the limit surface, as evaluated
             scenario, person, result.limit_surface(scenario.surface.params.creases),

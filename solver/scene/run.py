@@ -328,6 +328,17 @@ def template_table(template) -> dict:
                                       for k, v in values.items()}}
 
 
+def relieved(scenario: Scenario, people: list[PlacedPerson], result: FitResult,
+             say: Callable[[str], None] | None = None,
+             cancel: Callable[[], bool] | None = None) -> FitResult:
+    """The fit `result` after the scenario's `[relief]` rounds (`relieve_fit`; itself without
+    any): the surface `run_fit` writes, for those that relax onto it."""
+    if not scenario.relief.rounds:
+        return result
+    _, persons, maps = evaluate_fit(scenario, people, result)
+    return relieve_fit(scenario, people, result, persons, maps, say, cancel=cancel)[0]
+
+
 def relieve_fit(scenario: Scenario, people: list[PlacedPerson], result: FitResult,
                 persons: list[dict], maps: list, say: Callable[[str], None] | None = None,
                 cancel: Callable[[], bool] | None = None,
@@ -778,9 +789,7 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
         else:
             result = fit_people(scenario, people)  # relaxed onto its limit surface, as evaluated
             say(f"fitted the surface in {result.iterations} iterations")
-            if scenario.relief.rounds:  # and relieved, as `run_fit` writes it (surface.obj)
-                _, persons, maps = evaluate_fit(scenario, people, result)
-                result = relieve_fit(scenario, people, result, persons, maps, say)[0]
+            result = relieved(scenario, people, result, say)  # (as surface.obj holds it)
             surface = result.limit_surface(scenario.surface.params.creases)
             faces = result.surface_faces
         keys = ("mean_support_distance_m", "max_penetration_m", "coverage", "contact_coverage",
