@@ -28,6 +28,10 @@ MAX_ITER = 20000  # OSQP's iterations per solve at most
 # solve, bit for bit (a run that ended on its time limit would not be: its step size restarts).
 POLL_ITERATIONS = 50
 POLL_SECONDS = 0.1
+# DAQP's exit flag for a solve that reached its time limit (DAQP then goes on from where it
+# stopped when asked to solve again): a small mesh's solve runs POLL_SECONDS at a time, the
+# `cancel` and the deadline asked between runs
+DAQP_TIME_LIMIT = -7
 
 
 NOT_A_NUMBER = ("The surface's quadratic programme has a value that is not a number in its "
@@ -61,8 +65,7 @@ class _Claimed:
         self.cancel = None
 
     def _check_deadline(self) -> None:
-        """`DeadlinePassed` once the `deadline` has passed: asked before each solver run (one
-        DAQP run on a stiff programme takes a second or more and cannot be stopped)."""
+        """`DeadlinePassed` once the `deadline` has passed: asked before each solver run."""
         if self.deadline is not None and time.monotonic() >= self.deadline:
             raise DeadlinePassed
 
@@ -396,6 +399,29 @@ class DenseProgramme(_Claimed):
             raise ProgrammeError("The surface's quadratic programme is not convex: its "
                                  "Hessian has no Cholesky factor") from None
 
+    def _run(self, model) -> tuple[np.ndarray, int]:
+        """DAQP's solve of a set-up `model`: its solution and exit flag. With a `deadline` or a
+        `cancel`, in runs DAQP ends on its own time limit (POLL_SECONDS each, none past the
+        deadline), the deadline and `cancel` asked before each (`DeadlinePassed` when either
+        says so). DAQP goes on from the working set a run ended with, so a solve in runs is the
+        same as one solve, bit for bit."""
+        while True:
+            self._check_deadline()
+            if self.deadline is None and self.cancel is None:
+                run = 0.0  # (DAQP's "no time limit")
+            else:
+                left = NO_TIME_LIMIT if self.deadline is None else \
+                    self.deadline - time.monotonic()
+                run = min(left, POLL_SECONDS) if self.cancel is not None else left
+                if run <= 0:
+                    raise DeadlinePassed
+            model.settings = {"time_limit": run}
+            z, _, flag, _ = model.solve()
+            if flag != DAQP_TIME_LIMIT:
+                return z, flag
+            if self.cancel is not None and self.cancel():
+                raise DeadlinePassed
+
     def _solve_daqp(self, p_x, q, rows, normals, lower, x0, step, factored: bool):
         """DAQP on the programme. `factored`: in the coordinates z = R x (H = R^T R, by LAPACK),
         where the Hessian is the identity, which DAQP sets up in microseconds where it factors
@@ -443,7 +469,6 @@ class DenseProgramme(_Claimed):
                 high = np.concatenate([x0 + step, high])
                 low = np.concatenate([x0 - step, low])
                 sense = np.concatenate([np.zeros(n, dtype=np.int32), sense])
-            self._check_deadline()  # (each DAQP run cannot be stopped: one at a time is asked)
             model = self._daqp.Model()
             flag, _ = model.setup(identity if factored else hessian, f if factored else q, a,
                                   high, low, sense)  # (exit flag, set-up seconds)
@@ -454,7 +479,7 @@ class DenseProgramme(_Claimed):
             if len(sense):
                 model.soft_weights(rho_l=np.full(len(sense), weight),
                                    rho_u=np.full(len(sense), weight))
-            z, _, flag, _ = model.solve()
+            z, flag = self._run(model)
             if flag < 1:
                 raise ProgrammeError(f"The surface's quadratic programme failed: DAQP exit "
                                      f"flag {flag}")

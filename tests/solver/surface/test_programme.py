@@ -241,3 +241,53 @@ def test_osqp_takes_its_first_step_size_at_set_up_and_solves_to_the_same_bits():
     plain = _osqp_solver(osqp)()
     plain.setup(p, q, a, low, high, **settings)
     assert plain.settings.rho == 0.1
+
+
+def _stiff(n0: int, points: int):
+    """A programme whose DAQP solve takes a while (0.3-2.3 s here): a dense S, most rows
+    binding, so the active set grows row by row."""
+    rng = np.random.default_rng(0)
+    normals = rng.normal(size=(points, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    programme = DenseProgramme(sp.csr_matrix(rng.normal(size=(points, n0))),
+                               sp.identity(n0, format="csr"), n0, WEIGHT)
+    problem = (np.eye(3 * n0), rng.normal(size=3 * n0), np.arange(points), normals,
+               rng.normal(size=points) * 3 + 5, np.zeros(3 * n0), 100.0)
+    return programme, problem
+
+
+@pytest.mark.parametrize("how", ["deadline", "cancel"])
+def test_a_long_daqp_solve_stops_soon_after_its_deadline_or_cancel(how):
+    """One DAQP solve of a stiff programme runs POLL_SECONDS at a time: a deadline passing, or
+    a cancel saying so, mid-solve ends it there, not when the solve would have finished."""
+    import time
+
+    from solver.surface.programme import DeadlinePassed
+
+    programme, problem = _stiff(100, 1500)  # (its first DAQP run alone: 0.75 s)
+    start = time.monotonic()
+    if how == "deadline":
+        programme.deadline = start + 0.1
+    else:
+        programme.cancel = lambda: time.monotonic() > start + 0.1
+    with pytest.raises(DeadlinePassed):
+        programme.solve(*problem)
+    assert time.monotonic() - start < 0.4
+
+
+def test_a_daqp_solve_in_runs_is_the_same_as_one_solve(monkeypatch):
+    """DAQP goes on from where a run stopped on its time limit: a solve cut into runs of 20 ms
+    (a cancel that never says so) finds the same bits as one uncut solve."""
+    import time
+
+    import solver.surface.programme as P
+
+    monkeypatch.setattr(P, "POLL_SECONDS", 0.02)
+    programme, problem = _stiff(80, 800)
+    whole = programme.solve(*problem)
+    polls = []
+    programme, problem = _stiff(80, 800)
+    programme.cancel = lambda: polls.append(time.monotonic()) and False
+    cut = programme.solve(*problem)
+    assert len(polls) >= 3  # (cut at least three times)
+    assert np.array_equal(whole[0], cut[0]) and whole[1:] == cut[1:]

@@ -112,9 +112,10 @@ def _deadline_cancel(deadline: float):
 
 
 def test_a_deadline_stops_the_small_mesh_s_solve_before_each_daqp_run(seated, monkeypatch):
-    """The small meshes' exact solver (DAQP, one run of which cannot be stopped and takes a
-    second or more on a stiff programme) asks the deadline before each run: a deadline that
-    passes while a solve is under way stops the fit before the next run, cancelled."""
+    """The small meshes' exact solver (DAQP, whose tries take a second or more on a stiff
+    programme) asks the deadline before each try: a deadline that passes while a try is under
+    way (here a pause that is not DAQP's, which its own time limit cannot stop) stops the fit
+    before the next try, cancelled."""
     import time
 
     import solver.surface.programme as P
