@@ -12,6 +12,12 @@ Each job runs in a child process of its worker (kept from job to job, so the imp
 once), which is killed when the job passes its time limit: the job is recorded as timed out and
 the worker goes on. Setting up a batch reads nothing that can block (scenario files must be
 regular files; control mesh files are read by the job, under its time limit).
+
+An interrupted batch (Ctrl-C) stops its running jobs before it writes its summary: a local
+cluster's processes are killed; on a scheduler not started here, the batch sets a Dask event
+that each worker running one of its jobs looks at every `STOP_POLL` seconds, killing the job's
+child and answering `interrupted`. A worker also stops its job when the scheduler no longer
+wants it (the client closed or was killed) or when the worker closes (it lost its scheduler).
 """
 
 from __future__ import annotations
@@ -33,6 +39,8 @@ import sys
 import threading
 import time
 import tomllib
+import uuid
+from concurrent.futures import CancelledError
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
@@ -365,18 +373,30 @@ class _Runner:
         # the imports are not a job's time: the child says when it is ready
         self.ready = self.proc.stdout.readline() == b"ready\n"
 
-    def run(self, job: Job, db: str | None, out_root: str, time_limit: float) -> dict | str:
-        """The job's row, or why there is none ("timeout", or the child's end)."""
+    def run(self, job: Job, db: str | None, out_root: str, time_limit: float,
+            stop: Callable[[], str] | None = None) -> dict | str:
+        """The job's row, or why there is none: "timeout", STOPPED (`stop`, asked every
+        `STOP_POLL` seconds while the job runs, gave a reason to stop it: the child is
+        killed), or the child's end."""
         message = {"job": {**job.__dict__}, "db": db, "out_root": out_root}
         try:
             self.proc.stdin.write(json.dumps(message).encode() + b"\n")
             self.proc.stdin.flush()
         except OSError:
             return f"its process ended (exit code {self.proc.poll()})"
-        ready, _, _ = select.select([self.proc.stdout], [], [], time_limit)
-        if not ready:
-            self.kill()
-            return "timeout"
+        deadline = time.monotonic() + time_limit
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                self.kill()
+                return "timeout"
+            wait = left if stop is None else min(left, STOP_POLL)
+            ready, _, _ = select.select([self.proc.stdout], [], [], wait)
+            if ready:
+                break
+            if stop is not None and stop():
+                self.kill()
+                return STOPPED
         line = self.proc.stdout.readline()
         if not line:
             return f"its process ended (exit code {self.proc.wait()})"
@@ -445,6 +465,9 @@ def _orphaned(parent: int) -> None:
 
 
 ORPHAN_POLL = 0.5  # s: how often a job's child looks whether its worker is still there
+STOP_POLL = 0.5  # s: how often a worker looks whether its running job is to be stopped
+STOP_WAIT = 10.0  # s: how long an interrupted client waits for its workers to stop their jobs
+STOPPED = "stopped"  # (what `_Runner.run` returns for a job it was asked to stop)
 
 _runners = threading.local()
 
@@ -505,18 +528,34 @@ def local_cluster(workers: int = 2):
 
 
 def run_job(job: Job, db: str | None, out_root: str,
-            time_limit: float = DEFAULT_JOB_TIME_LIMIT) -> dict:
+            time_limit: float = DEFAULT_JOB_TIME_LIMIT, stop_event: str | None = None) -> dict:
     """Runs one job on a worker, in its child process, for at most `time_limit` seconds;
-    returns its summary row (a failure or a timeout is a row too)."""
+    returns its summary row (a failure or a timeout is a row too). The job is stopped (its
+    child killed, within `STOP_POLL` seconds, and the row says `interrupted`; no result is
+    written) when the batch sets the Dask event named `stop_event`, when the batch no longer
+    wants the job (its client closed, or went away), or when the worker closes (it lost its
+    scheduler)."""
     start = time.perf_counter()
     # (a job cancelled as the batch stops, Ctrl-C, is no news for this worker to log: the
     # batch says it was interrupted)
     logging.getLogger("distributed.worker.state_machine").setLevel(logging.ERROR)
-    runner = _runner()
-    got = runner.run(job, db, out_root, time_limit) if runner.ready else "it did not start"
-    if isinstance(got, dict):
-        return got
-    _runners.runner = None
+    stop = _stop_reason(stop_event)
+    why = stop() if stop is not None else ""
+    ran = not why
+    if ran:
+        runner = _runner()
+        got = (runner.run(job, db, out_root, time_limit, stop) if runner.ready
+               else "it did not start")
+        if isinstance(got, dict):
+            return got
+        _runners.runner = None
+        why = stop() if got == STOPPED else ""
+    if why:  # (cut short, the job leaves its earlier result as it was)
+        return _full_row({"job": job.id, "scenario": job.scenario,
+                          "parameters": job.parameters, "status": "interrupted",
+                          "seconds": time.perf_counter() - start,
+                          "error": f"the job was {'stopped' if ran else 'not started'}: "
+                                   f"{why}"})
     if got == "timeout":
         status, error = "timeout", (f"TimeoutError: the job ran over the batch's time limit "
                                     f"of {time_limit:g} s and was stopped")
@@ -528,6 +567,49 @@ def run_job(job: Job, db: str | None, out_root: str,
     folder.mkdir(parents=True, exist_ok=True)
     write_atomic(folder / "result.json", json.dumps(row, indent=2).encode())
     return row
+
+
+def _stop_reason(stop_event: str | None) -> Callable[[], str] | None:
+    """On a Dask worker, in the thread of the task running a job: a function saying why the
+    job is to be stopped now ("" while it is not); None elsewhere. The reasons: the batch set
+    the event named `stop_event` (Ctrl-C), the scheduler no longer wants the task (cancelled,
+    or its client closed or went away: the scheduler releases a lost client's tasks), or the
+    worker is closing (a worker that loses its scheduler closes). A scheduler that does not
+    answer within `STOP_POLL` is asked again at the next look; the job's time limit bounds
+    the rest."""
+    from distributed import get_client, get_worker
+    from distributed.core import Status
+
+    try:
+        worker = get_worker()
+    except ValueError:  # (not in a task on a worker)
+        return None
+    key = worker.get_current_task()
+    client = get_client() if stop_event else None
+    said: list[str] = []  # (a job to be stopped stays so, for the reason first given)
+
+    def reason() -> str:
+        if not said:
+            if worker.status in (Status.closing, Status.closed, Status.failed):
+                said.append("its worker closed (it lost its scheduler)")
+            elif getattr(worker.state.tasks.get(key), "state", "released") in (
+                    "cancelled", "released", "forgotten"):
+                said.append("the batch no longer wants it (its client closed or went away)")
+            elif client is not None and _event_is_set(client, stop_event):
+                said.append("the batch was interrupted")
+        return said[0] if said else ""
+
+    return reason
+
+
+def _event_is_set(client, name: str) -> bool:
+    """Whether the Dask event `name` is set; False when the scheduler does not answer within
+    `STOP_POLL` seconds (`distributed.Event.is_set` has no time limit)."""
+    try:
+        return bool(client.sync(client.scheduler.event_is_set, name=name,
+                                callback_timeout=STOP_POLL))
+    except (OSError, TimeoutError):
+        return False
 
 
 # what a finished job's result.json must hold to be trusted: every field of a summary row,
@@ -589,10 +671,15 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *,
         else:
             client = Client(scheduler)
         quieted: dict[str, int] = {}
+        # (the event the jobs of this batch look at, set when it is interrupted)
+        stop_event = f"sitrelax-stop-{uuid.uuid4().hex}"
+        futures = []
         try:
-            futures = [client.submit(run_job, job, db_path, str(out.resolve()), time_limit,
-                                     key=f"sitrelax-job-{job.id}", pure=False, retries=2)
-                       for job in todo]
+            for job in todo:
+                futures.append(client.submit(run_job, job, db_path, str(out.resolve()),
+                                             time_limit, stop_event,
+                                             key=f"sitrelax-job-{job.id}", pure=False,
+                                             retries=2))
             for future in as_completed(futures):
                 row = future.result()
                 rows[row["job"]] = row = _full_row(row)
@@ -613,11 +700,25 @@ def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *,
                     quieted[name] = logging.getLogger(name).level
                     logging.getLogger(name).setLevel(logging.CRITICAL)
                 _stop_local_jobs(cluster)
-            _write_summary(out, [rows.get(job.id) or _finished(out, job) or {
-                "job": job.id, "scenario": job.scenario, "parameters": job.parameters,
-                "status": "interrupted", "error": "the batch was interrupted before it finished"}
-                for job in jobs])
+            else:
+                rows.update(_stop_remote_jobs(client, futures, stop_event))
+            _write_summary(out, [_row_after_interrupt(out, job, rows.get(job.id))
+                                 for job in jobs])
             raise
+        except CancelledError as exc:
+            # the jobs were lost under the batch: its scheduler went away (a worker that loses
+            # its scheduler closes, and stops its job as it does: `_stop_reason`)
+            why = getattr(exc, "reason", None) or "cancelled"
+            # (the client's failed reconnection, logged as it closes, is no news: the batch
+            # says it)
+            quieted["distributed.client"] = logging.getLogger("distributed.client").level
+            logging.getLogger("distributed.client").setLevel(logging.CRITICAL)
+            _write_summary(out, [_row_after_interrupt(
+                out, job, rows.get(job.id),
+                f"the batch lost its jobs ({why}) before this one finished") for job in jobs])
+            raise BatchError(f"The batch lost its jobs ({why}); the summary in {out} holds the "
+                             f"jobs finished so far and the others as interrupted (a re-run "
+                             f"runs those)") from None
         finally:
             client.close()
             if cluster is not None:
@@ -636,11 +737,66 @@ QUIET_WHEN_STOPPED = ("distributed.scheduler", "distributed.nanny", "distributed
                       "distributed.worker")
 
 
+def _row_after_interrupt(out: Path, job: Job, row: dict | None,
+                         why: str = "the batch was interrupted before it finished") -> dict:
+    """A job's summary row once the batch is interrupted and its running jobs stopped: its row
+    when it finished, else what the disk holds (a job that finished as the batch stopped is
+    finished), else `interrupted`, with the worker's reason when it sent one, else `why`."""
+    if row is not None and row.get("status") != "interrupted":
+        return row
+    return _finished(out, job) or {
+        "job": job.id, "scenario": job.scenario, "parameters": job.parameters,
+        "status": "interrupted", "error": why, **(row or {})}
+
+
+def _stop_remote_jobs(client, futures: Sequence, stop_event: str,
+                      timeout: float = STOP_WAIT) -> dict[str, dict]:
+    """Stops the jobs of a batch on a scheduler not started here: sets the batch's event
+    (each worker running one of its jobs then kills the job's process within `STOP_POLL`
+    seconds and answers `interrupted`; a job that starts later does not run), cancels the
+    jobs no worker has started, and waits up to `timeout` seconds for the others' answers.
+    Returns the rows received, by job id; a job whose worker did not answer in time has an
+    `interrupted` row saying it may still finish. A second Ctrl-C does not cut this short."""
+    left = [f for f in futures if not f.done()]
+    rows: dict[str, dict] = {}
+    with sigint_handled(signal.SIG_IGN):
+        try:
+            client.sync(client.scheduler.event_set, name=stop_event, callback_timeout=timeout)
+            started = {key for keys in client.sync(client.scheduler.processing,
+                                                   callback_timeout=timeout).values()
+                       for key in keys}
+        except (OSError, TimeoutError):  # (the scheduler is gone: its workers close)
+            return rows
+        client.cancel([f for f in left if f.key not in started])
+        running = [f for f in left if f.key in started]
+        deadline = time.monotonic() + timeout
+        while not all(f.done() for f in running) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        for future in running:
+            if future.status == "finished":
+                row = future.result()
+                rows[row["job"]] = row
+        not_done = [f for f in running if not f.done()]
+        for future in not_done:
+            job_id = future.key.removeprefix("sitrelax-job-")
+            rows[job_id] = {"job": job_id, "status": "interrupted",
+                            "error": f"the batch was interrupted; the job's worker did not say "
+                                     f"within {timeout:g} s that it stopped it: it may still "
+                                     f"finish (or stop at its time limit)"}
+        client.cancel(not_done)
+        try:
+            client.sync(client.scheduler.event_clear, name=stop_event, callback_timeout=timeout)
+        except (OSError, TimeoutError):
+            pass
+    return rows
+
+
 def _stop_local_jobs(cluster, timeout: float = 10.0) -> None:
     """Kills a local cluster's worker processes and their jobs' processes, and waits until
     they have ended: a job cut short writes no result (its results folder stays as it was, a
     hidden folder of partial files aside), and no worker is started in a killed one's place.
-    (The jobs of workers of a scheduler not started here cannot be stopped from here.)"""
+    (The workers of a scheduler not started here are not the batch's to kill:
+    `_stop_remote_jobs` asks them to stop its jobs.)"""
     import psutil
 
     processes = []
