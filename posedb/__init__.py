@@ -15,7 +15,7 @@ import types
 
 _EXPORTS = {
     "posedb.library": ("DuplicateNameError", "Editor", "LockedError", "PoseInfo", "PoseLibrary",
-                       "TakeData", "TakeInfo"),
+                       "PosePlacement", "TakeData", "TakeInfo"),
     "posedb.record": ("TakeRecorder", "record", "recordings", "recover"),
     "posedb.regions": ("BODY_REGIONS", "DEFAULT_SUPPORT", "SUPPORT_USES", "SupportNameError",
                        "support_regions"),

@@ -155,7 +155,13 @@ def _cmd_show(args) -> int:
             info = lib.take(args.name).as_dict()
         except NotFoundError:  # (the name may be either)
             raise NotFoundError(f"No pose or take {args.name!r} in {lib.path}") from None
-    _print(info, args.json, "\n".join(f"{k:<12} {v}" for k, v in info.items()))
+    shown = dict(info)
+    if "placement" in shown:  # (a pose's; None: the standard placement)
+        placed = shown["placement"]
+        shown["placement"] = "standard" if placed is None else (
+            "offset " + ", ".join(f"{x:.4f}" for x in placed["offset_m"]) +
+            f" m, heading {placed['heading_rad']:.4f} rad (where its relaxation left it)")
+    _print(info, args.json, "\n".join(f"{k:<12} {v}" for k, v in shown.items()))
     return 0
 
 

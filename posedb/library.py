@@ -97,9 +97,42 @@ class TakeInfo:
 
 
 @dataclass(frozen=True)
+class PosePlacement:
+    """Where a pose stands relative to the standard placement (its lowest skin point on the
+    floor, its pelvis over the origin), in the pose's own frame: the frame its rotations and
+    root position are stored in, Y up, before a scenario turns and moves it. A pose stored by
+    `sitrelax relax --save` carries one, so that placed again it stands where the relaxation
+    left it (`solver.scene.placement.place_person`).
+
+    offset : (3,) metres added to the standard placement (y: the lowest skin point's height).
+    heading : radians about +Y, the turn to face +Z that a scenario's ``facing = "front"``
+        applies (that of the pose it was relaxed from, not measured on this one).
+    """
+
+    offset: tuple[float, float, float]
+    heading: float
+
+    def __post_init__(self) -> None:
+        try:
+            values = np.asarray([*self.offset, self.heading], dtype=np.float64)
+        except (TypeError, ValueError):
+            values = None
+        if values is None or values.shape != (4,) or not np.isfinite(values).all():
+            raise schema.InvalidDataError(f"Expected a placement as an offset (x, y, z) in "
+                                          f"metres and a heading in radians, all finite, got "
+                                          f"{tuple(self.offset)!r} and {self.heading!r}")
+        object.__setattr__(self, "offset", tuple(float(x) for x in self.offset))
+        object.__setattr__(self, "heading", float(self.heading))
+
+    def as_dict(self) -> dict:
+        return {"offset_m": list(self.offset), "heading_rad": self.heading}
+
+
+@dataclass(frozen=True)
 class PoseInfo:
     """A pose: a named frame of a take, with tags, the body regions it needs supported (in
-    `posedb.regions.BODY_REGIONS` order) and notes."""
+    `posedb.regions.BODY_REGIONS` order), notes and, for a relaxed pose, where it stands
+    (`PosePlacement`; None: the standard placement)."""
 
     id: str
     name: str
@@ -109,12 +142,14 @@ class PoseInfo:
     supports: tuple[str, ...]
     notes: str
     created_at: float
+    placement: PosePlacement | None = None
 
     def as_dict(self, take_name: str | None = None) -> dict:
         return {"id": self.id, "kind": "pose", "name": self.name, "tags": list(self.tags),
                 "take": take_name if take_name is not None else self.take,
                 "take_id": self.take, "frame": self.frame, "supports": list(self.supports),
-                "notes": self.notes, "created_at": self.created_at}
+                "notes": self.notes, "created_at": self.created_at,
+                "placement": None if self.placement is None else self.placement.as_dict()}
 
 
 @dataclass(frozen=True, eq=False)
@@ -396,10 +431,13 @@ class PoseLibrary:
 
     def _pose_info(self, row: int) -> PoseInfo:
         t = self._table
+        placed = t.placement_of(row)
         return PoseInfo(_pose_id(t.value("id", row)), t.names[row],
                         _take_id(t.value("take", row)), t.value("frame", row), t.tags(row),
                         decode_supports(t.value("supports", row)), t.notes(row),
-                        t.value("created_at", row))
+                        t.value("created_at", row),
+                        PosePlacement(tuple(placed[:3]), placed[3])
+                        if np.isfinite(placed).all() else None)
 
     def _pose_row(self, ref: str) -> int:
         return _find_pose(self._table, ref, self.path)
@@ -694,10 +732,12 @@ class Editor:
     # -- poses ----------------------------------------------------------------------------
 
     def add_pose(self, take: str, frame: int, name: str, *, tags: Iterable[str] = (),
-                 supports: Iterable[str] | str = DEFAULT_SUPPORT, notes: str = "") -> str:
+                 supports: Iterable[str] | str = DEFAULT_SUPPORT, notes: str = "",
+                 placement: PosePlacement | None = None) -> str:
         """Adds a pose at `frame` (0-based) of `take`; returns its id. `supports` names the body
         regions the pose needs supported: regions, coarse parts or a use
-        (`posedb.regions.support_regions`; default a seat's)."""
+        (`posedb.regions.support_regions`; default a seat's); `placement`, where the pose
+        stands relative to the standard placement (None: there)."""
         info = self._take(take)
         name = self._check_name(name, "pose")
         frame = _whole(frame, "frame")
@@ -706,6 +746,9 @@ class Editor:
                                f"{info.name!r}, got {frame}")
         tags = normalise_tags(tags, new=True, known=self._known_tags())
         mask = encode_supports(supports)
+        if placement is not None and not isinstance(placement, PosePlacement):
+            raise LibraryError(f"Expected a PosePlacement or None as the placement of pose "
+                               f"{name!r}, got {type(placement).__name__}")
         rot, root = self._frame_arrays(info, frame)
         if not (np.isfinite(rot).all() and np.isfinite(root).all()):  # (a pose copies them)
             raise schema.damaged_content(self.lib.path, [
@@ -715,7 +758,9 @@ class Editor:
         self.next_pose += 1
         self.table.append(id=pid, name=name, take=_parse_id(info.id, "take-"), frame=frame,
                           tags=tags, supports=mask, notes=notes, created_at=time.time(),
-                          rotation_start=self._rot_end, rotation_count=rot.shape[0], root=root)
+                          rotation_start=self._rot_end, rotation_count=rot.shape[0], root=root,
+                          placement=None if placement is None else
+                          (*placement.offset, placement.heading))
         self._rot_end += rot.shape[0]
         self._new_rotations.append(rot)
         self._table_dirty = True

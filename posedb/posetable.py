@@ -5,6 +5,10 @@ poses and searching it by tags takes milliseconds. On disk (group `/poses`):
 
     id, take, frame, rotation_start, rotation_count  int64 (P,)
     supports uint16 (P,)  created_at float64 (P,)   root_position float64 (P, 3)
+    placement float64 (P, 4)  where the pose stands relative to the standard placement, in its
+                              own frame: offset x, y, z (metres) and heading (radians); a row
+                              of NaN for a pose placed the standard way (`PosePlacement`;
+                              schema 3: a version 2 file has no such column, read as all NaN)
     names_utf8 uint8      the pose names, UTF-8, joined by "\\n" (names hold no line break)
     notes_utf8 uint8 + notes_offsets int64 (P + 1,)   each pose's notes, UTF-8
     tag_vocabulary str (K,)   tag_matrix uint8 (P, K): 1 where pose p carries tag k
@@ -32,6 +36,7 @@ class PoseTable:
     def __init__(self) -> None:
         self.cols = {k: np.zeros(0, dtype=t) for k, t in _NUMERIC.items()}
         self.root = np.zeros((0, 3))
+        self.placement = np.zeros((0, 4))
         self.names: list[str] = []
         self._notes_blob = b""
         self._notes_offsets = np.zeros(1, dtype=np.int64)
@@ -52,6 +57,8 @@ class PoseTable:
         for key, dtype in _NUMERIC.items():
             t.cols[key] = np.asarray(g[key][:], dtype=dtype)
         t.root = np.asarray(g["root_position"][:], dtype=np.float64).reshape(-1, 3)
+        t.placement = (np.asarray(g["placement"][:], dtype=np.float64).reshape(-1, 4)
+                       if "placement" in g else np.full((len(t.root), 4), np.nan))
         blob = g["names_utf8"][:].tobytes().decode("utf-8")
         t.names = blob.split("\n") if len(t.cols["id"]) else []
         t._notes_blob = g["notes_utf8"][:].tobytes()
@@ -69,6 +76,7 @@ class PoseTable:
         data = dict(
             {k: v for k, v in self.cols.items()},
             root_position=self.root,
+            placement=self.placement,
             names_utf8=np.frombuffer("\n".join(self.names).encode("utf-8"), dtype=np.uint8),
             notes_utf8=np.frombuffer(b"".join(notes), dtype=np.uint8),
             notes_offsets=offsets,
@@ -90,6 +98,7 @@ class PoseTable:
         t = PoseTable()
         t.cols = {k: v.copy() for k, v in self.cols.items()}
         t.root = self.root.copy()
+        t.placement = self.placement.copy()
         t.names = list(self.names)
         t._notes_blob = self._notes_blob
         t._notes_offsets = self._notes_offsets
@@ -122,6 +131,11 @@ class PoseTable:
     def value(self, key: str, row: int):
         self._flush()
         return self.cols[key][row].item()
+
+    def placement_of(self, row: int) -> np.ndarray:
+        """(4,) a pose's placement row: offset x, y, z (m) and heading (rad), NaN for none."""
+        self._flush()
+        return self.placement[row].copy()
 
     def tags(self, row: int) -> tuple[str, ...]:
         self._flush()
@@ -162,8 +176,10 @@ class PoseTable:
 
     def append(self, *, id: int, name: str, take: int, frame: int, tags: Sequence[str],
                supports: int, notes: str, created_at: float, rotation_start: int,
-               rotation_count: int, root: Sequence[float]) -> int:
-        """Adds a row (cheaply: rows are merged into the columns when next needed)."""
+               rotation_count: int, root: Sequence[float],
+               placement: Sequence[float] | None = None) -> int:
+        """Adds a row (cheaply: rows are merged into the columns when next needed);
+        `placement` (4,): offset x, y, z (m) and heading (rad), None for the standard one."""
         by_name, by_id = self._index()
         row = len(self.names)
         self.names.append(name)
@@ -171,7 +187,8 @@ class PoseTable:
         by_id[int(id)] = row
         self._notes[row] = notes
         self._pending.append((id, take, frame, rotation_start, rotation_count, supports,
-                              created_at, tuple(root), self._tag_columns(tags)))
+                              created_at, tuple(root), self._tag_columns(tags),
+                              (np.nan,) * 4 if placement is None else tuple(placement)))
         return row
 
     def _flush(self) -> None:
@@ -184,6 +201,8 @@ class PoseTable:
             new = np.array([r[k] for r in rows], dtype=_NUMERIC[key])
             self.cols[key] = np.concatenate([self.cols[key], new])
         self.root = np.concatenate([self.root, np.array([r[7] for r in rows]).reshape(-1, 3)])
+        self.placement = np.concatenate([self.placement,
+                                         np.array([r[9] for r in rows]).reshape(-1, 4)])
         old = self.matrix
         matrix = np.zeros((old.shape[0] + len(rows), len(self.vocab)), dtype=bool)
         matrix[:old.shape[0], :old.shape[1]] = old
@@ -221,6 +240,7 @@ class PoseTable:
         keep[list(rows)] = False
         self.cols = {k: v[keep] for k, v in self.cols.items()}
         self.root = self.root[keep]
+        self.placement = self.placement[keep]
         self.matrix = self.matrix[keep]
         idx = np.flatnonzero(keep)
         self.names = [self.names[r] for r in idx]

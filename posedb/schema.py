@@ -1,6 +1,6 @@
-"""The pose library's HDF5 layout, version 2.
+"""The pose library's HDF5 layout, version 3.
 
-    /                       attrs: sitrelax_kind = "pose-library", sitrelax_schema = 2,
+    /                       attrs: sitrelax_kind = "pose-library", sitrelax_schema = 3,
                                    created_at, next_take_id, next_pose_id
     /skeletons/<skel-hash>  datasets: names (J,) str, parents (J,) int32, offsets (J, 3) float64
                             (file units), channels (J,) str (space-separated channel names per
@@ -23,7 +23,11 @@
                             float64 metres; names_utf8 (names joined by line breaks);
                             notes_utf8 + notes_offsets; tag_vocabulary (K,) str + tag_matrix
                             (P, K) uint8; rotations (R, 4) float32: each pose's own copy of its
-                            local rotations (xyzw)
+                            local rotations (xyzw); placement (P, 4) float64: where a pose stands
+                            relative to the standard placement (`PosePlacement`: offset x, y, z
+                            in metres and heading in radians, in the pose's own frame), a row of
+                            NaN for a pose placed the standard way (every pose but one stored by
+                            `sitrelax relax --save`)
     /scenarios/<name>       attrs: scenario_json (the scenario's TOML data as JSON),
                             result_json (its summary row and per-person evaluation), source
                             (the file or template + pose it came from), created_at; written by
@@ -34,8 +38,10 @@ Versions. 1 stored `supports` as uint8 with bits 0-7 for head, torso, arms, hand
 thighs, calves (every bit in use). 2 widens the column to uint16 and adds the regions that split
 the torso and the arms (bits 8-12: upper_back, lower_back, pelvis, upper_arms, forearms); every
 bit keeps its meaning, so a version 1 mask reads unchanged in version 2: bit 1 (torso) is still
-the upper back, lower back and pelvis together. Version 2 writes region bits only (torso, arms
-and legs as their regions); the coarse bits 1, 2 and 4 are only ever read.
+the upper back, lower back and pelvis together. Version 2 on writes region bits only (torso,
+arms and legs as their regions); the coarse bits 1, 2 and 4 are only ever read. 3 adds the pose
+table's `placement` column (all NaN for the poses of an older file: each placed the standard
+way); a version 2 file is read without it, as if all NaN.
 
 Every take is written through `take_arrays`, which checks each array against the type it is
 stored as (finite, within float32's range for the rotations and root positions, whole for the
@@ -63,7 +69,7 @@ from .regions import BODY_REGIONS, SUPPORT_GROUPS, SupportNameError, support_reg
 KIND_ATTR = "sitrelax_kind"
 KIND = "pose-library"
 VERSION_ATTR = "sitrelax_schema"
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 # bit k of a pose's `supports` names SUPPORT_BITS[k]: a region, or (bits 1, 2, 4, read from
 # version 1 files only) a coarse part, the union of its regions
 SUPPORT_BITS = ("head", "torso", "arms", "hands", "legs", "feet", "thighs", "calves",
@@ -376,7 +382,15 @@ def _widen_supports(f: h5py.File) -> None:
         PoseTable.read(poses).write(poses)
 
 
-MIGRATIONS: dict[int, Callable[[h5py.File], None]] = {1: _widen_supports}
+def _add_placement(f: h5py.File) -> None:
+    """Version 2 -> 3: the pose table's `placement` column, NaN (the standard placement) for
+    every pose."""
+    poses = f["poses"]
+    if "id" in poses and "placement" not in poses:
+        poses.create_dataset("placement", data=np.full((poses["id"].shape[0], 4), np.nan))
+
+
+MIGRATIONS: dict[int, Callable[[h5py.File], None]] = {1: _widen_supports, 2: _add_placement}
 
 
 def upgrade(f: h5py.File) -> int:

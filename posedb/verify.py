@@ -6,9 +6,10 @@ skeleton's widths, each pose's take and frame exist and its rotation rows lie in
 `/poses/rotations`, and the notes offsets cover the notes. It also checks the values that
 readers divide by or print: each take's frame time (seconds, as a BVH file may give it), each
 skeleton's offsets and length unit, each pose's supports (bits of `schema.SUPPORT_BITS` only),
-root position and creation time, and every other number stored as an attribute (finite). A
-full check also reads every chunk of every dataset, so a flipped bit in compressed data (which
-zlib's checksum catches) is found, and checks that the arrays are finite.
+root position, placement (all numbers or all NaN) and creation time, and every other number
+stored as an attribute (finite). A full check also reads every chunk of every dataset, so a
+flipped bit in compressed data (which zlib's checksum catches) is found, and checks that the
+arrays are finite.
 
 `pose_table_problems` is also what `PoseLibrary` checks its index by when it opens a library.
 """
@@ -104,7 +105,7 @@ def pose_table_problems(table: PoseTable, take_frames: dict[int, int],
     creation time that is not a number. Column by column, so that a table of 100,000 poses is
     checked in milliseconds."""
     n = len(table)
-    cols = dict(table.cols, root_position=table.root)
+    cols = dict(table.cols, root_position=table.root, placement=table.placement)
     for key, col in cols.items():
         if len(col) != n:
             return [f"/poses/{key}: {len(col)} rows for {n} poses"]
@@ -137,6 +138,10 @@ def pose_table_problems(table: PoseTable, take_frames: dict[int, int],
     for row in np.flatnonzero(~np.isfinite(table.root).all(axis=1)).tolist():
         problems.append(f"pose {table.names[row]!r}: root_position {table.root[row].tolist()} "
                         "is not a position in metres")
+    finite = np.isfinite(table.placement)
+    for row in np.flatnonzero(finite.any(axis=1) & ~finite.all(axis=1)).tolist():
+        problems.append(f"pose {table.names[row]!r}: placement {table.placement[row].tolist()} "
+                        "is neither an offset in metres and a heading nor all NaN")
     for row in np.flatnonzero(~np.isfinite(cols["created_at"])).tolist():
         problems.append(f"pose {table.names[row]!r}: created_at is "
                         f"{float(cols['created_at'][row])}, not a time")

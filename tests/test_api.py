@@ -26,8 +26,8 @@ def test_posedb_public_api():
 
     assert sorted(posedb.__all__) == sorted([
         "DuplicateNameError", "Editor", "HeldPosture", "LibraryError", "LockedError",
-        "NotFoundError", "PoseInfo", "PoseLibrary", "SCHEMA_VERSION", "SchemaError",
-        "TagError", "TakeData", "TakeInfo", "TakeRecorder", "compile_expression",
+        "NotFoundError", "PoseInfo", "PoseLibrary", "PosePlacement", "SCHEMA_VERSION",
+        "SchemaError", "TagError", "TakeData", "TakeInfo", "TakeRecorder", "compile_expression",
         "held_postures", "record",
         "recordings", "recover",
         "BODY_REGIONS", "DEFAULT_SUPPORT", "SUPPORT_USES", "SupportNameError", "support_regions",

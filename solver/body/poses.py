@@ -39,11 +39,14 @@ class PoseSourceError(ValueError):
 
 @dataclass(frozen=True, eq=False)
 class CapturedPose:
-    """A captured skeleton in one posture: world frames (1, J) in metres."""
+    """A captured skeleton in one posture: world frames (1, J) in metres; for a library pose
+    stored by a relaxation, where it stands relative to the standard placement
+    (`posedb.PosePlacement`, None otherwise: see `solver.scene.placement.place_person`)."""
 
     skeleton: Skeleton
     world: WorldPose
     label: str
+    placement: object = None  # posedb.PosePlacement | None (posedb is loaded for db: poses only)
 
 
 def load_pose(spec: str, db: str | os.PathLike | None = None, *,
@@ -68,8 +71,8 @@ def load_pose(spec: str, db: str | os.PathLike | None = None, *,
     Returns
     -------
     CapturedPose
-        The captured skeleton, its world frames (1, J) (positions in metres) and a label naming
-        the pose and its frame.
+        The captured skeleton, its world frames (1, J) (positions in metres), a label naming
+        the pose and its frame and, for a library pose that carries one, its placement.
 
     Raises
     ------
@@ -93,7 +96,8 @@ def load_pose(spec: str, db: str | os.PathLike | None = None, *,
         world = forward_kinematics(skeleton.parents, rot[None], trans[None], skeleton.levels)
         skeleton = _mapped(skeleton, joint_map, f"pose {spec[3:]!r}")
         _check_span(world, f"pose {spec[3:]!r}")
-        return CapturedPose(skeleton, world, f"{info.name} (frame {info.frame})")
+        return CapturedPose(skeleton, world, f"{info.name} (frame {info.frame})",
+                            info.placement)
     text = spec[4:] if spec.startswith("bvh:") else spec
     m = _FRAME.match(text)
     if m is None:

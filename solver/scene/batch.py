@@ -211,13 +211,14 @@ def _input_digests(data: dict, base: Path, library, cache: dict) -> dict:
 
 
 def _pose_digest(library, name: str, cache: dict) -> str:
-    """The SHA-1 of a library pose's data (skeleton, rotations, root position)."""
+    """The SHA-1 of a library pose's data (skeleton, rotations, root position, and where it
+    stands when it carries a placement: `posedb.PosePlacement`)."""
     key = f"db:{name}"
     if library is None:
         return "no library given"
     if key not in cache:
         try:
-            _info, skeleton, rotations, root = library.pose_data(name)
+            info, skeleton, rotations, root = library.pose_data(name)
         except (KeyError, ValueError, OSError) as exc:
             cache[key] = f"unreadable ({type(exc).__name__})"
         else:
@@ -228,6 +229,9 @@ def _pose_digest(library, name: str, cache: dict) -> str:
                                    skeleton.unit_m, skeleton.joint_map], default=str).encode())
             for array in (skeleton.offsets, rotations, root):
                 sha.update(np.ascontiguousarray(array, dtype=np.float64).tobytes())
+            if info.placement is not None:  # (a pose without one keeps the digest it had)
+                sha.update(np.array([*info.placement.offset, info.placement.heading],
+                                    dtype=np.float64).tobytes())
             cache[key] = sha.hexdigest()
     return cache[key]
 

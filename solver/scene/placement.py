@@ -25,12 +25,14 @@ from solver.body.skinning import skin
 class PlacedPerson(SupportedBody):
     """A person in the scene: the posed skin with its support fields (`SupportedBody`: vertices,
     unit normals, Voronoi areas, importance, the supported parts' mask, mass), the scenario's
-    person, the body and its rig posed in the scene frame before `transform`."""
+    person, the body and its rig posed in the scene frame before `transform`, and the heading
+    (radians about +Y) that ``facing = "front"`` turns it by, whether or not it was turned."""
 
     spec: PersonSpec
     body: Body
     motion: RigMotion
     transform: np.ndarray  # (4, 4) scene placement applied after posing
+    heading: float = 0.0
 
 
 def placement(position, rotation_deg) -> np.ndarray:
@@ -41,19 +43,17 @@ def placement(position, rotation_deg) -> np.ndarray:
     return m
 
 
-def facing_front(motion: RigMotion) -> np.ndarray:
-    """(3, 3) the turn about the vertical that makes the posed body (frame 0) face +Z: its hip
-    axis, right hip to left, along +X; where the hip axis stands near vertical (lying on a
-    side), the pelvis's forward axis along +Z instead."""
+def facing_heading(motion: RigMotion) -> float:
+    """The turn about the vertical (radians about +Y) that makes the posed body (frame 0) face
+    +Z: its hip axis, right hip to left, along +X; where the hip axis stands near vertical
+    (lying on a side), the pelvis's forward axis along +Z instead."""
     body, world = motion.body, motion.world
     hips = world.positions[0, [body.joint_index("LeftUpLeg"), body.joint_index("RightUpLeg")]]
     left = hips[0] - hips[1]
     if np.hypot(left[0], left[2]) >= 0.3 * np.linalg.norm(left):
-        yaw = np.arctan2(left[2], left[0])
-    else:
-        forward = world.rotmats[0, 0] @ [0.0, 0.0, 1.0]
-        yaw = np.arctan2(-forward[0], forward[2])
-    return Rotation.from_euler("y", yaw).as_matrix()
+        return float(np.arctan2(left[2], left[0]))
+    forward = world.rotmats[0, 0] @ [0.0, 0.0, 1.0]
+    return float(np.arctan2(-forward[0], forward[2]))
 
 
 def person_frame(person) -> tuple[np.ndarray, np.ndarray]:
@@ -89,9 +89,19 @@ def place_person(spec: PersonSpec, db: str | os.PathLike | None = None,
     """Poses the person's body (lowest point on y = 0, pelvis over the origin), then places it.
     The captured skeleton and the rig are posed once and the skin skinned once.
 
-    The placement rotates about world x, then y, then z by `spec.rotation_deg` (degrees), then
-    moves by `spec.position` (metres). Importance is the pressure model's, restricted to the
-    supported parts' vertices a support can reach.
+    The placement turns the body to face +Z (``spec.facing == "front"``: `facing_heading`),
+    rotates it about world x, then y, then z by `spec.rotation_deg` (degrees), then moves it by
+    `spec.position` (metres). Importance is the pressure model's, restricted to the supported
+    parts' vertices a support can reach.
+
+    A library pose stored by a relaxation carries where the relaxation left it
+    (`posedb.PosePlacement`, in the pose's own frame): with ``spec.placement == "stored"`` (the
+    default) its offset is added to the standard placement before the turns and the move, and
+    "front" turns it by the stored heading (that of the pose it was relaxed from) instead of
+    one measured on it, so in the scenario it was relaxed in, at the same position and
+    rotation, it stands where it was relaxed to; moved or turned, it moves and turns with its
+    person. ``"standard"`` places it as any other pose. A pose without one places the same
+    either way.
 
     Parameters
     ----------
@@ -126,9 +136,13 @@ def place_person(spec: PersonSpec, db: str | os.PathLike | None = None,
     verts, _ = skin(body, motion.frame(0), normals=False)  # the one full skinning
     pelvis = motion.world.positions[0, 0]
     centre = np.array([pelvis[0], 0.0, pelvis[2]])
+    stored = captured.placement if spec.placement == "stored" else None
+    heading = facing_heading(motion) if stored is None else stored.heading
+    if stored is not None:  # where its relaxation left it, relative to the standard placement
+        centre = centre - np.asarray(stored.offset, dtype=np.float64)
     m = placement(spec.position, spec.rotation_deg)
     if spec.facing == "front":  # turned to face +Z first, whatever the capture room's heading
-        m[:3, :3] = m[:3, :3] @ facing_front(motion)
+        m[:3, :3] = m[:3, :3] @ Rotation.from_euler("y", heading).as_matrix()
     placed = (verts - centre) @ m[:3, :3].T + m[:3, 3]
     to_scene = m.copy()
     to_scene[:3, 3] = m[:3, 3] - m[:3, :3] @ centre
@@ -145,7 +159,37 @@ def place_person(spec: PersonSpec, db: str | os.PathLike | None = None,
     return PlacedPerson(placed, normals, field.importance, f"{label} ({captured.label})",
                         body.triangles, areas, parts, body.mass_kg, body.regions,
                         m[:3, :3].copy(), spec=spec, body=body,
-                        motion=motion, transform=to_scene)
+                        motion=motion, transform=to_scene, heading=heading)
+
+
+def relaxed_placement(person: PlacedPerson, vertices: np.ndarray,
+                      root: np.ndarray) -> tuple[tuple[float, float, float], float]:
+    """Where a placed person's relaxed body stands relative to the standard placement of the
+    relaxed pose, in the pose's own frame (the frame of `person.motion`, which the relaxed pose
+    is stored in): what `place_person` adds back (`posedb.PosePlacement`).
+
+    Parameters
+    ----------
+    person : PlacedPerson
+        The person as placed for the relaxation.
+    vertices : (V, 3) float
+        The relaxed skin in the scene frame, metres.
+    root : (3,) float
+        The relaxed rig's root (pelvis) in the scene frame, metres.
+
+    Returns
+    -------
+    offset : (x, y, z) metres: the relaxed pelvis's horizontal place and its lowest skin
+        point's height, less those of the standard placement of the pose it came from.
+    heading : radians about +Y, the turn to face +Z of the pose it came from.
+    """
+    rot, shift = person.transform[:3, :3], person.transform[:3, 3]
+    own = (np.asarray(vertices, dtype=np.float64) - shift) @ rot
+    pelvis = rot.T @ (np.asarray(root, dtype=np.float64) - shift)
+    # the centre the person was placed about: position = rot @ centre + shift
+    centre = rot.T @ (np.asarray(person.spec.position, dtype=np.float64) - shift)
+    offset = np.array([pelvis[0], own[:, 1].min(), pelvis[2]]) - centre
+    return (float(offset[0]), float(offset[1]), float(offset[2])), float(person.heading)
 
 
 def place_scene(scenario: Scenario, db: str | os.PathLike | None = None, *,

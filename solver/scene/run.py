@@ -872,11 +872,15 @@ def save_relaxed(db: str | os.PathLike, relaxed: list, surface: str) -> list[dic
     """Stores relaxed poses in the pose library, all in one commit: each as a one-frame take
     in the body's rig (origin "relaxed", source: the pose it came from, a library pose id or
     the BVH reference) and a pose "<origin>-relaxed" carrying the origin's tags, "relaxed" and
-    the parts it was supported on. The scene's placement is undone, so the stored pose stands
-    where its capture did. relaxed : [(PlacedPerson, RelaxResult)]."""
-    from posedb import PoseLibrary
+    the parts it was supported on. The scene's placement is undone: the pose is stored in its
+    own frame (the captured pose's), with where the relaxation left it relative to the standard
+    placement (`posedb.PosePlacement`, `solver.scene.placement.relaxed_placement`), so that put
+    back into the scenario at the same position and rotation it stands where it was relaxed to.
+    relaxed : [(PlacedPerson, RelaxResult)]."""
+    from posedb import PoseLibrary, PosePlacement
 
     from solver.body.rig import pose_channels, rig_skeleton
+    from solver.scene.placement import relaxed_placement
 
     lib = PoseLibrary(db)
     taken = {p.name for p in lib.poses()} | {t.name for t in lib.takes()}
@@ -905,7 +909,9 @@ def save_relaxed(db: str | os.PathLike, relaxed: list, surface: str) -> list[dic
             tid = ed.add_take(skeleton, pose_channels(person.body, local, root)[None], 1 / 30,
                               name=f"{name}-take", source=source, origin="relaxed",
                               notes=notes)
+            offset, heading = relaxed_placement(person, res.vertices, res.world.positions[0])
             pid = ed.add_pose(tid, 0, name, tags=tuple(tags) + ("relaxed",),
-                              supports=person.spec.support, notes=notes)
+                              supports=person.spec.support, notes=notes,
+                              placement=PosePlacement(offset, heading))
             saved.append({"id": pid, "name": name, "take": tid, "origin": source})
     return saved

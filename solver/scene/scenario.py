@@ -49,7 +49,9 @@ across the width, v along the profile: vertex u * rows + v). Its control mesh is
 the people are placed (`solver.scene.placement.place_scene`).
 
 A person is posed on its body with its lowest point on the floor (y = 0) and its pelvis over
-the origin, then turned by `rotation_deg` and moved by `position`. Relative paths are relative
+the origin, then turned by `rotation_deg` and moved by `position`; a library pose stored by
+`sitrelax relax --save` stands where its relaxation left it instead, unless the person says
+``placement = "standard"`` (`solver.scene.placement.place_person`). Relative paths are relative
 to the scenario file. The fields, their bounds and their defaults (the values above are the
 defaults, but for fixed, creases, name, body and rotation_deg) are `solver.scene.schema`'s;
 the fit parameters' defaults are `FitParams`'s.
@@ -123,6 +125,7 @@ class PersonSpec:
     support: tuple[str, ...] = support_regions(_PERSON["support"])  # body regions
     name: str = ""
     facing: str = _PERSON["facing"]
+    placement: str = schema.default(schema.Person, "placement")  # "stored" or "standard"
     joint_map: tuple[tuple[str, str], ...] = ()
 
     def __post_init__(self) -> None:
@@ -316,8 +319,8 @@ def _person(p: schema.Person, k: int, where: str, base: Path, files: bool) -> Pe
     return PersonSpec(pose=pose, body=shape, position=tuple(p.position),
                       rotation_deg=tuple(p.rotation_deg), support=p.support,
                       name=p.name if p.name is not None else f"person {k + 1}",
-                      facing=p.facing, joint_map=_joint_map(p.joint_map, f"{at}.joint_map",
-                                                            where, base, files))
+                      facing=p.facing, placement=p.placement,
+                      joint_map=_joint_map(p.joint_map, f"{at}.joint_map", where, base, files))
 
 
 def _joint_map(value, at: str, where: str, base: Path, files: bool) -> tuple:

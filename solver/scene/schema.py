@@ -241,6 +241,11 @@ class Person(_Model):
     facing: Annotated[Literal["front", "capture"], Field(
         description="front: the pelvis turned to face +Z before rotation_deg (the same for "
                     "every recording); capture: the heading of the capture room")] = "front"
+    placement: Annotated[Literal["stored", "standard"], Field(
+        description="stored: a library pose that carries where its relaxation left it "
+                    "(`sitrelax relax --save`) stands there, before rotation_deg and position; "
+                    "standard: its lowest point on the floor and its pelvis over the origin, "
+                    "as every other pose")] = "stored"
     joint_map: Annotated[str | dict[str, str] | None, Field(
         description="a joint-map file (TOML, role = \"joint\") or an inline table, for a "
                     "skeleton no profile knows")] = None

@@ -233,6 +233,8 @@ DAMAGE = {
                         "pose 'seated': supports 0xffff has bits above the 13"),
     "created_at NaN": (lambda p: _set(p, "/poses/created_at", None, np.nan),
                        "pose 'seated': created_at is nan"),
+    "placement half NaN": (lambda p: _set(p, "/poses/placement", None, 0.1),
+                           "pose 'seated': placement [0.1, nan, nan, nan] is neither an offset"),
     "unit NaN": (lambda p: _set(p, _skeleton(p), "unit_m", np.nan),
                  "attribute 'unit_m' is unknown (nan)"),
     "offsets NaN": (lambda p: _set(p, _skeleton(p) + "/offsets", None, np.nan),

@@ -125,3 +125,65 @@ def test_every_old_bit_decodes_to_what_it_meant():
     """Bit k of a schema 1 mask alone: a region, or a coarse part as its regions."""
     for k, name in enumerate(SUPPORT_BITS[:8]):
         assert decode_supports(1 << k) == _in_order(SUPPORT_GROUPS.get(name, (name,)))
+
+
+def _placed_library(path):
+    """A current library with a pose placed the standard way and one that carries a
+    placement (as `sitrelax relax --save` stores it)."""
+    from posedb.library import PosePlacement
+
+    lib = PoseLibrary(path, create=True)
+    with lib.edit() as ed:
+        ed.import_bvh(recording("cmu_75_18_high_sit.bvh"))
+        ed.add_pose("cmu_75_18_high_sit", 39, "captured")
+        ed.add_pose("cmu_75_18_high_sit", 39, "relaxed",
+                    placement=PosePlacement((0.01, -0.061, 0.02), -0.04))
+    return lib
+
+
+def test_a_pose_keeps_its_placement_through_changes_and_compaction(tmp_path):
+    lib = _placed_library(tmp_path / "new.h5")
+    assert lib.pose("captured").placement is None
+    placed = lib.pose("relaxed").placement
+    assert placed.offset == (0.01, -0.061, 0.02) and placed.heading == -0.04
+    assert lib.pose("relaxed").as_dict()["placement"] == {"offset_m": [0.01, -0.061, 0.02],
+                                                          "heading_rad": -0.04}
+    assert lib.pose("captured").as_dict()["placement"] is None
+    with lib.edit() as ed:  # rows before it dropped, rows after it added
+        ed.delete_pose("captured")
+        ed.add_pose("cmu_75_18_high_sit", 38, "later")
+    lib.compact()
+    lib = PoseLibrary(lib.path)
+    assert lib.pose("relaxed").placement == placed and lib.pose("later").placement is None
+    assert verify(lib.path) == []
+
+
+def test_a_schema_2_file_reads_without_placements_and_gains_the_column_when_changed(tmp_path):
+    path = tmp_path / "v2.h5"
+    _placed_library(path)
+    with h5py.File(path, "r+") as f:  # as version 2 wrote it: no placement column
+        del f["poses"]["placement"]
+        f.attrs["sitrelax_schema"] = 2
+    before = _digest(path)
+    lib = PoseLibrary(path)
+    assert lib.schema_version == 2
+    assert [p.placement for p in lib.poses()] == [None, None]
+    assert verify(path) == [] and _digest(path) == before
+    with lib.edit() as ed:
+        ed.tag("cmu_75_18_high_sit", add=["kept"])  # (the pose table left alone)
+    with h5py.File(path, "r") as f:
+        assert int(f.attrs["sitrelax_schema"]) == SCHEMA_VERSION == 3
+        assert np.isnan(f["poses"]["placement"][:]).all()
+        assert f["poses"]["placement"].shape == (2, 4)
+    assert verify(path) == []
+
+
+@pytest.mark.parametrize("offset, heading", [((0.0, float("nan"), 0.0), 0.0),
+                                             ((0.0, 0.0, 0.0), float("inf")), ((0.0, 0.0), 0.0)])
+def test_a_placement_that_is_not_numbers_is_refused(offset, heading):
+    from posedb.library import PosePlacement
+    from posedb.schema import InvalidDataError
+
+    with pytest.raises(InvalidDataError, match=r"Expected a placement as an offset \(x, y, z\) "
+                                               r"in metres and a heading in radians, all finite"):
+        PosePlacement(offset, heading)

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from capture import resolve_path
-from posedb import PoseLibrary
+from posedb import PoseLibrary, PosePlacement
 from solver.cli import main
 from solver.scene import batch
 from solver.scene.batch import (SUMMARY_FIELDS, BatchError, expand_jobs, parse_grid,
@@ -72,6 +72,12 @@ def test_the_job_id_follows_the_files_the_scenario_reads(tmp_path):
     with lib.edit() as ed:
         ed.delete_pose("perch")
     lib.add_pose(take.id, 35, "perch", tags=["sit"])  # the same name, another pose
+    assert expand_jobs([path], db=db)[0].id != before
+    before = expand_jobs([path], db=db)[0].id
+    with lib.edit() as ed:  # the same pose, standing elsewhere (as a relaxation stores it)
+        ed.delete_pose("perch")
+        ed.add_pose(take.id, 35, "perch", tags=["sit"],
+                    placement=PosePlacement((0.0, 0.06, 0.0), 0.0))
     assert expand_jobs([path], db=db)[0].id != before
 
 
