@@ -24,6 +24,20 @@ def recording(name: str) -> Path:
     return shared if shared.exists() else bundled_dir() / name
 
 
+def high_sit_library(path: Path, poses=((39, "perch", ("sit",)),), take_tags=()) -> Path:
+    """A new pose library at `path` with the bundled high-sit recording as a take `high_sit`
+    (tagged `take_tags`) and `poses` (frame, name, tags) of it; its path."""
+    from capture.recordings import resolve_path
+    from posedb import PoseLibrary
+
+    lib = PoseLibrary(path, create=True)
+    take = lib.import_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"), name="high_sit",
+                          tags=list(take_tags))
+    for frame, name, tags in poses:
+        lib.add_pose(take.id, frame, name, tags=list(tags))
+    return Path(path)
+
+
 @pytest.fixture
 def cmu_high_sit() -> Path:
     return recording("cmu_75_18_high_sit.bvh")

@@ -12,10 +12,9 @@ import tomllib
 
 import pytest
 
-from capture.recordings import resolve_path
-from posedb import PoseLibrary
 from solver.bench import _example_path
 from studio.api import ApiThread
+from tests.conftest import high_sit_library
 
 SINGLE = tomllib.loads(_example_path("single_seated").read_text())
 HIGH_SIT = "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"
@@ -152,11 +151,7 @@ def test_a_hundred_idle_connections_do_not_block_a_client(api):
 
 def _library_with_a_pose(tmp_path):
     """A pose library holding one pose, `perch`; its path."""
-    db = tmp_path / "poses.h5"
-    lib = PoseLibrary(db, create=True)
-    take = lib.import_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"), name="high_sit")
-    lib.add_pose(take.id, 39, "perch", tags=["sit"])
-    return db
+    return high_sit_library(tmp_path / "poses.h5")
 
 
 def test_a_library_moved_away_gives_409(tmp_path):

@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 from viser import _messages
 
-from capture.recordings import resolve_path
 from posedb import PoseLibrary
 from studio.design_view import project, ray_pick
 from studio.web import VIEWS, Studio
 
 from studio.headless import CAMERA, HeadlessTab as Tab
+from tests.conftest import high_sit_library
 
 HIGH_SIT = "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39"
 STANDING = "bvh:bundled:axis_neuron_standing_yxz.bvh#frame=39"
@@ -27,11 +27,8 @@ STANDING = "bvh:bundled:axis_neuron_standing_yxz.bvh#frame=39"
 
 @pytest.fixture(scope="module")
 def library(tmp_path_factory):
-    path = tmp_path_factory.mktemp("design-view") / "poses.h5"
-    lib = PoseLibrary(path, create=True)
-    take = lib.import_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"), name="high_sit")
-    lib.add_pose(take.id, 39, "perch", tags=["sit", "high"])
-    return path
+    return high_sit_library(tmp_path_factory.mktemp("design-view") / "poses.h5",
+                            [(39, "perch", ["sit", "high"])])
 
 
 @pytest.fixture(scope="module")
@@ -367,10 +364,7 @@ def test_a_drag_streams_the_surface_and_the_fit_of_its_end_replaces_it(studio):
 def test_the_pose_list_follows_a_rename_made_elsewhere(tmp_path):
     """A pose renamed in the library (the Library tab, another process) is listed under its
     new name within a few seconds, the chosen pose kept when it is still there."""
-    path = tmp_path / "poses.h5"
-    lib = PoseLibrary(path, create=True)
-    take = lib.import_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"), name="high_sit")
-    lib.add_pose(take.id, 39, "perch")
+    path = high_sit_library(tmp_path / "poses.h5", [(39, "perch", [])])
     server = Studio(db=str(path), port=0, out=str(tmp_path / "out"))
     tab = Tab(server)
     try:

@@ -18,23 +18,18 @@ from hypothesis import HealthCheck, settings
 from schemathesis.checks import not_a_server_error
 from schemathesis.config import SchemathesisConfig
 
-from capture.recordings import resolve_path
-from posedb import PoseLibrary
 from solver.bench import _example_path
 from studio.api import ApiThread, create_app
 from studio.net import exposure_warning, is_loopback
 
-from tests.conftest import listening_addresses
+from tests.conftest import high_sit_library, listening_addresses
 
 SINGLE = tomllib.loads(_example_path("single_seated").read_text())
 
 
 def _library(path: Path) -> Path:
-    lib = PoseLibrary(path, create=True)
-    take = lib.import_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"), name="high_sit")
-    lib.add_pose(take.id, 39, "perch", tags=["sit", "high"])
-    lib.add_pose(take.id, 35, "perch_early", tags=["sit"])
-    return path
+    return high_sit_library(path, [(39, "perch", ["sit", "high"]),
+                                   (35, "perch_early", ["sit"])])
 
 
 @pytest.fixture(scope="module")

@@ -21,6 +21,7 @@ from posedb.record import journal_dir
 from studio.context import StudioContext
 from studio.skeleton_draw import pose_world, skeleton_thumbnail
 
+from tests.conftest import high_sit_library as shared_high_sit_library
 from tests.studio.test_studio_browser import ARTIFACTS, CHROMIUM, DRIVER, _browser, _wait
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -40,14 +41,9 @@ def _stop(server) -> None:
 
 
 def high_sit_library(path: Path, poses=((10, "early", ["test"]),)) -> Path:
-    """A new pose library at `path` with the bundled high-sit recording as a take and `poses`
-    (frame, name, tags) of it."""
-    lib = PoseLibrary(path, create=True)
-    take = lib.import_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"), name="high_sit",
-                          tags=["sit"])
-    for frame, name, tags in poses:
-        lib.add_pose(take.id, frame, name, tags=tags)
-    return path
+    """A new pose library at `path` with the bundled high-sit recording as a take (tagged
+    sit) and `poses` (frame, name, tags) of it."""
+    return shared_high_sit_library(path, poses, take_tags=("sit",))
 
 
 @pytest.fixture

@@ -12,22 +12,18 @@ from pathlib import Path
 
 import pytest
 
-from capture import resolve_path
 from posedb import PoseLibrary
 from solver.scene.batch import BatchError, expand_jobs, parse_grid, run_batch
 from solver.cli import main
+from tests.conftest import high_sit_library
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios"
 
 
 @pytest.fixture()
 def library(tmp_path):
-    db = tmp_path / "poses.h5"
-    lib = PoseLibrary(db, create=True)
-    take = lib.import_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"), name="high_sit")
-    for frame in (35, 39):
-        lib.add_pose(take.id, frame, f"perch_{frame}", tags=["sit"])
-    return db
+    return high_sit_library(tmp_path / "poses.h5",
+                            [(frame, f"perch_{frame}", ["sit"]) for frame in (35, 39)])
 
 
 def test_grid_and_template_expand_to_jobs(library, tmp_path):

@@ -16,6 +16,7 @@ from solver.scene import batch
 from solver.scene.batch import (SUMMARY_FIELDS, BatchError, expand_jobs, parse_grid,
                                 run_batch)
 from solver.surface.subdivision import grid_mesh
+from tests.conftest import high_sit_library
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios"
 SCENARIO = """[surface]
@@ -62,10 +63,9 @@ def test_the_job_id_follows_the_files_the_scenario_reads(tmp_path):
     bvh.write_bytes(bvh.read_bytes() + b"\n")
     assert expand_jobs([path])[0].id != before
 
-    db = tmp_path / "poses.h5"
-    lib = PoseLibrary(db, create=True)
-    take = lib.import_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"), name="high_sit")
-    lib.add_pose(take.id, 39, "perch", tags=["sit"])
+    db = high_sit_library(tmp_path / "poses.h5")
+    lib = PoseLibrary(db)
+    take = lib.takes()[0]
     path = _scenario(tmp_path / "c", pose="db:perch")
     before = expand_jobs([path], db=db)[0].id
     assert expand_jobs([path], db=db)[0].id == before

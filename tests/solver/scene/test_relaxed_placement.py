@@ -9,8 +9,6 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from capture import resolve_path
-from posedb import PoseLibrary
 from solver.body.model import BodyShape
 from solver.body.relax import RelaxResult
 from solver.body.rig import rig_pose
@@ -18,6 +16,7 @@ from solver.body.skinning import skin
 from solver.scene.placement import place_person, placement
 from solver.scene.run import save_relaxed
 from solver.scene.scenario import PersonSpec, ScenarioError, parse_scenario
+from tests.conftest import high_sit_library
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "fixtures" / "scenarios"
 HEAVY = {"gender": 0.5, "weight": 1.0, "muscle": 0.0, "height": 0.5}
@@ -25,11 +24,7 @@ HEAVY = {"gender": 0.5, "weight": 1.0, "muscle": 0.0, "height": 0.5}
 
 @pytest.fixture
 def db(tmp_path):
-    path = tmp_path / "poses.h5"
-    lib = PoseLibrary(path, create=True)
-    take = lib.import_bvh(resolve_path("bundled:cmu_75_18_high_sit.bvh"), name="high_sit")
-    lib.add_pose(take.id, 39, "perched", tags=["sitting"])
-    return path
+    return high_sit_library(tmp_path / "poses.h5", [(39, "perched", ["sitting"])])
 
 
 def _relaxed(person, turn_deg=6.0, move=(0.012, -0.061, 0.021)):
