@@ -240,8 +240,8 @@ def register(subparsers) -> dict:
     info = sub.add_parser("info", help="summarise a BVH file")
     info.add_argument("file", help="a .bvh path or bundled:NAME (see `sitrelax bvh list`)")
     info.add_argument("--unit", default="auto",
-                      help="length unit of the file: auto (from the skeleton profile), m, cm, mm, "
-                           "in, cmu, or metres per unit (default: auto)")
+                      help="length unit of the file: auto (from the skeleton profile), m, dm, cm, "
+                           "mm, in, cmu, or metres per unit (default: auto)")
     info.add_argument("--json", action="store_true", help="machine-readable output")
     info.set_defaults(func=_cmd_info)
     lst = sub.add_parser("list", help="list the bundled recordings")
@@ -253,7 +253,8 @@ def register(subparsers) -> dict:
 def _register_capture(subparsers) -> None:
     from .constants import FORMATS
 
-    cap = subparsers.add_parser("capture", help="Perception Neuron streams: replay and listen")
+    cap = subparsers.add_parser("capture",
+                                help="Perception Neuron streams: replay, listen and record")
     sub = cap.add_subparsers(dest="capture_command", required=True)
 
     rp = sub.add_parser("replay", help="play a BVH file or raw capture as Axis Neuron would")

@@ -43,6 +43,19 @@ def shape_from_args(args: argparse.Namespace):
     return BodyShape(**{k: getattr(args, k) for k in SHAPE_PARAMS})
 
 
+# what `body make --out` and `pose show --out` write: solver.io.export.MESH_FORMATS and a PNG
+# (spelled out here: the parser loads no numerical work)
+OUT_SUFFIXES = (".obj", ".ply", ".glb", ".png")
+
+
+def mesh_or_picture_path(text: str) -> str:
+    """An --out of `body make` or `pose show`, refused by name before any body is made."""
+    if not text.lower().endswith(OUT_SUFFIXES):
+        raise argparse.ArgumentTypeError(
+            f"expected a file ending in .obj, .ply, .glb or .png, got {text!r}")
+    return text
+
+
 def _save_mesh_or_picture(out: str, vertices, faces, title: str, view: str) -> None:
     from solver.io.export import write_mesh
 
@@ -152,7 +165,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
               f"(flat seat {flat_text(p)}), contact {p['contact_area_m2']:.3f} m^2"
               + (f"; load on {loads}" if loads else ""))
     _print_misses(report["misses"])
-    print(f"wrote {args.out}/report.json and the surface, control mesh, bodies"
+    print(f"wrote {os.path.join(args.out, 'report.json')} and the surface, control mesh, bodies"
           + (" and pictures" if report["pictures"] else " (pictures skipped: --no-pictures)"))
     if "fabrication" in report:
         _print_fabrication(report["fabrication"])
@@ -190,7 +203,8 @@ def _cmd_design(args: argparse.Namespace) -> int:
           f"{'below the floor' if g['below_floor'] else 'above the floor'}, dense penetration "
           f"{g['max_penetration_dense_m'] * 1000:.0f} mm")
     _print_misses(report["misses"])
-    print(f"wrote {args.out}/scenario.toml (go on with `sitrelax fit`), report.json and the "
+    print(f"wrote {os.path.join(args.out, 'scenario.toml')} (go on with `sitrelax fit`), "
+          f"report.json and the "
           f"surface, control mesh, bodies" + (" and pictures" if report["pictures"] else ""))
     return 0
 
@@ -262,7 +276,8 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     c = result["counts"]
     print(f"{c['total']} jobs: {c['done']} done, {c['failed']} failed ({c['timed_out']} timed "
           f"out), {c['skipped']} skipped "
-          f"(finished before) in {result['seconds']:.1f} s; summary in {args.out}/summary.csv"
+          f"(finished before) in {result['seconds']:.1f} s; summary in "
+          f"{os.path.join(args.out, 'summary.csv')}"
           + (f"; {len(result['stored'])} stored in {args.db}" if result["stored"] else ""))
     for row in result["jobs"]:
         if row["status"] != "ok":
@@ -349,9 +364,20 @@ def _cmd_validate_pressure(args: argparse.Namespace) -> int:
     return 0
 
 
+class _Parser(argparse.ArgumentParser):
+    """A parser (and, through `add_subparsers`, its subcommands' parsers) that remembers its
+    usage error, so that `run` can give it to a `--json` reader too."""
+
+    last_error: str | None = None
+
+    def error(self, message: str):
+        _Parser.last_error = message
+        super().error(message)
+
+
 def build_parser(extra: Callable[[Any], None] | None = None) -> argparse.ArgumentParser:
     """The `sitrelax` parser; `extra(subparsers)` adds the subcommands of a package above."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="sitrelax",
         description="Turn motion-captured poses into furniture surfaces that support them.",
     )
@@ -375,7 +401,8 @@ def _register_bodies(sub) -> None:
     bsub = body.add_subparsers(dest="body_command", required=True)
     make = bsub.add_parser("make", help="make a body and write it (OBJ, PLY, GLB or PNG)")
     add_shape_args(make)
-    make.add_argument("--out", help="body.obj|.ply|.glb or a .png picture")
+    make.add_argument("--out", type=mesh_or_picture_path,
+                      help="body.obj|.ply|.glb or a .png picture")
     make.add_argument("--view", choices=sorted(VIEWS), default="front")
     make.add_argument("--json", action="store_true", help="machine-readable output")
     make.set_defaults(func=_cmd_body_make)
@@ -386,12 +413,13 @@ def _register_bodies(sub) -> None:
     show.add_argument("source", help="db:NAME (with --db) or [bvh:]FILE.bvh#frame=N")
     show.add_argument("--db", default=None, help="pose library for db: sources")
     show.add_argument("--unit", default=None, help="length unit of a BVH file no profile "
-                      "knows: m, cm, mm, in, cmu or metres per unit")
+                      "knows: m, dm, cm, mm, in, cmu or metres per unit")
     show.add_argument("--joint-map", default=None, help="joint-map file (TOML, role = "
                       "\"joint\") for a skeleton no profile knows (default: read from the "
                       "joint names and the hierarchy)")
     add_shape_args(show)
-    show.add_argument("--out", required=True, help="posed.obj|.ply|.glb or a .png picture")
+    show.add_argument("--out", required=True, type=mesh_or_picture_path,
+                      help="posed.obj|.ply|.glb or a .png picture")
     height = show.add_mutually_exclusive_group()
     height.add_argument("--lowest", type=number(-100.0, 100.0), default=0.0,
                         help="put the lowest skin point at this height, m (default 0: the "
@@ -520,7 +548,14 @@ def main(argv: list[str] | None = None) -> int:
 def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
     """Parses and runs one command; errors become one line and exit status 2 (with `--json`,
     also a JSON object `{"error": ..., "exit_status": 2}` on standard output)."""
-    args = parser.parse_args(argv)
+    _Parser.last_error = None
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as stop:  # a usage error (argparse printed it) or --help
+        words = sys.argv[1:] if argv is None else argv
+        if stop.code == 2 and _Parser.last_error is not None and "--json" in words:
+            print(json.dumps({"error": _Parser.last_error, "exit_status": 2}))
+        raise
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:

@@ -72,6 +72,28 @@ def test_an_error_with_json_asked_for_is_json_on_standard_output(capsys, tmp_pat
     assert "No scenario file" in json.loads(capsys.readouterr().out)["error"]
 
 
+@pytest.mark.parametrize("argv, words", [
+    (["fit", "s.toml", "--out", "o", "--unit", "km", "--json"], "argument --unit: invalid choice"),
+    (["body", "make", "--out", "body.stl", "--json"], "argument --out: expected a file ending"),
+    (["bvh", "info", "--json"], "the following arguments are required: file"),
+])
+def test_an_option_refused_with_json_asked_for_is_json_on_standard_output(argv, words, capsys,
+                                                                          tmp_path, monkeypatch):
+    """A value the parser refuses is an error like any other: with `--json` it is also a JSON
+    object on standard output (README, "Commands"); without, standard output stays empty."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as stopped:
+        main(argv)
+    out, err = capsys.readouterr()
+    assert stopped.value.code == 2 and words in err
+    error = json.loads(out)
+    assert error["exit_status"] == 2 and words in error["error"]
+    with pytest.raises(SystemExit):
+        main([a for a in argv if a != "--json"])
+    assert capsys.readouterr().out == ""
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_debug_shows_the_exception(tmp_path):
     with pytest.raises(ValueError):
         main(["--debug", "bvh", "info", "bundled:cmu_75_18_high_sit.bvh", "--unit", "furlong"])
@@ -215,6 +237,10 @@ def test_a_server_on_a_port_in_use_is_one_line(capsys, command, tmp_path, monkey
       "--pelvis", "1", "--lowest", "0"], "not allowed with argument"),
     (["bench", "subdivision", "--repeats", "0"], "--repeats: expected a whole number >= 1"),
     (["bench", "subdivision", "--repeats", "-1"], "--repeats: expected a whole number >= 1"),
+    (["body", "make", "--out", "body.stl"],
+     "--out: expected a file ending in .obj, .ply, .glb or .png, got 'body.stl'"),
+    (["pose", "show", "bvh:bundled:cmu_75_18_high_sit.bvh#frame=39", "--out", "posed.xyz"],
+     "--out: expected a file ending in .obj, .ply, .glb or .png, got 'posed.xyz'"),
 ])
 def test_options_out_of_range_are_refused_by_name_before_any_work(argv, words, capsys,
                                                                    tmp_path, monkeypatch):
@@ -225,6 +251,25 @@ def test_options_out_of_range_are_refused_by_name_before_any_work(argv, words, c
         sitrelax(argv)
     assert stopped.value.code == 2 and words in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_out_suffixes_of_body_make_and_pose_show_are_the_meshes_and_png():
+    from solver.cli import OUT_SUFFIXES
+    from solver.io.export import MESH_FORMATS
+
+    assert OUT_SUFFIXES == (*MESH_FORMATS, ".png")
+
+
+@pytest.mark.parametrize("command", [["bvh", "info"], ["pose", "show"]])
+def test_unit_help_names_every_unit_the_reader_takes(command, capsys):
+    from capture.units import UNITS
+    from studio.cli import main as sitrelax
+
+    with pytest.raises(SystemExit):
+        sitrelax([*command, "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    unit_help = text[text.index("--unit UNIT "):].split(" --", 1)[0]
+    assert all(f" {name}," in unit_help or f" {name} " in unit_help for name in UNITS), unit_help
 
 
 def test_body_make_json_and_files(tmp_path, capsys):
