@@ -122,12 +122,15 @@ def _cmd_list(args) -> int:
     if args.kind in (None, "take"):
         rows += [t.as_dict() for t in lib.find_takes(args.tag, subject=args.subject)
                  if args.take is None or args.take in (t.id, t.name)]
-    if args.kind in (None, "pose"):
-        names = {t.id: t.name for t in lib.takes()}
+    running = [r for r in recordings(args.db) if args.take is None or args.take == r.take]
+    names = {t.id: t.name for t in lib.takes()}
+    stored = args.take is None or args.take in names or args.take in names.values()
+    if args.kind in (None, "pose") and (stored or not running):  # (a take still recording
+        # has no poses yet; a take that is neither is an error)
         rows += [p.as_dict(names[p.take]) for p in lib.find_poses(args.tag, take=args.take,
                                                                    subject=args.subject)]
     if args.kind in (None, "recording") and not args.tag:
-        rows += [r.as_dict() for r in recordings(args.db)]
+        rows += [r.as_dict() for r in running]
     if args.json:
         print(_json(rows))
         return 0
@@ -349,7 +352,8 @@ def _register_take_commands(sub) -> None:
 
     p = _library_options(sub.add_parser("list", help="list takes, poses and recordings"))
     p.add_argument("--tag", help="tag expression, e.g. 'sit and not floor'")
-    p.add_argument("--take", help="only poses of this take")
+    p.add_argument("--take", help="only this take (name or id), its poses and its recording "
+                   "while it records")
     p.add_argument("--subject", help="only this subject")
     p.add_argument("--kind", choices=("take", "pose", "recording"))
     p.set_defaults(func=_cmd_list)

@@ -139,8 +139,12 @@ def _frame_time(frames, header_frame_time: float) -> float:
     return 1.0 / best if abs(best - rate) <= 0.02 * best else period
 
 
-def import_journal(lib: PoseLibrary, path: Path) -> TakeInfo | None:
+def import_journal(lib: PoseLibrary, path: Path, limit: int | None = None
+                   ) -> TakeInfo | None:
     """Turns a journal into a take (or finds the take it already became) and removes it.
+    `limit`: the take holds the journal's first `limit` frames at most (the frames its
+    recorder counted: the journal holds every byte received, so a frame whose bytes came
+    with the last one counted may be whole in it too); None for all.
 
     Returns None for a journal that holds no frame (it is removed too).
     """
@@ -159,6 +163,8 @@ def import_journal(lib: PoseLibrary, path: Path) -> TakeInfo | None:
     layout = StreamLayout(skeleton)
     with Source(RawFileTransport(path), layout) as source:
         frames = list(source)
+    if limit is not None:
+        frames = frames[:max(int(limit), 0)]
     if not frames:
         path.unlink()
         return None
@@ -275,11 +281,13 @@ def recover(library: str | os.PathLike, *, lock_timeout: float | None | str = "d
             else _recover_one(lib, r) for r in recordings(library)]
 
 
-def _store_journal(lib: PoseLibrary, journal: Path, take: str) -> TakeInfo | None:
-    """The recording's final commit; on failure the journal stays and the error says so (and,
-    unless its data was refused, which command stores it)."""
+def _store_journal(lib: PoseLibrary, journal: Path, take: str, limit: int | None = None
+                   ) -> TakeInfo | None:
+    """The recording's final commit (of the journal's first `limit` frames, None for all); on
+    failure the journal stays and the error says so (and, unless its data was refused, which
+    command stores it)."""
     try:
-        return import_journal(lib, journal)
+        return import_journal(lib, journal, limit)
     except (ValueError, OSError) as exc:  # (LibraryError and RawCaptureError among them)
         if not journal.exists():
             raise
@@ -395,13 +403,15 @@ class TakeRecorder:
         self.marks.append(mark)
         return mark
 
-    def finish(self) -> TakeInfo | None:
+    def finish(self, frames: int | None = None) -> TakeInfo | None:
         """Closes the journal and stores it as the take with its marked poses, in one commit
         (None when no frame came); on failure the journal stays and the error says how to
-        store it. The journal's lock is released either way."""
+        store it. The journal's lock is released either way. `frames`: the frames the reader
+        counted, which the take holds (the journal may hold more whole frames than were read:
+        every byte received); None for every frame in the journal."""
         try:
             self.writer.close()
-            return _store_journal(self.library, self.journal, self.take)
+            return _store_journal(self.library, self.journal, self.take, frames)
         finally:
             self._held.close()
             _drop_lock(self.journal)
@@ -452,7 +462,7 @@ def record(source_url: str, library: str | os.PathLike, take: str, skeleton: str
     except UnknownProtocolError:
         recorder.discard()  # nothing of it can become a take
         raise
-    stored = recorder.finish()
+    stored = recorder.finish(summary["frames"])
     summary["take"] = None if stored is None else stored.as_dict()
     summary["library"] = str(recorder.library.path)
     return summary
@@ -479,5 +489,7 @@ def _receive(source: Source, recorder: TakeRecorder, duration, frames, on_progre
             if frames is not None and monitor.count >= frames:
                 break
         summary = monitor.summary(src.stats())
+        if frames is not None:  # (a read may bring more than the frames asked for)
+            summary["frames"] = min(summary["frames"], frames)
         summary["events"] = [m for _, m in src.events]
     return summary

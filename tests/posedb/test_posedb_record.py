@@ -117,6 +117,18 @@ def test_record_in_process_from_a_raw_capture(tmp_path):
         assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ", t.recorded_at), t.recorded_at
 
 
+def test_a_take_recorded_for_n_frames_holds_the_n_frames_it_says(tmp_path):
+    """The journal holds every byte received, frames past the last one read among them: the
+    take holds the frames the recording counted and says it recorded, no more."""
+    from tests.capture.test_stream_fixtures import STREAMS
+
+    db = tmp_path / "poses.h5"
+    summary = record(f"file:{STREAMS / 'skipped_indices.raw'}", db, "ten",
+                     str(recording("cmu_75_18_high_sit.bvh")), frames=10)
+    assert summary["frames"] == 10 and summary["take"]["frames"] == 10
+    assert PoseLibrary(db).take("ten").frames == 10
+
+
 def test_record_refuses_a_taken_name_before_listening(tmp_path):
     import pytest
 

@@ -1,6 +1,8 @@
 """Poses marked while a take records: written to the journal as they are made, stored with the
 take in its one commit, and kept by `recover` when the recorder dies before that commit."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -116,3 +118,16 @@ def test_a_mark_names_the_last_frame_received_by_its_time():
     assert marked_frame(received, 10.7) == 2
     assert marked_frame(received, 9.0) == 0
     assert marked_frame(received, 99.0) == 3
+
+
+def test_db_list_of_one_take_leaves_out_other_takes_recordings(db, capsys):
+    """`db list --take T`: that take, its poses and its recording, not another's."""
+    from studio.cli import main
+
+    rec = TakeRecorder(db, "crashed", str(recording(CMU)), f"file:{CAPTURE}")
+    _play(rec, {})
+    rec.abandon()
+    for take, kinds in (("earlier", ["take"]), ("crashed", ["recording"])):
+        assert main(["db", "list", "--db", str(db), "--take", take, "--json"]) == 0
+        rows = json.loads(capsys.readouterr().out)
+        assert [r["kind"] for r in rows] == kinds
