@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import sys
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 from capture import cli as capture_cli
 from capture.cli_output import number
@@ -15,6 +16,38 @@ from posedb import cli as posedb_cli
 # each command imports its work when it runs (numpy, scipy, h5py, the solver): `sitrelax --help`
 # stays fast
 from solver.body.sliders import SHAPE_KEYS as SHAPE_PARAMS
+
+
+@contextlib.contextmanager
+def _library_prints_to_stderr() -> Iterator[None]:
+    """Standard output sent to standard error while the work runs, Python's (`sys.stdout`)
+    and the process's (descriptor 1): the report a command prints then stands alone on
+    standard output. Libraries print there past us (OSQP's "ERROR in LDL_factor ..." when a
+    programme it is given is not convex, set up not to print or not), which made `--json`
+    output no JSON. (As `solver.scene.batch`'s job server does.)"""
+    kept = None
+    if sys.__stdout__ is not None and sys.__stderr__ is not None:  # (both open at start)
+        try:
+            if sys.stdout is not None:
+                sys.stdout.flush()
+            kept = os.dup(1)
+            os.dup2(2, 1)
+        except (OSError, ValueError):  # (Python's output is moved alone)
+            if kept is not None:
+                os.close(kept)
+                kept = None
+    try:
+        with contextlib.redirect_stdout(sys.stderr) if sys.stderr is not None else \
+                contextlib.nullcontext():
+            yield
+    finally:
+        if kept is not None:
+            try:
+                if sys.stderr is not None:
+                    sys.stderr.flush()
+            finally:
+                os.dup2(kept, 1)
+                os.close(kept)
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -143,9 +176,10 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 
     workshop = _workshop_options(args)
     formats = [f.strip().lower().lstrip(".") for f in args.format.split(",") if f.strip()]
-    report = run_fit(args.scenario, args.out, db=args.db, progress=progress, formats=formats,
-                     unit=args.unit, up=args.up, workshop=workshop,
-                     pictures=not args.no_pictures)
+    with _library_prints_to_stderr():
+        report = run_fit(args.scenario, args.out, db=args.db, progress=progress,
+                         formats=formats, unit=args.unit, up=args.up, workshop=workshop,
+                         pictures=not args.no_pictures)
     problem = (report.get("fabrication", {}).get("solid") or {}).get("problem")
     if args.json:
         print(json.dumps(report, indent=2))
@@ -180,8 +214,9 @@ def _cmd_design(args: argparse.Namespace) -> int:
     def progress(message: str) -> None:
         print(f"design: {message}", file=sys.stderr, flush=True)
 
-    report = run_design(args.poses, args.out, db=args.db, pictures=not args.no_pictures,
-                        progress=progress)
+    with _library_prints_to_stderr():
+        report = run_design(args.poses, args.out, db=args.db, pictures=not args.no_pictures,
+                            progress=progress)
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
@@ -288,8 +323,9 @@ def _cmd_batch(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     from solver.scene.demo import format_summary, run_demo
 
-    summary = run_demo(args.out, progress=lambda m: print(f"demo: {m}", file=sys.stderr,
-                                                           flush=True))
+    with _library_prints_to_stderr():
+        summary = run_demo(args.out, progress=lambda m: print(f"demo: {m}", file=sys.stderr,
+                                                               flush=True))
     print(json.dumps(summary, indent=2) if args.json else format_summary(summary))
     return 0
 
@@ -300,9 +336,11 @@ def _cmd_relax(args: argparse.Namespace) -> int:
 
     from solver.scene.run import run_relax
 
-    report = run_relax(args.scenario, args.out, surface_dir=args.surface, person=args.person,
-                       db=args.db, save=args.save,
-                       progress=lambda m: print(f"relax: {m}", file=sys.stderr, flush=True))
+    with _library_prints_to_stderr():
+        report = run_relax(args.scenario, args.out, surface_dir=args.surface,
+                           person=args.person, db=args.db, save=args.save,
+                           progress=lambda m: print(f"relax: {m}", file=sys.stderr,
+                                                    flush=True))
     if args.json:
         print(json.dumps(report, indent=2))
         return 0

@@ -950,7 +950,9 @@ def limit_points(fit: _Fit, v: np.ndarray) -> np.ndarray:
 def deep_samples(fit: _Fit, v: np.ndarray) -> ExtraRows | None:
     """Rows for the places where the limit surface of control vertices v (n0, 3) lies deeper
     in a body than the margin less REPAIR_SAFETY between its vertices: over the barycentric
-    samples of every level-s triangle (the grid `guarantees.surface_guarantees` checks), the
+    samples of every level-s triangle (the grid `guarantees.surface_guarantees` checks first;
+    it searches a finer one where a cut past the bar could lie between them, which these rows
+    do not see: REPAIR_SAFETY keeps them 2 mm inside the margin), the
     deepest of each triangle that a body's winding number puts inside it, held in front of the
     plane of the skin triangle nearest to it. None where there is no such place (or no closed
     skin to look in)."""

@@ -218,3 +218,26 @@ def test_neighbour_faces_of_triangles_are_trimesh_s_face_adjacency():
     mine = {tuple(sorted(p)) for p in neighbour_faces(t)}
     theirs = {tuple(sorted(p)) for p in trimesh.Trimesh(v, t, process=False).face_adjacency}
     assert mine == theirs and len(mine) == 2 * 6 * 5 + 36  # inner edges, and each diagonal
+
+
+def test_dense_penetration_finds_a_cut_deeper_between_its_samples():
+    # a ball pressed 35 mm through a flat quad's middle, which no sample of the 4-part grid
+    # is near: at 15 samples a triangle the cut looked 29 mm deep (within the 30 mm margin and
+    # its 1 mm tolerance), as a side-lying body's lounger cut 32.0 mm and was reported 30.5
+    s = 0.2  # the quad's side: samples 5 cm apart
+    v = np.array([[0.0, 0.0, 0.0], [s, 0.0, 0.0], [s, 0.0, s], [0.0, 0.0, s]])
+    q = np.array([[0, 3, 2, 1]])  # (facing +y)
+    triangles = quad_triangles(q)
+    foot = np.array([s * 0.375, 0.0, s * 0.125])  # between samples of the triangle it is in
+    ball = trimesh.creation.icosphere(subdivisions=5, radius=0.1)
+    body = (np.asarray(ball.vertices) + foot + [0.0, 0.065, 0.0], np.asarray(ball.faces))
+    coarse = penetration_depth(barycentric_samples(v, triangles), *body)
+    assert coarse < 0.031  # what the samples alone see
+    g = surface_guarantees(v, q, [body], margin=0.03, floor=None)
+    assert g["max_penetration_dense_m"] == pytest.approx(0.035, abs=0.001)
+    assert not g["ok"]
+    shallow = (body[0] + [0.0, 0.03, 0.0], body[1])  # 5 mm deep
+    g = surface_guarantees(v, q, [shallow], margin=0.03, floor=None)
+    assert g["max_penetration_dense_m"] == pytest.approx(0.005, abs=0.001) and g["ok"]
+    far = (body[0] + [0.0, 0.2, 0.0], body[1])  # clear of it
+    assert guarantees.penetration_between_samples(v, triangles, [far], 0.03) == 0.0
