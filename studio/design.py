@@ -54,9 +54,12 @@ SEAT_REGIONS = frozenset({"pelvis", "thighs"})  # a person supported on these si
 # the templates a design may start from: name -> (kind, parameters, the use each person is then
 # supported as, `posedb.regions.SUPPORT_USES`); `sitrelax design` gives seated people a chair or
 # a bench with a back, supported as on a chair, and perched ones a stool or a backless bench,
-# supported as on a stool (the studio's backless bench supports the thighs too: a seat)
-TEMPLATES = {"chair": ("chair", {}, "chair"),
-             "bench with back": ("bench", {"back": True, "seat_each": True}, "chair"),
+# supported as on a stool (the studio's backless bench supports the thighs too: a seat); the
+# chair and the bench with a back without seams, as `sitrelax design` makes them (a sharp
+# seat-back seam folded back on itself into slits, up to 177 degrees across it)
+TEMPLATES = {"chair": ("chair", {"seams": False}, "chair"),
+             "bench with back": ("bench", {"back": True, "seat_each": True, "seams": False},
+                                 "chair"),
              "bench": ("bench", {}, "seat"), "stool": ("stool", {}, "stool"),
              "floor cushion": ("floor_cushion", {}, "floor"), "lounger": ("lounger", {}, "lounger"),
              "bed": ("bed", {}, "bed")}

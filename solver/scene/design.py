@@ -11,6 +11,9 @@ around them, and the scenario written (scenario.toml, loadable by `sitrelax fit`
     floor      floor cushion    floor cushion, as wide as all    floor
     lying      bed              a shared bed                     bed
 
+The chair and the bench with a back have no seams (`seams = false`): kept sharp, the seat-back
+seam folded back on itself at the sides into slits (`guarantees.surface_guarantees`' `slits`).
+
 Each person's support is the use of the furniture (`posedb.regions.SUPPORT_USES`: the body
 regions that kind of furniture carries), so the scenario says `support = "chair"`.
 
@@ -60,7 +63,8 @@ class Design:
 
 
 DESIGNS = {
-    "seated": Design("chair", "bench", "chair", (), (("back", True), ("seat_each", True))),
+    "seated": Design("chair", "bench", "chair", (("seams", False),),
+                     (("back", True), ("seat_each", True), ("seams", False))),
     "perched": Design("stool", "bench", "stool"),
     "reclined": Design("lounger", "lounger", "lounger"),
     "floor": Design("floor_cushion", "floor_cushion", "floor"),

@@ -73,8 +73,8 @@ def surface_misses(guarantees: dict) -> list[str]:
 
 
 def surface_miss_kinds(guarantees: dict) -> list[tuple[str, str]]:
-    """`surface_misses` as (bar, line) pairs, the bar one of "crossing", "fold", "floor",
-    "cut"."""
+    """`surface_misses` as (bar, line) pairs, the bar one of "crossing", "fold", "slit",
+    "floor", "cut"."""
     g, misses = guarantees, []
     if g["self_intersections"]:
         misses.append(("crossing", f"the surface crosses itself ({g['self_intersections']} "
@@ -82,6 +82,12 @@ def surface_miss_kinds(guarantees: dict) -> list[tuple[str, str]]:
     if g["folds"]:
         misses.append(("fold", f"{g['folds']} folds: neighbouring faces up to "
                                f"{g['max_fold_deg']:.0f} degrees apart (a fold is over 60)"))
+    if g.get("slits"):
+        from solver.surface.guarantees import SLIT_LIMIT_DEG
+
+        misses.append(("slit", f"{g['slits']} slits: faces across a crease up to "
+                               f"{g['max_crease_deg']:.0f} degrees apart (a slit is over "
+                               f"{SLIT_LIMIT_DEG:.0f}: they fold back on each other)"))
     if g["below_floor"]:
         misses.append(("floor", f"dips {1000 * (g['floor_m'] - g['min_height_m']):.0f} mm "
                                 f"under the floor"))

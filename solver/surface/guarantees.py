@@ -27,6 +27,8 @@ import numpy as np
 from solver.mesh import box_pairs, meeting_pairs, quad_triangles, self_intersections
 
 FOLD_LIMIT_DEG = 60.0  # neighbouring faces further apart than this are a fold
+SLIT_LIMIT_DEG = 150.0  # faces across a crease further apart than this fold back on each
+# other: a slit (30 degrees between the faces or less) that no upholstery or solid follows
 FLOOR_TOLERANCE = 1e-3  # m the surface may sit below the floor before it counts as under it
 PENETRATION_TOLERANCE = 1e-3  # m a body may be cut beyond the margin
 SAMPLE_DIVISIONS = 4  # each triangle's edges in this many parts: 15 barycentric samples
@@ -47,10 +49,11 @@ def quad_normals(vertices: np.ndarray, quads: np.ndarray) -> np.ndarray:
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
 
 
-def neighbour_faces(quads: np.ndarray, sharp_edges: np.ndarray | None = None) -> np.ndarray:
-    """(E, 2) the faces that share each edge, sharp edges left out: one pair on an edge of two
-    faces (a manifold surface's every inner edge), consecutive pairs in face order on one of
-    more (three faces on an edge give two pairs).
+def neighbour_faces(quads: np.ndarray, sharp_edges: np.ndarray | None = None,
+                    across: bool = False) -> np.ndarray:
+    """(E, 2) the faces that share each edge, sharp edges left out (`across`: those on sharp
+    edges alone): one pair on an edge of two faces (a manifold surface's every inner edge),
+    consecutive pairs in face order on one of more (three faces on an edge give two pairs).
 
     Parameters
     ----------
@@ -69,15 +72,19 @@ def neighbour_faces(quads: np.ndarray, sharp_edges: np.ndarray | None = None) ->
         n = np.int64(edges.max() + 1) if len(edges) else np.int64(1)
         sharp = np.sort(np.asarray(sharp_edges, dtype=np.int64).reshape(-1, 2), axis=1)
         sharp = sharp[sharp.max(axis=1) < n]
-        keep = keep[~np.isin(edges[keep, 0] * n + edges[keep, 1], sharp[:, 0] * n + sharp[:, 1])]
+        on = np.isin(edges[keep, 0] * n + edges[keep, 1], sharp[:, 0] * n + sharp[:, 1])
+        keep = keep[on if across else ~on]
+    elif across:
+        keep = keep[:0]
     return np.stack([face[keep], face[keep + 1]], axis=1)
 
 
 def fold_angles(vertices: np.ndarray, quads: np.ndarray,
-                sharp_edges: np.ndarray | None = None) -> np.ndarray:
+                sharp_edges: np.ndarray | None = None, across: bool = False) -> np.ndarray:
     """(E,) degrees in [0, 180] between the normals of the two quads on each interior edge
-    (`neighbour_faces`: vertices (V, 3), quads (F, 4), sharp edges (K, 2) left out)."""
-    pairs = neighbour_faces(quads, sharp_edges)
+    (`neighbour_faces`: vertices (V, 3), quads (F, 4), sharp edges (K, 2) left out; `across`:
+    on the sharp edges alone)."""
+    pairs = neighbour_faces(quads, sharp_edges, across)
     normals = quad_normals(vertices, quads)
     dots = np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]])
     return np.degrees(np.arccos(np.clip(dots, -1.0, 1.0)))
@@ -364,10 +371,12 @@ def surface_guarantees(vertices: np.ndarray, quads: np.ndarray,
     dict
         ``self_intersections`` (int: crossing pairs of triangles that share no vertex),
         ``max_fold_deg`` (float: largest angle between neighbouring quads' normals), ``folds``
-        (int: neighbouring pairs over `FOLD_LIMIT_DEG`), ``min_height_m`` (float),
+        (int: neighbouring pairs over `FOLD_LIMIT_DEG`; sharp edges left out),
+        ``max_crease_deg`` (float: the same across the sharp edges alone) and ``slits`` (int:
+        pairs across them over `SLIT_LIMIT_DEG`), ``min_height_m`` (float),
         ``below_floor`` (bool: lower than `floor` by more than `FLOOR_TOLERANCE`),
         ``max_penetration_dense_m`` (float), ``margin_m``, ``floor_m`` and ``ok`` (bool: no
-        crossing, no fold, not below the floor, penetration within the margin plus
+        crossing, no fold, no slit, not below the floor, penetration within the margin plus
         `PENETRATION_TOLERANCE`).
 
     Raises
@@ -387,6 +396,9 @@ def surface_guarantees(vertices: np.ndarray, quads: np.ndarray,
     angles = fold_angles(v, q, sharp_edges)
     max_fold = float(angles.max()) if len(angles) else 0.0
     folds = int(np.sum(angles > FOLD_LIMIT_DEG))
+    creased = fold_angles(v, q, sharp_edges, across=True)
+    max_crease = float(creased.max()) if len(creased) else 0.0
+    slits = int(np.sum(creased > SLIT_LIMIT_DEG))
     min_height = float(v[:, 1].min())
     below = floor is not None and min_height < floor - FLOOR_TOLERANCE
     depth = penetration_dense(barycentric_samples(v, triangles, divisions), bodies)
@@ -397,9 +409,10 @@ def surface_guarantees(vertices: np.ndarray, quads: np.ndarray,
     edges = v[triangles] - np.roll(v[triangles], 1, axis=1)
     if depth + float(np.linalg.norm(edges, axis=2).max(initial=0.0)) / divisions > limit:
         depth = max(depth, penetration_between_samples(v, triangles, bodies, limit, divisions))
-    ok = crossings == 0 and folds == 0 and not below and \
+    ok = crossings == 0 and folds == 0 and slits == 0 and not below and \
         depth <= margin + PENETRATION_TOLERANCE
     return {"self_intersections": int(crossings), "max_fold_deg": max_fold, "folds": folds,
+            "max_crease_deg": max_crease, "slits": slits,
             "min_height_m": min_height, "below_floor": bool(below),
             "max_penetration_dense_m": depth, "margin_m": float(margin),
             "floor_m": None if floor is None else float(floor), "ok": bool(ok)}

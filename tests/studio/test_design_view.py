@@ -81,7 +81,7 @@ def test_the_template_button_builds_one_around_the_people(tab):
     view.template.value = "chair"
     view._guarded(view._build_template)
     assert view.status_text.startswith("A chair built around the people (108 control "
-                                       "vertices, 8 crease edges)"), view.status_text
+                                       "vertices, 0 crease edges)"), view.status_text
     assert view.design.people[0]["support"] == "chair"
     assert {r for r, box in view.parts.items() if box.value} == {
         "upper_back", "lower_back", "pelvis", "thighs"}

@@ -397,7 +397,7 @@ def test_a_template_is_built_from_the_page(library, tmp_path):
         _wait(lambda: len(design.vertices) == 108, PATIENCE, "the chair's control net")
         _wait(lambda: "A chair built around the people" in page.text(), PATIENCE,
               "the status line on the page")
-        assert design.people[0]["support"] == "chair" and len(design.creases) == 8
+        assert design.people[0]["support"] == "chair" and not design.creases  # (no seams)
         assert {r for r, box in page.view.parts.items() if box.value} == {
             "upper_back", "lower_back", "pelvis", "thighs"}
         page.shot("chair-built")

@@ -52,6 +52,22 @@ def test_a_crease_is_no_fold():
     assert fold_angles(v, q, sharp).max() == pytest.approx(0.0, abs=1e-6)
 
 
+@pytest.mark.parametrize("turn_deg, slit", [(100.0, False), (145.0, False), (160.0, True)])
+def test_a_crease_folded_back_on_itself_is_a_slit(turn_deg, slit):
+    """Faces across a crease may turn sharply (a seat meets its back), not fold back onto
+    each other: past 150 degrees between their normals (30 between the faces) the check
+    counts a slit and the surface is not ok; the other guarantees leave creases alone."""
+    v, q = grid(n=2, size=2.0)
+    a = np.radians(turn_deg)
+    far = v[:, 0] > 0.5  # the last column of quads, turned about the line x = 0
+    v[far, 0], v[far, 1] = np.cos(a) * v[far, 0], 0.5 + np.sin(a) * v[far, 0]
+    edge = np.flatnonzero(np.isclose(v[:, 0], 0.0) & np.isclose(v[:, 1], 0.5))
+    sharp = np.stack([edge[:-1], edge[1:]], axis=1)
+    g = surface_guarantees(v, q, [], margin=0.03, floor=None, sharp_edges=sharp)
+    assert g["folds"] == 0 and g["max_crease_deg"] == pytest.approx(turn_deg, abs=1e-6)
+    assert (g["slits"] > 0) == slit and g["ok"] == (not slit)
+
+
 def test_two_crossing_sheets_intersect():
     a, qa = grid(n=2, height=0.5)
     b, qb = grid(n=2, height=0.5)
