@@ -9,6 +9,7 @@ around them, and the scenario written (scenario.toml, loadable by `sitrelax fit`
     perched    stool            bench (backless)                 stool
     reclined   lounger          lounger, as wide as all          lounger
     floor      floor cushion    floor cushion, as wide as all    floor
+                                (quads across as one's each)
     lying      bed              a shared bed                     bed
 
 The chair and the bench with a back have no seams (`seams = false`): kept sharp, the seat-back
@@ -97,13 +98,13 @@ def pose_posture(pose: str, db: str | os.PathLike | None = None
 
 
 def shared_given(kind: str, people: int) -> dict:
-    """The parameters a template shared by `people` people gets beyond one person's: a bed as
-    many quads across each sleeper as a bed for one has (none otherwise)."""
-    if kind != "bed" or people < 2:
+    """The parameters a template shared by `people` people gets beyond one person's: a bed or
+    a floor cushion as many quads across each person as one for one has (none otherwise)."""
+    if kind not in ("bed", "floor_cushion") or people < 2:
         return {}
     from solver.surface.templates import TEMPLATE_PARAMS
 
-    across, along = TEMPLATE_PARAMS["bed"]().quads
+    across, along = TEMPLATE_PARAMS[kind]().quads
     return {"quads": [across * people, along]}
 
 

@@ -112,6 +112,18 @@ def test_lying_people_get_a_bed_they_are_lifted_onto(tmp_path):
     assert data["surface"]["template"]["width"] > 1.4
 
 
+def test_floor_sitters_share_a_cushion_with_as_many_quads_across_each_as_one_has():
+    """Four floor sitters on one cushion of one sitter's 10 quads across all missed coverage
+    (0.87-0.945, an independent review, 2026-12-07); with 10 across each they meet every bar
+    (measured: coverage 0.97-0.98)."""
+    data, decided = design_scenario([FLOOR.format(f) for f in (2, 6, 10, 14)])
+    one = TEMPLATE_PARAMS["floor_cushion"]().quads
+    assert decided["template"] == "floor_cushion"
+    assert data["surface"]["template"]["quads"] == [4 * one[0], one[1]]
+    data, _ = design_scenario([FLOOR.format(8)])
+    assert list(data["surface"]["template"]["quads"]) == list(one)  # (one: the template's)
+
+
 @pytest.mark.parametrize("poses, message", [
     ([], r"Expected at least one pose, got none"),
     ([STANDING.format(0)], r"is a standing pose: there is nothing to design under it"),
