@@ -22,6 +22,7 @@ frames survive, and becomes a pose of the take in the same commit that stores th
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import os
 import re
@@ -162,9 +163,7 @@ def import_journal(lib: PoseLibrary, path: Path, limit: int | None = None
     skeleton = parse_bvh(header["skeleton_bvh"], unit=unit if unit else "auto").skeleton
     layout = StreamLayout(skeleton)
     with Source(RawFileTransport(path), layout) as source:
-        frames = list(source)
-    if limit is not None:
-        frames = frames[:max(int(limit), 0)]
+        frames = list(source if limit is None else itertools.islice(source, max(int(limit), 0)))
     if not frames:
         path.unlink()
         return None

@@ -555,11 +555,8 @@ def run_job(job: Job, db: str | None, out_root: str,
         _runners.runner = None
         why = stop() if got == STOPPED else ""
     if why:  # (cut short, the job leaves its earlier result as it was)
-        return _full_row({"job": job.id, "scenario": job.scenario,
-                          "parameters": job.parameters, "status": "interrupted",
-                          "seconds": time.perf_counter() - start,
-                          "error": f"the job was {'stopped' if ran else 'not started'}: "
-                                   f"{why}"})
+        return _full_row(_interrupted(job, f"the job was {'stopped' if ran else 'not started'}: "
+                                           f"{why}", seconds=time.perf_counter() - start))
     if got == "timeout":
         status, error = "timeout", (f"TimeoutError: the job ran over the batch's time limit "
                                     f"of {time_limit:g} s and was stopped")
@@ -748,9 +745,13 @@ def _row_after_interrupt(out: Path, job: Job, row: dict | None,
     finished), else `interrupted`, with the worker's reason when it sent one, else `why`."""
     if row is not None and row.get("status") != "interrupted":
         return row
-    return _finished(out, job) or {
-        "job": job.id, "scenario": job.scenario, "parameters": job.parameters,
-        "status": "interrupted", "error": why, **(row or {})}
+    return _finished(out, job) or {**_interrupted(job, why), **(row or {})}
+
+
+def _interrupted(job: Job, error: str, **more) -> dict:
+    """An `interrupted` row of a job, saying why (`more`: its other fields)."""
+    return {"job": job.id, "scenario": job.scenario, "parameters": job.parameters,
+            "status": "interrupted", "error": error, **more}
 
 
 def _stop_remote_jobs(client, futures: Sequence, stop_event: str,

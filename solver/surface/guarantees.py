@@ -298,9 +298,19 @@ def penetration_dense(points: np.ndarray, bodies: Sequence[tuple[np.ndarray, np.
     return deepest
 
 
+def sample_spacing(vertices: np.ndarray, triangles: np.ndarray,
+                   divisions: int = SAMPLE_DIVISIONS) -> np.ndarray:
+    """(F,) each triangle's longest edge over `divisions`: every point of the triangle lies
+    within that of one of its `barycentric_samples`."""
+    corners = np.asarray(vertices, dtype=np.float64)[np.asarray(triangles, dtype=np.int64)]
+    return np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1) / divisions
+
+
 def penetration_between_samples(vertices: np.ndarray, triangles: np.ndarray,
                                 bodies: Sequence[tuple[np.ndarray, np.ndarray]], limit: float,
-                                divisions: int = SAMPLE_DIVISIONS) -> float:
+                                divisions: int = SAMPLE_DIVISIONS, *,
+                                samples: np.ndarray | None = None,
+                                spacing: np.ndarray | None = None) -> float:
     """The deepest cut (m) over a grid `FINER_DIVISIONS` parts to an edge of the triangles
     that could hold a point deeper than `limit` in a body between their samples on the
     `divisions` grid (0 if none could). Measured on the side-lying body of 2026-12-07 (the
@@ -312,17 +322,17 @@ def penetration_between_samples(vertices: np.ndarray, triangles: np.ndarray,
     changes no faster than the point moves), so only a triangle with a sample whose distance
     plus h passes `limit` can hold a deeper point; and a point inside a body is no deeper than
     its distance to any point outside, so a triangle with every sample outside cannot when h
-    is under `limit`."""
+    is under `limit`. `samples` and `spacing`: the triangles' `barycentric_samples` and
+    `sample_spacing` on the `divisions` grid, when the caller has them."""
     from solver.contact.skins import body_winding, vertex_tree
 
     v = np.asarray(vertices, dtype=np.float64)
     t = np.asarray(triangles, dtype=np.int64)
     if not len(t):
         return 0.0
-    corners = v[t]
-    h = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1) / divisions
+    h = sample_spacing(v, t, divisions) if spacing is None else spacing
     per = len(barycentric_weights(divisions))
-    samples = barycentric_samples(v, t, divisions)
+    samples = barycentric_samples(v, t, divisions) if samples is None else samples
     deepest = 0.0
     for body_vertices, body_triangles in bodies:
         bv = np.asarray(body_vertices, dtype=np.float64)
@@ -333,7 +343,8 @@ def penetration_between_samples(vertices: np.ndarray, triangles: np.ndarray,
             continue
         bound, _ = vertex_tree(bv).query(samples[near])
         owner = near // per
-        near, owner = near[bound + h[owner] > limit], owner[bound + h[owner] > limit]
+        reach = bound + h[owner] > limit
+        near, owner = near[reach], owner[reach]
         inside = body_winding(bv, bt).winding_number(samples[near]) > 0.5 if len(near) else \
             np.zeros(0, dtype=bool)
         wanted = np.unique(np.concatenate([owner[inside], np.flatnonzero(h >= limit)]))
@@ -401,16 +412,16 @@ def surface_guarantees(vertices: np.ndarray, quads: np.ndarray,
     slits = int(np.sum(creased > SLIT_LIMIT_DEG))
     min_height = float(v[:, 1].min())
     below = floor is not None and min_height < floor - FLOOR_TOLERANCE
-    depth = penetration_dense(barycentric_samples(v, triangles, divisions), bodies)
+    samples = barycentric_samples(v, triangles, divisions)
+    depth = penetration_dense(samples, bodies)
     limit = margin + PENETRATION_TOLERANCE
-    # every point of a triangle lies within its longest edge / divisions of a sample, and a
-    # point's depth changes no faster than it moves: only where the samples' depth plus that
-    # could pass the bar is the surface searched between its samples
-    edges = v[triangles] - np.roll(v[triangles], 1, axis=1)
-    if depth + float(np.linalg.norm(edges, axis=2).max(initial=0.0)) / divisions > limit:
-        depth = max(depth, penetration_between_samples(v, triangles, bodies, limit, divisions))
-    ok = crossings == 0 and folds == 0 and slits == 0 and not below and \
-        depth <= margin + PENETRATION_TOLERANCE
+    # a point's depth changes no faster than it moves: only where the samples' depth plus
+    # their spacing could pass the bar is the surface searched between its samples
+    spacing = sample_spacing(v, triangles, divisions)
+    if depth + float(spacing.max(initial=0.0)) > limit:
+        depth = max(depth, penetration_between_samples(v, triangles, bodies, limit, divisions,
+                                                       samples=samples, spacing=spacing))
+    ok = crossings == 0 and folds == 0 and slits == 0 and not below and depth <= limit
     return {"self_intersections": int(crossings), "max_fold_deg": max_fold, "folds": folds,
             "max_crease_deg": max_crease, "slits": slits,
             "min_height_m": min_height, "below_floor": bool(below),
