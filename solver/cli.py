@@ -217,9 +217,12 @@ def _cmd_design(args: argparse.Namespace) -> int:
     with _library_prints_to_stderr():
         report = run_design(args.poses, args.out, db=args.db, pictures=not args.no_pictures,
                             progress=progress)
+    # a design that someone finds no rest on has failed its purpose: exit 1 (its files are
+    # written all the same, to look at)
+    unheld = [p["name"] for p in report.get("persons", ()) if p.get("supported") is False]
     if args.json:
         print(json.dumps(report, indent=2))
-        return 0
+        return 1 if unheld else 0
     design, g = report["design"], report["guarantees"]
     tried = design["waterfall"] or {}
     waterfall = " with a waterfall front" if tried.get("kept") else ""
@@ -241,6 +244,9 @@ def _cmd_design(args: argparse.Namespace) -> int:
     print(f"wrote {os.path.join(args.out, 'scenario.toml')} (go on with `sitrelax fit`), "
           f"report.json and the "
           f"surface, control mesh, bodies" + (" and pictures" if report["pictures"] else ""))
+    if unheld:
+        print(f"no rest on this design for {', '.join(unheld)} (exit status 1)")
+        return 1
     return 0
 
 

@@ -25,8 +25,10 @@ weight); several perched people each to the highest pelvis (one seat height serv
 while several seated people keep their own heights (their bench's seats are each measured as
 the sitter's own chair would be: `BenchParams.seat_each`). Every
 control vertex is free. A chair or bench whose fit puts a peak on the calves is tried again with
-a waterfall front (`run_design`). Standing poses and poses of different postures stop with a
-`DesignError`: there is nothing to sit on, or no one piece for them all.
+a waterfall front (`run_design`). Standing poses, seated or perched poses that stand on their
+feet (the centre of mass over or ahead of the ankles: sitting down or rising, `ON_FEET_M`) and
+poses of different postures stop with a `DesignError`: there is nothing to sit on, no one a
+seat would hold, or no one piece for them all.
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
@@ -77,24 +79,48 @@ LIFT = {"floor": 0.13, "lying": 0.46,  # metres people are raised: cushion / bed
         # in the skin against them (captured as they are, the floor takes 40-45 %)
 RECLINED_PELVIS = 0.4  # metres: a reclined person is raised until the pelvis is this high
 GAP = 0.04  # metres between neighbours' skin, side by side
-MOVING_TRUNK_DEG = 45.0  # a seated or perched body whose trunk leans further forward is sitting
-# down or rising (the bundled recordings' held sitting frames lean at most 10 degrees; a chair
-# designed under medium sit frame 75, 62 degrees forward, holds no one)
+ON_FEET_M = 0.0  # a seated or perched body whose centre of mass lies this far ahead of the
+# ankles or further (along the pelvis's forward direction) stands on its feet: it is sitting
+# down or rising, and a seat under it holds no one (the bundled recordings' sitting frames have
+# it 2-19 cm behind the ankles; their sitting-down and rising frames 1-12 cm ahead: a chair
+# designed under medium sit frame 75 and stools under high sit frames 56 and 59 held no one)
 RELIEF_ROUNDS = 6  # rounds of pressure relief after the fit (solver.scene.relief)
 
 
-def pose_posture(pose: str, db: str | os.PathLike | None = None
-                 ) -> tuple[str, PostureFigures]:
-    """The posture of a pose reference (`db:NAME`, `bvh:PATH#frame=N`) and its figures, read
-    on the average body's rig with its lowest skin point on the floor."""
+class PoseReading(NamedTuple):
+    """What `pose_posture` reads of a pose: its posture, the figures it is classified by, and
+    how far its centre of mass lies ahead of the middle of its ankles (metres, along the
+    pelvis's forward direction; negative behind them)."""
+
+    posture: str
+    figures: PostureFigures
+    ahead_of_ankles_m: float
+
+
+def pose_posture(pose: str, db: str | os.PathLike | None = None) -> PoseReading:
+    """The `PoseReading` of a pose reference (`db:NAME`, `bvh:PATH#frame=N`), read on the
+    average body posed on its rig with its lowest skin point on the floor (the centre of mass
+    is the posed skin's volume centroid)."""
     from solver.body.model import make_body
     from solver.body.poses import load_pose, retarget_captured
     from solver.body.retarget import place
+    from solver.body.skinning import skin
+    from solver.mesh import volume_centroid
 
     body = make_body()
     motion = place(retarget_captured(load_pose(pose, db), body), lowest=0.0)
-    figures = posture_figures(motion.world.positions[0], body.joint_names)
-    return classify_posture(figures), figures
+    joints = motion.world.positions[0]
+    figures = posture_figures(joints, body.joint_names)
+    names = list(body.joint_names)
+    left, right = (joints[names.index(j)] for j in ("LeftUpLeg", "RightUpLeg"))
+    forward = np.cross(left - right, [0.0, 1.0, 0.0])
+    forward[1] = 0.0
+    ahead = 0.0
+    if np.linalg.norm(forward) > 1e-9:  # (hips standing vertical, lying on a side: no forward)
+        ankles = (joints[names.index("LeftFoot")] + joints[names.index("RightFoot")]) / 2
+        centre = volume_centroid(skin(body, motion.frame(0), normals=False)[0], body.triangles)
+        ahead = float((centre - ankles) @ forward / np.linalg.norm(forward))
+    return PoseReading(classify_posture(figures), figures, ahead)
 
 
 def shared_given(kind: str, people: int) -> dict:
@@ -133,19 +159,23 @@ def design_scenario(poses: Sequence[str], db: str | os.PathLike | None = None,
     if not poses:
         raise DesignError("Expected at least one pose, got none")
     read = [pose_posture(p, db) for p in poses]
-    postures = [r[0] for r in read]
+    postures = [r.posture for r in read]
     standing = [p for p, kind in zip(poses, postures) if kind == "standing"]
     if standing:
         raise DesignError(f"{standing[0]} is a standing pose: there is nothing to design under "
                           f"it (choose a seated, perched, reclined, floor or lying frame)")
-    moving = [(p, f) for p, (kind, f) in zip(poses, read) if kind in ("seated", "perched")
-              and f.trunk_angle_deg < -MOVING_TRUNK_DEG]
-    if moving:
-        pose, f = moving[0]
-        raise DesignError(f"{pose} leans {-f.trunk_angle_deg:.0f} degrees forward, its pelvis "
-                          f"{f.pelvis_height:.2f} m up: a body sitting down or rising, not a "
-                          f"posture to design under (choose a held frame: `sitrelax db "
-                          f"suggest` finds them)")
+    on_feet = [(p, r) for p, r in zip(poses, read) if r.posture in ("seated", "perched")
+               and r.ahead_of_ankles_m >= ON_FEET_M]
+    if on_feet:
+        pose, r = on_feet[0]
+        lean = -r.figures.trunk_angle_deg
+        raise DesignError(
+            f"{pose} stands on its feet: its centre of mass is "
+            f"{r.ahead_of_ankles_m * 100:.0f} cm ahead of the ankles (trunk "
+            + (f"{lean:.0f} degrees forward" if lean > 0.5 else "upright")
+            + f", pelvis {r.figures.pelvis_height:.2f} m up), a body sitting down or rising "
+            f"that a seat would not hold; choose a held frame (`sitrelax db suggest` finds "
+            f"them)")
     if len(set(postures)) > 1:
         raise DesignError("Expected poses of one posture (one piece of furniture), got "
                           + ", ".join(f"{p}: {k}" for p, k in zip(poses, postures)))
@@ -156,11 +186,11 @@ def design_scenario(poses: Sequence[str], db: str | os.PathLike | None = None,
     given = dict(design.single_given if one else design.several_given)
     given.update(shared_given(kind, len(poses)))
     lifts = [LIFT.get(posture, 0.0) if posture != "reclined" else
-             max(RECLINED_PELVIS - figures.pelvis_height, 0.0) for _, figures in read]
+             max(RECLINED_PELVIS - r.figures.pelvis_height, 0.0) for r in read]
     if posture in ("seated", "perched") and not one and not given.get("seat_each"):
         # one seat height for all: the lower sit higher
-        top = max(figures.pelvis_height for _, figures in read)
-        lifts = [lift + top - figures.pelvis_height for lift, (_, figures) in zip(lifts, read)]
+        top = max(r.figures.pelvis_height for r in read)
+        lifts = [lift + top - r.figures.pelvis_height for lift, r in zip(lifts, read)]
     people = [{"name": f"person {k + 1}", "pose": p, "support": design.use,
                "position": [0.0, float(lift), 0.0]}
               for k, (p, lift) in enumerate(zip(poses, lifts))]
@@ -181,7 +211,8 @@ def design_scenario(poses: Sequence[str], db: str | os.PathLike | None = None,
     built, _ = place_scene(parse_scenario(data, "design", base), db)
     data["surface"]["template"] = template_table(built.surface.template)
     return data, {"postures": postures, "posture": posture, "template": kind,
-                  "figures": [r[1].__dict__ for r in read]}
+                  "figures": [{**r.figures.__dict__, "ahead_of_ankles_m": r.ahead_of_ankles_m}
+                              for r in read]}
 
 
 def run_design(poses: Sequence[str], out_dir: str | os.PathLike, *,

@@ -73,7 +73,8 @@ class ChairParams:
     front, its front edge rounded down by `front_drop`), a back `back_height` long, leaning
     `back_angle_deg` from vertical, and optional arms `arm_height` above the seat and
     `arm_width` wide (which run on up the back as wings). With `seams`, creases where the
-    seat meets the back and the arms (an upholsterer's seams; without, the fit rounds them).
+    seat meets the back and the arms (an upholsterer's seams; without, the default, the fit
+    rounds them: a sharp seat-back seam can fold the surface back on itself into a slit).
     Lengths in metres."""
 
     seat_height: float = 0.45
@@ -87,7 +88,7 @@ class ChairParams:
     arms: bool = False
     arm_height: float = 0.22
     arm_width: float = 0.08
-    seams: bool = True
+    seams: bool = False
     seat_quads: tuple[int, int] = (8, 6)
     back_quads: int = 5
     position: tuple[float, float] = (0.0, 0.0)

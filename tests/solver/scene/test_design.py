@@ -68,6 +68,21 @@ def test_posture_figures_need_the_joints():
         posture_figures(np.zeros((2, 3)), ["Hips", "Neck"])
 
 
+def test_a_held_sitter_leans_behind_the_ankles_a_rising_one_ahead():
+    """The centre of mass against the ankles: behind them on every held sitting frame (a
+    sitter leaning 22-35 degrees forward to rise included), ahead once the feet carry the body
+    (measured 2026-12-07: sitting frames 2-19 cm behind, rising frames 1-12 cm ahead)."""
+    for pose in (HIGH.format(21), HIGH.format(39), HIGH.format(51), MEDIUM.format(105),
+                 MEDIUM.format(200)):
+        reading = pose_posture(pose)
+        assert reading.posture == "seated" and reading.ahead_of_ankles_m < -0.02, pose
+    for pose in (HIGH.format(18), HIGH.format(57), MEDIUM.format(255), MEDIUM.format(285)):
+        assert pose_posture(pose).ahead_of_ankles_m > 0.005, pose
+    # and a design under a held frame keeps the figure
+    _, decided = design_scenario([HIGH.format(39)])
+    assert decided["figures"][0]["ahead_of_ankles_m"] == pytest.approx(-0.187, abs=0.01)
+
+
 def test_one_sitter_gets_a_chair_two_a_bench_side_by_side():
     data, decided = design_scenario([HIGH.format(39)])
     assert decided["template"] == "chair" and decided["postures"] == ["seated"]
@@ -128,9 +143,13 @@ def test_floor_sitters_share_a_cushion_with_as_many_quads_across_each_as_one_has
     ([], r"Expected at least one pose, got none"),
     ([STANDING.format(0)], r"is a standing pose: there is nothing to design under it"),
     ([HIGH.format(39), FLOOR.format(8)], r"Expected poses of one posture .*: seated, .*: floor"),
-    ([MEDIUM.format(75)], r"frame=75 leans 62 degrees forward, its pelvis 0.67 m up: a body "
+    ([MEDIUM.format(75)], r"frame=75 stands on its feet: its centre of mass is 10 cm ahead of "
+                          r"the ankles \(trunk 62 degrees forward, pelvis 0.67 m up\), a body "
                           r"sitting down or rising"),
-    ([HIGH.format(39), MEDIUM.format(60)], r"frame=60 leans 50 degrees forward"),
+    ([HIGH.format(39), MEDIUM.format(60)], r"frame=60 stands on its feet: .* 12 cm ahead"),
+    # perched, rising (stools designed under these held no one: coverage 0.00-0.64, no rest)
+    ([HIGH.format(13)], r"frame=13 stands on its feet"),
+    ([HIGH.format(59)], r"frame=59 stands on its feet: .*\(trunk 2\d degrees forward"),
 ])
 def test_the_designer_refuses_what_it_has_no_furniture_for(poses, message):
     with pytest.raises(DesignError, match=message):

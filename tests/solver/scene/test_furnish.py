@@ -19,10 +19,10 @@ def _scenario(template: dict, persons=(SITTER,), **surface):
 
 
 def test_a_template_is_read_with_its_faces_and_creases_but_no_vertices_yet():
-    s = _scenario({"kind": "chair", "seat_height": 0.44}, creases=[[0, 1]])
+    s = _scenario({"kind": "chair", "seat_height": 0.44, "seams": True}, creases=[[0, 1]])
     assert s.surface.vertices is None and s.surface.faces.shape == (8 * 11, 4)
     assert s.surface.template.kind == "chair" and s.surface.template.given == {
-        "seat_height": 0.44}
+        "seat_height": 0.44, "seams": True}
     assert len(s.surface.params.creases) == 9  # the seat-back seam (8 edges) and the one given
 
 

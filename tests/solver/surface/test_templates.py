@@ -159,12 +159,21 @@ def test_back_angle_and_height_of_a_chair():
 
 
 def test_arms_stand_their_height_above_the_seat():
-    t = make_template("chair", arms=True, arm_height=0.25, seat_tilt_deg=0.0, front_drop=0.0)
+    t = make_template("chair", arms=True, arm_height=0.25, seat_tilt_deg=0.0, front_drop=0.0,
+                      seams=True)
     normals, centres = _normals_and_centres(t)
     arm_tops = (normals[:, 1] > 0.99) & (np.abs(centres[:, 0]) > t.params.seat_width / 2)
     assert centres[arm_tops, 1] == pytest.approx(np.full(arm_tops.sum(), 0.45 + 0.25))
     assert np.ptp(t.vertices[:, 0]) == pytest.approx(0.5 + 2 * t.params.arm_width)
     assert len(t.creases) > 0
+
+
+def test_seats_have_no_seams_unless_asked():
+    """A sharp seat-back seam lets the fit fold the surface back across it into a slit: the
+    chair and the bench are seamless by default, and keep their creases when asked."""
+    for kind, extra in (("chair", {"arms": True}), ("bench", {"back": True, "arms": True})):
+        assert len(make_template(kind, **extra).creases) == 0
+        assert len(make_template(kind, seams=True, **extra).creases) > 0
 
 
 def test_bed_lounger_and_cushion_dimensions():
