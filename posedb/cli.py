@@ -118,6 +118,13 @@ def _cmd_list(args) -> int:
     from .record import recordings
 
     lib = _open(args)
+    if args.take is not None:  # a name as stored (composed, NFC) unless one is stored as given
+        import unicodedata
+
+        given = {t.id for t in lib.takes()} | {t.name for t in lib.takes()} | \
+            {r.take for r in recordings(args.db)}
+        if args.take not in given:
+            args.take = unicodedata.normalize("NFC", args.take)
     rows: list[dict] = []
     if args.kind in (None, "take"):
         rows += [t.as_dict() for t in lib.find_takes(args.tag, subject=args.subject)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import stat
 import uuid
 from contextlib import contextmanager
@@ -35,14 +36,20 @@ def temporary_path(target: Path) -> Path:
     return target.with_name(f".{target.name}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp")
 
 
+def _temporary_form(target: Path) -> re.Pattern:
+    """The names `temporary_path` gives copies of `target`, and no other: a copy of a library
+    whose name merely starts with this one's (`poses.h5.old` beside `poses.h5`) is not one."""
+    return re.compile(re.escape(f".{target.name}.") + r"[0-9]+-[0-9a-f]{8}\.tmp")
+
+
 def stale_temporaries(target: Path) -> list[Path]:
     """Copies of `target` left by writers that died (call only while holding its lock)."""
-    prefix = f".{target.name}."
+    form = _temporary_form(target)
     try:
         names = os.listdir(target.parent)
     except OSError:
         return []
-    return sorted(target.parent / n for n in names if n.startswith(prefix) and n.endswith(".tmp"))
+    return sorted(target.parent / n for n in names if form.fullmatch(n))
 
 
 def remove_stale_temporaries(target: Path) -> list[str]:

@@ -25,6 +25,7 @@ import json
 import os
 import re
 import time
+import unicodedata
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -206,6 +207,11 @@ def _find_take(takes: dict[str, TakeInfo], ref: str, path: Path) -> TakeInfo:
     for t in takes.values():
         if t.name == ref:
             return t
+    composed = unicodedata.normalize("NFC", ref)  # (names are stored composed: `checked_name`)
+    if composed != ref:
+        for t in takes.values():
+            if t.name == composed:
+                return t
     raise NotFoundError(f"No take {ref!r} in {path}")
 
 
@@ -248,18 +254,38 @@ def name_holder(takes: dict[str, TakeInfo], table: PoseTable, name: str) -> str 
     return None
 
 
+def checked_text(text, what: str) -> str:
+    """`text` (a name, notes, a subject, a source) as a str the library can store: a
+    LibraryError for text with a NUL character (HDF5 strings end at one) or that is not valid
+    Unicode (a lone surrogate: bytes that are not UTF-8, as a command line passes them on),
+    which would otherwise fail the commit with a message calling the library damaged."""
+    text = str(text)
+    if "\x00" in text:
+        raise LibraryError(f"Expected {what} without NUL characters, got {text[:60]!r}")
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        raise LibraryError(f"Expected {what} as UTF-8 text, got {text[:60]!r} (bytes that are "
+                           "not UTF-8: check the terminal's or the file's encoding)") from None
+    return text
+
+
 def checked_name(name: str, kind: str = "pose") -> str:
-    """A take's or pose's name as stored (stripped); raises LibraryError for an empty one, one
-    with '/', tabs or line breaks, or one over 200 characters."""
+    """A take's or pose's name as stored (stripped, composed: Unicode NFC); raises
+    LibraryError for an empty one, one with '/', tabs, line breaks or other control
+    characters, one that is not UTF-8 text (`checked_text`), or one over 200 characters."""
     name = str(name).strip()
     if not name:
         raise LibraryError(f"Expected a {kind} name, got an empty one")
+    if "/" in name or any(unicodedata.category(c) == "Cc" for c in name):
+        raise LibraryError(f"Expected a {kind} name without '/', tabs, line breaks or other "
+                           f"control characters, got {name!r}")
+    # composed (NFC), so that "café" typed and "café" from a decomposing file system (macOS)
+    # are one name, not two that look alike and a reference tells apart by invisible bytes
+    name = unicodedata.normalize("NFC", checked_text(name, f"a {kind} name"))
     if len(name) > 200:
         raise LibraryError(f"Expected a {kind} name of at most 200 characters, got "
                            f"{len(name)}")
-    if any(c in name for c in "\n\r\t/"):
-        raise LibraryError(f"Expected a {kind} name without '/', tabs or line breaks, got "
-                           f"{name!r}")
     if _ID_FORM.fullmatch(name):
         raise LibraryError(f"Expected a {kind} name that is not of an id's form (take-00002, "
                            f"pose-000007: a reference to it would name the id), got {name!r}")
@@ -669,6 +695,8 @@ class Editor:
         take that would damage the library is refused with the take and the problem named.
         """
         name = self._check_name(name, "take")
+        source, subject, notes = (checked_text(v, f"the {w} of take {name!r}") for v, w in
+                                  ((source, "source"), (subject, "subject"), (notes, "notes")))
         tags = normalise_tags(tags, new=True, known=self._known_tags())
         if skeleton.unit_m is None:
             raise LibraryError(
@@ -744,6 +772,7 @@ class Editor:
         if not 0 <= frame < info.frames:
             raise LibraryError(f"Expected a frame in 0..{info.frames - 1} of take "
                                f"{info.name!r}, got {frame}")
+        notes = checked_text(notes, f"the notes of pose {name!r}")
         tags = normalise_tags(tags, new=True, known=self._known_tags())
         mask = encode_supports(supports)
         if placement is not None and not isinstance(placement, PosePlacement):
@@ -815,7 +844,10 @@ class Editor:
         try:
             row = self._pose_row(ref)
         except NotFoundError:
-            take = self._take(ref)
+            try:
+                take = self._take(ref)
+            except NotFoundError:  # (either was looked for: "No take" alone would mislead)
+                raise NotFoundError(f"No pose or take {ref!r} in {self.lib.path}") from None
             tags = tuple(sorted((set(take.tags) | add) - remove))
             self.f["takes"][take.id].attrs["tags"] = " ".join(tags)
             self.takes[take.id] = replace(take, tags=tags)
@@ -831,14 +863,15 @@ class Editor:
         if supports is not None:
             self.table.set(row, "supports", encode_supports(supports))
         if notes is not None:
-            self.table.set_notes(row, notes)
+            self.table.set_notes(row, checked_text(notes, f"the notes of pose {ref!r}"))
         self._table_dirty = True
 
     def set_take(self, ref: str, *, notes: str | None = None) -> None:
         """Changes a take's notes."""
         take = self._take(ref)
         if notes is not None:
-            self.f["takes"][take.id].attrs["notes"] = str(notes)
+            notes = checked_text(notes, f"the notes of take {take.name!r}")
+            self.f["takes"][take.id].attrs["notes"] = notes
             self.takes[take.id] = replace(take, notes=str(notes))
 
     def delete_pose(self, ref: str) -> None:

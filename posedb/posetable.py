@@ -18,6 +18,7 @@ poses and searching it by tags takes milliseconds. On disk (group `/poses`):
 
 from __future__ import annotations
 
+import unicodedata
 from typing import Iterable, Sequence
 
 import h5py
@@ -120,13 +121,19 @@ class PoseTable:
         return self._by_name, self._by_id
 
     def row_of(self, ref: str, id_prefix: str = "pose-") -> int | None:
-        """Row of a pose given by id (`pose-000042`) or name."""
+        """Row of a pose given by id (`pose-000042`) or name. Only an id's own form (the
+        prefix and at least six ASCII digits, a form no name may take) is read as an id:
+        `pose-5` or `pose-٥` is a name, which must not resolve to the pose of id 5."""
         by_name, by_id = self._index()
-        if ref.startswith(id_prefix) and ref[len(id_prefix):].isdigit():
-            row = by_id.get(int(ref[len(id_prefix):]))
+        digits = ref[len(id_prefix):] if ref.startswith(id_prefix) else ""
+        if len(digits) >= 6 and digits.isascii() and digits.isdigit():
+            row = by_id.get(int(digits))
             if row is not None:
                 return row
-        return by_name.get(ref)
+        row = by_name.get(ref)
+        if row is None:  # (names are stored composed, NFC: `posedb.library.checked_name`)
+            row = by_name.get(unicodedata.normalize("NFC", ref))
+        return row
 
     def value(self, key: str, row: int):
         self._flush()

@@ -41,7 +41,8 @@ from capture.rawcapture import (MARK, RawCaptureError, RawCaptureWriter, raw_hea
 from capture.sources import RawFileTransport, Source, UnknownProtocolError, open_transport
 from capture.stream_layout import StreamLayout
 
-from .library import DuplicateNameError, Editor, PoseLibrary, TakeInfo, checked_name
+from .library import (DuplicateNameError, Editor, PoseLibrary, TakeInfo, checked_name,
+                      checked_text)
 from .locking import LockedError, exclusive, lock_path, try_exclusive
 from .regions import DEFAULT_SUPPORT, support_regions
 from .schema import InvalidDataError, LibraryError
@@ -331,6 +332,10 @@ class TakeRecorder:
         self.library = PoseLibrary(library, create=True, lock_timeout=lock_timeout,
                                    on_wait=waiting)
         self.take = checked_name(take, "take")
+        # checked now, not at the final commit: a recording whose take could never be stored
+        subject = checked_text(subject, f"the subject of take {self.take!r}")
+        notes = checked_text(notes, f"the notes of take {self.take!r}")
+        checked_text(source_url, f"the source of take {self.take!r}")
         self._check_free(library)
         tags = normalise_tags(tags, new=True)
         header_path = resolve_path(skeleton)
@@ -395,7 +400,8 @@ class TakeRecorder:
         if name and any(m["name"] == name for m in self.marks):
             raise DuplicateNameError(f"A pose named {name!r} was marked already")
         mark = {"name": name, "tags": list(normalise_tags(tags, new=True)),
-                "supports": list(support_regions(supports)), "notes": str(notes)}
+                "supports": list(support_regions(supports)),
+                "notes": checked_text(notes, "the notes of a marked pose")}
         self.writer.write(MARK, float(received_at), json.dumps(mark).encode("utf-8"))
         self.writer.sync()
         mark["received_at"] = float(received_at)
