@@ -604,6 +604,8 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print("sitrelax: interrupted", file=sys.stderr)
+        if getattr(args, "json", False):  # a reader of --json output learns why there is none
+            print(json.dumps({"error": "interrupted", "exit_status": 130}))
         return 130
     except BrokenPipeError:  # the reader stopped (`sitrelax ... --json | head`): no more output
         if args.debug:

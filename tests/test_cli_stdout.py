@@ -123,3 +123,21 @@ def test_a_design_someone_finds_no_rest_on_exits_1(tmp_path, monkeypatch, capsys
                                          f"{len(supported)} (exit status 1)")
         assert main(["design", pose, "--out", str(tmp_path / "d"), "--json"]) == status
         assert json.loads(capsys.readouterr().out)["persons"][-1]["supported"] is supported[-1]
+
+
+def test_an_interrupted_json_command_answers_in_json(tmp_path, monkeypatch, capsys):
+    """Ctrl-C during `fit --json`: exit 130, and the reader of standard output gets a JSON
+    answer saying so rather than nothing; without --json, standard output stays empty."""
+    import solver.scene.run as run
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(run, "run_fit", interrupted)
+    command = ["fit", str(tmp_path / "s.toml"), "--out", str(tmp_path / "o")]
+    assert main(command + ["--json"]) == 130
+    out, err = capsys.readouterr()
+    assert json.loads(out) == {"error": "interrupted", "exit_status": 130}
+    assert "interrupted" in err
+    assert main(command) == 130
+    assert capsys.readouterr().out == ""
