@@ -658,8 +658,56 @@ def read_bvh(path: str | os.PathLike, *, unit: str | float | None = "auto") -> B
 # -- writing -------------------------------------------------------------------------------
 
 
+# What the reader splits words at: ASCII whitespace only (it reads bytes).
+_ASCII_SPACE = re.compile(r"[ \t\n\r\x0b\x0c]+")
+
+
+def _check_writable(skeleton: Skeleton, channels: np.ndarray, frame_time: float) -> None:
+    """Raises ValueError for what `read_bvh` would refuse, or read back otherwise, once written:
+    a joint name it reads differently, a non-finite offset, a frame time outside its bounds."""
+    for name in skeleton.names:
+        if (not name or "{" in name or "}" in name or "\x00" in name
+                or len(name) > MAX_NAME_CHARS
+                or " ".join(_ASCII_SPACE.split(name)) != name or name != name.strip(" ")):
+            raise ValueError(
+                f"Expected joint names a BVH file keeps (1 to {MAX_NAME_CHARS} characters, no "
+                "braces, words separated by single spaces, none at either end), got "
+                f"{_show(name)}"
+            )
+    if skeleton.num_joints > MAX_JOINTS or len(skeleton.levels) > MAX_DEPTH:
+        raise ValueError(f"Expected at most {MAX_JOINTS} joints nested at most {MAX_DEPTH} deep "
+                         f"(what a BVH file may hold), got {skeleton.num_joints} joints "
+                         f"{len(skeleton.levels)} deep")
+    for what, values, owners in (
+            ("an OFFSET", skeleton.offsets, np.arange(skeleton.num_joints)),
+            ("an End Site OFFSET", skeleton.end_sites, skeleton.end_site_parents)):
+        bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
+        if bad.size:
+            name = skeleton.names[int(owners[bad[0]])]
+            raise ValueError(f"Expected finite numbers in {what} of joint {name!r}, got "
+                             f"{values[bad[0]].tolist()}")
+    if channels.shape[1:] != (skeleton.num_channels,):
+        raise ValueError(
+            f"Expected motion channels (T, {skeleton.num_channels}), got {channels.shape}"
+        )
+    if not np.isfinite(channels).all():
+        raise ValueError("Expected finite motion channels, got NaN or inf")
+    try:
+        written = float(f"{float(frame_time):.7g}")  # the value the file will hold
+    except (TypeError, ValueError):
+        written = math.nan
+    if not MIN_FRAME_TIME <= written <= MAX_FRAME_TIME:  # (NaN fails the comparison too)
+        raise ValueError(f"Expected a frame time from {MIN_FRAME_TIME:g} to "
+                         f"{MAX_FRAME_TIME:g} s, got {frame_time!r}")
+
+
 def format_bvh(skeleton: Skeleton, motion: Motion | None = None) -> str:
-    """BVH text for a skeleton and its motion (a header with `Frames: 0` when motion is None)."""
+    """BVH text for a skeleton and its motion (a header with `Frames: 0` when motion is None).
+
+    Raises ValueError for what the text could not carry so that `parse_bvh` reads it back the
+    same: joints not in depth-first order, a joint name the reader would read otherwise, a NaN
+    or infinite value, a frame time outside the reader's bounds.
+    """
     children: dict[int, list[int]] = {j: [] for j in range(skeleton.num_joints)}
     for j, p in enumerate(skeleton.parents):
         if p >= 0:
@@ -673,35 +721,40 @@ def format_bvh(skeleton: Skeleton, motion: Motion | None = None) -> str:
             "Expected joints in depth-first order (the order a BVH file lists them, which fixes "
             f"the channel layout), got the order {order}"
         )
+    channels = np.zeros((0, skeleton.num_channels)) if motion is None else motion.channels
+    frame_time = 1.0 / 120.0 if motion is None else motion.frame_time
+    _check_writable(skeleton, channels, frame_time)
     out = ["HIERARCHY"]
 
-    def emit(j: int, depth: int) -> None:
-        pad = "\t" * depth
+    def numbers(values) -> str:
+        return " ".join(f"{v:.6f}" for v in values)
+
+    # An explicit stack (a joint, or the closing lines of one), not recursion: the reader takes
+    # joints nested MAX_DEPTH deep, deeper than Python's recursion limit.
+    stack: list[int | list[str]] = [int(j) for j in np.flatnonzero(skeleton.parents < 0)][::-1]
+    depth = np.zeros(skeleton.num_joints, dtype=np.int64)
+    while stack:
+        item = stack.pop()
+        if isinstance(item, list):
+            out.extend(item)
+            continue
+        j = item
+        if skeleton.parents[j] >= 0:
+            depth[j] = depth[skeleton.parents[j]] + 1
+        pad = "\t" * int(depth[j])
         kw = "ROOT" if skeleton.parents[j] < 0 else "JOINT"
         out.append(f"{pad}{kw} {skeleton.names[j]}")
         out.append(f"{pad}{{")
-        out.append(f"{pad}\tOFFSET " + " ".join(f"{v:.6f}" for v in skeleton.offsets[j]))
+        out.append(f"{pad}\tOFFSET {numbers(skeleton.offsets[j])}")
         chans = skeleton.channels[j]
         out.append(f"{pad}\tCHANNELS {len(chans)}" + "".join(" " + c for c in chans))
-        for c in children[j]:
-            emit(c, depth + 1)
+        closing = []
         for e in ends[j]:
-            out.append(f"{pad}\tEnd Site")
-            out.append(f"{pad}\t{{")
-            out.append(f"{pad}\t\tOFFSET " + " ".join(f"{v:.6f}" for v in skeleton.end_sites[e]))
-            out.append(f"{pad}\t}}")
-        out.append(f"{pad}}}")
-
-    for j in np.flatnonzero(skeleton.parents < 0):
-        emit(int(j), 0)
-    channels = np.zeros((0, skeleton.num_channels)) if motion is None else motion.channels
-    frame_time = 1.0 / 120.0 if motion is None else motion.frame_time
-    if channels.shape[1:] != (skeleton.num_channels,):
-        raise ValueError(
-            f"Expected motion channels (T, {skeleton.num_channels}), got {channels.shape}"
-        )
-    if not np.isfinite(channels).all():
-        raise ValueError("Expected finite motion channels, got NaN or inf")
+            closing += [f"{pad}\tEnd Site", f"{pad}\t{{",
+                        f"{pad}\t\tOFFSET {numbers(skeleton.end_sites[e])}", f"{pad}\t}}"]
+        closing.append(f"{pad}}}")
+        stack.append(closing)  # after the children, which are pushed above it
+        stack.extend(children[j][::-1])
     out.append("MOTION")
     out.append(f"Frames: {channels.shape[0]}")
     out.append(f"Frame Time: {frame_time:.7g}")

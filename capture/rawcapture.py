@@ -51,8 +51,10 @@ _MAX_ORIGIN = 253_402_300_799.0  # 9999-12-31T23:59:59Z: the last time `started_
 _MAX_TIME = 2 * _MAX_ORIGIN  # a record's time: between two such Unix times
 
 
-_MOTION = re.compile(r"^[ \t]*MOTION\b", re.MULTILINE)
-_FRAME_TIME = re.compile(r"Frame\s+Time\s*:\s*(\S+)", re.IGNORECASE)
+# As the BVH reader finds them: the keyword in any capitalisation, after closing braces on its
+# line ("}}MOTION"), and "Frame Time" with or without its space.
+_MOTION = re.compile(r"^[ \t}]*(MOTION)\b", re.MULTILINE | re.IGNORECASE)
+_FRAME_TIME = re.compile(r"Frame\s*Time\s*:\s*(\S+)", re.IGNORECASE)
 
 
 def skeleton_header_text(bvh_text: str) -> str:
@@ -63,7 +65,10 @@ def skeleton_header_text(bvh_text: str) -> str:
         return bvh_text
     ft = _FRAME_TIME.search(bvh_text, m.end())
     frame_time = ft.group(1) if ft else "0.008333333"
-    return f"{bvh_text[:m.start()]}MOTION\nFrames: 0\nFrame Time: {frame_time}\n"
+    hierarchy = bvh_text[:m.start(1)]
+    if hierarchy and not hierarchy.endswith(("\n", "\r")):
+        hierarchy += "\n"  # (braces before the keyword on its line stay with the hierarchy)
+    return f"{hierarchy}MOTION\nFrames: 0\nFrame Time: {frame_time}\n"
 
 
 class RawCaptureError(ValueError):
