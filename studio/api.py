@@ -7,10 +7,12 @@ Requests name nothing on the server's disk: control meshes come inline, poses fr
 server's pose library (`db:NAME`) or the bundled recordings (`bvh:bundled:NAME#frame=N`).
 Every request is validated (422 for a malformed one, naming the field and never echoing the
 input; 400 for one the solver cannot run; 404 for an unknown pose or recording; 413 for a body
-over the size limit or a fit over the compute budget; 403 for a foreign Host or Origin): every
-error is a 4xx with a short body. The compute budget is a bound known before a fit runs
+over the size limit or a fit over the compute budget; 415 for a body not sent as
+application/json; 403 for a foreign Host or Origin): every error is a 4xx with a short JSON
+body. The compute budget is a bound known before a fit runs
 (control vertices x 4^level x iterations x people, MAX_WORK) and a wall-clock limit checked at
-every iteration of the fit, which stops it.
+every iteration of the fit, which stops it. A client that closes its connection before its
+answer (a fit, relaxation or evaluation) stops its work the same way, within a fit's iteration.
 
 A fit answers with a `fit_id`; `/api/fit?warm=FIT_ID` refits a scenario of the same control
 mesh (people moved, vertices edited) from that fit's result, as the studio does while a
@@ -20,6 +22,7 @@ it no longer has, 400 for a scenario of another control mesh).
 
 from __future__ import annotations
 
+import asyncio
 import math
 import os
 import re
@@ -34,6 +37,7 @@ from fastapi import FastAPI, HTTPException, Query, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
+from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from solver.scene import schema
@@ -117,6 +121,7 @@ ERRORS = {
                          f"control vertices x 4^level x max_iterations x people over "
                          f"{MAX_WORK:,}, or past the time limit (default "
                          f"{DEFAULT_TIME_LIMIT:g} s); the field in `detail`"},
+    415: {"description": "A body sent without Content-Type: application/json"},
     422: {"description": "A malformed request or one beyond the server's bounds; `detail` "
                          "lists the fields (never the input)"},
 }
@@ -124,6 +129,13 @@ ERRORS = {
 
 class TimeLimit(Exception):
     """A request's computing went past the server's time limit."""
+
+
+class ClientGone(Exception):
+    """The client closed its connection before its answer: the work for it is stopped."""
+
+
+CLIENT_GONE = 499  # (as nginx logs it: nobody reads the answer, the status only names why)
 
 
 def _limit(loc: list, message: str, status: int = 422, kind: str = "limit") -> HTTPException:
@@ -276,6 +288,14 @@ def _scrubbed(text: str, db: str | None) -> str:
                        text)
 
 
+def _json_type(content_type: str | None) -> bool:
+    """Whether a Content-Type is one FastAPI reads a body of as JSON (application/json or
+    application/...+json, any parameters)."""
+    media = (content_type or "").split(";", 1)[0].strip().lower()
+    kind, _, sub = media.partition("/")
+    return kind == "application" and (sub == "json" or sub.endswith("+json"))
+
+
 def _error_handlers(app: FastAPI, db: str | None = None) -> None:
     from posedb.schema import NotFoundError
 
@@ -289,8 +309,18 @@ def _error_handlers(app: FastAPI, db: str | None = None) -> None:
         return JSONResponse({"detail": detail}, status_code=status)
 
     @app.exception_handler(RequestValidationError)
-    async def malformed(_: Request, exc: RequestValidationError):
-        return reply(422, exc.errors())  # the fields and what is wrong, never the input
+    async def malformed(request: Request, exc: RequestValidationError):
+        errors = exc.errors()
+        kind = request.headers.get("content-type")
+        if not _json_type(kind) and any(e.get("type") == "model_attributes_type"
+                                        and tuple(e.get("loc", ())) == ("body",)
+                                        for e in errors):
+            # a body sent as another type is not read as JSON (so no foreign page's form
+            # posts one): say so, rather than that it is not an object
+            got = "none" if kind is None else repr(kind[:100])
+            return reply(415, f"Expected the body as Content-Type: application/json, got "
+                              f"{got}")
+        return reply(422, errors)  # the fields and what is wrong, never the input
 
     @app.exception_handler(StarletteHTTPException)
     async def http_error(_: Request, exc: StarletteHTTPException):
@@ -310,6 +340,10 @@ def _error_handlers(app: FastAPI, db: str | None = None) -> None:
     async def too_long(_: Request, exc: TimeLimit):
         return reply(413, [{"type": "time_limit", "loc": ["body"], "msg": str(exc)}])
 
+    @app.exception_handler(ClientGone)
+    async def gone(_: Request, exc: ClientGone):
+        return reply(CLIENT_GONE, str(exc))
+
     @app.exception_handler(ValueError)
     async def bad_value(_: Request, exc: ValueError):
         return reply(409 if _server_fault(exc) else 400, str(exc))
@@ -320,24 +354,46 @@ def _error_handlers(app: FastAPI, db: str | None = None) -> None:
                           "; its pose library may have moved")
 
 
-def _deadline(seconds: float):
+def _deadline(seconds: float, gone: threading.Event | None = None):
     """progress(iteration, energy, tau) for a fit: raises TimeLimit (stopping the fit) once
-    `seconds` have passed since this was made; `check()` does the same between stages."""
+    `seconds` have passed since this was made, and ClientGone once `gone` is set (the client
+    has closed its connection); `check()` does the same between stages."""
     end = time.monotonic() + seconds
 
     def progress(iteration: int = 0, energy: float = 0.0, tau: float = 0.0) -> None:
+        if gone is not None and gone.is_set():
+            raise ClientGone("The client closed its connection before its answer (stopped)")
         if time.monotonic() > end:
             raise TimeLimit(f"The request took over this server's time limit of {seconds:g} "
                             "s (stopped); lower the level, the iterations or the control mesh")
 
     def expired() -> bool:
-        return time.monotonic() > end
+        return time.monotonic() > end or (gone is not None and gone.is_set())
 
     # a fit polls this within its iterations too (a large programme's tries take seconds),
     # and stops a programme's solve running at the deadline
     expired.deadline = end
     progress.expired = expired
     return progress
+
+
+async def _while_connected(request: Request, work):
+    """`work(gone)` in a worker thread, where `gone` (a `threading.Event`) is set once the
+    client closes its connection, so the work can stop rather than run on for nobody (the
+    time limit's `_deadline(seconds, gone)` polls it)."""
+    gone = threading.Event()
+
+    async def watch() -> None:
+        # the body has been read: the next message is the client leaving
+        while (await request.receive())["type"] != "http.disconnect":
+            pass
+        gone.set()
+
+    watcher = asyncio.ensure_future(watch())
+    try:
+        return await run_in_threadpool(work, gone)
+    finally:
+        watcher.cancel()
 
 
 def _placer(db: str | None):
@@ -490,12 +546,15 @@ def _person_routes(app: FastAPI, place, time_limit: float) -> None:
                 "vertices": int(len(p.vertices))}
 
     @app.post("/api/evaluate", summary="Evaluate any surface mesh against posed people")
-    def evaluate(req: EvaluateRequest) -> dict:
+    async def evaluate(req: EvaluateRequest, request: Request) -> dict:
+        return await _while_connected(request, lambda gone: _evaluate(req, gone))
+
+    def _evaluate(req: EvaluateRequest, gone: threading.Event) -> dict:
         from solver.contact.evaluate import evaluate_person
         from solver.scene.run import foams
         from solver.mesh import SurfaceMesh, faces_problem
 
-        check = _deadline(time_limit)
+        check = _deadline(time_limit, gone)
         _check_finite({"margin": req.margin, "evaluation": req.evaluation.model_dump()}, [])
         if req.margin > CEILINGS["margin"] or (req.evaluation.foam_stiffness
                                                > MAX_FOAM_STIFFNESS):
@@ -551,18 +610,21 @@ def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
     fits = _Fits()
 
     @app.post("/api/fit", summary="Fit a surface to a scenario, with each person's evaluation")
-    def fit(s: schema.Scenario,
-            warm: Annotated[str | None, Query(
-                pattern="^[0-9a-f]{16}$",
-                description="The fit_id of an earlier fit of the same control mesh (the same "
-                            "grid, template or mesh, people moved or vertices edited since): "
-                            "refit from its result, stopping once settled")] = None
-            ) -> FitResponse:
+    async def fit(s: schema.Scenario, request: Request,
+                  warm: Annotated[str | None, Query(
+                      pattern="^[0-9a-f]{16}$",
+                      description="The fit_id of an earlier fit of the same control mesh (the "
+                                  "same grid, template or mesh, people moved or vertices edited "
+                                  "since): refit from its result, stopping once settled")] = None
+                  ) -> FitResponse:
+        return await _while_connected(request, lambda gone: _fit(s, warm, gone))
+
+    def _fit(s: schema.Scenario, warm: str | None, gone: threading.Event) -> FitResponse:
         from solver.scene.placement import place_scene
         from solver.scene.run import evaluate_fit, fit_people, relieve_fit, report_parameters
 
         start = time.perf_counter()
-        check = _deadline(time_limit)
+        check = _deadline(time_limit, gone)
         scenario = request_scenario(s)
         last = fits.get(warm) if warm is not None else None
         scenario, people = place_scene(scenario, place=place)
@@ -583,7 +645,10 @@ def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
                            relief=None if relief is None else relief.record())
 
     @app.post("/api/relax", summary="Fit, then relax one person onto the surface")
-    def relax(req: RelaxRequest) -> dict:
+    async def relax(req: RelaxRequest, request: Request) -> dict:
+        return await _while_connected(request, lambda gone: _relax(req, gone))
+
+    def _relax(req: RelaxRequest, gone: threading.Event) -> dict:
         from solver.scene.placement import place_scene
         from solver.scene.run import fit_people, relax_person, relax_record, relieved
 
@@ -591,7 +656,7 @@ def _fit_routes(app: FastAPI, place, time_limit: float) -> None:
         if req.index >= len(scenario.persons):
             raise HTTPException(400, f"Expected index in 0..{len(scenario.persons) - 1}, got "
                                      f"{req.index}")
-        check = _deadline(time_limit)
+        check = _deadline(time_limit, gone)
         scenario, people = place_scene(  # (an error names the field under "scenario")
             scenario, place=lambda spec, k: place(spec, k, ["scenario", "person", k]))
         check()

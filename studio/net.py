@@ -96,13 +96,30 @@ class HostCheck:
         return await self.app(scope, receive, send)
 
 
+NOT_HTTP = ("Not a valid HTTP/1.1 request: a malformed request line or header, a "
+            "Content-Length that is not a whole number, a Host or Content-Length given twice, "
+            "or a malformed chunk of the body")
+
+
 def head_timeout_protocol(head_timeout: float = HEAD_TIMEOUT):
     """uvicorn's h11 protocol with a deadline for each request head: a connection that has not
     sent a whole head `head_timeout` seconds after connecting (or after its last answer) is
-    closed, so idle connections cannot use up the server."""
+    closed, so idle connections cannot use up the server. Bytes that are no HTTP request get
+    400 with a JSON body, as every other answer (uvicorn's own is plain text)."""
+    import h11
     from uvicorn.protocols.http.h11_impl import H11Protocol
 
     class HeadTimeoutProtocol(H11Protocol):
+        def send_400_response(self, msg: str) -> None:
+            body = json.dumps({"detail": NOT_HTTP}).encode()
+            head = h11.Response(status_code=400, reason=b"Bad Request",
+                                headers=[(b"content-type", b"application/json"),
+                                         (b"content-length", str(len(body)).encode()),
+                                         (b"connection", b"close")])
+            for event in (head, h11.Data(data=body), h11.EndOfMessage()):
+                self.transport.write(self.conn.send(event))
+            self.transport.close()
+
         def connection_made(self, transport) -> None:
             super().connection_made(transport)
             self._arm_head_timer()
@@ -125,7 +142,8 @@ def head_timeout_protocol(head_timeout: float = HEAD_TIMEOUT):
 class BodyLimit:
     """ASGI middleware: a request whose body is larger than `limit` bytes gets 413 (checked on
     Content-Length when given, and on the bytes as they arrive); a body that pauses over
-    `timeout` seconds gets 408."""
+    `timeout` seconds gets 408. Once the body is whole, the app's further `receive()` (a wait
+    for the client to go away while its answer is computed) is the server's own, unbounded."""
 
     def __init__(self, app, limit: int, timeout: float = BODY_TIMEOUT):
         self.app = app
@@ -147,12 +165,15 @@ class BodyLimit:
         seen = 0
         refused = False
         started = False
+        whole = False  # the body has all come
 
         async def limited_receive():
             # past the limit: answer 413 here and tell the app the client has gone
-            nonlocal seen, refused
+            nonlocal seen, refused, whole
             if refused:
                 return {"type": "http.disconnect"}
+            if whole:  # (no body pause to time: the next message is the client leaving)
+                return await receive()
             try:
                 message = await asyncio.wait_for(receive(), self.timeout)
             except asyncio.TimeoutError:
@@ -169,6 +190,7 @@ class BodyLimit:
                             await self._drain(receive, seen)
                         await _reply(send, 413, self._message(seen))
                     return {"type": "http.disconnect"}
+                whole = not message.get("more_body", False)
             return message
 
         async def guarded_send(message):
