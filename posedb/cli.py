@@ -98,15 +98,21 @@ def _cmd_import(args) -> int:
 def _drop_if_empty(db: str) -> None:
     """Removes the library `db` if it holds nothing (no take, so no pose): one an import made
     and failed to fill. Only with its lock free and held meanwhile (a writer that came since
-    keeps it); the lock file stays, as another writer may be waiting on it."""
+    keeps it), and only with no recording's journal beside it (a recording that started into
+    it keeps it; one starting meanwhile makes it again once this lock is released:
+    `posedb.record.TakeRecorder`); the lock file stays, as another writer may be waiting on
+    it."""
     from .library import PoseLibrary
     from .locking import try_exclusive
+    from .record import journal_dir
 
     lock = try_exclusive(db)
     if lock is None:
         return
     try:
-        if not PoseLibrary(db).takes():
+        journals = journal_dir(db)
+        if not PoseLibrary(db).takes() and not (journals.is_dir()
+                                                and any(journals.glob("*.raw"))):
             os.unlink(db)
     except Exception:  # noqa: BLE001 (unreadable or gone: someone else's business, left alone)
         pass
@@ -193,30 +199,55 @@ def _cmd_pose_add(args) -> int:
     return 0
 
 
+def _named(lib, ref: str, kind: str) -> tuple[str, str, str]:
+    """(kind, id, name) of what `ref` names as a rename looks for it: a take for `kind`
+    "take", else a pose or, failing that, a take (an error naming both when neither)."""
+    from .schema import NotFoundError
+
+    if kind != "take":
+        try:
+            pose = lib.pose(ref)
+            return "pose", pose.id, pose.name
+        except NotFoundError:
+            try:
+                lib.take(ref)
+            except NotFoundError:
+                raise NotFoundError(f"No pose or take {ref!r} in {lib.path}") from None
+    take = lib.take(ref)
+    return "take", take.id, take.name
+
+
 def _cmd_pose_rename(args, kind: str = "") -> int:
     """`db pose rename` (a pose, else a take) and `db take rename` (`kind` "take": a take)."""
     lib = _open(args)
     with lib.edit() as ed:
-        (ed.rename_take if kind == "take" else ed.rename)(args.name, args.new_name)
-    print(f"renamed {kind + ' ' if kind else ''}{args.name} to {args.new_name}")
+        what, ident, old = _named(lib, args.name, kind)  # (as of the write lock)
+        (ed.rename_take if what == "take" else ed.rename)(ident, args.new_name)
+    new = (lib.take(ident) if what == "take" else lib.pose(ident)).name
+    _print({"kind": what, "id": ident, "name": new, "old_name": old}, args.json,
+           f"renamed {kind + ' ' if kind else ''}{args.name} to {args.new_name}")
     return 0
 
 
 def _cmd_pose_delete(args) -> int:
     lib = _open(args)
     with lib.edit() as ed:
-        ed.delete_pose(args.name)
-    print(f"deleted pose {args.name}")
+        pose = lib.pose(args.name)  # (as of the write lock)
+        ed.delete_pose(pose.id)
+    _print({"kind": "pose", "id": pose.id, "name": pose.name, "deleted": True}, args.json,
+           f"deleted pose {args.name}")
     return 0
 
 
 def _cmd_take_delete(args) -> int:
     lib = _open(args)
-    take = lib.take(args.name)
-    poses = len(lib.find_poses(take=take.id))
     with lib.edit() as ed:
+        take = lib.take(args.name)  # (as of the write lock)
+        poses = [p.name for p in lib.find_poses(take=take.id)]
         ed.delete_take(take.id)
-    print(f"deleted take {take.name} and its {poses} pose(s)")
+    _print({"kind": "take", "id": take.id, "name": take.name, "deleted": True,
+            "poses_deleted": poses}, args.json,
+           f"deleted take {take.name} and its {len(poses)} pose(s)")
     return 0
 
 
@@ -230,11 +261,18 @@ def _cmd_suggest(args) -> int:
                          min_duration=args.min_duration)
     text = "\n".join(
         f"frames {r['start']}-{r['end']} ({(r['end'] - r['start'] + 1) * take.frame_time:.2f} s):"
-        f" propose frame {r['frame']}"
-        + (f" -> pose {r['name']} (tags: {' '.join(r['tags']) or '-'})" if "pose" in r else "")
-        for r in rows) or "no held posture found"
+        f" propose frame {r['frame']}" + _accepted_text(r) for r in rows) or "no held posture found"
     _print(rows, args.json, text)
     return 0
+
+
+def _accepted_text(row: dict) -> str:
+    """What `db suggest --accept` did with a hold: a new pose, or one it was already."""
+    if "pose" not in row:
+        return ""
+    if not row.get("added", True):
+        return f" -> already pose {row['name']}, skipped"
+    return f" -> pose {row['name']} (tags: {' '.join(row['tags']) or '-'})"
 
 
 def _cmd_export(args) -> int:
@@ -250,7 +288,9 @@ def _cmd_export(args) -> int:
                            f"of take {take.name!r}, start <= end, got {args.start}..{end}")
     bvh = lib.take_bvh(take.id, args.start, end + 1)
     write_bvh(args.out, bvh.skeleton, bvh.motion)
-    print(f"wrote {bvh.motion.num_frames} frames of {take.name} to {args.out}")
+    _print({"kind": "take", "id": take.id, "name": take.name, "path": str(args.out),
+            "start": args.start, "end": end, "frames": bvh.motion.num_frames}, args.json,
+           f"wrote {bvh.motion.num_frames} frames of {take.name} to {args.out}")
     return 0
 
 
@@ -258,9 +298,10 @@ def _cmd_check(args) -> int:
     from .verify import verify
 
     problems = verify(args.db, full=not args.quick)  # without opening: it may not open
-    _print({"path": args.db, "ok": not problems, "problems": problems}, args.json,
-           "\n".join(problems) or f"{args.db}: no problem found")
-    return 1 if problems else 0
+    status = 1 if problems else 0  # (the JSON says it, as an error's JSON says its 2)
+    _print({"path": args.db, "ok": not problems, "problems": problems, "exit_status": status},
+           args.json, "\n".join(problems) or f"{args.db}: no problem found")
+    return status
 
 
 def _cmd_compact(args) -> int:
@@ -332,15 +373,14 @@ def register(subparsers, groups: dict) -> None:
     _register_record(groups["capture"])
 
 
-def _library_options(p, json_flag: bool = True):
-    """The options every library command takes: `--db` and, unless told not to, `--json`."""
+def _library_options(p):
+    """The options every library command takes: `--db`, `--lock-timeout` and `--json`."""
     p.add_argument("--db", default=DEFAULT_DB,
                    help=f"the pose library file (default: $SITRELAX_DB or {DEFAULT_DB})")
     p.add_argument("--lock-timeout", type=float, default=None, metavar="S",
                    help="seconds to wait for another writer, negative: as long as it runs "
                         "(default: $SITRELAX_LOCK_TIMEOUT or 600)")
-    if json_flag:
-        p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
     return p
 
 
@@ -396,25 +436,22 @@ def _register_pose_commands(sub) -> None:
     _support_option(p, "the body regions the pose needs supported")
     p.add_argument("--notes", default="")
     p.set_defaults(func=_cmd_pose_add)
-    p = _library_options(psub.add_parser("rename", help="rename a pose (or a take)"),
-                         json_flag=False)
+    p = _library_options(psub.add_parser("rename", help="rename a pose (or a take)"))
     p.add_argument("name")
     p.add_argument("new_name")
     p.set_defaults(func=_cmd_pose_rename)
-    p = _library_options(psub.add_parser("delete", help="delete a pose (its take stays)"),
-                         json_flag=False)
+    p = _library_options(psub.add_parser("delete", help="delete a pose (its take stays)"))
     p.add_argument("name")
     p.set_defaults(func=_cmd_pose_delete)
 
     take = sub.add_parser("take", help="rename or delete takes")
     tsub = take.add_subparsers(dest="take_command", required=True)
-    p = _library_options(tsub.add_parser("rename", help="rename a take"), json_flag=False)
+    p = _library_options(tsub.add_parser("rename", help="rename a take"))
     p.add_argument("name")
     p.add_argument("new_name")
     p.set_defaults(func=lambda a: _cmd_pose_rename(a, "take"))
     p = _library_options(tsub.add_parser("delete", help="delete a take and the poses made from it "
-                                                        "(`db compact` then frees the space)"),
-                         json_flag=False)
+                                                        "(`db compact` then frees the space)"))
     p.add_argument("name")
     p.set_defaults(func=_cmd_take_delete)
 
@@ -435,8 +472,7 @@ def _register_pose_commands(sub) -> None:
 def _register_library_commands(sub) -> None:
     """`db export`, `db recover`, `db stats`, `db check` and `db compact`: the library as a
     whole."""
-    p = _library_options(sub.add_parser("export", help="write a take (or a frame range) as BVH"),
-                         json_flag=False)
+    p = _library_options(sub.add_parser("export", help="write a take (or a frame range) as BVH"))
     p.add_argument("name")
     p.add_argument("--out", required=True)
     p.add_argument("--start", type=int, default=0, help="first frame (0-based)")
@@ -466,8 +502,10 @@ def _register_record(capture_sub) -> None:
     _library_options(rec)
     rec.add_argument("--take", required=True, help="name of the new take")
     rec.add_argument("--skeleton", required=True, help="the BVH header paired with the stream")
-    rec.add_argument("--duration", type=float, default=None)
-    rec.add_argument("--frames", type=int, default=None)
+    rec.add_argument("--duration", type=number(0, low_open=True), default=None,
+                     help="seconds to record, > 0 (default: until Ctrl-C or the source ends)")
+    rec.add_argument("--frames", type=number(1, whole=True), default=None,
+                     help="frames to record, at least 1 (default: no limit)")
     rec.add_argument("--subject", default="")
     rec.add_argument("--tag", action="append", default=[])
     rec.add_argument("--notes", default="")

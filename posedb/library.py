@@ -387,6 +387,17 @@ class PoseLibrary:
             self.notes += files.remove_stale_temporaries(target)
             yield
 
+    def make_again_if_removed(self) -> bool:
+        """Waits for the writer at work (as a change does), then makes the library again,
+        empty, if it was removed meanwhile (a failed import removes the empty library it made:
+        `posedb.cli`); whether it did."""
+        with self._writer_lock():
+            if self.path.exists():
+                return False
+            self._create()
+        self._load()
+        return True
+
     # -- reading ------------------------------------------------------------------------------
 
     def takes(self) -> list[TakeInfo]:

@@ -329,20 +329,21 @@ class TakeRecorder:
             if on_event is not None and (int(seconds) == 1 or int(seconds) % 5 == 0):
                 on_event(f"waiting {seconds:.0f} s for another writer of {library} to finish")
 
-        self.library = PoseLibrary(library, create=True, lock_timeout=lock_timeout,
-                                   on_wait=waiting)
         self.take = checked_name(take, "take")
-        # checked now, not at the final commit: a recording whose take could never be stored
+        # checked now, not at the final commit: a recording whose take could never be stored;
+        # and before the library is made, so that a refused recording writes nothing
         subject = checked_text(subject, f"the subject of take {self.take!r}")
         notes = checked_text(notes, f"the notes of take {self.take!r}")
         checked_text(source_url, f"the source of take {self.take!r}")
-        self._check_free(library)
         tags = normalise_tags(tags, new=True)
         header_path = resolve_path(skeleton)
         header = read_bvh(header_path, unit=unit)
         if header.skeleton.unit_m is None:
             raise LibraryError(f"{header_path}: the skeleton's length unit is unknown; pass "
                                "--unit")
+        self.library = PoseLibrary(library, create=True, lock_timeout=lock_timeout,
+                                   on_wait=waiting)
+        self._check_free(library)
         self.skeleton = header.skeleton
         self.layout = StreamLayout(header.skeleton)
         folder = journal_dir(library)
@@ -363,8 +364,30 @@ class TakeRecorder:
         except BaseException:
             self._held.close()
             raise
+        if not self.library.takes():
+            self._keep_library(on_event)
         self.marks: list[dict] = []
         self._next_sync = time.monotonic() + _SYNC_EVERY
+
+    def _keep_library(self, on_event: Callable[[str], None] | None) -> None:
+        """Makes sure the library this recording goes into still exists, now that its journal
+        does. An import that made the library and failed removes it when it holds nothing
+        (`posedb.cli`), under the library's lock and only while no journal is beside it: it
+        may have looked before this journal was made. Waiting for the lock lets such a
+        removal finish; the library is then made again, empty, if it went. Only an empty
+        library is ever removed, so only one is waited for. On failure the journal goes."""
+        try:
+            if self.library.make_again_if_removed() and on_event is not None:
+                on_event(f"made {self.library.path} again: a failed import removed it as "
+                         "this recording started")
+        except BaseException:
+            try:
+                self.writer.close()
+                self.journal.unlink(missing_ok=True)
+            finally:
+                self._held.close()
+                _drop_lock(self.journal)
+            raise
 
     def _check_free(self, library) -> None:
         holder = self.library.name_holder(self.take)
@@ -438,6 +461,22 @@ class TakeRecorder:
             self._held.close()
 
 
+def _check_limits(duration, frames) -> None:
+    """Refuses a recording's limits that could not end it as meant (a LibraryError naming
+    the limit): a duration not a finite number > 0, frames not a whole number >= 1."""
+    if duration is not None:
+        try:
+            seconds = float(duration)
+        except (TypeError, ValueError):
+            seconds = float("nan")
+        if not (np.isfinite(seconds) and seconds > 0):
+            raise LibraryError(f"Expected a duration in seconds > 0, got {duration!r}")
+    if frames is not None:
+        whole = isinstance(frames, (int, np.integer)) and not isinstance(frames, bool)
+        if not whole or frames < 1:
+            raise LibraryError(f"Expected a whole number of frames >= 1, got {frames!r}")
+
+
 def record(source_url: str, library: str | os.PathLike, take: str, skeleton: str, *,
            duration: float | None = None, frames: int | None = None, subject: str = "",
            tags: Iterable[str] = (), notes: str = "", unit: str | float = "auto",
@@ -449,8 +488,10 @@ def record(source_url: str, library: str | os.PathLike, take: str, skeleton: str
 
     Stops after `duration` seconds, `frames` frames, the end of a `file:` source, or when
     `stop()` returns true. The final commit waits up to `lock_timeout` s for other writers
-    (reported through `on_event`).
+    (reported through `on_event`). A `duration` that is not a number of seconds > 0 or `frames`
+    that is not a whole number >= 1 is refused before anything is written.
     """
+    _check_limits(duration, frames)
     transport = open_transport(source_url)
     try:
         recorder = TakeRecorder(library, take, skeleton, source_url,

@@ -159,24 +159,64 @@ def take_holds(data, **options) -> list[HeldPosture]:
                          identify_profile(data.skeleton.names), **options)
 
 
+class _NothingToAdd(Exception):
+    """Raised inside an edit to leave the library untouched: every hold is a pose already."""
+
+
+def _poses_at(editor, take_id: str) -> dict[int, int]:
+    """The frames of a take that are poses already, as the edit has them: frame -> table row
+    (the first pose at that frame)."""
+    from .library import _parse_id
+
+    table = editor.table
+    rows = np.flatnonzero(table.mask(None) & (table.cols["take"] == _parse_id(take_id, "take-")))
+    out: dict[int, int] = {}
+    for row in rows.tolist():
+        out.setdefault(int(table.value("frame", row)), row)
+    return out
+
+
 def suggest_poses(library, take: str, *, accept: bool = False, tags=(),
                   supports=DEFAULT_SUPPORT, max_speed: float = DEFAULT_MAX_SPEED,
                   min_duration: float = DEFAULT_MIN_DURATION,
                   min_bottom_duration: float | None = DEFAULT_MIN_BOTTOM_DURATION) -> list[dict]:
     """The held postures of a library take (`posedb.PoseLibrary`), as dicts; with `accept`,
     each becomes a pose "<take>-fNNNNN" carrying the take's tags and `tags`, all in one commit
-    (its entry gains `name`, the name later commands take, `pose`, the id, and `tags`).
+    (its entry gains `name`, the name later commands take, `pose`, the id, `tags`, and
+    `added`: True).
+
+    Accepting again is safe: a hold whose frame is a pose of the take already (an earlier
+    acceptance, whatever it is called now) is skipped, its entry naming that pose with
+    `added` False, and only the other holds are added. A name held by another take or pose
+    refuses the whole batch (a DuplicateNameError), leaving the library as it was.
     """
+    from .library import _pose_id
+
     info = library.take(take)
     held = take_holds(library.take_data(info.id), max_speed=max_speed,
                       min_duration=min_duration, min_bottom_duration=min_bottom_duration)
     rows = [h.as_dict() for h in held]
     if accept and rows:
-        inherited = tuple(info.tags) + tuple(tags)
-        with library.edit() as ed:
-            for row in rows:
-                row["name"] = f"{info.name}-f{row['frame']:05d}"
-                row["pose"] = ed.add_pose(info.id, row["frame"], row["name"], tags=inherited,
-                                          supports=supports)
-                row["tags"] = list(ed.table.tags(ed.table.row_of(row["pose"])))
+        try:
+            with library.edit() as ed:
+                info = ed.takes.get(info.id, info)  # (as of the write lock: renamed meanwhile?)
+                inherited = tuple(info.tags) + tuple(tags)
+                existing = _poses_at(ed, info.id)
+                for row in rows:
+                    known = existing.get(row["frame"])
+                    if known is None:
+                        row["name"] = f"{info.name}-f{row['frame']:05d}"
+                        row["pose"] = ed.add_pose(info.id, row["frame"], row["name"],
+                                                  tags=inherited, supports=supports)
+                        known = ed.table.row_of(row["pose"])
+                        row["added"] = True
+                    else:
+                        row["name"] = ed.table.names[known]
+                        row["pose"] = _pose_id(ed.table.value("id", known))
+                        row["added"] = False
+                    row["tags"] = list(ed.table.tags(known))
+                if not any(row["added"] for row in rows):
+                    raise _NothingToAdd  # (no commit: the file is not rewritten)
+        except _NothingToAdd:
+            pass
     return rows
