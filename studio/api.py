@@ -550,7 +550,7 @@ def _person_routes(app: FastAPI, place, time_limit: float) -> None:
         return await _while_connected(request, lambda gone: _evaluate(req, gone))
 
     def _evaluate(req: EvaluateRequest, gone: threading.Event) -> dict:
-        from solver.contact.evaluate import evaluate_person
+        from solver.contact.evaluate import evaluate_person, facing_away_share
         from solver.scene.run import foams
         from solver.mesh import SurfaceMesh, faces_problem
 
@@ -574,6 +574,12 @@ def _person_routes(app: FastAPI, place, time_limit: float) -> None:
         for k, person in enumerate(req.person):
             check()
             p = placed(person, ["person", k])
+            away = facing_away_share(mesh, p)
+            if away is not None and away > 0.5:  # (as a fit refuses such a control mesh)
+                raise HTTPException(400, f"person {k + 1}: the surface's faces point away from "
+                                         f"the body ({away:.0%} of the supported skin near it "
+                                         f"faces the same way as the surface); flip the mesh "
+                                         f"(reverse each face's vertex order)")
             figures, _ = evaluate_person(mesh, p, req.margin, *foams(req.evaluation))
             out.append({"name": p.label, **figures})
         return {"persons": out}

@@ -38,6 +38,7 @@ from solver.threads import with_limited_threads
 
 FLOOR = Foam(stiffness=30000e3, thickness=0.02)  # a hard floor under shoes and heels
 CONTACT_GAP = 0.005  # metres in front of the surface a body point counts as touching it
+FACING_REACH = 0.1  # metres: supported skin this near a surface tells which way the surface faces
 DEPTH_BATCH = 256  # surface points `penetration_depth` tests for inside at once
 
 
@@ -110,6 +111,25 @@ def surface_figures(settled: Settled, names=SURFACE_PARTS) -> dict:
             "peak_pressure_index_kpa": f["peak_pressure_index_kpa"],
             "mean_pressure_kpa": f["mean_kpa"], "contact_area_m2": f["contact_area_cm2"] / 1e4,
             "centre_of_pressure_m": f["centre_of_pressure_m"]}
+
+
+def facing_away_share(surface: SurfaceMesh, person: SupportedBody) -> float | None:
+    """The share of `person`'s supported skin (weighted by importance) within FACING_REACH of
+    `surface` whose outward normal runs along the normal of the surface's closest face. Skin
+    resting on a surface faces against it, so a share over a half means the surface's faces
+    point away from the body (their vertex order reversed: flip the mesh); None when no
+    supported skin lies that near."""
+    ids = np.flatnonzero(person.importance > 0)
+    if not len(ids):
+        return None
+    dist, _, _, face, _ = surface.closest(person.vertices[ids])
+    near = dist <= FACING_REACH
+    if not near.any():
+        return None
+    along = np.einsum("ij,ij->i", person.normals[ids[near]],
+                      surface.face_normals[face[near]]) > 0
+    weight = person.importance[ids[near]]
+    return float(weight @ along / weight.sum())
 
 
 def peak_text(figures: dict) -> str:

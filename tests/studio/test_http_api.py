@@ -221,6 +221,31 @@ def test_a_pose_that_cannot_be_loaded_is_refused_naming_its_field(api, path, pos
     assert error["loc"] == loc and words in error["msg"], reply
 
 
+def test_evaluate_refuses_a_surface_facing_away_from_the_body(api):
+    """A seat plane under the sitter's buttocks, its faces reversed (as Rhino may draw a plane
+    seen from above), got figures of a surface that barely touches (contact 0.0099 against
+    0.132 facing up, measured 2026-12-07); it is refused as a fit refuses such a control mesh.
+    The same plane facing up passes the check."""
+    from solver.contact.evaluate import facing_away_share
+    from solver.mesh import SurfaceMesh
+    from solver.scene.placement import place_scene
+    from solver.scene.scenario import load_scenario
+
+    _, (person,) = place_scene(load_scenario(_example_path("single_seated")))
+    seat = float(person.vertices[person.importance > 0, 1].min()) + 0.01
+    vertices = [[-1, seat, -1], [-1, seat, 1], [1, seat, 1], [1, seat, -1]]  # faces up
+    up = SurfaceMesh.from_quads(vertices, [[0, 1, 2, 3]])
+    down = SurfaceMesh.from_quads(vertices, [[3, 2, 1, 0]])
+    assert facing_away_share(up, person) < 0.1 and facing_away_share(down, person) > 0.9
+    status, reply = _request(api, "POST", "/api/evaluate",
+                             {"vertices": vertices, "faces": [[3, 2, 1, 0]],
+                              "person": [SINGLE["person"][0]]})
+    assert status == 400
+    assert re.match(r"person 1: the surface's faces point away from the body \(\d+% of the "
+                    r"supported skin near it faces the same way as the surface\); flip the "
+                    r"mesh", reply["detail"]), reply
+
+
 def test_a_message_with_apostrophes_is_sent_whole(api):
     """Only a quoted value is shortened: the text between the apostrophes of "people's" and
     "person's" is the message's own."""
