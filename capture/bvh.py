@@ -100,6 +100,7 @@ _TOKEN = re.compile(rb"[{}]|[^\s{}]+")
 _NON_SPACE = re.compile(rb"\S")
 _LONE_CR = re.compile(rb"\r(?!\n)")
 _MAX_SHOWN = 40
+_LONG_DIGITS = re.compile(rb"\d{10}")
 
 # Limits of the reader (README, "BVH support"): far beyond any real skeleton, they keep hostile
 # input to a line-numbered error in bounded time and memory.
@@ -118,6 +119,9 @@ MAX_FRAME_DIGITS = 15
 #: seconds per frame: at most 1 MHz, at least one frame an hour, so fps and duration are finite.
 MIN_FRAME_TIME = 1e-6
 MAX_FRAME_TIME = 3_600.0
+#: magnitude of an offset or a channel value (a position of 1,000 km in millimetres, a turn of
+#: a billion degrees): what lies beyond overflows as a stream's float32 or in forward kinematics.
+MAX_VALUE = 1e9
 
 
 def _show(token: str) -> str:
@@ -298,6 +302,9 @@ def _offset_triplet(cur: _Tokens) -> tuple[float, float, float]:
         x = float(v)
         if not math.isfinite(x):
             raise cur.error(f"expected a finite number in OFFSET, got {_show(v)}")
+        if abs(x) > MAX_VALUE:
+            raise cur.error(f"expected a number within +-{MAX_VALUE:g} in OFFSET, got "
+                            f"{_show(v)}")
         out.append(x)
     return tuple(out)  # type: ignore[return-value]
 
@@ -530,6 +537,9 @@ def _check_motion_line(raw: bytes, line: int, n_channels: int, path) -> bool:
         if not math.isfinite(float(token)):
             raise BvhParseError(path, line,
                                 f"expected a finite number in column {col}, got {_show(token)}")
+        if abs(float(token)) > MAX_VALUE:
+            raise BvhParseError(path, line, f"expected a number within +-{MAX_VALUE:g} in "
+                                f"column {col}, got {_show(token)}")
     return True
 
 
@@ -547,7 +557,8 @@ def _diagnose_motion(data: bytes, pos: int, line: int, n_channels: int, frames: 
         end = data.find(b"\n", pos)
         end = len(data) if end < 0 else end
         raw = data[pos:end]
-        if n_channels and well_formed.fullmatch(raw) and b"e" not in raw and b"E" not in raw:
+        if n_channels and well_formed.fullmatch(raw) and b"e" not in raw and b"E" not in raw \
+                and not _LONG_DIGITS.search(raw):  # (a run of digits may pass MAX_VALUE)
             data_rows += 1
         else:
             data_rows += _check_motion_line(raw, line, n_channels, path)
@@ -584,7 +595,7 @@ def _parse_motion(cur: _Tokens, n_channels: int) -> Motion:
     except ValueError:
         channels = None
     if (channels is None or channels.shape != (frames, n_channels)
-            or not np.isfinite(channels).all()):
+            or not (np.abs(channels) <= MAX_VALUE).all()):  # (NaN fails it too)
         _diagnose_motion(data, pos, line, n_channels, frames, frames_line, path)
         raise BvhParseError(path, line, "expected numeric motion data")
     return Motion(channels, frame_time)
@@ -681,17 +692,18 @@ def _check_writable(skeleton: Skeleton, channels: np.ndarray, frame_time: float)
     for what, values, owners in (
             ("an OFFSET", skeleton.offsets, np.arange(skeleton.num_joints)),
             ("an End Site OFFSET", skeleton.end_sites, skeleton.end_site_parents)):
-        bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
+        bad = np.flatnonzero(~(np.abs(values) <= MAX_VALUE).all(axis=1))  # (NaN too)
         if bad.size:
             name = skeleton.names[int(owners[bad[0]])]
-            raise ValueError(f"Expected finite numbers in {what} of joint {name!r}, got "
-                             f"{values[bad[0]].tolist()}")
+            raise ValueError(f"Expected finite numbers within +-{MAX_VALUE:g} in {what} of "
+                             f"joint {name!r}, got {values[bad[0]].tolist()}")
     if channels.shape[1:] != (skeleton.num_channels,):
         raise ValueError(
             f"Expected motion channels (T, {skeleton.num_channels}), got {channels.shape}"
         )
-    if not np.isfinite(channels).all():
-        raise ValueError("Expected finite motion channels, got NaN or inf")
+    if not (np.abs(channels) <= MAX_VALUE).all():
+        raise ValueError(f"Expected finite motion channels within +-{MAX_VALUE:g}, got NaN, "
+                         f"inf or {float(np.nanmax(np.abs(channels))):g}")
     try:
         written = float(f"{float(frame_time):.7g}")  # the value the file will hold
     except (TypeError, ValueError):

@@ -114,6 +114,13 @@ def cases(size: int) -> dict[str, tuple[bytes, object]]:
                                (9, r"frame time|seconds per frame"))
            for t in ("1e-320", "1e-7", "0", "-0.01", "nan", "inf", "1e400", "3601")},
         "frame_time_1e-6": (_header(time_line="Frame Time: 1e-6").encode(), "read"),
+        # values a stream's float32 or forward kinematics would overflow (1e308 was read)
+        "huge_value": (_header(data="1e308\n").encode(), (10, r"within \+-1e\+09 in column 1")),
+        "huge_value_digits": (_header(data="1" + "0" * 12 + "\n").encode(),
+                              (10, r"within \+-1e\+09 in column 1")),
+        "huge_offset": (_header().replace("OFFSET 0 0 0", "OFFSET 0 1e300 0").encode(),
+                        (4, r"within \+-1e\+09 in OFFSET")),
+        "largest_value": (_header(data="-1e9\n").encode(), "read"),
     }
 
 
