@@ -291,7 +291,16 @@ class LibraryView:
         self._show_frame()
 
     def do_accept_hold(self) -> None:
-        self._add_pose(self._selected_hold().frame)
+        """The hold as a pose, unless its frame is a pose of the take already (accepted before,
+        renamed or not, as `db suggest --accept` skips it): that pose is chosen instead."""
+        frame = self._selected_hold().frame
+        take = self.data.take
+        known = [p for p in self._library().find_poses(take=take.id) if p.frame == frame]
+        if known:
+            self.pose.value = known[0].name
+            self._status(f"Frame {frame} of {take.name} is pose **{known[0].name}** already.")
+            return
+        self._add_pose(frame)
 
     def do_save_frame(self) -> None:
         if self.data is None:

@@ -165,6 +165,11 @@ def test_library_view_scrubs_accepts_a_hold_and_edits(library, tmp_path):
         view.new_tags.value = "high"
         view._guarded(view.do_accept_hold)
         assert "Added pose **high_sit-f00039** at frame 39" in view.status.content
+        # accepting it again adds nothing: that pose is chosen (it failed on the duplicate name)
+        view._guarded(view.do_accept_hold)
+        assert "Frame 39 of high_sit is pose **high_sit-f00039** already" in view.status.content
+        assert view.pose.value == "high_sit-f00039"
+        assert len(PoseLibrary(library).poses()) == 2
         view.search_text.value = "high and sit"
         view._guarded(view.do_search)
         assert view.pose.options == ("high_sit-f00039",)
