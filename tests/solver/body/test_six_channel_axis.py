@@ -220,15 +220,17 @@ def test_a_file_that_would_pose_to_nan_names_the_joint_and_frame(tmp_path):
     write_bvh(path, flat, Motion(flat.channels_from_pose(rot, trans), 1 / 60))
     with pytest.raises(RetargetError, match=r"legless.bvh frame 1: Expected legs of some length"):
         pose_body(load_pose(f"{path}#frame=1"), make_body())
-    # an exporter's huge numbers, read in a large unit, overflow to infinity in metres
+    # huge numbers in a large unit overflow to infinity in metres (a BVH file's values are
+    # bounded by its reader now, `capture.bvh.MAX_VALUE`; a skeleton and channels made in
+    # Python, or streamed, are not)
     huge = trans.copy()
     huge[2, sk.index("LeftForeArm")] = 1e306
-    path = tmp_path / "huge.bvh"
-    write_bvh(path, sk, Motion(sk.channels_from_pose(rot, huge), 1 / 60))
-    bvh = read_bvh(path, unit=1000.0)
+    channels = sk.channels_from_pose(rot, huge)
+    in_km = Skeleton(sk.names, sk.parents, sk.offsets, sk.channels, sk.end_sites,
+                     sk.end_site_parents, unit_m=1000.0)
     with np.errstate(over="ignore", invalid="ignore"):  # the overflow is the case under test
-        world = skeleton_fk(bvh.skeleton, bvh.motion.channels[2:3])
-    captured = CapturedPose(bvh.skeleton, world, "huge.bvh frame 2")
+        world = skeleton_fk(in_km, channels[2:3])
+    captured = CapturedPose(in_km, world, "huge.bvh frame 2")
     with pytest.raises(RetargetError, match=r"huge.bvh frame 2: .*infinity at joint "
                                             r"'LeftForeArm' in frame 0"):
         pose_body(captured, make_body())
