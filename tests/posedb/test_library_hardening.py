@@ -138,6 +138,7 @@ def _tag_and_record_behind_a_long_writer(db: Path, seconds: float) -> None:
     assert not list(journal_dir(db).glob("*.raw"))
 
 
+@pytest.mark.slow  # (3.5-7.5 s: the default run stays within its time)
 def test_a_long_writer_makes_a_tag_and_a_recording_commit_wait(db):
     _tag_and_record_behind_a_long_writer(db, 3.0)
 
@@ -166,6 +167,7 @@ def test_import_parses_outside_the_lock(db, monkeypatch, capsys):
     assert seen == [True]
 
 
+@pytest.mark.slow  # (3.5-7.5 s: the default run stays within its time)
 def test_a_recording_that_cannot_commit_keeps_its_journal_and_says_what_to_run(db):
     holder = _hold_lock(db, 3.0)
     with pytest.raises(LibraryError) as err:
@@ -200,6 +202,7 @@ def test_recover_and_a_finishing_recorder_store_the_take_once(db, races):
     assert not list(journal_dir(db).glob("*.raw"))
 
 
+@pytest.mark.slow  # (3.5-7.5 s: the default run stays within its time)
 def test_a_recording_whose_name_was_taken_meanwhile_is_stored_under_another(db, capsys):
     """A take of the recording's name stored while it ran (another recorder, an import) does
     not strand the journal: it is stored as NAME-2, and its notes say why."""

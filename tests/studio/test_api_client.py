@@ -81,6 +81,7 @@ def test_a_client_that_hangs_up_mid_fit_cancels_the_fit(api, path, monkeypatch):
     assert conn.getresponse().status == 200
 
 
+@pytest.mark.slow  # (3.5-7.5 s: the default run stays within its time)
 def test_an_evaluation_stops_at_the_next_person_once_its_client_hangs_up(api, monkeypatch):
     import solver.contact.evaluate
 

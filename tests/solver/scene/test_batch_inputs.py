@@ -124,6 +124,7 @@ def test_a_failed_row_has_every_field_and_one_job_starts_one_worker(tmp_path, mo
     assert started == [1]
 
 
+@pytest.mark.slow  # (3.5-7.5 s: the default run stays within its time)
 def test_a_rerun_refits_after_the_obj_changed_and_distrusts_a_broken_record(tmp_path):
     path = _scenario(tmp_path / "d3")
     out = tmp_path / "out_obj"

@@ -56,7 +56,8 @@ def _listening(port: int) -> bool:
 
 
 # (about 4 s each: a scheduler, and a worker whose job process loads its modules)
-@pytest.mark.parametrize("stop", ["ctrl_c", pytest.param("client_killed", marks=pytest.mark.slow),
+@pytest.mark.parametrize("stop", [pytest.param("ctrl_c", marks=pytest.mark.slow),
+                                  pytest.param("client_killed", marks=pytest.mark.slow),
                                   pytest.param("scheduler_killed", marks=pytest.mark.slow)])
 def test_an_interrupted_client_stops_the_jobs_on_a_schedulers_worker(tmp_path, stop):
     """Two never-ending jobs (control meshes that are FIFOs no one writes) on a scheduler with
