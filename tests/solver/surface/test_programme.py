@@ -259,20 +259,39 @@ def _stiff(n0: int, points: int):
 @pytest.mark.parametrize("how", ["deadline", "cancel"])
 def test_a_long_daqp_solve_stops_soon_after_its_deadline_or_cancel(how):
     """One DAQP solve of a stiff programme runs POLL_SECONDS at a time: a deadline passing, or
-    a cancel saying so, mid-solve ends it there, not when the solve would have finished."""
+    a cancel saying so, mid-solve ends it there, not when the solve would have finished.
+    Counted, not timed (a busy host stretched a run past a wall-clock bound): DAQP ends each
+    run on its own time limit, and the solve makes no run once the deadline has passed or the
+    cancel has said so."""
     import time
+    import types
 
-    from solver.surface.programme import DeadlinePassed
+    import daqp
+
+    from solver.surface.programme import DAQP_TIME_LIMIT, POLL_SECONDS, DeadlinePassed
+
+    runs = []  # (DAQP's time limit for the run, its exit flag)
+
+    class Counted(daqp.Model):
+        def solve(self):
+            out = super().solve()
+            runs.append((self.settings["time_limit"], out[2]))
+            return out
 
     programme, problem = _stiff(100, 1500)  # (its first DAQP run alone: 0.75 s)
-    start = time.monotonic()
+    programme._daqp = types.SimpleNamespace(Model=Counted)
+    asked = []
     if how == "deadline":
-        programme.deadline = start + 0.1
+        programme.deadline = time.monotonic() + 0.1
     else:
-        programme.cancel = lambda: time.monotonic() > start + 0.1
+        programme.cancel = lambda: asked.append(True) or True  # (yes, at the first asking)
     with pytest.raises(DeadlinePassed):
         programme.solve(*problem)
-    assert time.monotonic() - start < 0.4
+    # one run, cut short by its own time limit (within the deadline, or POLL_SECONDS), and none
+    # after it: the deadline had passed, or the cancel said so when asked after that run
+    assert len(runs) == 1 and runs[0][1] == DAQP_TIME_LIMIT
+    assert 0 < runs[0][0] <= (0.1 if how == "deadline" else POLL_SECONDS)
+    assert len(asked) == (1 if how == "cancel" else 0)
 
 
 def test_a_daqp_solve_in_runs_is_the_same_as_one_solve(monkeypatch):
