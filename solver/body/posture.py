@@ -64,6 +64,14 @@ _JOINTS = ("Hips", "LeftUpLeg", "RightUpLeg", "LeftLeg", "RightLeg", "LeftFoot",
            "Neck")
 
 
+def pelvis_forward(left_hip: np.ndarray, right_hip: np.ndarray) -> np.ndarray:
+    """(3,) the way the pelvis faces, level (its y zero, not normalised): the hips' axis turned
+    about up; zero where the hips stand vertical (a body lying on its side)."""
+    forward = np.cross(np.asarray(left_hip) - np.asarray(right_hip), [0.0, 1.0, 0.0])
+    forward[1] = 0.0
+    return forward
+
+
 def posture_figures(positions: np.ndarray, joint_names) -> PostureFigures:
     """The posture figures of one posed rig.
 
@@ -88,9 +96,7 @@ def posture_figures(positions: np.ndarray, joint_names) -> PostureFigures:
     hips, lhip, rhip, lknee, rknee, lfoot, rfoot, neck = (p[names.index(j)] for j in _JOINTS)
     hip_mid = (lhip + rhip) / 2
     trunk = neck - hip_mid
-    up = np.array([0.0, 1.0, 0.0])
-    forward = np.cross(lhip - rhip, up)
-    forward[1] = 0.0
+    forward = pelvis_forward(lhip, rhip)
     tilt = np.degrees(np.arccos(np.clip(trunk[1] / max(np.linalg.norm(trunk), 1e-9), -1, 1)))
     sideways = np.linalg.norm(forward) < 1e-6  # the hips stand vertical: lying on a side
     back = trunk @ forward <= 0 if not sideways else True

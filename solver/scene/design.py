@@ -45,7 +45,8 @@ import numpy as np
 
 from capture.files import made_folder, replace_results, write_atomic
 
-from solver.body.posture import PostureFigures, classify_posture, posture_figures
+from solver.body.posture import PostureFigures, classify_posture, pelvis_forward, \
+    posture_figures
 
 
 class DesignError(ValueError):
@@ -112,9 +113,7 @@ def pose_posture(pose: str, db: str | os.PathLike | None = None) -> PoseReading:
     joints = motion.world.positions[0]
     figures = posture_figures(joints, body.joint_names)
     names = list(body.joint_names)
-    left, right = (joints[names.index(j)] for j in ("LeftUpLeg", "RightUpLeg"))
-    forward = np.cross(left - right, [0.0, 1.0, 0.0])
-    forward[1] = 0.0
+    forward = pelvis_forward(*(joints[names.index(j)] for j in ("LeftUpLeg", "RightUpLeg")))
     ahead = 0.0
     if np.linalg.norm(forward) > 1e-9:  # (hips standing vertical, lying on a side: no forward)
         ankles = (joints[names.index("LeftFoot")] + joints[names.index("RightFoot")]) / 2
