@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import copy
 import csv
+import difflib
 import hashlib
 import io
 import itertools
@@ -121,24 +122,75 @@ def _check_once(earlier: Sequence[str], key: str) -> None:
                          f"once, as {_setting(key)}=V1,V2,...")
 
 
+GRID_KEYS_EXPECTED = ("expected sigma, tau_max, margin, level, surface.KEY, evaluation.KEY, "
+                      "relief.KEY, body.KEY or person.KEY")
+MAX_JOBS = 100_000  # a batch larger than this is refused before its jobs are made
+
+
+def _grid_models() -> dict:
+    """The scenario schema's model of each table a grid key can name."""
+    from solver.scene import schema
+
+    return {"surface": schema.Surface, "evaluation": schema.Evaluation,
+            "relief": schema.Relief, "body": schema.BodyShape, "person": schema.Person}
+
+
+def check_grid(grid: dict) -> None:
+    """A BatchError when a grid key names no setting of a scenario, has no value, or has a
+    value its setting never takes (the setting's type and bounds in the scenario schema):
+    such a grid would fail every job it makes, so the batch is refused before any runs."""
+    from typing import Annotated
+
+    from pydantic import TypeAdapter, ValidationError
+
+    models = _grid_models()
+    for key, values in grid.items():
+        table, _, name = _setting(key).partition(".")
+        if table not in models or not name or "." in name:
+            raise BatchError(f"--grid {key}: {GRID_KEYS_EXPECTED}")
+        fields = models[table].model_fields
+        if name not in fields:
+            close = difflib.get_close_matches(name, list(fields), n=1)
+            hint = f"did you mean {table}.{close[0]}? " if close else ""
+            raise BatchError(f"--grid {key}: {table} has no setting {name!r} ({hint}expected "
+                             f"one of {sorted(fields)})")
+        if not list(values):
+            raise BatchError(f"--grid {key}: expected at least one value, got none")
+        info = fields[name]
+        adapter = TypeAdapter(Annotated[info.annotation, info])
+        for value in values:
+            try:
+                adapter.validate_python(value)
+            except ValidationError as exc:
+                why = exc.errors(include_url=False)[0]["msg"]
+                raise BatchError(f"--grid {key}: {table}.{name} cannot be {value!r} "
+                                 f"({why[:1].lower()}{why[1:]})") from None
+
+
 def _apply(data: dict, key: str, value) -> None:
     """Sets one grid key in scenario data: `sigma` (a surface shortcut), `surface.X`,
     `evaluation.X`, `relief.X` (rounds, target), or `body.X` / `person.X` for every
-    person."""
+    person. A part of the scenario that is not a table (`surface = 3`, a `person` that is
+    not a list of tables) is left as it is: the scenario's check then names it, and that job
+    fails, not the batch."""
     parts = key.split(".")
     if len(parts) == 1 and parts[0] in SURFACE_SHORTCUTS:
         parts = ["surface", parts[0]]
     if parts[0] in ("surface", "evaluation", "relief") and len(parts) == 2:
-        data.setdefault(parts[0], {})[parts[1]] = value
-    elif parts[0] == "body" and len(parts) == 2:
-        for person in data.get("person", []):
-            person.setdefault("body", {})[parts[1]] = value
-    elif parts[0] == "person" and len(parts) == 2:
-        for person in data.get("person", []):
-            person[parts[1]] = value
+        table = data.setdefault(parts[0], {})
+        if isinstance(table, dict):
+            table[parts[1]] = value
+    elif parts[0] in ("body", "person") and len(parts) == 2:
+        people = data.get("person", [])
+        for person in people if isinstance(people, list) else []:
+            if not isinstance(person, dict):
+                continue
+            if parts[0] == "person":
+                person[parts[1]] = value
+            elif isinstance(person.setdefault("body", {}), dict):
+                person["body"][parts[1]] = value
     else:
-        raise BatchError(f"--grid {key}: expected sigma, tau_max, margin, level, surface.KEY, "
-                         "evaluation.KEY, relief.KEY, body.KEY or person.KEY")
+        raise BatchError(f"--grid {key}: {GRID_KEYS_EXPECTED}")
 
 
 def _job_id(scenario: str, data: dict, parameters: dict, inputs: dict | None = None) -> str:
@@ -244,10 +296,14 @@ def expand_jobs(scenarios: Sequence[str | os.PathLike] = (), *, grid: dict | Non
     grid point and what the files the scenario reads hold (its control mesh, joint maps and
     BVH files, and its `db:` poses' data in `db`), so a re-run runs again a job whose inputs
     changed."""
-    grid = grid or {}
+    grid = {key: list(values) for key, values in (grid or {}).items()}
     keys = list(grid)
     for k, key in enumerate(keys):
         _check_once(keys[:k], key)
+    check_grid(grid)
+    points = math.prod(len(grid[k]) for k in keys)
+    if points > MAX_JOBS:  # (refused before a job is made: they would not fit in memory)
+        raise BatchError(f"The grid has {points} points; a batch has at most {MAX_JOBS} jobs")
     sources: list[tuple[str, dict, Path]] = []
     if from_db is not None:
         if template is None or db is None:
@@ -270,6 +326,9 @@ def expand_jobs(scenarios: Sequence[str | os.PathLike] = (), *, grid: dict | Non
             sources.append((str(path), {"problem": str(exc)}, Path(path).parent))
     if not sources:
         raise BatchError("Expected scenario files, or --from-db with --template")
+    if len(sources) * points > MAX_JOBS:
+        raise BatchError(f"{len(sources)} scenarios times {points} grid points make "
+                         f"{len(sources) * points} jobs; a batch has at most {MAX_JOBS}")
     library = None
     if db is not None and Path(db).is_file():
         from posedb import PoseLibrary
@@ -292,6 +351,12 @@ def expand_jobs(scenarios: Sequence[str | os.PathLike] = (), *, grid: dict | Non
             inputs = _input_digests(job_data, base, library, digests) if not problem else {}
             jobs.append(Job(_job_id(scenario, job_data, point, inputs), scenario, job_data,
                             str(base.resolve()), point, problem))
+    seen: dict[str, Job] = {}
+    for job in jobs:  # (one job twice would run once and count twice)
+        if job.id in seen:
+            raise BatchError(f"{job.scenario}: the same scenario given twice; give each "
+                             f"scenario file once")
+        seen[job.id] = job
     return jobs
 
 
@@ -621,8 +686,8 @@ _OK_RECORD_TYPES = {"job": str, "scenario": str, "parameters": dict, "seconds": 
 
 
 def _finished(out: Path, job: Job) -> dict | None:
-    """The row of a job that finished before (`ok`, its record whole and its report there), or
-    None: then the job runs (again)."""
+    """The row of a job that finished before (`ok`, its record whole, and its report there,
+    whole, with the record's figures), or None: then the job runs (again)."""
     folder = out / "jobs" / job.id
     try:
         row = json.loads((folder / "result.json").read_text())
@@ -635,9 +700,16 @@ def _finished(out: Path, job: Job) -> dict | None:
     if any(not isinstance(row[field], kind) or (kind is not bool and isinstance(row[field], bool))
            for field, kind in _OK_RECORD_TYPES.items()):
         return None
-    if not (folder / "report.json").is_file():  # (the library stores the report's people)
+    # its report must be there, whole, and the one the record was made from: the library
+    # stores the report's people, and the summary's figures are the report's
+    try:
+        report = json.loads((folder / "report.json").read_text())
+        figures = summary_figures(report["persons"])
+        same = report["iterations"] == row["iterations"] and all(
+            row[field] == value for field, value in figures.items())
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
-    return _full_row(row)
+    return _full_row(row) if same else None
 
 
 def run_batch(jobs: Sequence[Job], out_dir: str | os.PathLike, *,
