@@ -95,9 +95,9 @@ def write_mesh(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray,
     faces : (F, 3) or (F, 4) int
         0-based triangles or quads indexing the vertices.
     normals : (V, 3) float, optional
-        Vertex normals (OBJ only).
+        Finite vertex normals (OBJ only; checked whatever the format).
     vertex_colors : (V, 3) or (V, 4) float, optional
-        Colours in [0, 1] (clipped), written as 8-bit (PLY and GLB only).
+        Finite colours in [0, 1] (clipped), written as 8-bit (PLY and GLB only).
     comment : str, optional
         Header comment lines (OBJ only).
     unit : str, default "m"
@@ -114,7 +114,8 @@ def write_mesh(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray,
     Raises
     ------
     ExportError
-        If the vertices or faces have the wrong shape, are not finite or index out of range,
+        If the vertices, faces, normals or colours have the wrong shape, the vertices,
+        normals or colours are not finite, the faces index out of range,
         the suffix is not one of `MESH_FORMATS`, the unit or up axis is unknown, or a GLB is
         asked for in anything but metres and Y up.
     """
@@ -127,6 +128,13 @@ def write_mesh(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray,
     if faces.ndim != 2 or faces.shape[1] not in (3, 4) or faces.min(initial=0) < 0 or \
             faces.max(initial=-1) >= len(vertices):
         raise ExportError(f"Expected faces (F, 3|4) indexing {len(vertices)} vertices")
+    if normals is not None:
+        normals = np.asarray(normals, dtype=np.float64)
+        # a short array would leave faces naming normals the file lacks; NaN would be written
+        if normals.shape != vertices.shape or not np.isfinite(normals).all():
+            raise ExportError(f"Expected finite vertex normals ({len(vertices)}, 3), got "
+                              f"{normals.shape} with {int(np.sum(~np.isfinite(normals)))} "
+                              f"values that are not finite")
     if suffix not in MESH_FORMATS:
         raise ExportError(f"Expected a mesh file ending in {MESH_FORMATS}, got {path.name!r}")
     if suffix == ".glb" and (unit, up) != ("m", "y"):
@@ -137,7 +145,7 @@ def write_mesh(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray,
     vertices = vertices @ frame.T
     if suffix == ".obj":
         if normals is not None:
-            normals = np.asarray(normals, dtype=np.float64) @ (frame.T / UNITS[unit])
+            normals = normals @ (frame.T / UNITS[unit])
         text = obj_text(vertices, faces, normals, f"{comment}\n{note}" if comment else note)
         write_atomic(path, text.encode())
         return path
@@ -145,9 +153,11 @@ def write_mesh(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray,
     colors = None
     if vertex_colors is not None:
         colors = np.asarray(vertex_colors, dtype=float)
-        if colors.shape not in ((len(vertices), 3), (len(vertices), 4)):
-            raise ExportError(f"Expected vertex colours ({len(vertices)}, 3|4), got "
-                              f"{colors.shape}")
+        if colors.shape not in ((len(vertices), 3), (len(vertices), 4)) or \
+                not np.isfinite(colors).all():
+            raise ExportError(f"Expected finite vertex colours ({len(vertices)}, 3|4), got "
+                              f"{colors.shape} with {int(np.sum(~np.isfinite(colors)))} "
+                              f"values that are not finite")
         colors = _rgba8(colors)
     if suffix == ".ply":
         data = ply_bytes(vertices, tris, colors, note)

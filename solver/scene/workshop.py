@@ -116,8 +116,10 @@ def _solid(surface, faces, options: WorkshopOptions):
         else:
             solid = thicken(surface, faces, options.solid_thickness, check=False)
     except SolidError as exc:
-        kind = "plinth" if options.plinth else "offset"
-        return None, {"kind": kind, "thickness_m": options.solid_thickness, "ok": False,
+        # (a plinth has no thickness, as a written one reports: --solid's is not used)
+        kind, thickness = ("plinth", None) if options.plinth else \
+            ("offset", options.solid_thickness)
+        return None, {"kind": kind, "thickness_m": thickness, "ok": False,
                       "problem": str(exc)}
     check = check_solid(solid)
     figures = {"kind": solid.kind, "thickness_m": solid.thickness, **asdict(check),
