@@ -701,9 +701,10 @@ def _check_writable(skeleton: Skeleton, channels: np.ndarray, frame_time: float)
         raise ValueError(
             f"Expected motion channels (T, {skeleton.num_channels}), got {channels.shape}"
         )
-    if not (np.abs(channels) <= MAX_VALUE).all():
-        raise ValueError(f"Expected finite motion channels within +-{MAX_VALUE:g}, got NaN, "
-                         f"inf or {float(np.nanmax(np.abs(channels))):g}")
+    beyond = channels[~(np.abs(channels) <= MAX_VALUE)]  # (NaN too)
+    if beyond.size:
+        raise ValueError(f"Expected finite motion channels within +-{MAX_VALUE:g}, got "
+                         f"{float(beyond[0]):g}")
     try:
         written = float(f"{float(frame_time):.7g}")  # the value the file will hold
     except (TypeError, ValueError):

@@ -282,6 +282,9 @@ class StreamDecoder:
         self._base = 0  # stream offset of _buf[0]
         self._quiet = 0  # no token and no "||" starts in _buf[_pos:_quiet]
         self._quiet_eol = 0  # no CR or LF in _buf[_pos:_quiet_eol]
+        # whether string frames have been seen ending with "||": until then a CR or LF ends a
+        # frame too (the reference accepts CR, LF or "||"); after, a line without it was cut
+        self._bars_seen = False
         self._feeds: deque[tuple[int, float | None]] = deque()  # (stream offset of a read's end, time)
         self._held_since: float | None = None
         self._lost = False
@@ -486,9 +489,10 @@ class StreamDecoder:
 
     def _scan_unknown(self, buf: bytearray, pos: int, out: list, edge: int) -> int:
         """Until a first frame fixes the format, tries whichever marker comes first: a binary
-        token, or the "||" that ends a string frame. Each marker is searched for once."""
+        token, the "||" that ends a string frame, or a line end (which ends a string frame
+        sent without "||"). Each marker is searched for once."""
         n = len(buf)
-        tok = bar = -2  # -2: not searched yet; -1: none up to the end
+        tok = bar = eol = -2  # -2: not searched yet; -1: none up to the end
         while self.mode is None and pos < n:
             if buf[pos] in _NOISE_START:
                 end = _NOISE.match(buf, pos).end()
@@ -499,11 +503,22 @@ class StreamDecoder:
                 tok = buf.find(TOKEN, max(pos, self._quiet))
             if -1 != bar < pos:
                 bar = buf.find(_STRING_END, max(pos, self._quiet))
+            if -1 != eol < pos:
+                eol = _line_end(buf, max(pos, self._quiet_eol), n)
+            if 0 <= eol < min(m for m in (tok, bar, n) if m >= 0):
+                # a line ended by CR or LF before any other marker: a string frame without
+                # "||", or garbage (skipped, as before a first frame)
+                self._emit_string(bytes(buf[pos:eol]), eol, out, quiet=True)
+                if self.mode is None:
+                    self._skip(eol - pos)
+                pos = eol
+                continue
             if tok < 0 and bar < 0:
                 if edge == _FINAL or n - pos > _MAX_LINE:
                     self._skip(n - pos)  # no frame in it: garbage
                     return n
                 self._quiet = max(pos, n - 1)
+                self._quiet_eol = n
                 return pos  # wait for a marker
             if tok >= 0 and (bar < 0 or tok < bar):
                 self._skip(tok - pos)
@@ -598,8 +613,11 @@ class StreamDecoder:
             bar = buf.find(_STRING_END, max(pos, self._quiet), n)
             eol = _line_end(buf, max(pos, self._quiet_eol), bar if bar >= 0 else n)
             if eol >= 0:
-                self.stats.corrupt += 1  # a line without a terminator
-                self._skip(eol - pos)
+                if self._bars_seen:
+                    self.stats.corrupt += 1  # a line without its "||": cut short
+                    self._skip(eol - pos)
+                else:
+                    self._emit_string(bytes(buf[pos:eol]), eol, out)  # a line end ends it
                 pos = eol
                 continue
             if bar < 0:
@@ -609,35 +627,41 @@ class StreamDecoder:
                     return n
                 self._quiet, self._quiet_eol = max(pos, n - 1), n
                 return pos
-            self._emit_string(bytes(buf[pos:bar]), bar + 2, out)
+            if self._emit_string(bytes(buf[pos:bar]), bar + 2, out):
+                self._bars_seen = True
             pos = bar + 2
         return pos
 
-    def _emit_string(self, text: bytes, end: int, out: list) -> None:
+    def _emit_string(self, text: bytes, end: int, out: list, quiet: bool = False) -> bool:
+        """Emits the string frame in `text` (without its terminator); returns whether it was
+        one. quiet: text that is no frame at all is not counted corrupt (a line before the
+        first frame); one that is a frame of the wrong size for the skeleton still is."""
         words = text.split()
         try:
             if len(words) < 3:
                 raise ValueError("too few fields")
             avatar = int(words[0])
             name = words[1].decode("ascii")
-            values = np.array([float(w) for w in words[2:]], dtype=np.float32)
+            with np.errstate(over="ignore"):  # (a value beyond float32 is refused below)
+                values = np.array([float(w) for w in words[2:]], dtype=np.float32)
         except (ValueError, UnicodeDecodeError):
-            self.stats.corrupt += 1
-            return
+            self.stats.corrupt += not quiet
+            return False
         if avatar < 0 or values.size > MAX_DATA_COUNT or not np.isfinite(values).all():
-            self.stats.corrupt += 1
-            return
+            self.stats.corrupt += not quiet
+            return False
         flags = (None, None)
         if self.strict:
             if values.size not in self._string_flags:
                 self.mismatch = (int(values.size), None, None)
                 self.stats.corrupt += 1
-                return
+                return False
             flags = self._string_flags[values.size]
         self.mode = "string"
         self._found()
         self.stats.frames += 1
         out.append(NeuronFrame(values, None, avatar, name, *flags, "string", self._time_at(end)))
+        return True
 
 
 _UNDECIDED = -2

@@ -44,6 +44,10 @@ class UnknownProtocolError(StreamSourceError):
 
 
 UNKNOWN_PROTOCOL_AFTER = 1.0  # seconds of bytes without a frame before they are named
+# A byte stream quiet this long (s) has paused: a whole frame that ends where its bytes end is
+# accepted without waiting for the next one. Judged from receive times alone, so that a raw
+# capture of the stream (a journal) decodes to exactly the frames the live reader returned.
+PAUSE_S = 0.1
 
 
 def describe_bytes(data: bytes, first_read: int | None = None) -> str:
@@ -283,6 +287,7 @@ class Source:
         self._first_data_t = self._last_data_t = 0.0
         self._first_datagram_size = 0
         self._data_bytes = 0
+        self._last_fed_t: float | None = None
 
     @property
     def name(self) -> str:
@@ -308,12 +313,20 @@ class Source:
             return []
         frames: list[NeuronFrame] = []
         records = self.transport.poll(timeout)
-        if not records:
+        if not records and self._paused_before(time.time()):
             frames.extend(self.decoder.settle())  # a pause confirms a frame ending there
         for kind, t, data in records:
             if self.raw is not None:
                 self.raw.write(kind, t, data)
             if kind == DATA:
+                if self.raw is not None:  # (the time as the raw capture gives it back)
+                    origin = self.raw.time_origin
+                    t_fed = origin + (t - origin)
+                else:
+                    t_fed = t
+                if self._paused_before(t_fed):  # (the same pause, seen again from a journal)
+                    frames.extend(self.decoder.settle())
+                self._last_fed_t = t_fed
                 self._note_data(t, data)
                 frames.extend(self.decoder.feed(data, t))
             elif kind == DISCONNECTED:
@@ -351,6 +364,10 @@ class Source:
                 f"{self._data_bytes} bytes in {self._data_span():.1f} s without a frame in "
                 f"them: {describe_bytes(self._first_data, self._first_datagram_size)}")
         return frames
+
+    def _paused_before(self, t: float) -> bool:
+        """Whether the stream was quiet for `PAUSE_S` before time `t` (Unix s)."""
+        return self._last_fed_t is not None and t - self._last_fed_t >= PAUSE_S
 
     def _note_data(self, t: float, data: bytes) -> None:
         if self._first_data is None:
