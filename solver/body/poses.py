@@ -137,7 +137,9 @@ def _mapped(skeleton: Skeleton, joint_map: Mapping[str, str] | None, where: str)
     if not joint_map:
         return skeleton
     try:
-        return skeleton.with_joint_map(check_joint_map(skeleton, dict(joint_map), where))
+        # (the map is at fault, not the file or pose it is given for)
+        return skeleton.with_joint_map(check_joint_map(skeleton, dict(joint_map),
+                                                       f"The joint map for {where}"))
     except JointMapError as exc:
         raise PoseSourceError(str(exc)) from None
 

@@ -785,6 +785,8 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
         if surface_dir is not None:
             surface, faces = _read_surface(Path(surface_dir) / "surface.obj")
             _within_reach(surface, [people[k] for k in chosen])
+            _facing_people(surface, faces, [people[k] for k in chosen],
+                           Path(surface_dir) / "surface.obj")
             say(f"surface from {surface_dir}")
         else:
             result = fit_people(scenario, people)  # relaxed onto its limit surface, as evaluated
@@ -815,14 +817,16 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
             say(f"{p.label}: relaxed in {seconds:.2f} s; mean support distance "
                 f"{before['mean_support_distance_m'] * 100:.1f} -> "
                 f"{after['mean_support_distance_m'] * 100:.1f} cm; {relax_text(res)}")
-        if save:
-            for row, saved in zip(rows, save_relaxed(db, relaxed, str(surface_dir or "fitted"))):
-                row["saved_pose"] = saved
-                say(f"{row['name']}: saved as pose {saved['name']!r} ({saved['id']})")
         surf_view = MeshView(surface, faces, SURFACE)
         render_panels(out / "relax.png", [Panel([surf_view] + meshes_before, "side", "before"),
                                           Panel([surf_view] + meshes_after, "side", "after")],
                       columns=2)
+        # stored last, once every file but the report is written: a relaxation whose results
+        # fail to be written leaves no pose behind in the library
+        if save:
+            for row, saved in zip(rows, save_relaxed(db, relaxed, str(surface_dir or "fitted"))):
+                row["saved_pose"] = saved
+                say(f"{row['name']}: saved as pose {saved['name']!r} ({saved['id']})")
         report = {"scenario": str(scenario_path), "surface": str(surface_dir or "fitted"),
                   "persons": rows, "timing": {"total_s": time.perf_counter() - start},
                   "files": ["relax.png"] + [name for row in rows for name in row["files"]]}
@@ -866,6 +870,25 @@ def _within_reach(surface: np.ndarray, people: list[PlacedPerson]) -> None:
             raise RelaxError(f"{p.label} is entirely outside the surface's reach: its nearest "
                              f"supported point is {nearest:.2f} m from the surface (reach "
                              f"{REACH} m); move the person or the surface")
+
+
+def _facing_people(surface: np.ndarray, quads: np.ndarray, people: list[PlacedPerson],
+                   path: Path) -> None:
+    """A RelaxError for a surface whose faces point away from a person
+    (`solver.contact.evaluate.facing_away_share`), as a fit refuses such a control mesh: the
+    relaxation would pull the skin onto the surface's back. surface : (N, 3) metres;
+    quads : (F, 4)."""
+    from solver.body.relax import RelaxError
+    from solver.contact.evaluate import facing_away_share
+    from solver.mesh import SurfaceMesh
+
+    mesh = SurfaceMesh.from_quads(surface, quads)
+    for p in people:
+        share = facing_away_share(mesh, p)
+        if share is not None and share > 0.5:
+            raise RelaxError(f"Expected a surface whose faces point towards the people: "
+                             f"{share:.0%} of {p.label}'s supported skin near it faces the same "
+                             f"way as {path}; flip it (reverse each face's vertex order)")
 
 
 def save_relaxed(db: str | os.PathLike, relaxed: list, surface: str) -> list[dict]:
