@@ -89,15 +89,24 @@ def _cmd_list(args: argparse.Namespace) -> int:
 
 def listen(source_url: str, skeleton: str, *, duration: float | None = None,
            frames: int | None = None, save_raw: str | None = None, fmt: str = "auto",
-           on_event=None, on_progress=None, stop=None) -> dict:
+           avatar: str | int | None = None, on_event=None, on_progress=None, stop=None) -> dict:
     """Receives a stream until `duration` seconds, `frames` frames, end of input or `stop()`
-    is true; returns the summary (counters, fps, latency, connection events)."""
+    is true; returns the summary (counters, fps, latency, connection events, `avatars`).
+
+    The frames of each avatar on the stream are counted apart (`avatars`: index, name,
+    frames, dropped, restarts... of each). `avatar` (a name, or an index) keeps one: the
+    summary's counters are its own. `frames` counts the frames of one avatar (the kept one,
+    or the first to reach it). An `avatar` that never came while frames of others did raises
+    `capture.avatars.AvatarNotSeenError`, naming those that came.
+    """
+    from .avatars import avatar_selector
     from .bvh import read_bvh
     from .monitor import StreamMonitor
     from .rawcapture import RawCaptureWriter, skeleton_header_text
     from .sources import open_transport, Source
     from .stream_layout import StreamLayout
 
+    selector = avatar_selector(avatar)
     header_path = resolve_path(skeleton)
     header = read_bvh(header_path, unit=None)
     layout = StreamLayout(header.skeleton)
@@ -109,7 +118,7 @@ def listen(source_url: str, skeleton: str, *, duration: float | None = None,
                                time_origin=time.time(),
                                skeleton_bvh=skeleton_header_text(
                                    header_path.read_text(errors="replace")))
-    monitor = StreamMonitor()
+    monitor = StreamMonitor(selector)
     start = time.monotonic()
     next_report = start + 1.0
     with Source(transport, layout, fmt=fmt, raw=raw, on_event=on_event) as source:
@@ -120,10 +129,7 @@ def listen(source_url: str, skeleton: str, *, duration: float | None = None,
             if stop is not None and stop():
                 break
             got = source.read(0.2 if left is None else max(0.0, min(0.2, left)))
-            if frames is not None and monitor.count + len(got) >= frames:
-                got = got[:frames - monitor.count]
-            monitor.add(got)
-            if frames is not None and monitor.count >= frames:
+            if monitor.add_up_to(got, frames):
                 break
             if on_progress is not None and time.monotonic() >= next_report:
                 next_report += 1.0
@@ -131,7 +137,17 @@ def listen(source_url: str, skeleton: str, *, duration: float | None = None,
         summary = monitor.summary(source.stats())
         summary["source"] = source.name
         summary["events"] = [message for _, message in source.events]
+    if frames is not None and selector is None:  # (the decoder may have read further)
+        summary["frames"] = sum(r["frames"] for r in summary["avatars"])
+    if selector is not None and monitor.avatars and not monitor.count:
+        raise selector.not_seen(monitor.avatars)
     return summary
+
+
+def avatars_text(avatars: list[dict]) -> str:
+    """`Avatar00 12, Avatar01 11 (not kept)`: the avatars of a summary for a status line."""
+    return ", ".join(f"{a['name'] or '(no name)'} {a['frames']}"
+                     + ("" if a.get("kept", True) else " (not kept)") for a in avatars)
 
 
 def _cmd_listen(args: argparse.Namespace) -> int:
@@ -145,13 +161,19 @@ def _cmd_listen(args: argparse.Namespace) -> int:
     def progress(s: dict) -> None:
         fps = f"{s['fps']:.1f}" if s["fps"] else "-"
         lat = f"{s['latency_ms']:.1f} ms" if s["latency_ms"] is not None else "-"
+        who = f"  avatars {avatars_text(s['avatars'])}" if s.get("avatars") else ""
         print_status(f"frames {s['frames']}  fps {fps}  dropped {s['dropped']}  corrupt "
-                     f"{s['corrupt']}  latency {lat}")
+                     f"{s['corrupt']}  latency {lat}{who}")
+
+    from .avatars import AvatarNotSeenError
 
     try:
         summary = listen(args.source, args.skeleton, duration=args.duration, frames=args.frames,
-                         save_raw=args.save_raw, fmt=args.format, on_event=print_event,
-                         on_progress=progress, stop=lambda: stopping["flag"])
+                         save_raw=args.save_raw, fmt=args.format, avatar=args.avatar,
+                         on_event=print_event, on_progress=progress,
+                         stop=lambda: stopping["flag"])
+    except AvatarNotSeenError as exc:
+        return avatar_not_seen(exc, args.json)
     finally:
         signal.signal(signal.SIGINT, previous)
     if args.json:
@@ -161,6 +183,19 @@ def _cmd_listen(args: argparse.Namespace) -> int:
     else:
         _print_listen_summary(summary)
     return _no_frame_status(summary)
+
+
+def avatar_not_seen(exc, as_json: bool) -> int:
+    """Reports a chosen avatar that never came (`capture.avatars.AvatarNotSeenError`): the
+    error on stderr, with `--json` also `{"error", "exit_status", "avatars"}` on stdout;
+    returns the exit status, 2."""
+    import sys
+
+    print(f"sitrelax: error: {exc}", file=sys.stderr)
+    if as_json:
+        print(json.dumps(_json_safe({"error": str(exc), "exit_status": 2,
+                                     "avatars": exc.avatars}), allow_nan=False))
+    return 2
 
 
 def _no_frame_status(summary: dict) -> int:
@@ -188,6 +223,10 @@ def _print_listen_summary(summary: dict) -> None:
     print(f"dropped     {summary['dropped']}   corrupt {summary['corrupt']}   resynced "
           f"{summary['resynced']}   reconnects {summary['reconnects']}")
     print(f"latency     {lat}")
+    for a in summary.get("avatars", ()):
+        print(f"avatar      {a['name'] or '(no name)'} (index {a['index']}): {a['frames']} "
+              f"frames, dropped {a['dropped'] or 0}, restarts {a['restarts'] or 0}"
+              + ("" if a["kept"] else " (not kept)"))
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
@@ -272,7 +311,9 @@ def _register_capture(subparsers) -> None:
     rp.add_argument("--no-displacement", action="store_true",
                     help="send rotations only (plus the hips position)")
     rp.add_argument("--reference", action="store_true", help="send the 6-float reference block")
-    rp.add_argument("--avatar", default="Avatar00", help="avatar name in the frames")
+    rp.add_argument("--avatar", default="Avatar00",
+                    help="with a .bvh file: the avatar name the frames carry (default "
+                         "Avatar00; a raw capture replays its avatars as received)")
     rp.add_argument("--start-index", type=int, default=0, help="first frame index")
     rp.add_argument("--restart-index", action="store_true",
                     help="with --loop: start the frame index over on every pass")
@@ -295,6 +336,11 @@ def _register_capture(subparsers) -> None:
                     help="stream format (default: detected)")
     ls.add_argument("--save-raw", metavar="PATH", default=None,
                     help="also write the exact bytes received to a raw capture")
+    ls.add_argument("--avatar", metavar="NAME_OR_INDEX", default=None,
+                    help="count only this avatar's frames (its name, e.g. Avatar01, or its "
+                         "index); every avatar on the stream is listed with its frame count "
+                         "either way, and one that never comes is an error naming those that "
+                         "did")
     ls.add_argument("--json", action="store_true", help="print one summary object")
     ls.set_defaults(func=_cmd_listen)
     return sub

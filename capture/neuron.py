@@ -32,6 +32,8 @@ TOKEN = b"\xff\xdd"
 FOOTER = b"\xff\xee"
 HEADER_SIZE = 64
 MAX_DATA_COUNT = 4096
+MAX_AVATARS = 64  # avatars one stream may carry (Axis sends one per suit); frames of more are
+# corrupt, so the per-avatar counters stay bounded whatever a stream sends
 VERSION_NEW = (0, 0, 1, 1)  # build, revision, minor, major: data version 1.1.0.0
 VERSION_OLD = (0, 0, 0, 1)  # 1.0.0.0
 NAME_SIZE = 32
@@ -89,8 +91,12 @@ class DecoderStats:
         sender).
     damaged_index : frames whose index broke the sequence only for themselves (a flipped bit):
         counted here, not as drops and a restart.
-    first_index, last_index : the sender's first and last frame index.
+    first_index, last_index : the sender's first and last frame index (of any avatar).
     gaps : (index before, index after) of the latest gaps, at most 1,024 kept.
+    avatars : the counters of each avatar, keyed by (avatar index, avatar name), in the order
+        the avatars first appeared. Axis sends one frame per avatar per sample when several
+        people wear suits, each avatar counting its own frame index: gaps and restarts are
+        judged within an avatar's own frames, and the totals above are their sums.
     """
 
     frames: int = 0
@@ -103,6 +109,23 @@ class DecoderStats:
     first_index: int | None = None
     last_index: int | None = None
     gaps: list[tuple[int, int]] = field(default_factory=list)
+    avatars: dict[tuple[int, str], "AvatarStats"] = field(default_factory=dict)
+
+    def avatar(self, index: int, name: str) -> "AvatarStats | None":
+        """The counters of avatar (index, name), made at its first frame; None for a new one
+        past MAX_AVATARS (its frame counts as corrupt: the tables stay bounded whatever a
+        stream sends)."""
+        key = (index, name)
+        st = self.avatars.get(key)
+        if st is None:
+            if len(self.avatars) >= MAX_AVATARS:
+                return None
+            st = self.avatars[key] = AvatarStats(index, name)
+        return st
+
+    def avatar_dicts(self) -> list[dict]:
+        """Each avatar's counters as plain data, in the order the avatars first appeared."""
+        return [a.as_dict() for a in self.avatars.values()]
 
     def as_dict(self) -> dict:
         return {
@@ -112,6 +135,27 @@ class DecoderStats:
             "first_index": self.first_index,
             "last_index": self.last_index,
         }
+
+
+@dataclass
+class AvatarStats:
+    """One avatar's counters (see `DecoderStats`): frames, dropped, restarts, damaged_index,
+    first_index and last_index of its own frames."""
+
+    index: int
+    name: str
+    frames: int = 0
+    dropped: int = 0
+    restarts: int = 0
+    damaged_index: int = 0
+    first_index: int | None = None
+    last_index: int | None = None
+
+    def as_dict(self) -> dict:
+        return {"index": self.index, "name": self.name, "frames": self.frames,
+                "dropped": self.dropped, "restarts": self.restarts,
+                "damaged_index": self.damaged_index, "first_index": self.first_index,
+                "last_index": self.last_index}
 
 
 # -- encoding --------------------------------------------------------------------------------
@@ -288,59 +332,70 @@ class StreamDecoder:
         self._feeds: deque[tuple[int, float | None]] = deque()  # (stream offset of a read's end, time)
         self._held_since: float | None = None
         self._lost = False
-        self._last_index: int | None = None
-        self._suspect: int | None = None  # an index that broke the sequence, not judged yet
+        # per avatar (index, name): the last index accepted, and an index that broke the
+        # sequence, not judged yet
+        self._last_index: dict[tuple[int, str], int] = {}
+        self._suspect: dict[tuple[int, str], int] = {}
         self._pending: tuple[int, _Header, int] | None = None  # (start, header, end) offsets
 
     # -- bookkeeping --------------------------------------------------------------------------
 
-    def _count_index(self, index: int | None) -> None:
-        """Counts gaps and restarts. An index that breaks the sequence is judged by the next
-        one: if that continues from before it, it was damaged (a flipped bit), not a jump."""
+    def _count_index(self, avatar: "AvatarStats", index: int | None) -> None:
+        """Counts gaps and restarts within one avatar's frames. An index that breaks the
+        sequence is judged by the next one: if that continues from before it, it was damaged
+        (a flipped bit), not a jump."""
         if index is None:
             return
         st = self.stats
         if st.first_index is None:
             st.first_index = index
-        last, suspect = self._last_index, self._suspect
+        if avatar.first_index is None:
+            avatar.first_index = index
+        key = (avatar.index, avatar.name)
+        last, suspect = self._last_index.get(key), self._suspect.get(key)
         if last is None:
-            self._accept_index(index)
+            self._accept_index(avatar, index)
             return
         if suspect is None:
             if (index - last) & _U32 == 1:
-                self._accept_index(index)
+                self._accept_index(avatar, index)
             else:
-                self._suspect = index
+                self._suspect[key] = index
             return
-        self._suspect = None
+        del self._suspect[key]
         if (index - suspect) & _U32 != 1 and 1 <= (index - last) & _U32 <= MAX_INDEX_GAP:
             st.damaged_index += 1
-            self._step(last, (index - 1) & _U32)  # the damaged frame took one place
-            self._accept_index(index)
+            avatar.damaged_index += 1
+            self._step(avatar, last, (index - 1) & _U32)  # the damaged frame took one place
+            self._accept_index(avatar, index)
             return
-        self._step(last, suspect)
-        self._accept_index(suspect)
-        self._count_index(index)
+        self._step(avatar, last, suspect)
+        self._accept_index(avatar, suspect)
+        self._count_index(avatar, index)
 
     def _settle_index(self) -> None:
-        if self._suspect is not None:
-            self._step(self._last_index, self._suspect)
-            self._accept_index(self._suspect)
-            self._suspect = None
+        for key, suspect in list(self._suspect.items()):
+            avatar = self.stats.avatars[key]
+            self._step(avatar, self._last_index[key], suspect)
+            self._accept_index(avatar, suspect)
+        self._suspect.clear()
 
-    def _step(self, last: int, index: int) -> None:
+    def _step(self, avatar: "AvatarStats", last: int, index: int) -> None:
         st = self.stats
         step = (index - last) & _U32
         if step == 0 or step > MAX_INDEX_GAP:  # backwards, repeated or implausibly far
             st.restarts += 1
+            avatar.restarts += 1
         elif step > 1:
             st.dropped += step - 1
+            avatar.dropped += step - 1
             st.gaps.append((last, index))
             if len(st.gaps) > _MAX_GAPS_KEPT:
                 del st.gaps[:_MAX_GAPS_KEPT // 2]
 
-    def _accept_index(self, index: int) -> None:
-        self._last_index = index
+    def _accept_index(self, avatar: "AvatarStats", index: int) -> None:
+        self._last_index[(avatar.index, avatar.name)] = index
+        avatar.last_index = index
         self.stats.last_index = index
 
     def _skip(self, n: int) -> None:
@@ -454,13 +509,19 @@ class StreamDecoder:
         if not np.isfinite(values).all():
             self.stats.corrupt += 1
             return False
+        name = _avatar_name(head.name)
+        avatar = self.stats.avatar(head.avatar_index, name)
+        if avatar is None:
+            self.stats.corrupt += 1
+            return False
         self.mode = "binary"
         self._found()
-        self._count_index(head.frame_index)
+        self._count_index(avatar, head.frame_index)
         self.stats.frames += 1
-        out.append(NeuronFrame(values, head.frame_index, head.avatar_index,
-                               _avatar_name(head.name), head.displacement, head.reference,
-                               head.kind, self._time_at(end)))
+        avatar.frames += 1
+        out.append(NeuronFrame(values, head.frame_index, head.avatar_index, name,
+                               head.displacement, head.reference, head.kind,
+                               self._time_at(end)))
         return True
 
     def _scan(self, buf: bytearray, pos: int, out: list, edge: int) -> int:
@@ -657,9 +718,14 @@ class StreamDecoder:
                 self.stats.corrupt += 1
                 return False
             flags = self._string_flags[values.size]
+        counts = self.stats.avatar(avatar, name)
+        if counts is None:
+            self.stats.corrupt += 1
+            return False
         self.mode = "string"
         self._found()
         self.stats.frames += 1
+        counts.frames += 1
         out.append(NeuronFrame(values, None, avatar, name, *flags, "string", self._time_at(end)))
         return True
 

@@ -405,9 +405,11 @@ class Source:
                                        frame.with_reference)
 
     def stats(self) -> dict:
-        """Counters so far: frames, dropped, corrupt, resynced, ..., reconnects."""
+        """Counters so far: frames, dropped, corrupt, resynced, ..., reconnects, and
+        `avatars`: each avatar's counters (`DecoderStats.avatar_dicts`)."""
         out = self.decoder.stats.as_dict()
-        out.update(reconnects=self.reconnects, disconnects=self.disconnects)
+        out.update(reconnects=self.reconnects, disconnects=self.disconnects,
+                   avatars=self.decoder.stats.avatar_dicts())
         return out
 
     def __iter__(self) -> Iterator[NeuronFrame]:

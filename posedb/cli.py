@@ -338,23 +338,49 @@ def _cmd_record(args) -> int:
     stopping = {"flag": False}
     previous = signal.signal(signal.SIGINT, lambda s, f: stopping.__setitem__("flag", True))
 
+    from capture.avatars import AvatarNotSeenError
+    from capture.cli import avatar_not_seen, avatars_text
+
+    from .record import journal_dir
+
+    existed = os.path.exists(args.db)
+
     def progress(s: dict) -> None:
         fps = f"{s['fps']:.1f}" if s["fps"] else "-"
+        who = f"  avatars {avatars_text(s['avatars'])}" if s.get("avatars") else ""
         print_status(f"recording {args.take}: {s['frames']} frames  fps {fps}  dropped "
-                     f"{s['dropped']}  corrupt {s['corrupt']}")
+                     f"{s['dropped']}  corrupt {s['corrupt']}{who}")
 
     try:
         summary = record(args.source, args.db, args.take, args.skeleton, duration=args.duration,
                          frames=args.frames, subject=args.subject, tags=args.tag,
-                         notes=args.notes, unit=args.unit, on_event=print_event,
-                         on_progress=progress, stop=lambda: stopping["flag"],
-                         lock_timeout=_lock_timeout(args))
+                         notes=args.notes, unit=args.unit, avatar=args.avatar,
+                         on_event=print_event, on_progress=progress,
+                         stop=lambda: stopping["flag"], lock_timeout=_lock_timeout(args))
+    except AvatarNotSeenError as exc:
+        if not existed:  # nothing half-written: not even the empty library this command made
+            _drop_if_empty(args.db)
+            try:
+                journal_dir(args.db).rmdir()
+            except OSError:
+                pass  # (not empty, or gone: left as it is)
+        return avatar_not_seen(exc, args.json)
     finally:
         signal.signal(signal.SIGINT, previous)
     take = summary["take"]
-    text = (f"recorded {summary['frames']} frames ({summary['dropped']} dropped, "
-            f"{summary['corrupt']} corrupt) into take {args.take}" if take else
-            "no frame received; no take stored")
+    if not take:
+        text = "no frame received; no take stored"
+    elif len(summary["takes"]) == 1:
+        text = (f"recorded {summary['frames']} frames ({summary['dropped']} dropped, "
+                f"{summary['corrupt']} corrupt) into take {take['name']}")
+    else:
+        text = (f"recorded {len(summary['takes'])} avatars, each into a take of its own "
+                f"({summary['corrupt']} corrupt frames on the stream):")
+    for a in summary["avatars"] if take else ():
+        if len(summary["avatars"]) > 1 or summary.get("avatar") is not None:
+            where = f"-> take {a['take']}" if a.get("take") else "not kept"
+            text += (f"\n  {a['name'] or '(no name)'} (index {a['index']}): {a['frames']} "
+                     f"frames, {a['dropped'] or 0} dropped  {where}")
     _print(summary, args.json, text)
     if take:
         return 0
@@ -497,7 +523,14 @@ def _register_library_commands(sub) -> None:
 
 def _register_record(capture_sub) -> None:
     """`capture record`, added to the `capture` group that `capture.cli` made."""
-    rec = capture_sub.add_parser("record", help="record a stream into a new take")
+    rec = capture_sub.add_parser(
+        "record", help="record a stream into a new take (one per avatar)",
+        description="Records a stream into a new take. When several people wear suits, Axis "
+                    "sends one frame per avatar; avatars are never mixed: without --avatar "
+                    "every avatar is kept, and when several come each becomes its own take, "
+                    "named TAKE-AVATARNAME (TAKE when only one came); with --avatar only that "
+                    "avatar is kept, in TAKE. The progress line and --json name every avatar "
+                    "seen with its frame count.")
     rec.add_argument("source", help="stream source URL (see `capture listen`)")
     _library_options(rec)
     rec.add_argument("--take", required=True, help="name of the new take")
@@ -505,9 +538,16 @@ def _register_record(capture_sub) -> None:
     rec.add_argument("--duration", type=number(0, low_open=True), default=None,
                      help="seconds to record, > 0 (default: until Ctrl-C or the source ends)")
     rec.add_argument("--frames", type=number(1, whole=True), default=None,
-                     help="frames to record, at least 1 (default: no limit)")
+                     help="frames of one avatar to record, at least 1: stops once the kept "
+                          "avatar (without --avatar, any avatar) has that many (default: no "
+                          "limit)")
     rec.add_argument("--subject", default="")
     rec.add_argument("--tag", action="append", default=[])
     rec.add_argument("--notes", default="")
     rec.add_argument("--unit", default="auto", help="length unit of the skeleton header")
+    rec.add_argument("--avatar", metavar="NAME_OR_INDEX", default=None,
+                     help="keep only this avatar (its name, e.g. Avatar01, or its index), in "
+                          "the take --take; an avatar that never comes is an error naming "
+                          "those that did, and nothing is stored (default: every avatar, each "
+                          "as its own take TAKE-AVATARNAME when several come)")
     rec.set_defaults(func=_cmd_record)

@@ -14,6 +14,11 @@ stores a journal, so the two never both store one. The final commit waits for ot
 the library like any change; should it still fail, the journal stays and the error says which
 command stores it.
 
+Several people in suits are never mixed into one take (Axis sends one frame per avatar per
+sample, interleaved on one stream): the journal keeps every byte, and its import keeps each
+avatar apart, the avatar chosen when the recording started alone, or, without a choice, each
+avatar as a take of its own (`import_journal_takes`), all in the one commit.
+
 Poses can be marked while a take records (`TakeRecorder.mark`): each mark is a record of the
 journal itself (kind "mark", at the receive time of the frame marked), so it survives what the
 frames survive, and becomes a pose of the take in the same commit that stores the take.
@@ -22,7 +27,6 @@ frames survive, and becomes a pose of the take in the same commit that stores th
 from __future__ import annotations
 
 import contextlib
-import itertools
 import json
 import os
 import re
@@ -30,11 +34,14 @@ import time
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import Callable, Iterable, Mapping
 
 import numpy as np
 
 from capture import parse_bvh, read_bvh, resolve_path
+from capture.avatars import (AvatarKey, AvatarNotSeenError, avatar_selector, describe_avatars,
+                             split_by_avatar)
+from capture.avatars import avatar_take_names
 from capture.monitor import StreamMonitor, sender_timing
 from capture.rawcapture import (MARK, RawCaptureError, RawCaptureWriter, raw_header,
                                 raw_marks, skeleton_header_text)
@@ -72,17 +79,17 @@ def _locked_by_someone(path: Path) -> bool:
 
 
 class _AlreadyStored(Exception):
-    """Raised inside an edit to leave the library untouched: the take exists already."""
+    """Raised inside an edit to leave the library untouched: the takes exist already."""
 
-    def __init__(self, take_id: str):
-        self.take_id = take_id
+    def __init__(self, take_ids: list[str]):
+        self.take_ids = take_ids
 
 
-def _stored_take(takes: Iterable[TakeInfo], recording_id: str) -> TakeInfo | None:
-    for take in takes:
-        if recording_id and take.source.endswith(f"#recording={recording_id}"):
-            return take
-    return None
+def _stored_takes(takes: Iterable[TakeInfo], recording_id: str
+                  ) -> list[tuple[AvatarKey | None, TakeInfo]]:
+    """The takes a recording already became (one per avatar), as (None, take)."""
+    return [(None, take) for take in takes
+            if recording_id and take.source.endswith(f"#recording={recording_id}")]
 
 
 @dataclass(frozen=True)
@@ -141,64 +148,133 @@ def _frame_time(frames, header_frame_time: float) -> float:
     return 1.0 / best if abs(best - rate) <= 0.02 * best else period
 
 
-def import_journal(lib: PoseLibrary, path: Path, limit: int | None = None
+def import_journal(lib: PoseLibrary, path: Path, limit: int | Mapping | None = None
                    ) -> TakeInfo | None:
-    """Turns a journal into a take (or finds the take it already became) and removes it.
-    `limit`: the take holds the journal's first `limit` frames at most (the frames its
-    recorder counted: the journal holds every byte received, so a frame whose bytes came
-    with the last one counted may be whole in it too); None for all.
+    """Turns a journal into its take(s) (or finds those it already became) and removes it;
+    the first take, or None for a journal that holds no frame (it is removed too). See
+    `import_journal_takes`, which returns every take."""
+    takes = import_journal_takes(lib, path, limit)
+    return takes[0][1] if takes else None
 
-    Returns None for a journal that holds no frame (it is removed too).
+
+def _limited(groups: dict[AvatarKey, list], limit: int | Mapping | None) -> dict:
+    """Each avatar's frames cut to its limit: an int for every avatar, a mapping from
+    `AvatarKey` to a count (0 for an avatar it lacks), or None for no limit."""
+    if limit is None:
+        return groups
+    if isinstance(limit, Mapping):
+        cut = {k: frames[:max(int(limit.get(k, 0)), 0)] for k, frames in groups.items()}
+    else:
+        cut = {k: frames[:max(int(limit), 0)] for k, frames in groups.items()}
+    return {k: frames for k, frames in cut.items() if frames}
+
+
+def import_journal_takes(lib: PoseLibrary, path: Path, limit: int | Mapping | None = None
+                         ) -> list[tuple[AvatarKey, TakeInfo]]:
+    """Turns a journal into takes (or finds those it already became) and removes it.
+
+    The frames of each avatar on the stream are kept apart (Axis sends one frame per avatar
+    per sample when several people wear suits): with the avatar chosen when the recording
+    started (the journal's `take.avatar`), that avatar's frames become the take; without one,
+    each avatar becomes a take of its own (`capture.avatars.avatar_take_names`: the take's
+    name when one avatar came, else `<take>-<avatar name>`), all stored in one commit.
+
+    limit : the frames of each avatar its recorder counted, which its take holds at most (the
+        journal holds every byte received, so a frame whose bytes came with the last one
+        counted may be whole in it too): an int for every avatar, a mapping from `AvatarKey`
+        to a count, or None for all.
+
+    Returns [(avatar, take)] in the order the avatars first appeared; [] for a journal that
+    holds no frame (it is removed too). A chosen avatar of which no frame came raises
+    `capture.avatars.AvatarNotSeenError` naming the avatars that did; the journal stays.
     """
     header = raw_header(path)
     meta = header.get("take", {})
     recording_id = meta.get("recording_id", "")
-    stored = _stored_take(lib.takes(), recording_id)
-    if stored is not None:
-        path.unlink()  # the take was stored; only the journal's removal was missed
+    stored = _stored_takes(lib.takes(), recording_id)
+    if stored:
+        path.unlink()  # the takes were stored; only the journal's removal was missed
         return stored
     if not isinstance(header.get("skeleton_bvh"), str):
         raise LibraryError(f"{path}: the journal's header holds no skeleton, so its frames "
                            "cannot be read")
+    selector = avatar_selector(meta.get("avatar"))
     unit = meta.get("unit_m")
     skeleton = parse_bvh(header["skeleton_bvh"], unit=unit if unit else "auto").skeleton
     layout = StreamLayout(skeleton)
     with Source(RawFileTransport(path), layout) as source:
-        frames = list(source if limit is None else itertools.islice(source, max(int(limit), 0)))
-    if not frames:
+        frames = list(source)
+    seen = split_by_avatar(frames)
+    groups = _limited(seen, limit)
+    if selector is not None:
+        groups = {k: v for k, v in groups.items() if selector.matches(k)}
+        if not groups and frames and not any(selector.matches(k) for k in seen):
+            raise selector.not_seen({k: len(v) for k, v in seen.items()}, takes=True)
+    if not groups:
         path.unlink()
-        return None
-    channels = np.array([source.channels(f) for f in frames], dtype=np.float32)
-    indices = np.array([f.frame_index if f.frame_index is not None else k
-                        for k, f in enumerate(frames)], dtype=np.int64)
-    received = np.array([f.received_at for f in frames], dtype=np.float64)
-    marks = raw_marks(path)
+        return []
+    names = avatar_take_names(str(meta.get("name", path.stem)), groups)
+    per_avatar = {(a["index"], a["name"]): a for a in source.decoder.stats.avatar_dicts()}
     stats = source.stats()
+    marks = raw_marks(path)
     notes = meta.get("notes", "")
-    summary = (f"recorded from {header.get('source', '?')}: {len(frames)} frames, "
-               f"{stats['dropped']} dropped, {stats['corrupt']} corrupt")
+    others = {k: len(v) for k, v in seen.items() if k not in groups}
+    several = len(seen) > 1 or selector is not None
     try:
         with lib.edit() as ed:
-            stored = _stored_take(ed.takes.values(), recording_id)  # as of the lock
-            if stored is not None:
-                raise _AlreadyStored(stored.id)
-            wanted = str(meta.get("name", path.stem))
-            name = _free(ed, wanted)
-            if name != wanted:  # (another take took it while this one recorded)
-                summary += f"; stored as {name!r}: a take named {wanted!r} was there first"
-            tid = ed.add_take(
-                skeleton, channels, _frame_time(frames, float(meta.get("frame_time", 1 / 120))),
-                name=name, subject=meta.get("subject", ""),
-                tags=meta.get("tags", ()), notes=(notes + "\n" if notes else "") + summary,
-                source=f"{header.get('source', '')}#recording={recording_id}",
-                recorded_at=header.get("started_at"), origin="stream", frame_indices=indices,
-                received_at=received,
-            )
-            _add_marked_poses(ed, tid, received, marks)
+            stored = _stored_takes(ed.takes.values(), recording_id)  # as of the lock
+            if stored:
+                raise _AlreadyStored([take.id for _, take in stored])
+            made = []
+            first = next(iter(groups))
+            for key, group in groups.items():
+                dropped = per_avatar.get((key.index, key.name), {}).get("dropped", 0)
+                summary = (f"recorded from {header.get('source', '?')}: {len(group)} frames, "
+                           f"{dropped} dropped, {stats['corrupt']} corrupt")
+                if several:
+                    summary += f"; avatar {key.label}"
+                    if len(groups) > 1:
+                        summary += (f", one of {len(groups)} avatars recorded together (takes "
+                                    f"{', '.join(repr(n) for n in names.values())})")
+                    if others:
+                        summary += (f"; the stream also carried {describe_avatars(others)}, "
+                                    "not kept")
+                wanted = names[key]
+                name = _free(ed, wanted)
+                if name != wanted:  # (another take took it while this one recorded)
+                    summary += f"; stored as {name!r}: a take named {wanted!r} was there first"
+                channels = np.array([source.channels(f) for f in group], dtype=np.float32)
+                indices = np.array([f.frame_index if f.frame_index is not None else k
+                                    for k, f in enumerate(group)], dtype=np.int64)
+                received = np.array([f.received_at for f in group], dtype=np.float64)
+                tid = ed.add_take(
+                    skeleton, channels,
+                    _frame_time(group, float(meta.get("frame_time", 1 / 120))),
+                    name=name, subject=meta.get("subject", ""),
+                    tags=meta.get("tags", ()), notes=(notes + "\n" if notes else "") + summary,
+                    source=f"{header.get('source', '')}#recording={recording_id}",
+                    recorded_at=header.get("started_at"), origin="stream",
+                    frame_indices=indices, received_at=received,
+                )
+                mine = [(t, m) for t, m in marks if _mark_avatar(m, groups, first) == key]
+                _add_marked_poses(ed, tid, received, mine)
+                made.append((key, tid))
     except _AlreadyStored as done:
-        tid = done.take_id
+        path.unlink()
+        return [(None, lib.take(tid)) for tid in done.take_ids]
     path.unlink()
-    return lib.take(tid)
+    return [(key, lib.take(tid)) for key, tid in made]
+
+
+def _mark_avatar(mark: dict, groups: Mapping, first: AvatarKey) -> AvatarKey:
+    """The avatar whose take a mark belongs to: the one it names (the avatar on screen when
+    it was made), else the first avatar."""
+    who = mark.get("avatar")
+    if isinstance(who, dict):
+        key = AvatarKey(who.get("index"), who.get("name"))
+        if key in groups:
+            return key
+    return first
 
 
 def marked_frame(received_at: np.ndarray, t: float) -> int:
@@ -261,16 +337,23 @@ def _recover_one(lib: PoseLibrary, rec: Recording) -> dict:
     try:
         if not rec.path.exists():  # its recorder stored it meanwhile
             return row | {"status": "stored by its recorder"}
-        take = import_journal(lib, rec.path)
+        takes = [take for _, take in import_journal_takes(lib, rec.path)]
     except (ValueError, OSError) as exc:  # (LibraryError and RawCaptureError among them)
         return row | {"status": f"failed: {exc}"}
     finally:
         lock.release()
         _drop_lock(rec.path)
-    status = "empty, removed" if take is None else "recovered" if take.name == rec.take else \
-        f"recovered as {take.name!r} (a take named {rec.take!r} was there first)"
-    return row | {"status": status,
-                  "frames": 0 if take is None else take.frames}
+    if not takes:
+        status = "empty, removed"
+    elif len(takes) > 1:
+        status = (f"recovered as {', '.join(repr(t.name) for t in takes)} (one take per "
+                  "avatar)")
+    elif takes[0].name == rec.take:
+        status = "recovered"
+    else:
+        status = f"recovered as {takes[0].name!r} (a take named {rec.take!r} was there first)"
+    return row | {"status": status, "frames": sum(t.frames for t in takes),
+                  "takes": [t.name for t in takes]}
 
 
 def recover(library: str | os.PathLike, *, lock_timeout: float | None | str = "default",
@@ -281,13 +364,15 @@ def recover(library: str | os.PathLike, *, lock_timeout: float | None | str = "d
             else _recover_one(lib, r) for r in recordings(library)]
 
 
-def _store_journal(lib: PoseLibrary, journal: Path, take: str, limit: int | None = None
-                   ) -> TakeInfo | None:
-    """The recording's final commit (of the journal's first `limit` frames, None for all); on
-    failure the journal stays and the error says so (and, unless its data was refused, which
-    command stores it)."""
+def _store_journal(lib: PoseLibrary, journal: Path, take: str,
+                   limit: int | Mapping | None = None) -> list[tuple[AvatarKey, TakeInfo]]:
+    """The recording's final commit (of each avatar's first `limit` frames, see
+    `import_journal_takes`); on failure the journal stays and the error says so (and, unless
+    its data was refused, which command stores it)."""
     try:
-        return import_journal(lib, journal, limit)
+        return import_journal_takes(lib, journal, limit)
+    except AvatarNotSeenError:
+        raise  # (the journal stays; the error names the avatars that came)
     except (ValueError, OSError) as exc:  # (LibraryError and RawCaptureError among them)
         if not journal.exists():
             raise
@@ -318,13 +403,15 @@ class TakeRecorder:
     skeleton : the BVH header paired with the stream (path or ``bundled:NAME``).
     source_url : where the stream comes from (stored with the take).
     datagram : whether the transport delivers datagrams (UDP) rather than a byte stream.
+    avatar : the avatar to keep (its name, or its index), or None to keep every avatar on the
+        stream, each as a take of its own when several come (see `import_journal_takes`).
     """
 
     def __init__(self, library: str | os.PathLike, take: str, skeleton: str, source_url: str,
                  *, datagram: bool = False, subject: str = "", tags: Iterable[str] = (),
                  notes: str = "", unit: str | float = "auto",
                  on_event: Callable[[str], None] | None = None,
-                 lock_timeout: float | None | str = "default"):
+                 lock_timeout: float | None | str = "default", avatar: str | int | None = None):
         def waiting(seconds: float) -> None:
             if on_event is not None and (int(seconds) == 1 or int(seconds) % 5 == 0):
                 on_event(f"waiting {seconds:.0f} s for another writer of {library} to finish")
@@ -336,6 +423,9 @@ class TakeRecorder:
         notes = checked_text(notes, f"the notes of take {self.take!r}")
         checked_text(source_url, f"the source of take {self.take!r}")
         tags = normalise_tags(tags, new=True)
+        self.selector = avatar_selector(avatar)
+        if self.selector is not None:
+            checked_text(self.selector.text, "the avatar")
         header_path = resolve_path(skeleton)
         header = read_bvh(header_path, unit=unit)
         if header.skeleton.unit_m is None:
@@ -351,7 +441,8 @@ class TakeRecorder:
         self.journal = folder / _journal_name(self.take)
         meta = {"name": self.take, "subject": subject, "tags": list(tags), "notes": notes,
                 "recording_id": uuid.uuid4().hex, "unit_m": header.skeleton.unit_m,
-                "frame_time": header.motion.frame_time, "pid": os.getpid()}
+                "frame_time": header.motion.frame_time, "pid": os.getpid(),
+                "avatar": None if self.selector is None else self.selector.text}
         self._held = contextlib.ExitStack()
         # held until the take is stored: tells `recover` this journal is alive
         self._held.enter_context(exclusive(self.journal, timeout=10.0, what="The journal"))
@@ -367,6 +458,7 @@ class TakeRecorder:
         if not self.library.takes():
             self._keep_library(on_event)
         self.marks: list[dict] = []
+        self.stored: list[tuple[AvatarKey, TakeInfo]] = []  # once `finish` stored them
         self._next_sync = time.monotonic() + _SYNC_EVERY
 
     def _keep_library(self, on_event: Callable[[str], None] | None) -> None:
@@ -405,14 +497,16 @@ class TakeRecorder:
             self._next_sync = now + _SYNC_EVERY
 
     def mark(self, received_at: float, *, name: str = "", tags: Iterable[str] = (),
-             supports: Iterable[str] | str = DEFAULT_SUPPORT, notes: str = "") -> dict:
+             supports: Iterable[str] | str = DEFAULT_SUPPORT, notes: str = "",
+             avatar: AvatarKey | None = None) -> dict:
         """Marks the frame received at `received_at` (Unix s; the frame on screen) as a pose.
 
         The mark is written to the journal at once (and forced to disk): it becomes a pose of
         the take, carrying the take's tags and `tags`, when the take is stored. An empty name
         becomes "<take>-fNNNNN" (its frame). Names, tags and supports are checked now, a name
-        against the library's poses and the marks before. Returns the mark as stored, with
-        its `received_at`.
+        against the library's poses and the marks before. `avatar`: the avatar of the frame
+        marked, whose take the pose goes to when several avatars are recorded (None: the
+        first avatar's). Returns the mark as stored, with its `received_at`.
         """
         if not np.isfinite(received_at):
             raise LibraryError(f"Expected the receive time of a frame, got {received_at!r}")
@@ -425,21 +519,31 @@ class TakeRecorder:
         mark = {"name": name, "tags": list(normalise_tags(tags, new=True)),
                 "supports": list(support_regions(supports)),
                 "notes": checked_text(notes, "the notes of a marked pose")}
+        if avatar is not None:
+            mark["avatar"] = {"index": int(avatar.index), "name": str(avatar.name)}
         self.writer.write(MARK, float(received_at), json.dumps(mark).encode("utf-8"))
         self.writer.sync()
         mark["received_at"] = float(received_at)
         self.marks.append(mark)
         return mark
 
-    def finish(self, frames: int | None = None) -> TakeInfo | None:
-        """Closes the journal and stores it as the take with its marked poses, in one commit
-        (None when no frame came); on failure the journal stays and the error says how to
-        store it. The journal's lock is released either way. `frames`: the frames the reader
-        counted, which the take holds (the journal may hold more whole frames than were read:
-        every byte received); None for every frame in the journal."""
+    def finish(self, frames: int | Mapping | None = None) -> TakeInfo | None:
+        """Closes the journal and stores it as the take(s) with the marked poses, in one
+        commit; returns the first take (None when no frame came), every take (one per avatar
+        kept) is in `stored`. On failure the journal stays and the error says how to store
+        it. The journal's lock is released either way. `frames`: the frames of each avatar
+        the reader counted (an int, or a mapping from `AvatarKey`), which its take holds (the
+        journal may hold more whole frames than were read: every byte received); None for
+        every frame in the journal."""
         try:
             self.writer.close()
-            return _store_journal(self.library, self.journal, self.take, frames)
+            try:
+                self.stored = _store_journal(self.library, self.journal, self.take, frames)
+            except AvatarNotSeenError:
+                # a recording of other people than the one asked for: nothing is written
+                self.journal.unlink(missing_ok=True)
+                raise
+            return self.stored[0][1] if self.stored else None
         finally:
             self._held.close()
             _drop_lock(self.journal)
@@ -459,6 +563,7 @@ class TakeRecorder:
             self.journal.unlink(missing_ok=True)
         finally:
             self._held.close()
+            _drop_lock(self.journal)
 
 
 def _check_limits(duration, frames) -> None:
@@ -480,16 +585,30 @@ def _check_limits(duration, frames) -> None:
 def record(source_url: str, library: str | os.PathLike, take: str, skeleton: str, *,
            duration: float | None = None, frames: int | None = None, subject: str = "",
            tags: Iterable[str] = (), notes: str = "", unit: str | float = "auto",
-           fmt: str = "auto", on_event: Callable[[str], None] | None = None,
+           fmt: str = "auto", avatar: str | int | None = None,
+           on_event: Callable[[str], None] | None = None,
            on_progress: Callable[[dict], None] | None = None,
            stop: Callable[[], bool] | None = None,
            lock_timeout: float | None | str = "default") -> dict:
-    """Records a stream into a new take; returns the listener's summary plus the take.
+    """Records a stream into a new take; returns the listener's summary plus the take(s).
 
     Stops after `duration` seconds, `frames` frames, the end of a `file:` source, or when
     `stop()` returns true. The final commit waits up to `lock_timeout` s for other writers
     (reported through `on_event`). A `duration` that is not a number of seconds > 0 or `frames`
     that is not a whole number >= 1 is refused before anything is written.
+
+    Avatars (several people in suits: Axis sends one frame per avatar per sample) are never
+    mixed. `avatar` (a name such as ``"Avatar01"``, or an index) keeps that avatar alone, in
+    the take `take`; without it every avatar is kept, and when several come each becomes a
+    take of its own, `<take>-<avatar name>` (one avatar: the take is `take`). `frames` counts
+    the frames of one avatar (the kept one, or the first to reach it). A chosen avatar that
+    never came while others did raises `capture.avatars.AvatarNotSeenError` naming those that
+    came; nothing is stored and the journal is removed.
+
+    The summary holds the listener's counters (those of the kept avatar with `avatar`),
+    `avatars` (each avatar seen: index, name, frames, dropped, restarts, kept, and `take`, the
+    name of the take it became or None), `take` (the first take, or None), `takes` (every
+    take) and `library`.
     """
     _check_limits(duration, frames)
     transport = open_transport(source_url)
@@ -497,27 +616,38 @@ def record(source_url: str, library: str | os.PathLike, take: str, skeleton: str
         recorder = TakeRecorder(library, take, skeleton, source_url,
                                 datagram=transport.datagram, subject=subject, tags=tags,
                                 notes=notes, unit=unit, on_event=on_event,
-                                lock_timeout=lock_timeout)
+                                lock_timeout=lock_timeout, avatar=avatar)
     except BaseException:
         transport.close()
         raise
     try:
-        summary = _receive(Source(transport, recorder.layout, fmt=fmt, raw=recorder.writer,
-                                  on_event=on_event), recorder, duration, frames,
-                           on_progress, stop)
+        summary, counted = _receive(Source(transport, recorder.layout, fmt=fmt,
+                                           raw=recorder.writer, on_event=on_event),
+                                    recorder, duration, frames, on_progress, stop)
     except UnknownProtocolError:
         recorder.discard()  # nothing of it can become a take
         raise
-    stored = recorder.finish(summary["frames"])
-    summary["take"] = None if stored is None else stored.as_dict()
+    try:
+        recorder.finish(counted)
+    except AvatarNotSeenError as exc:
+        exc.avatars = [{k: r[k] for k in ("index", "name", "frames")}
+                       for r in summary["avatars"]] or exc.avatars
+        raise
+    takes = {key: info for key, info in recorder.stored}
+    for row in summary["avatars"]:
+        info = takes.get(AvatarKey(row["index"], row["name"]))
+        row["take"] = None if info is None else info.name
+    summary["takes"] = [info.as_dict() for _, info in recorder.stored]
+    summary["take"] = summary["takes"][0] if summary["takes"] else None
     summary["library"] = str(recorder.library.path)
     return summary
 
 
 def _receive(source: Source, recorder: TakeRecorder, duration, frames, on_progress,
-             stop) -> dict:
-    """Reads `source` into its journal until a limit, `stop()` or its end; the summary."""
-    monitor = StreamMonitor()
+             stop) -> tuple[dict, dict[AvatarKey, int]]:
+    """Reads `source` into its journal until a limit, `stop()` or its end; the summary and
+    the frames of each kept avatar counted (what its take holds)."""
+    monitor = StreamMonitor(recorder.selector)
     start = time.monotonic()
     next_report = start + 1.0
     with source as src:
@@ -526,16 +656,16 @@ def _receive(source: Source, recorder: TakeRecorder, duration, frames, on_progre
             if (left is not None and left <= 0) or (stop is not None and stop()):
                 break
             got = src.read(0.1 if left is None else max(0.0, min(0.1, left)))
-            monitor.add(got)
+            reached = monitor.add_up_to(got, frames)
             recorder.tick()
             now = time.monotonic()
             if on_progress is not None and now >= next_report:
                 next_report += 1.0
                 on_progress(monitor.summary(src.stats()))
-            if frames is not None and monitor.count >= frames:
+            if reached:
                 break
         summary = monitor.summary(src.stats())
-        if frames is not None:  # (a read may bring more than the frames asked for)
-            summary["frames"] = min(summary["frames"], frames)
+        counted = {k: n for k, n in monitor.avatars.items() if monitor.kept(k)}
+        summary["frames"] = sum(counted.values())
         summary["events"] = [m for _, m in src.events]
-    return summary
+    return summary, counted

@@ -9,6 +9,11 @@ journal for `sitrelax db recover`, marks included. A mark (the button, or the ke
 frame on screen; it is written to the journal at once and becomes a pose of the take, with its
 tags and supported regions, when the take is stored.
 
+Several people in suits (one frame per avatar on the stream): the Avatar field chooses the one
+shown and recorded; left empty, the first avatar seen is shown, each avatar becomes a take of its
+own, and a mark goes to the take of the avatar on screen. The readout names every avatar with its
+frame count.
+
 The skeleton is drawn under `/record` in the scene (Y up, metres), at most `DRAW_HZ` times a
 second whatever the stream's rate; every frame still reaches the journal.
 """
@@ -23,6 +28,7 @@ import numpy as np
 from capture import read_bvh, resolve_path, skeleton_fk
 from capture.recordings import bundled_recordings
 from capture.replay import Replay, ReplayThread, TcpServerSink
+from capture.avatars import AvatarKey, avatar_key, avatar_selector
 from capture.monitor import StreamMonitor
 from capture.sources import Source, UnknownProtocolError, open_transport
 from capture.stream_layout import StreamLayout
@@ -55,17 +61,24 @@ class LiveStream:
     or ``bundled:NAME``). `on_frame(world, received_at)` (the frame's `WorldPose`, (J,)) is
     called from the reading thread at most `draw_hz` times a second; `on_error(message)` when the stream
     stops on a problem (the connection is closed then).
+    avatar : the avatar to show and record (its name or index), or None for every avatar: the
+        first avatar seen is shown, and a take keeps each avatar as a take of its own when
+        several come (see `posedb.record.import_journal_takes`).
     """
 
     def __init__(self, source_url: str, skeleton: str, *, on_frame=None, on_error=None,
-                 draw_hz: float = DRAW_HZ):
+                 draw_hz: float = DRAW_HZ, avatar: str | int | None = None):
+        self.selector = avatar_selector(avatar)
         header = read_bvh(resolve_path(skeleton), unit="auto")
         if header.skeleton.unit_m is None:
             raise ValueError(f"{skeleton}: the skeleton's length unit is unknown")
         self.url, self.skeleton_spec = source_url, skeleton
         self.skeleton = header.skeleton
         self.source = Source(open_transport(source_url), StreamLayout(header.skeleton))
-        self.monitor = StreamMonitor()
+        self.monitor = StreamMonitor(self.selector)
+        self.shown_avatar: AvatarKey | None = None  # the avatar drawn (and marked)
+        self.stored: list = []  # (avatar, take) of the take last stored, one per avatar
+        self.last_take_name: str | None = None  # the name asked for the take last stored
         self.recorder: TakeRecorder | None = None
         self.shown_at: float | None = None  # receive time of the frame last drawn
         self.frames_in_take = 0
@@ -84,15 +97,19 @@ class LiveStream:
             while not self._stop.is_set() and not self.source.exhausted:
                 with self._io:
                     frames = self.source.read(READ_TIMEOUT)
+                    kept = [f for f in frames if self.monitor.kept(avatar_key(f))]
                     if self.recorder is not None:
-                        self.frames_in_take += len(frames)
+                        self.frames_in_take += len(kept)
                         self.recorder.tick()
                 with self._figures:
                     self.monitor.add(frames)
+                if kept and self.shown_avatar is None:
+                    self.shown_avatar = avatar_key(kept[0])
+                shown = [f for f in kept if avatar_key(f) == self.shown_avatar]
                 now = time.monotonic()
-                if frames and now >= next_draw:
+                if shown and now >= next_draw:
                     next_draw = now + self._period
-                    last = frames[-1]
+                    last = shown[-1]
                     channels = self.source.channels(last)
                     world = skeleton_fk(self.skeleton, channels)
                     self.shown_at = last.received_at
@@ -130,7 +147,8 @@ class LiveStream:
         recorder = TakeRecorder(library, take, self.skeleton_spec, self.url,
                                 datagram=self.source.transport.datagram, subject=subject,
                                 tags=tags, notes=f"recorded in the studio{': ' if notes else ''}"
-                                f"{notes}")
+                                f"{notes}",
+                                avatar=None if self.selector is None else self.selector.text)
         with self._io:
             self.source.raw = recorder.writer
             self.recorder = recorder
@@ -144,17 +162,24 @@ class LiveStream:
             raise ValueError("Start a take first: a pose is marked in the take recording")
         if self.shown_at is None or self.frames_in_take == 0:
             raise ValueError("No frame of this take has arrived yet")
-        return recorder.mark(self.shown_at, **fields)
+        return recorder.mark(self.shown_at, avatar=self.shown_avatar, **fields)
 
     def stop_take(self):
         """Stops recording and stores the take with its marked poses in one commit; returns
-        the take (None when no frame came)."""
+        the take (None when no frame came), the first one when several avatars each became a
+        take (all of them are in `stored`, as (avatar, take)). A chosen avatar that never
+        came raises `capture.avatars.AvatarNotSeenError` naming those that did; nothing is
+        stored then."""
         with self._io:
             recorder, self.recorder = self.recorder, None
             self.source.raw = None
         if recorder is None:
             raise ValueError("No take is recording")
-        return recorder.finish()
+        self.last_take_name = recorder.take
+        try:
+            return recorder.finish()
+        finally:
+            self.stored = recorder.stored
 
     def close(self) -> None:
         """Stops reading (a take recording is stored first) and closes the connection."""
@@ -201,6 +226,10 @@ class RecordView:
                 self.header = gui.add_text("Skeleton", initial_value="bundled:"
                                            "axis_neuron_standing_yxz.bvh",
                                            hint="the BVH header paired with the stream")
+                self.avatar = gui.add_text(
+                    "Avatar", initial_value="",
+                    hint="several people in suits: the avatar to show and record (name, e.g. "
+                         "Avatar01, or index); empty: each avatar becomes a take of its own")
                 self.with_body = gui.add_checkbox(
                     "Show the body", initial_value=False,
                     hint=f"the average body posed by the skeleton, {BODY_HZ:.0f} times a second")
@@ -264,7 +293,8 @@ class RecordView:
         else:
             url, skeleton = self.url.value.strip(), self.header.value.strip()
         try:
-            self.stream = LiveStream(url, skeleton, on_frame=self._draw, on_error=self._lost)
+            self.stream = LiveStream(url, skeleton, on_frame=self._draw, on_error=self._lost,
+                                     avatar=self.avatar.value.strip() or None)
         except BaseException:
             self._stop_replay()
             raise
@@ -337,11 +367,17 @@ class RecordView:
             self._status(f"{before}No frame arrived: no take stored.")
             return
         # the poses as stored (a name another pose took meanwhile got a suffix)
-        names = [p.name for p in PoseLibrary(self.context.db).find_poses(take=take.name)]
-        self._status(f"{before}Stored take **{take.name}**: {take.frames} frames, "
-                     f"{take.duration:.1f} s, {len(names)} marked pose(s)"
+        takes = [t for _, t in stream.stored] or [take]
+        lib = PoseLibrary(self.context.db)
+        names = [p.name for t in takes for p in lib.find_poses(take=t.name)]
+        stored = ", ".join(f"**{t.name}**: {t.frames} frames, {t.duration:.1f} s"
+                           for t in takes)
+        self._status(f"{before}Stored take{'s' if len(takes) > 1 else ''} {stored}"
+                     + (" (one per avatar)" if len(takes) > 1 else "")
+                     + f", {len(names)} marked pose(s)"
                      + (f": {', '.join(names)}." if names else "."))
-        self.take_name.value = _next_name(take.name)
+        self.take_name.value = _next_name(take.name if len(takes) == 1
+                                          else stream.last_take_name or take.name)
 
     # drawing -------------------------------------------------------------------------------
     def _draw(self, world, received_at: float) -> None:
@@ -400,6 +436,11 @@ def readout_text(s: dict, stream: LiveStream) -> str:
                if s.get("latency_ms") is not None else "-")
     text = (f"{s['frames']} frames, **{fps} fps**, dropped {s['dropped']}, corrupt "
             f"{s['corrupt']}, latency {latency}")
+    avatars = s.get("avatars") or []
+    if len(avatars) > 1 or stream.selector is not None:
+        text += "  \n" + ", ".join(
+            f"{a['name'] or '(no name)'} (index {a['index']}): {a['frames']} frames"
+            + ("" if a["kept"] else " (not recorded)") for a in avatars)
     recorder = stream.recorder
     if recorder is not None:
         text += (f"  \n**recording {recorder.take}**: {stream.frames_in_take} frames, "
