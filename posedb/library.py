@@ -569,6 +569,14 @@ class PoseLibrary:
         """What is wrong with the library (empty when nothing is); see `posedb.verify`."""
         return verify(self.path, full=full)
 
+    def check_changeable(self) -> None:
+        """Refuses, with the errors a change (`edit`) would give, a library no change could be
+        made to (missing, no pose library, damaged, read-only, or locked by another writer
+        past the lock timeout), without changing it: for callers that store into it after
+        long work and should fail before."""
+        with self._writer_lock():
+            self._verified_for_change(self.target)
+
     def _verified_for_change(self, target: Path) -> None:
         """Refuses a read-only or damaged library before a change is made to a copy of it."""
         files.check_writable(target)

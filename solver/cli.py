@@ -350,6 +350,10 @@ def _cmd_relax(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
+    if report["surface"] != "fitted":
+        print(f"surface {report['surface']}: margin {report['margin_m'] * 100:g} cm, " +
+              ("the surface's own (its fit's report.json)" if report["margin_from"] == "surface"
+               else "the scenario's (no fit's report beside the surface)"))
     for p in report["persons"]:
         b, a = p["before"], p["after"]
         print(f"{p['name']}: support distance {b['mean_support_distance_m'] * 100:.1f} -> "
@@ -370,8 +374,9 @@ def _cmd_validate_pressure(args: argparse.Namespace) -> int:
     from solver.scene.validate import REFERENCES, validate_pressure
 
     refs = args.reference or [r for r in REFERENCES if not (args.quick and r == "soft layer FE")]
-    rows = validate_pressure(args.out, mus=args.mu, references=refs,
-                             progress=lambda line: print(line, file=sys.stderr, flush=True))
+    with _library_prints_to_stderr():  # (the solvers' own prints: --json stays JSON)
+        rows = validate_pressure(args.out, mus=args.mu, references=refs,
+                                 progress=lambda line: print(line, file=sys.stderr, flush=True))
     if args.json:
         print(json.dumps(rows, indent=2))
         return 0
@@ -549,11 +554,19 @@ def _register_fitting(sub) -> None:
 
     rx = sub.add_parser("relax", help="let the scenario's people settle onto the surface")
     rx.add_argument("scenario", help="scenario file (TOML)")
-    rx.add_argument("--surface", help="folder of a `sitrelax fit` result (default: fit now)")
+    rx.add_argument("--surface", metavar="FIT_DIR|FILE",
+                    help="the surface: a `sitrelax fit` folder (its surface.obj, else "
+                         "surface.ply, else surface.glb) or a surface file (.obj of quads or "
+                         "triangles, .ply, .glb; in the unit and up axis it states); default: "
+                         "fit now. The bodies may sink in by the margin the surface was fitted "
+                         "with (its fit's report.json), whatever the scenario's surface.margin; "
+                         "by the scenario's for a surface without a fit's report (from CAD)")
     rx.add_argument("--person", type=int, help="only this person (1-based)")
     rx.add_argument("--db", default=None, help="pose library for db: poses")
     rx.add_argument("--save", action="store_true",
-                    help="store the relaxed poses in the --db library, linked to their origin")
+                    help="store the relaxed poses in the --db library, linked to their origin "
+                         "(the library is checked before the work: a damaged, read-only or "
+                         "locked one is refused at once)")
     rx.add_argument("--out", required=True, help="output folder")
     rx.add_argument("--json", action="store_true", help="print the report")
     rx.set_defaults(func=_cmd_relax)

@@ -112,7 +112,8 @@ class BodyShape:
             except (TypeError, ValueError):
                 raise BodyShapeError(f"Expected a number for body {f.name}, got {value!r}") from None
             if not (0.0 <= value <= 1.0):
-                raise BodyShapeError(f"Expected body {f.name} in [0, 1], got {value}")
+                raise BodyShapeError(f"Expected body {f.name} in [0, 1], got {value} (a shape "
+                                     "slider, not a measure: 0.5 is the average adult)")
             object.__setattr__(self, f.name, value)
         if self.african + self.asian + self.caucasian <= 0:
             raise BodyShapeError("Expected race weights that are not all zero")

@@ -114,8 +114,12 @@ def load_pose(spec: str, db: str | os.PathLike | None = None, *,
         raise PoseSourceError(f"Expected a frame in 0..{bvh.motion.num_frames - 1} of "
                               f"{m['path']}, got {frame}")  # (the file as named, not resolved)
     if bvh.skeleton.unit_m is None:
+        # (said in the pose: the one form every command takes; `design`, `fit` and `relax`
+        # have no --unit)
         raise PoseSourceError(f"{path}: the file's length unit is unknown (no known skeleton "
-                              "profile): give it, e.g. --unit cm or #frame=N&unit=cm")
+                              f"profile): give it in the pose, e.g. "
+                              f"{m['path']}#frame={frame}&unit=cm (m, dm, cm, mm, in, cmu or "
+                              f"metres per unit)")
     skeleton = _mapped(bvh.skeleton, joint_map, str(path))
     world = skeleton_fk(skeleton, bvh.motion.channels[frame:frame + 1])
     _check_span(world, f"{m['path']} frame {frame}")
@@ -129,8 +133,9 @@ def _check_span(world: WorldPose, where: str) -> None:
         span = float(np.ptp(world.positions[0], axis=0).max())
     if not span <= MAX_SPAN:  # (NaN fails it too)
         raise PoseSourceError(f"{where}: its joints span {span:.3g} m, more than any body's "
-                              f"{MAX_SPAN:g} m: is the file's length unit right? (give it as "
-                              "#frame=N&unit=U or --unit)")
+                              f"{MAX_SPAN:g} m: is the file's length unit right? (give it in the "
+                              "pose, as FILE.bvh#frame=N&unit=U; a command's --unit, where it "
+                              "has one, overrides that)")
 
 
 def _mapped(skeleton: Skeleton, joint_map: Mapping[str, str] | None, where: str) -> Skeleton:

@@ -86,19 +86,111 @@ def obj_frame(path: str | os.PathLike) -> tuple[str, str]:
 
     Raises MeshFileError with `file:line` for a stated unit or axis that is not known.
     """
-    from solver.io.export import UNITS, UP_AXES
-
     path = Path(path)
     with open(path, errors="replace") as fh:
         for no, line in enumerate(fh, start=1):
             if not line.startswith("#"):
                 break
-            fields = dict(part.strip().split(":", 1) for part in line[1:].split(";")
-                          if ":" in part)
-            if "units" in fields and "up" in fields:
-                unit, up = fields["units"].strip(), fields["up"].strip().lstrip("+").lower()
-                if unit not in UNITS or up not in UP_AXES:
-                    raise MeshFileError(f"{path}:{no}: expected a unit in {sorted(UNITS)} and "
-                                        f"an up axis in {UP_AXES}, got {line.strip()!r}")
-                return unit, up
+            frame = stated_frame(line[1:], line, f"{path}:{no}")
+            if frame is not None:
+                return frame
+    return "m", "y"
+
+
+def stated_frame(text: str, line: str, where: str) -> tuple[str, str] | None:
+    """The unit and up axis a header comment's `text` states as `write_mesh` writes them
+    (``units: mm; up: +Z; ...``), None when it states not both; MeshFileError naming `where`
+    and the whole `line` for a unit or axis that is not known."""
+    from solver.io.export import UNITS, UP_AXES
+
+    fields = dict(part.strip().split(":", 1) for part in text.split(";") if ":" in part)
+    if "units" not in fields or "up" not in fields:
+        return None
+    unit, up = fields["units"].strip(), fields["up"].strip().lstrip("+").lower()
+    if unit not in UNITS or up not in UP_AXES:
+        raise MeshFileError(f"{where}: expected a unit in {sorted(UNITS)} and an up axis in "
+                            f"{UP_AXES}, got {line.strip()!r}")
+    return unit, up
+
+
+# what `read_surface_mesh` reads: every mesh format `write_mesh` writes
+SURFACE_SUFFIXES = (".obj", ".ply", ".glb")
+
+
+def read_surface_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """A surface as `solver.io.export.write_mesh` writes it (and CAD exports it), in metres,
+    Y up: OBJ (quads or triangles), PLY or GLB.
+
+    Parameters
+    ----------
+    path : a file ending in one of `SURFACE_SUFFIXES`. OBJ and PLY are converted from the unit
+        and up axis their header states (`obj_frame`, `ply_frame`; metres and Y up when they
+        state none), GLB is metres and Y up (glTF 2.0).
+
+    Returns
+    -------
+    vertices : (V, 3) float, metres, Y up;
+    faces : (F, 4) int quads (an OBJ of quads only) or (F, 3) int triangles, 0-based.
+    Raises MeshFileError naming the file for a missing or unreadable file, another suffix, no
+    faces, coordinates that are not finite, or faces out of range, with repeated corners or
+    without area.
+    """
+    from solver.io.export import frame_matrix
+    from solver.mesh import faces_problem
+
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in SURFACE_SUFFIXES:
+        raise MeshFileError(f"expected a surface file ending in {', '.join(SURFACE_SUFFIXES)}, "
+                            f"got {path}")
+    if not path.is_file():
+        raise MeshFileError(f"no such file {path}" if not path.exists() else
+                            f"expected a surface file, got the folder {path}")
+    if suffix == ".obj":
+        try:
+            return read_quad_obj(path, sitrelax_frame=True)
+        except MeshFileError as exc:
+            if "expected a quad control mesh" not in str(exc):
+                raise
+        frame = obj_frame(path)  # triangles (or a mix): read as triangles
+    else:
+        frame = ply_frame(path) if suffix == ".ply" else ("m", "y")
+    import trimesh
+
+    try:
+        mesh = trimesh.load(path, force="mesh", process=False)
+        vertices = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
+        faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
+    except Exception as exc:  # (trimesh's loaders raise what their parsers raise)
+        raise MeshFileError(f"{path} cannot be read as a mesh ({type(exc).__name__}: "
+                            f"{exc})") from None
+    if not len(faces):
+        raise MeshFileError(f"{path}: expected faces, found none")
+    bad = np.flatnonzero(~np.isfinite(vertices).all(axis=1))
+    if len(bad):
+        raise MeshFileError(f"{path}: expected finite coordinates, got vertex {bad[0] + 1} at "
+                            f"{vertices[bad[0]].tolist()}" +
+                            (f" and {len(bad) - 1} more" if len(bad) > 1 else ""))
+    problem = faces_problem(vertices, faces)
+    if problem:
+        raise MeshFileError(f"{path}: {problem}")
+    return vertices @ np.linalg.inv(frame_matrix(*frame)).T, faces
+
+
+def ply_frame(path: str | os.PathLike) -> tuple[str, str]:
+    """The unit and up axis a PLY header's `comment` states (as `write_mesh` writes it,
+    ``comment units: mm; up: +Z; ...``); ("m", "y") when it states none.
+
+    Raises MeshFileError naming the file for a stated unit or axis that is not known, or a
+    header that does not end.
+    """
+    path = Path(path)
+    with open(path, "rb") as fh:
+        head = fh.read(65536)
+    if b"end_header" not in head:
+        raise MeshFileError(f"{path}: expected a PLY header ending in 'end_header'")
+    for line in head.split(b"end_header")[0].decode("ascii", "replace").splitlines():
+        frame = stated_frame(line[7:], line, str(path)) if line.startswith("comment") else None
+        if frame is not None:
+            return frame
     return "m", "y"

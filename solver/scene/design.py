@@ -358,7 +358,10 @@ def _fit_design(out: Path, header: str, data: dict, db, say, pictures: bool) -> 
 
     path = out / "scenario.toml"
     write_atomic(path, (header + scenario_toml(data)).encode())
-    return run_fit(path, out, db=db, progress=say, pictures=pictures)
+    report = run_fit(path, out, db=db, progress=say, pictures=pictures)
+    # listed with the results, so that a later result in the same folder (a fit) removes it
+    report.setdefault("files", {})["scenario"] = path.name
+    return report
 
 
 def _on_calves(report: dict) -> bool:
@@ -379,4 +382,6 @@ def _absolute(pose: str) -> str:
         return pose
     text = pose[4:] if pose.startswith("bvh:") else pose
     path, frame = text.split("#", 1)
+    if not path.strip():  # (no file named: `load_pose` says so, as `pose show` does, rather
+        return pose       # than the working folder resolved from an empty name)
     return f"bvh:{Path(path).resolve()}#{frame}"

@@ -238,19 +238,24 @@ class _CheckedGate(SupportGate):
 
 
 def relax_person(scenario: Scenario, person: PlacedPerson, surface: np.ndarray,
-                 quads: np.ndarray, check: Callable[[], None] | None = None):
+                 quads: np.ndarray, check: Callable[[], None] | None = None, *,
+                 margin: float | None = None):
     """Relaxes one posed person onto a surface (vertices, quads), accepting only what the
     evaluation's support figures find none worse (`SupportGate`): the solver's result, the
     person's figures before and after (as `evaluate_person` gives them), and the solver's
     seconds. When no round was accepted, the person keeps the captured pose exactly (its
     figures after are those before). `check`, when given, is called between the stages (the
     evaluations, and before each pose the relaxation judges): a caller's deadline raises
-    there."""
+    there. `quads` : (F, 4) quads or (F, 3) triangles. `margin` : metres of softness the
+    surface was fitted with (None: the scenario's `surface.margin`)."""
     from solver.body.relax import relax
 
     check = check or (lambda: None)
-    margin, (foam, floor) = scenario.surface.params.margin, foams(scenario.evaluation)
-    problem = relax_problem(person, surface, quad_triangles(quads), margin=margin, foam=foam,
+    margin = scenario.surface.params.margin if margin is None else margin
+    foam, floor = foams(scenario.evaluation)
+    quads = np.asarray(quads)
+    triangles = quad_triangles(quads) if quads.shape[1] == 4 else quads
+    problem = relax_problem(person, surface, triangles, margin=margin, foam=foam,
                             floor=0.0 if floor is not None else None)
     mesh = problem.surface_mesh()
     before = evaluate_person(mesh, person, margin, foam, floor)[0]
@@ -754,11 +759,18 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
     scenario_path : a scenario file (TOML).
     out_dir : folder for the relaxed bodies (OBJ), their poses (BVH), relax.png and
         report.json (made if missing).
-    surface_dir : folder of an earlier `sitrelax fit` result whose surface.obj is used (None:
-        fit the scenario now, with its rounds of relief, as `run_fit` writes surface.obj).
+    surface_dir : the surface to relax onto: an earlier `sitrelax fit` result's folder (its
+        surface.obj, else surface.ply, else surface.glb: `surface_file`) or a surface file
+        (.obj, .ply, .glb; in the unit and up axis it states). None: fit the scenario now,
+        with its rounds of relief, as `run_fit` writes surface.obj.
+        The body may sink into the surface by the softness margin it was fitted with: a fit's
+        own (its report.json beside the file, `fit_margin`), whatever the scenario's
+        `surface.margin` says; the scenario's for a surface without a fit's report (from CAD)
+        or fitted now. The report's `margin_m` and `margin_from` say which.
     person : only this person (1-based; None: everybody).
     db : the pose library for `db:` poses, and where `save` stores the relaxed poses.
-    save : store each relaxed pose in `db`, linked to its origin (see `save_relaxed`).
+    save : store each relaxed pose in `db`, linked to its origin (see `save_relaxed`); the
+        library is checked first, before any work (`check_library_for_save`).
     progress : optional callback taking one line of news per stage.
 
     Returns
@@ -778,16 +790,33 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
     if person is not None and not 1 <= person <= len(scenario.persons):
         raise RelaxError(f"Expected --person in 1..{len(scenario.persons)}, got {person}")
     chosen = range(len(scenario.persons)) if person is None else [person - 1]
+    # what can be refused without the work is refused before it: the surface, the library
+    scenario_margin = scenario.surface.params.margin
+    margin, margin_from = scenario_margin, "scenario"
+    if surface_dir is not None:
+        source = surface_file(surface_dir)
+        surface, faces = _read_surface(source)
+        fitted_margin = fit_margin(source)
+        if fitted_margin is not None:
+            margin, margin_from = fitted_margin, "surface"
+    if save:
+        check_library_for_save(db, lambda seconds: say(
+            f"waiting for another writer of {db} to finish: {seconds:.0f} s"))
     # written whole or not at all, in place of an earlier relaxation's result (not a fit's)
     with results_folder(out_dir, lambda folder: previous_results(folder, list),
                         "report.json") as out:
         scenario, people = place_scene(scenario, db)
         if surface_dir is not None:
-            surface, faces = _read_surface(Path(surface_dir) / "surface.obj")
             _within_reach(surface, [people[k] for k in chosen])
-            _facing_people(surface, faces, [people[k] for k in chosen],
-                           Path(surface_dir) / "surface.obj")
-            say(f"surface from {surface_dir}")
+            _facing_people(surface, faces, [people[k] for k in chosen], source)
+            say(f"surface from {source}")
+            if margin_from == "surface":
+                say(f"margin {margin * 100:g} cm, the surface's own (its fit's report.json)" +
+                    (f", not the scenario's {scenario_margin * 100:g} cm"
+                     if margin != scenario_margin else ""))
+            else:
+                say(f"margin {margin * 100:g} cm, the scenario's (no fit's report.json beside "
+                    f"{source.name})")
         else:
             result = fit_people(scenario, people)  # relaxed onto its limit surface, as evaluated
             say(f"fitted the surface in {result.iterations} iterations")
@@ -799,7 +828,8 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
         rows, meshes_before, meshes_after, relaxed = [], [], [], []
         for k in chosen:
             p = people[k]
-            res, before, after, seconds = relax_person(scenario, p, surface, faces)
+            res, before, after, seconds = relax_person(scenario, p, surface, faces,
+                                                       margin=margin)
             name = f"person_{k + 1}_relaxed"
             write_mesh(out / f"{name}.obj", res.vertices, p.body.faces)
             skeleton, _ = rig_skeleton(p.body)
@@ -828,26 +858,96 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
                 row["saved_pose"] = saved
                 say(f"{row['name']}: saved as pose {saved['name']!r} ({saved['id']})")
         report = {"scenario": str(scenario_path), "surface": str(surface_dir or "fitted"),
-                  "persons": rows, "timing": {"total_s": time.perf_counter() - start},
+                  "margin_m": margin, "margin_from": margin_from, "persons": rows,
+                  "timing": {"total_s": time.perf_counter() - start},
                   "files": ["relax.png"] + [name for row in rows for name in row["files"]]}
         write_atomic(out / "report.json", json.dumps(report, indent=2, allow_nan=False).encode())
     return report
 
 
+SURFACE_FILES = ("surface.obj", "surface.ply", "surface.glb")  # a fit's, in `relax`'s order
+
+
+def surface_file(given: str | os.PathLike) -> Path:
+    """The surface file `sitrelax relax --surface` names: the file itself, or in a `sitrelax
+    fit` folder the first of `SURFACE_FILES` there (every mesh format `fit --format` writes).
+    A RelaxError naming the path when there is none (saying so of a folder holding only a
+    scene.3dm, which relax does not read)."""
+    from solver.body.relax import RelaxError
+    from solver.io.obj import SURFACE_SUFFIXES
+
+    path = Path(given)
+    if path.is_dir():
+        for name in SURFACE_FILES:
+            if (path / name).is_file():
+                return path / name
+        rhino = (f"; its scene.3dm is not read: fit again with --format obj (or ply, glb)"
+                 if (path / "scene.3dm").exists() else "")
+        raise RelaxError(f"Expected a `sitrelax fit` folder holding {', '.join(SURFACE_FILES)}"
+                         f", got {path}, which holds none of them{rhino}")
+    if not path.exists():
+        raise RelaxError(f"Expected a `sitrelax fit` folder or a surface file "
+                         f"({', '.join(SURFACE_SUFFIXES)}), got {path}: no such file or "
+                         f"folder")
+    return path
+
+
+def fit_margin(path: Path) -> float | None:
+    """The softness margin (m) the fit that wrote the surface file `path` used: its
+    report.json's `parameters.margin`, when a `sitrelax fit` report beside the file lists it;
+    None otherwise (a surface from CAD). A RelaxError naming the report when it cannot be read
+    or its margin is no length."""
+    from solver.body.relax import RelaxError
+
+    report_path = path.parent / "report.json"
+    if not report_path.exists():
+        return None
+    try:
+        report = json.loads(report_path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise RelaxError(f"Expected the report of the fit that wrote {path.name}, but "
+                         f"{report_path} cannot be read ({exc}): mend or remove it (without "
+                         f"it the scenario's margin is used)") from None
+    files = report.get("files") if isinstance(report, dict) else None
+    if not isinstance(files, dict) or path.name not in files.values():
+        return None  # (another command's report, or a file the fit did not write)
+    params = report.get("parameters")
+    margin = params.get("margin") if isinstance(params, dict) else None
+    if isinstance(margin, bool) or not isinstance(margin, (int, float)) or \
+            not 0 <= margin < float("inf"):
+        raise RelaxError(f"Expected the fit's margin in metres in {report_path} "
+                         f"(parameters.margin), got {margin!r}")
+    return float(margin)
+
+
+def check_library_for_save(db: str | os.PathLike,
+                           on_wait: Callable[[float], None] | None = None) -> None:
+    """Refuses a pose library `save_relaxed` could not store into, before any work and with
+    the pose library's own errors (those `sitrelax db` commands give): missing, a folder, no
+    pose library, damaged, read-only, or locked by another writer past the lock timeout
+    ($SITRELAX_LOCK_TIMEOUT). The checks a change (`PoseLibrary.edit`) makes before it
+    writes, without writing. `on_wait(seconds waited)`, about once a second while another
+    writer holds the library."""
+    from posedb import PoseLibrary
+
+    PoseLibrary(db, on_wait=on_wait).check_changeable()
+
+
 def _read_surface(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """A fitted surface to relax onto (`sitrelax relax --surface`), in metres, Y up; a
+    """A surface to relax onto (`sitrelax relax --surface`, `read_surface_mesh`: OBJ, PLY,
+    GLB), in metres, Y up: vertices (V, 3) and faces, (F, 4) quads or (F, 3) triangles; a
     RelaxError naming the file when it cannot be read or reaches past MAX_COORDINATE."""
     from solver.body.relax import RelaxError
-    from solver.io.obj import MeshFileError, read_quad_obj
+    from solver.io.obj import MeshFileError, read_surface_mesh
     from solver.scene.schema import MAX_COORDINATE
 
     try:
-        surface, faces = read_quad_obj(path, sitrelax_frame=True)
+        surface, faces = read_surface_mesh(path)
     except MeshFileError as exc:
-        raise RelaxError(f"Expected a fitted surface: {exc}") from None
+        raise RelaxError(f"Expected a surface to relax onto: {exc}") from None
     far = np.flatnonzero(~(np.abs(surface) <= MAX_COORDINATE).all(axis=1))
     if len(far):
-        raise RelaxError(f"Expected a fitted surface within {MAX_COORDINATE:g} m of the "
+        raise RelaxError(f"Expected a surface within {MAX_COORDINATE:g} m of the "
                          f"origin: {path} has vertex {far[0] + 1} at "
                          f"{surface[far[0]].tolist()} m" +
                          (f" and {len(far) - 1} more beyond" if len(far) > 1 else ""))
@@ -877,12 +977,12 @@ def _facing_people(surface: np.ndarray, quads: np.ndarray, people: list[PlacedPe
     """A RelaxError for a surface whose faces point away from a person
     (`solver.contact.evaluate.facing_away_share`), as a fit refuses such a control mesh: the
     relaxation would pull the skin onto the surface's back. surface : (N, 3) metres;
-    quads : (F, 4)."""
+    quads : (F, 4) quads or (F, 3) triangles."""
     from solver.body.relax import RelaxError
     from solver.contact.evaluate import facing_away_share
     from solver.mesh import SurfaceMesh
 
-    mesh = SurfaceMesh.from_quads(surface, quads)
+    mesh = SurfaceMesh.from_faces(surface, quads)
     for p in people:
         share = facing_away_share(mesh, p)
         if share is not None and share > 0.5:

@@ -30,6 +30,8 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from capture.files import results_folder
+
 from solver.body.model import BodyShape, make_body
 from solver.body.poses import load_pose, pose_body
 from solver.body.rig import t_pose
@@ -111,11 +113,13 @@ def validate_pressure(out_dir: str | Path | None = None, *, mus: Sequence[float]
     Parameters
     ----------
     out_dir : str or Path, optional
-        Where to write a picture per pose (the first reference at mu = 0.5, or the first mu).
+        Where to write a picture per pose (the first reference at mu = 0.5, or the first mu):
+        the folder is made before the work, the pictures moved in once all are drawn (a run
+        that fails leaves it as it was).
     mus : sequence of float
-        Friction coefficients.
+        Friction coefficients, each >= 0 (a repeated one is run once).
     references : sequence of str
-        Names from `REFERENCES`.
+        Names from `REFERENCES` (a repeated one is run once).
     progress : callable, optional
         Called with a line of text before each reference run.
 
@@ -125,10 +129,65 @@ def validate_pressure(out_dir: str | Path | None = None, *, mus: Sequence[float]
         One row per pose, reference, mu and model: `field_metrics`, the model's time
         (`model_ms`), the reference's (`reference_s`), its equilibrium residual, and for the
         first model of a pose with pictures, `picture`.
+
+    Raises
+    ------
+    ValueError
+        For no friction coefficient or reference, a negative or non-finite one, an unknown
+        reference, or an empty `out_dir` name; OSError when `out_dir` cannot be made or
+        written into (a file, a file on its way, no right to write). Both before the work.
     """
-    if out_dir is not None and Path(out_dir).exists() and not Path(out_dir).is_dir():
+    mus = _friction_coefficients(mus)
+    references = _references(references)
+    if out_dir is None:
+        return _compare(None, mus, references, progress)
+    if Path(out_dir).exists() and not Path(out_dir).is_dir():
         raise NotADirectoryError(errno.ENOTDIR, "Expected a folder for the pictures, got a "
                                                 "file", str(out_dir))  # (before the work)
+    # the folder made (or refused: an empty name, a file on the way, no right to write) before
+    # the work, and the pictures moved in only when every one is drawn: a run that fails or is
+    # interrupted leaves the folder as it was
+    with results_folder(out_dir) as stage:
+        rows = _compare(stage, mus, references, progress)
+    for row in rows:
+        if "picture" in row:
+            row["picture"] = str(Path(out_dir) / Path(row["picture"]).name)
+    return rows
+
+
+def _friction_coefficients(mus: Sequence[float]) -> list[float]:
+    """`mus` as floats, each once (in the order given); ValueError for none, or one that is
+    not a finite number >= 0."""
+    try:
+        values = [float(mu) for mu in mus]
+    except (TypeError, ValueError):
+        raise ValueError(f"Expected friction coefficients as numbers, got {list(mus)!r}") \
+            from None
+    if not values:
+        raise ValueError("Expected at least one friction coefficient, got none")
+    for mu in values:
+        if not np.isfinite(mu) or mu < 0:
+            raise ValueError(f"Expected friction coefficients >= 0 (finite), got {mu}")
+    return list(dict.fromkeys(values))
+
+
+def _references(references: Sequence[str]) -> list[str]:
+    """`references` each once (in the order given); ValueError for none, or a name not in
+    `REFERENCES`."""
+    if isinstance(references, str):
+        references = [references]
+    names = list(dict.fromkeys(references))
+    if not names:
+        raise ValueError(f"Expected at least one reference of {list(REFERENCES)}, got none")
+    for name in names:
+        if name not in REFERENCES:
+            raise ValueError(f"Expected a reference in {list(REFERENCES)}, got {name!r}")
+    return names
+
+
+def _compare(out_dir: Path | None, mus: list[float], references: list[str],
+             progress: Callable[[str], None] | None) -> list[dict]:
+    """`validate_pressure`'s work, its pictures (if any) drawn into `out_dir`."""
     body = make_body()
     rows = []
     for pose, verts in validation_poses().items():

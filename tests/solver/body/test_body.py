@@ -141,7 +141,7 @@ def test_blend_of_two_bones_by_hand():
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    (dict(weight=1.2), r"weight in \[0, 1\], got 1.2"),
+    (dict(weight=1.2), r"weight in \[0, 1\], got 1.2 \(a shape slider, not a measure"),
     (dict(gender="heavy"), "Expected a number for body gender"),
     (dict(african=0, asian=0, caucasian=0), "race weights"),
 ])

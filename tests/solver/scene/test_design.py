@@ -403,3 +403,22 @@ def test_a_design_whose_fit_fails_leaves_the_earlier_design_as_it_was(tmp_path, 
         design.run_design([MEDIUM.format(200)], out, pictures=False)
     assert {p.name: p.read_text() for p in out.iterdir()} == {
         "scenario.toml": "earlier", "control.obj": "earlier", "report.json": "earlier"}
+
+
+def test_a_designs_scenario_is_listed_with_its_results(tmp_path, monkeypatch):
+    """scenario.toml is one of the design's files (report.json's `files`), so that a later
+    result in the same folder (a fit) removes it with the rest rather than leaving it beside
+    results it did not make."""
+    import solver.scene.design as design
+    import solver.scene.run as run
+
+    import solver.scene.furnish as furnish
+
+    monkeypatch.setattr(run, "run_fit", _calf_peak_fit([]))
+    monkeypatch.setattr(design, "_misses", lambda report: report["misses"])
+    monkeypatch.setattr(furnish, "WATERFALL", 0.0)
+    out = tmp_path / "out"
+    design.run_design([MEDIUM.format(200)], out, pictures=False)
+    saved = json.loads((out / "report.json").read_text())
+    assert saved["files"]["scenario"] == "scenario.toml"
+    assert "scenario.toml" in run.previous_results(out)
