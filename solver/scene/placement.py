@@ -228,7 +228,8 @@ def furnished(scenario: Scenario, people: list[PlacedPerson]) -> Scenario:
     try:
         mesh = furnish(surface.template.kind, surface.template.given, people)
     except TemplateError as exc:
-        raise template_error(exc, scenario.path or "<scenario>") from None
+        raise template_error(exc, scenario.path or "<scenario>",
+                             surface.template.given) from None
     if not np.array_equal(mesh.quads, surface.faces):  # the topology never depends on people
         raise ScenarioError(f"{scenario.path}: surface.template: the template built around "
                             f"the people has other faces than the one read")

@@ -65,6 +65,8 @@ expands to.
 
 from __future__ import annotations
 
+import dataclasses
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -77,7 +79,7 @@ from posedb.regions import support_regions
 
 from solver.body.model import BodyShape, BodyShapeError
 from solver.io.obj import MeshFileError, read_quad_obj
-from solver.mesh import faces_problem
+from solver.mesh import MeshOrientationError, boundary_edges, faces_problem
 from solver.scene import schema
 from solver.scene.schema import MAX_INLINE_VERTICES, ScenarioError  # noqa: F401 (re-exported)
 from solver.surface.fit import FitParams
@@ -85,6 +87,7 @@ from solver.surface.subdivision import grid_mesh
 from solver.surface.templates import TEMPLATE_PARAMS, TemplateError, make_template
 
 _PERSON = schema.person_defaults()
+_FRAME_PART = re.compile(r"^frame=\d+(&unit=[^&#]+)?$")  # after a BVH path's "#"
 
 
 @dataclass(frozen=True, eq=False)
@@ -163,13 +166,34 @@ def read_control_mesh(path: Path, where: str) -> tuple[np.ndarray, np.ndarray]:
         verts, faces = read_quad_obj(path)
     except MeshFileError as exc:
         raise _fail(where, "surface.control_mesh", str(exc)) from None
+    except OSError as exc:  # a folder, a file it may not read
+        raise _fail(where, "surface.control_mesh", f"cannot read {path}: "
+                    f"{exc.strerror or exc}") from None
     far = np.flatnonzero(~(np.abs(verts) <= schema.MAX_COORDINATE).all(axis=1))
     if len(far):  # (NaN fails the comparison too)
         raise _fail(where, "surface.control_mesh",
                     f"{path.name}: expected vertex coordinates within "
                     f"{schema.MAX_COORDINATE:g} m, got {verts[far[0]].tolist()} (vertex "
                     f"{far[0] + 1})" + (f" and {len(far) - 1} more" if len(far) > 1 else ""))
+    problem = surface_problem(faces)
+    if problem:
+        raise _fail(where, "surface.control_mesh", f"{path.name}: {problem}")
     return verts, faces
+
+
+def surface_problem(faces: np.ndarray) -> str | None:
+    """What keeps quads (F, 4) from being a control mesh the fit can take (a surface: no
+    edge of more than two faces, every shared edge run one way by one face and the other way
+    by the other), or None. Checked when the scenario is read, so that the error names the
+    field, not only once the people are posed."""
+    try:
+        boundary_edges(faces)
+    except MeshOrientationError as exc:
+        message = str(exc)
+        return message[:1].lower() + message[1:] + (
+            " (make every face list its corners the same way round, seen from the bodies)"
+            if "oriented" in message else "")
+    return None
 
 
 def inline_control_mesh(mesh: schema.InlineMesh | dict,
@@ -187,7 +211,7 @@ def inline_control_mesh(mesh: schema.InlineMesh | dict,
         k, i = bad[0]
         raise _fail(where, f"{at}[{k}]", f"expected a whole number in 0..{len(v) - 1}, "
                     f"got {f[k, i]}")
-    problem = faces_problem(v, f)
+    problem = faces_problem(v, f) or surface_problem(f)
     if problem:
         raise _fail(where, at, problem)
     return v, f
@@ -257,12 +281,18 @@ def scenario_from_model(model: schema.Scenario, where: str = "<scenario>",
                     model.relief)
 
 
-def template_error(exc: TemplateError, where: str) -> ScenarioError:
-    """A template's error as the scenario's: `where: surface.template.<parameter>: ...`."""
+def template_error(exc: TemplateError, where: str, given: dict | None = None
+                   ) -> ScenarioError:
+    """A template's error as the scenario's: `where: surface.template.<parameter>: ...`.
+    `given`: the parameters the scenario sets, once the others have been measured on the
+    people: an error about one it does not set says so (the people's pose made it)."""
     message = str(exc)
     head, _, rest = message.partition(": ")
     kind, dot, name = head.partition(".")
     if dot and kind in TEMPLATE_PARAMS and " " not in head:
+        if given is not None and _template_parameter(exc) not in given:
+            rest += (" (not set in the scenario: measured on the people as placed; set it "
+                     "there, or move the people)")
         return _fail(where, f"surface.template.{name}", rest)
     return _fail(where, "surface.template", message)
 
@@ -279,8 +309,45 @@ def template_request(model, persons: int, where: str) -> tuple[TemplateRequest, 
     try:
         mesh = make_template(kind, **given)
     except TemplateError as exc:
-        raise template_error(exc, where) from None
+        # a parameter left unset is measured on the people once they are placed: its default
+        # standing in for it here may clash with the ones given (a lounger's seat_height 0.9
+        # with the default knee_height 0.45), which is no fault of the scenario's; the values
+        # are checked together once measured (`solver.scene.placement.furnished`)
+        name = _template_parameter(exc)
+        mesh = _template_topology(kind, given) if name and name not in given else None
+        if mesh is None:
+            raise template_error(exc, where) from None
     return TemplateRequest(kind, given), mesh
+
+
+def _template_parameter(exc: TemplateError) -> str | None:
+    """The top-level parameter a template's error names (`kind.name...: ...`), or None."""
+    head = str(exc).partition(": ")[0]
+    kind, dot, name = head.partition(".")
+    if not dot or kind not in TEMPLATE_PARAMS or " " in head:
+        return None
+    return re.split(r"[.\[]", name, maxsplit=1)[0]
+
+
+def _template_topology(kind: str, given: dict):
+    """A template of the given kind with the faces and creases the given parameters make
+    (its counts of quads, its back, arms, seams and seats, whether its edges are rounded),
+    every measure at its default; None if even that is no template."""
+    cls = TEMPLATE_PARAMS[kind]
+    defaults = {f.name: f.default for f in dataclasses.fields(cls)}
+    shape = {}
+    for name, value in given.items():
+        if name.endswith("_drop"):  # rounded or not makes other faces: a small rounding
+            shape[name] = 0.001 if value else 0.0
+        elif name == "seat_profiles":  # as many seats, each at the bench's measures
+            shape[name] = [{} for _ in value]
+        elif isinstance(defaults[name], (bool, int)) or name.endswith("_quads") or \
+                name == "quads":  # (counts of quads, flags)
+            shape[name] = value
+    try:
+        return make_template(kind, **shape)
+    except TemplateError:
+        return None
 
 
 def _control_mesh(surf, where: str, base: Path,
@@ -307,9 +374,13 @@ def _person(p: schema.Person, k: int, where: str, base: Path, files: bool) -> Pe
     if not files and not (pose.startswith("db:") or pose.startswith("bvh:bundled:")):
         raise _fail(where, f"{at}.pose", "expected db:NAME or bvh:bundled:NAME#frame=N "
                     f"(files are not read here), got {pose!r}")
-    if pose.startswith("bvh:") and "#" in pose:
-        file_part, frame = pose[4:].split("#", 1)
-        if not file_part.startswith("bundled:"):
+    if not pose.startswith("db:"):  # a BVH frame, `bvh:` written or left out
+        text = pose[4:] if pose.startswith("bvh:") else pose
+        file_part, _, frame = text.rpartition("#")
+        if not file_part or not _FRAME_PART.match(frame):
+            raise _fail(where, f"{at}.pose", "expected db:NAME or bvh:FILE#frame=N (N a "
+                        f"whole number from 0; &unit=U after it if need be), got {p.pose!r}")
+        if not file_part.startswith("bundled:"):  # relative to the scenario, not the cwd
             file_part = str((base / file_part).resolve())
         pose = f"bvh:{file_part}#{frame}"
     try:
@@ -352,12 +423,17 @@ def load_scenario(path: str | Path) -> Scenario:
     path = Path(path)
     if not path.exists():
         raise ScenarioError(f"No scenario file {path}")
+    if path.is_dir():
+        raise ScenarioError(f"{path}: expected a scenario file (TOML), got a folder")
     try:
         data = tomllib.loads(path.read_bytes().decode("utf-8"))  # TOML is UTF-8
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
-    except UnicodeDecodeError:
-        raise ScenarioError(f"{path}: not a text file") from None
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(f"{path}: not a text file (expected UTF-8, got byte "
+                            f"0x{exc.object[exc.start]:02x} at offset {exc.start})") from None
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read it: {exc.strerror or exc}") from None
     return parse_scenario(data, str(path), path.parent)
 
 

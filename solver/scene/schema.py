@@ -426,7 +426,22 @@ def _describe(error: dict, node: dict, loc: list) -> str:
         return "missing (a required field)"
     if kind == "literal_error":
         return f"expected one of {ctx.get('expected')}, got {value!r}"
+    if kind == "template":  # no kind, or none of the known ones: say which was given
+        return _template_kind_message(value)
     return error["msg"]
+
+
+def _template_kind_message(value: Any) -> str:
+    known = list(TEMPLATE_MODELS)
+    if not isinstance(value, dict):
+        return f"expected a table with kind one of {known}, got {_got(value)}"
+    if "kind" not in value:
+        return f"expected a table with kind one of {known}, got no kind"
+    given = value["kind"]
+    close = difflib.get_close_matches(given.lower(), known, n=1, cutoff=0.6) \
+        if isinstance(given, str) else []
+    hint = f" (did you mean {close[0]}?)" if close else ""
+    return f"expected a table with kind one of {known}, got {_got(given)}{hint}"
 
 
 def _items(node: dict, count: int = 2) -> str:
