@@ -340,7 +340,7 @@ def _cmd_relax(args: argparse.Namespace) -> int:
     from solver.contact.evaluate import peak_text
     import sys
 
-    from solver.scene.run import run_relax
+    from solver.scene.run import foam_text, run_relax
 
     with _library_prints_to_stderr():
         report = run_relax(args.scenario, args.out, surface_dir=args.surface,
@@ -351,7 +351,8 @@ def _cmd_relax(args: argparse.Namespace) -> int:
         print(json.dumps(report, indent=2))
         return 0
     if report["surface"] != "fitted":
-        print(f"surface {report['surface']}: margin {report['margin_m'] * 100:g} cm, " +
+        print(f"surface {report['surface']}: margin {report['margin_m'] * 100:g} cm, foam "
+              f"{foam_text(report['foam'])}, " +
               ("the surface's own (its fit's report.json)" if report["margin_from"] == "surface"
                else "the scenario's (no fit's report beside the surface)"))
     for p in report["persons"]:
@@ -558,9 +559,10 @@ def _register_fitting(sub) -> None:
                     help="the surface: a `sitrelax fit` folder (its surface.obj, else "
                          "surface.ply, else surface.glb) or a surface file (.obj of quads or "
                          "triangles, .ply, .glb; in the unit and up axis it states); default: "
-                         "fit now. The bodies may sink in by the margin the surface was fitted "
-                         "with (its fit's report.json), whatever the scenario's surface.margin; "
-                         "by the scenario's for a surface without a fit's report (from CAD)")
+                         "fit now. The bodies sink in by the margin and press the foam the "
+                         "surface was fitted with (its fit's report.json), whatever the "
+                         "scenario's surface.margin and evaluation say; by the scenario's for a "
+                         "surface without a fit's report (from CAD)")
     rx.add_argument("--person", type=int, help="only this person (1-based)")
     rx.add_argument("--db", default=None, help="pose library for db: poses")
     rx.add_argument("--save", action="store_true",

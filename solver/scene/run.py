@@ -37,6 +37,13 @@ if TYPE_CHECKING:
     from solver.scene.workshop import WorkshopOptions
 
 
+def foam_text(foam: dict) -> str:
+    """A foam (`SURFACE_FOAM` and its values, as a relaxation's report gives it) for people:
+    "200 kPa/m, 10 cm, friction 0.5"."""
+    return (f"{foam['foam_stiffness']:g} kPa/m, {foam['foam_thickness'] * 100:g} cm, "
+            f"friction {foam['friction']:g}")
+
+
 def foams(evaluation) -> tuple[Foam, Foam | None]:
     """The surface's foam and the floor's (None without a floor) of a scenario's
     `evaluation` (kPa per metre in the scenario, Pa per metre here)."""
@@ -763,10 +770,12 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
         surface.obj, else surface.ply, else surface.glb: `surface_file`) or a surface file
         (.obj, .ply, .glb; in the unit and up axis it states). None: fit the scenario now,
         with its rounds of relief, as `run_fit` writes surface.obj.
-        The body may sink into the surface by the softness margin it was fitted with: a fit's
-        own (its report.json beside the file, `fit_margin`), whatever the scenario's
-        `surface.margin` says; the scenario's for a surface without a fit's report (from CAD)
-        or fitted now. The report's `margin_m` and `margin_from` say which.
+        The body may sink into the surface by the softness margin it was fitted with, and
+        presses the foam it was fitted for (stiffness, thickness, the cover's friction): a
+        fit's own (its report.json beside the file, `fitted_material`), whatever the
+        scenario's `surface.margin` and `evaluation` say; the scenario's for a surface without
+        a fit's report (from CAD) or fitted now. The report's `margin_m`, `foam` and
+        `margin_from` say which.
     person : only this person (1-based; None: everybody).
     db : the pose library for `db:` poses, and where `save` stores the relaxed poses.
     save : store each relaxed pose in `db`, linked to its origin (see `save_relaxed`); the
@@ -792,13 +801,16 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
     chosen = range(len(scenario.persons)) if person is None else [person - 1]
     # what can be refused without the work is refused before it: the surface, the library
     scenario_margin = scenario.surface.params.margin
-    margin, margin_from = scenario_margin, "scenario"
+    margin, margin_from, foam = scenario_margin, "scenario", {}
     if surface_dir is not None:
         source = surface_file(surface_dir)
         surface, faces = _read_surface(source)
-        fitted_margin = fit_margin(source)
-        if fitted_margin is not None:
-            margin, margin_from = fitted_margin, "surface"
+        material = fitted_material(source)
+        if material is not None:  # the surface's own, as fitted
+            (margin, foam), margin_from = material, "surface"
+            scenario = dataclasses.replace(
+                scenario, evaluation=scenario.evaluation.model_copy(update=foam))
+    foam = {key: getattr(scenario.evaluation, key) for key in SURFACE_FOAM}  # judged with
     if save:
         check_library_for_save(db, lambda seconds: say(
             f"waiting for another writer of {db} to finish: {seconds:.0f} s"))
@@ -811,12 +823,13 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
             _facing_people(surface, faces, [people[k] for k in chosen], source)
             say(f"surface from {source}")
             if margin_from == "surface":
-                say(f"margin {margin * 100:g} cm, the surface's own (its fit's report.json)" +
+                say(f"margin {margin * 100:g} cm and foam ({foam_text(foam)}), "
+                    f"the surface's own (its fit's report.json)" +
                     (f", not the scenario's {scenario_margin * 100:g} cm"
                      if margin != scenario_margin else ""))
             else:
-                say(f"margin {margin * 100:g} cm, the scenario's (no fit's report.json beside "
-                    f"{source.name})")
+                say(f"margin {margin * 100:g} cm and foam ({foam_text(foam)}), "
+                    f"the scenario's (no fit's report.json beside {source.name})")
         else:
             result = fit_people(scenario, people)  # relaxed onto its limit surface, as evaluated
             say(f"fitted the surface in {result.iterations} iterations")
@@ -858,7 +871,9 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
                 row["saved_pose"] = saved
                 say(f"{row['name']}: saved as pose {saved['name']!r} ({saved['id']})")
         report = {"scenario": str(scenario_path), "surface": str(surface_dir or "fitted"),
-                  "margin_m": margin, "margin_from": margin_from, "persons": rows,
+                  "margin_m": margin, "margin_from": margin_from,
+                  "foam": foam,
+                  "persons": rows,
                   "timing": {"total_s": time.perf_counter() - start},
                   "files": ["relax.png"] + [name for row in rows for name in row["files"]]}
         write_atomic(out / "report.json", json.dumps(report, indent=2, allow_nan=False).encode())
@@ -881,7 +896,7 @@ def surface_file(given: str | os.PathLike) -> Path:
         for name in SURFACE_FILES:
             if (path / name).is_file():
                 return path / name
-        rhino = (f"; its scene.3dm is not read: fit again with --format obj (or ply, glb)"
+        rhino = ("; its scene.3dm is not read: fit again with --format obj (or ply, glb)"
                  if (path / "scene.3dm").exists() else "")
         raise RelaxError(f"Expected a `sitrelax fit` folder holding {', '.join(SURFACE_FILES)}"
                          f", got {path}, which holds none of them{rhino}")
@@ -892,12 +907,21 @@ def surface_file(given: str | os.PathLike) -> Path:
     return path
 
 
-def fit_margin(path: Path) -> float | None:
-    """The softness margin (m) the fit that wrote the surface file `path` used: its
-    report.json's `parameters.margin`, when a `sitrelax fit` report beside the file lists it;
-    None otherwise (a surface from CAD). A RelaxError naming the report when it cannot be read
-    or its margin is no length."""
+SURFACE_FOAM = ("foam_stiffness", "foam_thickness", "friction")  # the surface's own material,
+# with its margin: what a fit's report gives a relaxation onto its surface
+
+
+def fitted_material(path: Path) -> tuple[float, dict] | None:
+    """The softness margin (m) and the foam (`SURFACE_FOAM` of the scenario's `evaluation`:
+    stiffness, thickness, the cover's friction) of the fit that wrote the surface file `path`,
+    from its report.json (`parameters.margin`, `parameters.evaluation`) when a `sitrelax fit`
+    report beside the file lists it; None otherwise (a surface from CAD). A RelaxError naming
+    the report when it cannot be read or its values are not what a scenario may hold (the
+    foam of a report without one is the scenario's)."""
+    from pydantic import ValidationError
+
     from solver.body.relax import RelaxError
+    from solver.scene.schema import Evaluation
 
     report_path = path.parent / "report.json"
     if not report_path.exists():
@@ -907,7 +931,7 @@ def fit_margin(path: Path) -> float | None:
     except (OSError, ValueError) as exc:
         raise RelaxError(f"Expected the report of the fit that wrote {path.name}, but "
                          f"{report_path} cannot be read ({exc}): mend or remove it (without "
-                         f"it the scenario's margin is used)") from None
+                         f"it the scenario's margin and foam are used)") from None
     files = report.get("files") if isinstance(report, dict) else None
     if not isinstance(files, dict) or path.name not in files.values():
         return None  # (another command's report, or a file the fit did not write)
@@ -917,7 +941,15 @@ def fit_margin(path: Path) -> float | None:
             not 0 <= margin < float("inf"):
         raise RelaxError(f"Expected the fit's margin in metres in {report_path} "
                          f"(parameters.margin), got {margin!r}")
-    return float(margin)
+    given = params.get("evaluation")
+    given = given if isinstance(given, dict) else {}
+    foam = {key: given[key] for key in SURFACE_FOAM if key in given}
+    try:
+        Evaluation.model_validate(foam)
+    except ValidationError as exc:
+        raise RelaxError(f"Expected the fit's foam in {report_path} (parameters.evaluation): "
+                         f"{exc.errors()[0]['loc'][0]}: {exc.errors()[0]['msg']}") from None
+    return float(margin), foam
 
 
 def check_library_for_save(db: str | os.PathLike,

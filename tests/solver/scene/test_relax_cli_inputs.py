@@ -54,6 +54,27 @@ def test_relax_judges_by_the_margin_the_surface_was_fitted_with(fitted, tmp_path
     assert "the surface's own (its fit's report.json), not the scenario's 1 cm" in err
 
 
+def test_relax_presses_the_foam_the_surface_was_fitted_for(fitted, tmp_path, capsys):
+    """The foam's stiffness, thickness and the cover's friction are the surface's too: a
+    scenario saying 50 kPa/m, 5 cm and friction 0.3 relaxed onto a fit made for the default
+    foam is judged with the fit's foam (its figures before are the fit's own)."""
+    fit = json.loads((fitted / "report.json").read_text())
+    scenario = _scenario(tmp_path, 0.03)
+    scenario.write_text(scenario.read_text() + "\n[evaluation]\nfoam_stiffness = 50.0\n"
+                        "foam_thickness = 0.05\nfriction = 0.3\n")
+    code, report, err = _relax([scenario, "--surface", fitted, "--out", tmp_path / "out"],
+                               capsys)
+    assert code == 0, err
+    expected = {key: fit["parameters"]["evaluation"][key]
+                for key in ("foam_stiffness", "foam_thickness", "friction")}
+    assert report["foam"] == expected == {"foam_stiffness": 200.0, "foam_thickness": 0.1,
+                                          "friction": 0.5}
+    (person,) = report["persons"]
+    assert person["before"]["peak_pressure_kpa"] == pytest.approx(
+        fit["persons"][0]["peak_pressure_kpa"], rel=1e-3)  # (the OBJ's 6 decimals)
+    assert "foam (200 kPa/m, 10 cm, friction 0.5), the surface's own" in err
+
+
 def test_relax_onto_a_surface_without_a_fits_report_judges_by_the_scenarios_margin(
         fitted, tmp_path, capsys):
     cad = tmp_path / "cad"
