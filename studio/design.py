@@ -32,6 +32,7 @@ from typing import Callable, Iterable
 import numpy as np
 
 from capture.files import write_atomic
+from solver.contact.pressure import reachable
 from solver.mesh import split_quad
 from solver.scene import schema
 from solver.scene.quality import design_misses
@@ -41,7 +42,8 @@ from solver.scene.run import (SURFACE_FORMATS, evaluate_fit, fit_people, relax_p
 from solver.scene.scenario import (PersonSpec, Scenario, ScenarioError, parse_scenario,
                                    read_control_mesh, scenario_toml)
 from solver.scene.design import RELIEF_ROUNDS, shared_given
-from solver.scene.placement import PlacedPerson, furnished, place_person, scene_posture
+from solver.scene.placement import (PlacedPerson, furnished, place_person, scene_posture,
+                                    skin_support)
 from solver.surface.subdivision import subdivision
 
 PARAMETERS = ("level", "sigma", "tau_max", "margin")  # the ones the studio's panel sets
@@ -95,16 +97,35 @@ def control_edges(faces: np.ndarray) -> np.ndarray:
     return np.unique(np.sort(edges, axis=1), axis=0)
 
 
-def moved_to(placed: PlacedPerson, spec: PersonSpec) -> PlacedPerson:
-    """`placed` moved to `spec.position` (metres), `spec` its scenario person at that position
-    (nothing else changed): the skin vertices and the placement moved by the same vector, the
-    rest (normals, areas, importance, the rig) as they were."""
-    shift = np.asarray(spec.position, dtype=np.float64) - \
-        np.asarray(placed.spec.position, dtype=np.float64)
+def moved_to(placed: PlacedPerson, spec: PersonSpec, clear: np.ndarray) -> PlacedPerson:
+    """`placed`, posed at position (0, 0, 0), moved to `spec.position` (metres), `spec` its
+    scenario person at that position (nothing else changed): the body `place_person(spec)`
+    makes there, bit for bit, without posing it again.
+
+    The skin vertices and the placement are moved by the same vector (added to zeros: exact),
+    and what `place_person` measures on the placed skin (areas, normals, the parts asked for,
+    the importance) is measured again on the moved one: a body differing by rounding alone
+    (normals of 1e-14) settled otherwise than the one `sitrelax fit` places (one tipped over,
+    the other found no rest). `clear` (V,) bool, of `reach_everywhere(placed)`: the vertices
+    whose outward normal does not run back into the body, which the reach is taken from: its
+    inside tests, the costly part (a winding-number tree of the skin), are made once at the
+    origin (the same wherever the body stands, but for a probe within rounding of the skin)."""
+    if any(placed.spec.position):
+        raise ValueError(f"Expected a body posed at position (0, 0, 0), got one at "
+                         f"{list(placed.spec.position)}")
+    shift = np.asarray(spec.position, dtype=np.float64)
     transform = placed.transform.copy()
     transform[:3, 3] += shift
-    return dataclasses.replace(placed, vertices=placed.vertices + shift, spec=spec,
-                               transform=transform)
+    vertices = placed.vertices + shift
+    areas, normals, importance = skin_support(placed.body, spec.support, vertices, clear)
+    return dataclasses.replace(placed, vertices=vertices, normals=normals, areas=areas,
+                               importance=importance, spec=spec, transform=transform)
+
+
+def reach_everywhere(placed: PlacedPerson) -> np.ndarray:
+    """(V,) bool: `reachable` asked of every skin vertex of `placed` (for `moved_to`)."""
+    return reachable(placed.vertices, placed.body.triangles, placed.normals,
+                     np.ones(len(placed.vertices), dtype=bool))
 
 
 def check_name(name: str) -> str:
@@ -183,7 +204,8 @@ class Design:
         self._resumable = 0  # counts the edits after which no running fit may become `resume`
         self.relaxed: dict[int, RelaxOutcome] = {}  # person -> its relaxed body
         self._placed: dict[str, PlacedPerson] = {}
-        self._posed: dict[str, PlacedPerson] = {}  # by the table but for the position
+        # by the table at position (0, 0, 0): the body there and `reach_everywhere` of it
+        self._posed: dict[str, tuple] = {}
         self._undo: list[dict] = []
         self._redo: list[dict] = []
         self._group: str | None = None  # the group of the last step (its edits coalesce)
@@ -453,19 +475,28 @@ class Design:
 
     def place(self, person: dict) -> PlacedPerson:
         """The person (a table of the session) posed and placed (`place_person`), cached by its
-        table; a person placed before at another position only is moved there instead (every
-        skin vertex by the same vector: its pose, normals, reach and pressure field do not
-        depend on where it stands), so a drag does not pose the body again at every step."""
+        table. Each pose and body is posed once, at position (0, 0, 0), and moved from there to
+        where the person stands (`moved_to`: the body `place_person` makes there, bit for bit,
+        so the figures are those `sitrelax fit` finds), so a drag does not pose the body again
+        at every step."""
         key = json.dumps(person, sort_keys=True)
         if key not in self._placed:
             spec = self._parse(self._data(people=[person])).persons[0]
             if len(self._placed) > 64:
                 self._placed.clear()
                 self._posed.clear()
-            anywhere = json.dumps(dict(person, position=None), sort_keys=True)
-            posed = self._posed.get(anywhere)
-            self._placed[key] = self._posed[anywhere] = (
-                place_person(spec, self.db) if posed is None else moved_to(posed, spec))
+            # posed at the origin once, moved from there (bit for bit `place_person`'s)
+            origin = dict(person, position=[0.0, 0.0, 0.0])
+            anywhere = json.dumps(origin, sort_keys=True)
+            if anywhere not in self._posed:
+                self._posed[anywhere] = (place_person(
+                    self._parse(self._data(people=[origin])).persons[0], self.db), None)
+            posed, clear = self._posed[anywhere]
+            if spec.position != posed.spec.position and clear is None:
+                clear = reach_everywhere(posed)
+                self._posed[anywhere] = (posed, clear)
+            self._placed[key] = posed if spec.position == posed.spec.position else \
+                moved_to(posed, spec, clear)
         return self._placed[key]
 
     # scenarios ----------------------------------------------------------------------------
@@ -593,8 +624,11 @@ class Design:
 
         warnings = []
         for person in self.people:
+            # (the posture is the same wherever the person stands: the body posed at the
+            # origin, kept, is read; a drag then measures no body at every step)
+            at_origin = dict(person, position=[0.0, 0.0, 0.0])
             if SEAT_REGIONS & set(support_regions(person["support"])) and \
-                    scene_posture(self.place(person)) == "standing":
+                    scene_posture(self.place(at_origin)) == "standing":
                 warnings.append(f"{person['name']} stands ({person['pose']}): a standing pose "
                                 f"cannot sit on the surface; pick a seated one")
         return warnings
@@ -603,7 +637,8 @@ class Design:
         """What the last fit misses of the bars (`solver.scene.quality.design_misses`)."""
         if self.last is None:
             return []
-        margin = self.params["margin"]
+        # the margin the fit on screen was made with (the panel's may have changed since)
+        margin = (self.last.data or {}).get("surface", {}).get("margin", self.params["margin"])
         return [m for p in self.last.persons for m in design_misses(p, margin)]
 
     def relax(self, k: int) -> RelaxOutcome:

@@ -27,6 +27,7 @@ import json
 import re
 import threading
 import time
+import warnings
 import zipfile
 from pathlib import Path
 
@@ -74,8 +75,20 @@ def quat_wxyz(rotation_deg) -> np.ndarray:
 def euler_deg(wxyz) -> list[float]:
     """A person's `rotation_deg` (intrinsic "xyz", degrees, 3 decimals) of viser's (w, x, y, z)."""
     w, x, y, z = (float(c) for c in wxyz)
-    return [round(float(a), 3) for a in Rotation.from_quat([x, y, z, w]).as_euler(
-        "xyz", degrees=True)]
+    with warnings.catch_warnings():  # (a quarter turn about y is gimbal lock: one of the
+        warnings.simplefilter("ignore", UserWarning)  # angles that turn so is given)
+        angles = Rotation.from_quat([x, y, z, w]).as_euler("xyz", degrees=True)
+    return [round(float(a), 3) for a in angles]
+
+
+def same_turn(wxyz, rotation_deg, tolerance_deg: float = 1e-4) -> bool:
+    """Whether viser's (w, x, y, z) turns as a person's `rotation_deg` (intrinsic "xyz",
+    degrees) does, within `tolerance_deg`: a gizmo moved, not turned (its Euler angles read
+    back would write (0, 170, 0) as (180, 10, 180))."""
+    w, x, y, z = (float(c) for c in wxyz)
+    between = Rotation.from_quat([x, y, z, w]).inv() * \
+        Rotation.from_euler("xyz", rotation_deg, degrees=True)
+    return bool(np.degrees(between.magnitude()) <= tolerance_deg)
 
 
 def project(points: np.ndarray, position, wxyz, fov: float, aspect: float
@@ -654,8 +667,11 @@ class DesignView:
         if phase == "start":
             self.design.end_group()
         position = [round(float(c), 4) for c in gizmo.position]
+        rotation = self.design.people[k]["rotation_deg"]
+        if not same_turn(gizmo.wxyz, rotation):  # (a move keeps the rotation as typed)
+            rotation = euler_deg(gizmo.wxyz)
         self.design.update_person(k, group=f"move person {k}", position=position,
-                                  rotation_deg=euler_deg(gizmo.wxyz))
+                                  rotation_deg=rotation)
         if phase == "end":
             self.design.end_group()
         if self.selected.value in self._labels() and self.selected_person() == k:
@@ -663,6 +679,9 @@ class DesignView:
             self._set(self.rotation, tuple(self.design.people[k]["rotation_deg"]))
         self._draw_relaxed()
         self._edited(refit=True)
+        if phase == "end":
+            self._status(f"{self.design.people[k]['name']} at {position} m, turned "
+                         f"{list(self.design.people[k]['rotation_deg'])} deg.")
 
     def _draw_bodies_mode(self) -> None:
         self._draw_people(self._pressure())
@@ -943,7 +962,11 @@ class DesignView:
         self._status(f"Loaded {upload.name}: {len(self.design.vertices)} control vertices.")
 
     def _set_parameter(self, name: str, value) -> None:
-        self.design.set_parameter(name, value)
+        try:
+            self.design.set_parameter(name, value)
+        except ValueError:
+            self._show_parameters()  # the panel shows the value the session keeps
+            raise
         self._edited()
 
     def _show_parameters(self) -> None:
@@ -1189,10 +1212,15 @@ class DesignView:
         self.exported = data
         with zipfile.ZipFile(io.BytesIO(data)) as pack:
             count = len(pack.namelist())
-        misses = self.warning_lines
+        # report.json's misses: the surface's bars (crossing, folds, floor, the dense cut)
+        # are judged by the export's check alone, so those not shown above are listed here
+        misses = report["misses"]
+        unseen = [m for m in misses if m not in self.warning_lines]
         self._status(f"Exported the fit on screen (fit {self.session.fits}) as {name}.zip: "
                      f"{count} files, {len(data)} bytes, downloaded." +
-                     (f" It misses {len(misses)} bar(s), listed above." if misses else ""))
+                     (f" Its report.json lists {len(misses)} missed bar(s)" if misses else "") +
+                     (":" + "".join(f"\n\n- {m}" for m in unseen) if unseen else
+                      ", shown above." if misses else ""))
 
     # sessions -----------------------------------------------------------------------------
     def _join(self) -> None:

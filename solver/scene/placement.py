@@ -146,20 +146,33 @@ def place_person(spec: PersonSpec, db: str | os.PathLike | None = None,
     placed = (verts - centre) @ m[:3, :3].T + m[:3, 3]
     to_scene = m.copy()
     to_scene[:3, 3] = m[:3, 3] - m[:3, :3] @ centre
-    areas, normals = triangle_mesh(body.triangles, len(placed)).measures(placed)
+    areas, normals, importance = skin_support(body, spec.support, placed)
     parts = body.part_mask(spec.support)
-    # the importance asks for none of the thighs' skin beside the calves in this pose (the
-    # rim stays clear of the calves), though it is part of the thighs that may be touched
-    asked = body.part_mask(spec.support, placed)
-    # a support can only reach skin whose outward normal does not run back into the body
-    reach = asked & reachable(placed, body.triangles, normals,
-                              asked & (normals @ [0.0, -1.0, 0.0] > 0))
-    field = pressure_field(placed, body.triangles, mask=reach, normals=normals, areas=areas)
     label = spec.name or f"person {index + 1}"
-    return PlacedPerson(placed, normals, field.importance, f"{label} ({captured.label})",
+    return PlacedPerson(placed, normals, importance, f"{label} ({captured.label})",
                         body.triangles, areas, parts, body.mass_kg, body.regions,
                         m[:3, :3].copy(), spec=spec, body=body,
                         motion=motion, transform=to_scene, heading=heading)
+
+
+def skin_support(body: Body, support, placed: np.ndarray, clear: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What `place_person` measures on a body's skin where it is placed, `placed` (V, 3)
+    metres: the Voronoi areas (V,), the unit normals (V, 3) and the importance (V,) of the
+    `support` asked for (`pressure_field` over the skin a support can reach). `clear` (V,)
+    bool: which vertices' outward normals do not run back into the body (`reachable` asked of
+    every vertex), when known: it is the same wherever the body is moved without turning, and
+    its inside tests are the costly part."""
+    areas, normals = triangle_mesh(body.triangles, len(placed)).measures(placed)
+    # the importance asks for none of the thighs' skin beside the calves in this pose (the
+    # rim stays clear of the calves), though it is part of the thighs that may be touched
+    asked = body.part_mask(support, placed)
+    # a support can only reach skin whose outward normal does not run back into the body
+    facing_down = asked & (normals @ [0.0, -1.0, 0.0] > 0)
+    reach = asked & (reachable(placed, body.triangles, normals, facing_down) if clear is None
+                     else facing_down & clear)
+    field = pressure_field(placed, body.triangles, mask=reach, normals=normals, areas=areas)
+    return areas, normals, field.importance
 
 
 def relaxed_placement(person: PlacedPerson, vertices: np.ndarray,

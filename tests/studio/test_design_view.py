@@ -16,6 +16,7 @@ from viser import _messages
 
 from posedb import PoseLibrary
 from studio.design_view import project, ray_pick
+from tests.studio.conftest import wait_until
 from studio.web import VIEWS, Studio
 
 from studio.headless import CAMERA, HeadlessTab as Tab
@@ -45,13 +46,6 @@ def tab(studio):
     tab.close()
 
 
-def _wait(predicate, timeout: float, what: str):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return
-        time.sleep(0.02)
-    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
 
 
 def _seat(view, pose: str = HIGH_SIT) -> None:
@@ -128,10 +122,10 @@ def test_every_tab_gets_the_three_tabs_and_its_own_session(studio):
         assert studio.context.designs["shared bench"] is a.session
     finally:
         first.close()
-        _wait(lambda: first.client_id not in studio.views, 10, "the tab's views to close")
+        wait_until(lambda: first.client_id not in studio.views, 10, "the tab's views to close")
         assert "shared bench" in studio.context.designs  # the second tab still shows it
         second.close()
-    _wait(lambda: "shared bench" not in studio.context.designs, 10, "the session to end")
+    wait_until(lambda: "shared bench" not in studio.context.designs, 10, "the session to end")
 
 
 def test_picks_by_click_shift_click_and_box_then_fix_crease_and_split(tab):
@@ -140,11 +134,11 @@ def test_picks_by_click_shift_click_and_box_then_fix_crease_and_split(tab):
     v = view.design.vertices
     a, b, c, d = (int(j) for j in view.design.faces[20])  # a quad's corners, in turn
     _click(tab, v[a])
-    _wait(lambda: view.selection == [a], 10, "the click to pick a corner")
+    wait_until(lambda: view.selection == [a], 10, "the click to pick a corner")
     _click(tab, v[d], modifier="shift")
-    _wait(lambda: view.selection == [a, d], 10, "shift-click to add another")
+    wait_until(lambda: view.selection == [a, d], 10, "shift-click to add another")
     _click(tab, v[d], modifier="shift")
-    _wait(lambda: view.selection == [a], 10, "shift-click to drop it again")
+    wait_until(lambda: view.selection == [a], 10, "shift-click to drop it again")
     # boxes around b and then c, in the image as the tab's camera sees it
     cam = view.client.camera
     uv, front = project(v, cam.position, cam.wxyz, cam.fov, cam.aspect)
@@ -154,7 +148,7 @@ def test_picks_by_click_shift_click_and_box_then_fix_crease_and_split(tab):
         assert np.flatnonzero(np.all((uv >= lo) & (uv <= hi), axis=1)).tolist() == [j]
         tab.send(_messages.ScenePointerMessage("rect-select", None, None,
                                                (tuple(lo), tuple(hi)), "shift"))
-        _wait(lambda: view.selection == expect, 10, f"the box to add {j}")
+        wait_until(lambda: view.selection == expect, 10, f"the box to add {j}")
     view._guarded(lambda: view._fix(True))
     assert view.design.fixed == {a, b, c}
     view._guarded(lambda: view._crease(True))
@@ -304,18 +298,18 @@ def test_dragging_refits_on_the_worker_and_a_newer_drag_cancels(tab):
         tab.send(_messages.TransformControlsUpdateMessage(name, (1.0, 0.0, 0.0, 0.0),
                                                           (0.0, 0.0, -0.1 + dz), owner))
     tab.send(_messages.TransformControlsDragEndMessage(name, owner))
-    _wait(lambda: view.design.people[0]["position"] == [0.0, 0.0, -0.08], 10, "the drag")
-    _wait(lambda: view.fits >= 1, 60, "a refit after the drag")
-    _wait(lambda: "Fitted" in view.status_text, 10, "the refit drawn")
+    wait_until(lambda: view.design.people[0]["position"] == [0.0, 0.0, -0.08], 10, "the drag")
+    wait_until(lambda: view.fits >= 1, 60, "a refit after the drag")
+    wait_until(lambda: "Fitted" in view.status_text, 10, "the refit drawn")
     fitted_at = view.design.last.people[0].spec.position
     assert fitted_at == (0.0, 0.0, -0.08)  # the fit drawn is the newest placement's
     # an edit while a fit runs cancels it: the fit returns nothing and draws nothing
     fits = view.fits
     view.session.refitter.request()
-    _wait(lambda: view.session.refitter.busy, 10, "the refit to start")
+    wait_until(lambda: view.session.refitter.busy, 10, "the refit to start")
     view._guarded(lambda: view.design.update_person(0, position=[0.0, 0.0, -0.09]))
     view.session.refitter.bump()
-    _wait(lambda: not view.session.refitter.busy, 30, "the cancelled fit to stop")
+    wait_until(lambda: not view.session.refitter.busy, 30, "the cancelled fit to stop")
     assert view.fits == fits
 
 
@@ -341,12 +335,12 @@ def test_a_drag_streams_the_surface_and_the_fit_of_its_end_replaces_it(studio):
             tab.send(_messages.TransformControlsUpdateMessage(
                 name, (1.0, 0.0, 0.0, 0.0), (0.0005 * step, 0.0, -0.1), owner))
             time.sleep(0.03)
-        _wait(lambda: view.design.people[0]["position"] == [0.02, 0.0, -0.1], 30, "the drag")
+        wait_until(lambda: view.design.people[0]["position"] == [0.02, 0.0, -0.1], 30, "the drag")
         dragged = time.perf_counter()
         tab.send(_messages.TransformControlsDragEndMessage(name, owner))
-        _wait(lambda: view.fits >= 2 and not view.session.refitter.busy and
+        wait_until(lambda: view.fits >= 2 and not view.session.refitter.busy and
               not view.session.refitter.wanted, 60, "the fit after the drag")
-        _wait(lambda: view.design.last.people[0].spec.position == (0.02, 0.0, -0.1), 60,
+        wait_until(lambda: view.design.last.people[0].spec.position == (0.02, 0.0, -0.1), 60,
               "the fit of the drag's end")
         while_dragging = [t for t in tab.arrivals["/design/surface"] if start <= t <= dragged]
         assert len(while_dragging) >= 2, (len(while_dragging), view.session.shown)
@@ -373,7 +367,7 @@ def test_the_pose_list_follows_a_rename_made_elsewhere(tmp_path):
         chosen = view.pose.value  # (the seated recording)
         with PoseLibrary(path).edit() as ed:
             ed.rename("perch", "my favourite perch")
-        _wait(lambda: "my favourite perch" in view.pose.options, 10, "the renamed pose")
+        wait_until(lambda: "my favourite perch" in view.pose.options, 10, "the renamed pose")
         assert "perch" not in view.pose.options and view.pose.value == chosen
     finally:
         tab.close()
@@ -384,11 +378,11 @@ def test_sigma_takes_an_exponent_and_refuses_what_is_no_number_keeping_its_value
     view = tab.view
     for typed in ("5", "5e", "5e-", "5e-3"):  # key by key, as the text input sends them
         view.sigma.value = typed
-    _wait(lambda: view.design.params["sigma"] == 0.005, 10, "sigma from 5e-3")
+    wait_until(lambda: view.design.params["sigma"] == 0.005, 10, "sigma from 5e-3")
     assert view.sigma.value == "5e-3" and "Expected sigma" not in view.status_text
     for typed in ("-1", "1e308", "lots"):
         view.sigma.value = typed
-        _wait(lambda: "Expected sigma" in view.status_text, 10, f"{typed!r} refused")
+        wait_until(lambda: "Expected sigma" in view.status_text, 10, f"{typed!r} refused")
         assert view.design.params["sigma"] == 0.005 and view.sigma.value == "0.005"
         view._status("")
     view._guarded(view.design.undo)  # one step for the typing: the value before it again
@@ -405,7 +399,7 @@ def test_cancel_stops_the_fit_the_fit_button_started(tab):
     _seat(view)
     worker = threading.Thread(target=lambda: view._guarded(view.run_fit))
     worker.start()
-    _wait(lambda: "iteration" in view.progress.content, 30, "the fit's first iteration")
+    wait_until(lambda: "iteration" in view.progress.content, 30, "the fit's first iteration")
     view.session.cancel_fit()
     worker.join(30)
     assert not worker.is_alive()
@@ -431,14 +425,14 @@ def _problems_are_noticed(tab) -> None:
     view.name.value = ""
     view._guarded(view._save_toml)
     assert view.status_text.startswith("**Problem:**"), view.status_text
-    _wait(lambda: any(title == "Problem" and "name" in body for title, body in tab.notices),
+    wait_until(lambda: any(title == "Problem" and "name" in body for title, body in tab.notices),
           10, "the notice")
     view._guarded(lambda: None)  # an action that says nothing
     assert view.status_text == ""
     # a refit's problem (on the worker, no action of the tab's) likewise
     view.session.problem(ValueError("person 1 is 18 m from the surface"))
     assert view.status_text == "**Problem:** the refit failed: person 1 is 18 m from the surface"
-    _wait(lambda: ("Problem", "the refit failed: person 1 is 18 m from the surface")
+    wait_until(lambda: ("Problem", "the refit failed: person 1 is 18 m from the surface")
           in tab.notices, 10, "the refit's notice")
     view._guarded(lambda: None)
     assert view.status_text == ""
@@ -452,7 +446,7 @@ def test_showing_record_frames_a_standing_performer_once(studio, tab):
     client = studio.server.get_clients()[tab.client_id]
     shown = studio.shown[tab.client_id]
     shown.value = "Record"
-    _wait(lambda: np.allclose(client.camera.position, FRAMING["Record"][0]), 10,
+    wait_until(lambda: np.allclose(client.camera.position, FRAMING["Record"][0]), 10,
           "the camera to frame a standing performer")
     client.camera.position = (3.0, 2.0, 3.0)  # the designer orbits
     shown.value = "Design"

@@ -117,25 +117,6 @@ def test_disconnecting_while_recording_stores_the_take_and_says_what_it_stored(l
     assert [p.name for p in lib.find_poses(take="take-1")] == ["held-2"]
 
 
-@pytest.fixture(scope="module")
-def studio(tmp_path_factory):
-    from studio.web import Studio
-
-    server = Studio(port=0, out=str(tmp_path_factory.mktemp("out")))
-    yield server
-    server.stop()
-
-
-@pytest.fixture
-def design_view(studio):
-    from studio.headless import HeadlessTab
-
-    tab = HeadlessTab(studio)
-    tab.view.live.value = False
-    yield tab.view
-    tab.close()
-
-
 def test_a_refused_person_edit_leaves_the_panel_showing_the_person(design_view):
     view = design_view
     view.add_person("bvh:bundled:cmu_75_18_high_sit.bvh#frame=39")
