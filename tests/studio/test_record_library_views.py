@@ -263,13 +263,17 @@ def test_a_pose_is_drawn_from_its_own_rotations(library):
 
 
 def _mount(server, context, views):
-    """Mounts the views in a tab group for every client that connects, as the studio does."""
+    """Mounts the views in a tab group for every client that connects, as the studio does:
+    the 3D view shows the first view's nodes only (viser tells the server no tab switch; the
+    studio's "3D view shows" chooses, and a test shows another view's by its `root`)."""
     mounted = []
 
     @server.on_client_connect
     def _(client) -> None:
         group = client.gui.add_tab_group()
         made = {label: cls(client, group.add_tab(label), context) for label, cls in views}
+        for k, view in enumerate(made.values()):
+            view.root.visible = k == 0
         mounted.append(made)
 
     return mounted
@@ -383,6 +387,7 @@ def test_record_and_library_views_in_a_browser(library, tmp_path):
 
         driver.find_element(By.XPATH, "//*[@role='tab'][normalize-space(.)='Library']").click()
         record.root.visible = False  # viser tells the server no tab switch: the studio hides
+        mounted[0]["Library"].root.visible = True  # one view's nodes and shows the other's
         _wait(lambda: button("Search"), 20, "the Library view")
         click("Refresh")
         type_into("Tags", "session and stand")
