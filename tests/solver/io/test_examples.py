@@ -38,18 +38,8 @@ def fitted():
     return surfaces
 
 
-# Examples whose solids are refused: the trimmed offset under `reclining`'s tight bends reaches
-# up through its own top, 1-4 mm in front of the surface at 11-68 of its triangles, and under
-# `six_overlapping`'s (bends down to a 3 mm radius) at one triangle, at 1 cm and at 3 cm (found
-# by `check_solid`'s `over_surface` since 2026-12-07; written as sound before). Still open.
-THROUGH_THE_TOP = {"reclining", "six_overlapping"}
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize("name", [
-    pytest.param(n, marks=pytest.mark.xfail(strict=True, reason="the solid stands in front of "
-                                            "its surface at a tight bend"))
-    if n in THROUGH_THE_TOP else n for n in EXAMPLES])
+@pytest.mark.parametrize("name", EXAMPLES)
 @pytest.mark.parametrize("thickness", [THIN, WORKSHOP])
 def test_every_example_thickens_to_a_closed_manifold(fitted, name, thickness, tmp_path):
     """The 1 cm and the 3 cm solid of every example's surface: watertight and consistently

@@ -13,7 +13,7 @@ from solver.io.solid import (SolidError, boundary_edges, check_solid, model_3mf,
                              write_stl)
 from solver.mesh import quad_triangles, voronoi_areas
 
-from .conftest import underside_distances
+from .conftest import bent_grid, underside_distances
 
 
 def test_boundary_edges_of_one_quad_run_its_way():
@@ -81,6 +81,33 @@ def test_offset_deeper_than_a_ridge_radius_is_trimmed_into_a_sound_solid(ridge, 
     longest = np.linalg.norm(np.roll(corners, -1, axis=1) - corners, axis=2).max(axis=1)
     low = 2 * mesh.area_faces / longest < 1e-6
     assert low.sum() < 0.07 * len(solid.triangles), (low.sum(), len(solid.triangles))
+
+
+def test_trimmed_solid_keeps_nothing_in_front_of_a_tight_ridge():
+    """Over a 3 mm ridge in coarse quads (no edge folds past 90 degrees) the 1 cm offset is
+    trimmed into one convex piece per triangle, swept along the normals of the faces around
+    its corners. Those turn further than 90 degrees from a triangle near the ridge, and the
+    pieces stood through the top in front of it: 0.1 mm in front of 20 of the 48 triangles
+    lay inside the solid, one of them inside only the piece of a triangle 80 degrees away
+    that shares a single corner with it. With the region in front of the surface cut away,
+    0.1 mm in front of every triangle lies outside (trimesh's ray test and the module's
+    winding number), the top is still the surface, and the solid passes every check."""
+    vertices, quads, _ = bent_grid(radius=0.003, bend=-1.0, columns=13, rows=3, width=0.04,
+                                   length=0.01)
+    solid = thicken(vertices, quads, 0.01, check=False)
+    check = check_solid(solid)
+    assert solid.trimmed > 0 and check.surface_folds == 0
+    assert check.over_surface == 0 and check.ok, check.problem()
+    mesh = trimesh.Trimesh(solid.vertices, solid.triangles, process=False)
+    assert mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0
+    surface = trimesh.Trimesh(vertices, quad_triangles(quads), process=False)
+    probes = surface.triangles_center + 1e-4 * surface.face_normals
+    assert not mesh.contains(probes).any()
+    # (a few slivers the cut left on the top, a fraction of a square millimetre, lie up to
+    # a tenth of a micrometre off it)
+    on_top = np.abs(trimesh.proximity.signed_distance(
+        surface, solid.vertices[solid.triangles].mean(axis=1))) < 1e-7
+    assert mesh.area_faces[on_top].sum() == pytest.approx(surface.area, rel=1e-6)
 
 
 def test_crossing_triangles_are_found_and_neighbours_are_not():
@@ -360,3 +387,34 @@ def test_fit_refuses_a_tool_radius_past_any_cutter_before_fitting(tmp_path, caps
     assert main(["fit", str(example), "--out", str(out), "--tool-radius", radius]) == 2
     assert "tool radius in (0, 0.1] m" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_a_hollow_right_behind_the_top_is_found(trough):
+    """A solid watertight and consistently wound, but with a cavity just behind its top (as
+    a trim that cut under a ridge left one): the winding number 0.1 mm behind the surface
+    finds it (the underside's distances do not), and the solid is refused."""
+    from dataclasses import replace
+
+    vertices, quads, _ = trough
+    solid = thicken(vertices, quads, 0.02)
+    assert check_solid(solid).ok and check_solid(solid).hollow_under == 0
+    # a closed box 0.05-2 mm behind the top around the middle of one of its triangles, 1 mm
+    # wide (it crosses nothing), wound inwards (a cavity)
+    top = solid.vertices[:solid.n_surface]
+    tri = top[solid.surface_triangles[len(solid.surface_triangles) // 2]]
+    middle = tri.mean(axis=0)
+    normal = np.cross(tri[1] - tri[0], tri[2] - tri[0])
+    normal /= np.linalg.norm(normal)
+    box = trimesh.creation.box(extents=(0.001, 0.001, 0.00195))
+    frame = np.eye(4)
+    frame[:3, :3] = trimesh.geometry.align_vectors([0.0, 0.0, 1.0], normal)[:3, :3]
+    frame[:3, 3] = middle - (0.00005 + 0.00195 / 2) * normal
+    box.apply_transform(frame)
+    hollow = replace(solid, vertices=np.concatenate([solid.vertices, box.vertices]),
+                     triangles=np.concatenate([solid.triangles,
+                                               box.faces[:, ::-1] + len(solid.vertices)]))
+    check = check_solid(hollow)
+    assert check.watertight and check.winding_consistent and check.intersecting_pairs == 0
+    assert check.hollow_under == 1 and check.over_surface == 0
+    assert replace(check, hollow_under=0).ok  # (nothing else would refuse it)
+    assert not check.ok and "hollow right behind the surface" in check.problem()
