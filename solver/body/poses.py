@@ -100,7 +100,7 @@ def load_pose(spec: str, db: str | os.PathLike | None = None, *,
                             info.placement)
     text = spec[4:] if spec.startswith("bvh:") else spec
     m = _FRAME.match(text)
-    if m is None:
+    if m is None or not m["path"].strip():  # (a blank file name too: "bvh: #frame=1")
         raise PoseSourceError(
             f"Expected a pose as db:NAME or [bvh:]FILE.bvh#frame=N[&unit=U], got {spec!r}"
         )

@@ -299,6 +299,10 @@ def _check_seat(p, kind: str) -> None:
     _check(kind, drop_name, drop, 0.0, min(0.1, p.seat_depth / 4))
     low = p.seat_height - p.seat_depth * math.tan(math.radians(max(p.seat_tilt_deg, 0.0)))
     if low - drop < 0.02:
+        if low >= 0.02 and drop > 0:  # (the seat stands clear: its dropped edge does not)
+            raise TemplateError(f"{kind}.{drop_name}: expected a drop that keeps the seat's "
+                                f"edge above the floor, at most {low - 0.02:.3f} here, got "
+                                f"{drop:g} (the edge would be at {low - drop:.3f} m)")
         raise TemplateError(f"{kind}.seat_tilt_deg: expected a tilt that keeps the seat above "
                             f"the floor, got {p.seat_tilt_deg:g} (its rear would be at "
                             f"{low - drop:.3f} m)")

@@ -121,6 +121,8 @@ def test_pose_sources(tmp_path):
                           (f"{recording('cmu_75_18_high_sit.bvh')}#frame=77", "0..76"),
                           # one frame a reference (the file was read as '...bvh#frame=39')
                           ("bvh:bundled:cmu_75_18_high_sit.bvh#frame=39#frame=2",
-                           "Expected a pose as")]:
+                           "Expected a pose as"),
+                          # a blank file name (was "No such file or directory:  ")
+                          ("bvh: #frame=1", "Expected a pose as")]:
         with pytest.raises(PoseSourceError, match=message):
             load_pose(spec)

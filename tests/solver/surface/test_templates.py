@@ -208,6 +208,11 @@ def test_position_and_heading_move_and_turn_the_template():
     ("chair", {"seat_quads": (8, 1)}, r"chair\.seat_quads\[1\]: expected a whole number >= 2"),
     ("chair", {"seat_tilt_deg": 29.0, "seat_depth": 1.4},
      r"chair\.seat_tilt_deg: expected a tilt that keeps the seat above the floor"),
+    # a low seat whose front edge drops to the floor: the drop is named, not the tilt
+    ("chair", {"seat_height": 0.1, "seat_depth": 0.4, "seat_tilt_deg": 0.0,
+               "front_drop": 0.09},
+     r"chair\.front_drop: expected a drop that keeps the seat's edge above the floor, at most "
+     r"0\.080 here, got 0\.09"),
     ("bench", {"seats": 0}, r"bench\.seats: expected a whole number >= 1, got 0"),
     ("bench", {"seats": 2.5}, r"bench\.seats: expected a whole number, got 2\.5"),
     ("bench", {"seat_profiles": ({},)},
