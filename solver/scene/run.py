@@ -758,7 +758,8 @@ def _contact_colors(surface: np.ndarray, people: list[PlacedPerson]) -> np.ndarr
 def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
               surface_dir: str | os.PathLike | None = None, person: int | None = None,
               db: str | os.PathLike | None = None, save: bool = False,
-              progress: Callable[[str], None] | None = None) -> dict:
+              progress: Callable[[str], None] | None = None,
+              lock_timeout: float | None | str = "default") -> dict:
     """Relaxes the scenario's people onto a surface and writes the results (`sitrelax relax`).
 
     Parameters
@@ -781,6 +782,8 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
     save : store each relaxed pose in `db`, linked to its origin (see `save_relaxed`); the
         library is checked first, before any work (`check_library_for_save`).
     progress : optional callback taking one line of news per stage.
+    lock_timeout : seconds to wait for another writer of `db` when saving (None: as long as
+        it runs; "default": $SITRELAX_LOCK_TIMEOUT or the library's default).
 
     Returns
     -------
@@ -813,7 +816,7 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
     foam = {key: getattr(scenario.evaluation, key) for key in SURFACE_FOAM}  # judged with
     if save:
         check_library_for_save(db, lambda seconds: say(
-            f"waiting for another writer of {db} to finish: {seconds:.0f} s"))
+            f"waiting for another writer of {db} to finish: {seconds:.0f} s"), lock_timeout)
     # written whole or not at all, in place of an earlier relaxation's result (not a fit's)
     with results_folder(out_dir, lambda folder: previous_results(folder, list),
                         "report.json") as out:
@@ -867,7 +870,8 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
         # stored last, once every file but the report is written: a relaxation whose results
         # fail to be written leaves no pose behind in the library
         if save:
-            for row, saved in zip(rows, save_relaxed(db, relaxed, str(surface_dir or "fitted"))):
+            for row, saved in zip(rows, save_relaxed(db, relaxed, str(surface_dir or "fitted"),
+                                                        lock_timeout)):
                 row["saved_pose"] = saved
                 say(f"{row['name']}: saved as pose {saved['name']!r} ({saved['id']})")
         report = {"scenario": str(scenario_path), "surface": str(surface_dir or "fitted"),
@@ -953,16 +957,17 @@ def fitted_material(path: Path) -> tuple[float, dict] | None:
 
 
 def check_library_for_save(db: str | os.PathLike,
-                           on_wait: Callable[[float], None] | None = None) -> None:
+                           on_wait: Callable[[float], None] | None = None,
+                           lock_timeout: float | None | str = "default") -> None:
     """Refuses a pose library `save_relaxed` could not store into, before any work and with
     the pose library's own errors (those `sitrelax db` commands give): missing, a folder, no
     pose library, damaged, read-only, or locked by another writer past the lock timeout
     ($SITRELAX_LOCK_TIMEOUT). The checks a change (`PoseLibrary.edit`) makes before it
     writes, without writing. `on_wait(seconds waited)`, about once a second while another
-    writer holds the library."""
+    writer holds the library; `lock_timeout` as `PoseLibrary` takes it."""
     from posedb import PoseLibrary
 
-    PoseLibrary(db, on_wait=on_wait).check_changeable()
+    PoseLibrary(db, on_wait=on_wait, lock_timeout=lock_timeout).check_changeable()
 
 
 def _read_surface(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -1023,7 +1028,8 @@ def _facing_people(surface: np.ndarray, quads: np.ndarray, people: list[PlacedPe
                              f"way as {path}; flip it (reverse each face's vertex order)")
 
 
-def save_relaxed(db: str | os.PathLike, relaxed: list, surface: str) -> list[dict]:
+def save_relaxed(db: str | os.PathLike, relaxed: list, surface: str,
+                 lock_timeout: float | None | str = "default") -> list[dict]:
     """Stores relaxed poses in the pose library, all in one commit: each as a one-frame take
     in the body's rig (origin "relaxed", source: the pose it came from, a library pose id or
     the BVH reference) and a pose "<origin>-relaxed" carrying the origin's tags, "relaxed" and
@@ -1031,13 +1037,14 @@ def save_relaxed(db: str | os.PathLike, relaxed: list, surface: str) -> list[dic
     own frame (the captured pose's), with where the relaxation left it relative to the standard
     placement (`posedb.PosePlacement`, `solver.scene.placement.relaxed_placement`), so that put
     back into the scenario at the same position and rotation it stands where it was relaxed to.
-    relaxed : [(PlacedPerson, RelaxResult)]."""
+    relaxed : [(PlacedPerson, RelaxResult)]; lock_timeout : as `PoseLibrary` takes it (seconds
+    to wait for another writer)."""
     from posedb import PoseLibrary, PosePlacement
 
     from solver.body.rig import pose_channels, rig_skeleton
     from solver.scene.placement import relaxed_placement
 
-    lib = PoseLibrary(db)
+    lib = PoseLibrary(db, lock_timeout=lock_timeout)
     taken = {p.name for p in lib.poses()} | {t.name for t in lib.takes()}
     saved = []
     with lib.edit() as ed:

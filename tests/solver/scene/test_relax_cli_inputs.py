@@ -231,3 +231,27 @@ def test_relax_save_checks_the_library_before_the_work(kind, fitted, tmp_path, c
     assert capsys.readouterr().err.strip().splitlines()[-1] == expected
     assert not out.exists()
     assert before is None or db.read_bytes() == before
+
+
+def test_relax_save_takes_the_lock_timeout_the_db_commands_take(fitted, tmp_path, capsys,
+                                                                monkeypatch):
+    """`--lock-timeout S`, as every `db` command has it (the locked library's message names
+    it): with another writer holding the library, relax waits S seconds and then refuses,
+    whatever $SITRELAX_LOCK_TIMEOUT says; a NaN is refused by name."""
+    import time
+
+    from posedb.locking import exclusive
+    from tests.conftest import high_sit_library
+
+    monkeypatch.setenv("SITRELAX_LOCK_TIMEOUT", "none")  # (would wait as long as it is held)
+    db = high_sit_library(tmp_path / "poses.h5")
+    with exclusive(db, timeout=0):
+        start = time.monotonic()
+        code = main(["relax", str(SEATED), "--surface", str(fitted), "--db", str(db), "--save",
+                     "--lock-timeout", "0.3", "--out", str(tmp_path / "out")])
+        waited = time.monotonic() - start
+    assert code == 2 and 0.3 <= waited < 5.0, waited
+    assert "lock" in capsys.readouterr().err.lower()
+    assert main(["relax", str(SEATED), "--surface", str(fitted), "--db", str(db), "--save",
+                 "--lock-timeout", "nan", "--out", str(tmp_path / "out")]) == 2
+    assert "--lock-timeout" in capsys.readouterr().err
