@@ -11,6 +11,12 @@ Every edit is one step of the session's history (`undo`, `redo`): the people, th
 the fixed vertices, the creases, the parameters, and the fit and relaxed bodies that went with
 them. Edits made inside one `edit(group)` block, or one after another in the same group (a
 drag's many moves), are one step.
+
+A scenario opened in the session (`Design.open_scenario`) keeps what the panel does not edit:
+the other fit parameters, `[evaluation]`, `[relief]` and every field of each person are written
+back as they were read, and its grid or template stays the scenario's start (written as such)
+while the control mesh, its creases and (for a template, built around them) the people are
+those it made.
 """
 
 from __future__ import annotations
@@ -84,6 +90,21 @@ def _template_problem(name: str, message: str) -> str:
 
 class DesignError(ValueError):
     """An edit or a run the session cannot make (the message says why)."""
+
+
+def _scenario_data(text: bytes | str, name: str) -> dict:
+    """The data of a scenario file's content (as `load_scenario` reads a file): DesignError
+    naming `name` when it is not UTF-8 or not TOML."""
+    if isinstance(text, bytes):
+        try:
+            text = text.decode("utf-8")  # TOML is UTF-8
+        except UnicodeDecodeError as exc:
+            raise DesignError(f"{name}: not a text file (expected UTF-8, got byte "
+                              f"0x{exc.object[exc.start]:02x} at offset {exc.start})") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise DesignError(f"{name}: not valid TOML: {exc}") from None
 
 
 NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789-_. ")
@@ -185,7 +206,12 @@ class RelaxOutcome:
     result: object = None  # the solver's `RelaxResult` (what `save_relaxed` stores)
 
 
-_STATE = ("people", "vertices", "faces", "fixed", "creases", "params", "last", "relaxed")
+_STATE = ("people", "vertices", "faces", "fixed", "creases", "params", "last", "relaxed",
+          "kept", "start")
+# a scenario's [surface] fields of the session's control mesh and panel; the others are kept
+_SURFACE_EDITED = frozenset({"grid", "control_mesh", "template", "fixed", "creases",
+                             *PARAMETERS})
+_STARTS = ("grid", "template")  # the surfaces a scenario starts from that it may keep
 
 
 class Design:
@@ -198,6 +224,12 @@ class Design:
         self.vertices = np.zeros((0, 3))
         self.faces = np.zeros((0, 4), dtype=np.int64)
         self.last: FitOutcome | None = None
+        # what an opened scenario sets that the session does not edit (`open_scenario`): the
+        # other [surface] fields under "surface", and [evaluation] and [relief] as read
+        self.kept: dict = {}
+        # an opened scenario's grid or template: {"key", "table", "creases" (its own),
+        # "vertices", "faces", "built" (the creases made), "people"} (`_start_holds`)
+        self.start: dict | None = None
         # the newest accepted iterate of a fit a newer edit cancelled, while it is newer than
         # `last`: the next warm fit goes on from it (what the tabs show), no step of the history
         self.resume: FitResult | None = None
@@ -218,7 +250,8 @@ class Design:
         return {"people": copy.deepcopy(self.people), "vertices": self.vertices.copy(),
                 "faces": self.faces.copy(), "fixed": set(self.fixed),
                 "creases": set(self.creases), "params": dict(self.params),
-                "last": self.last, "relaxed": dict(self.relaxed)}
+                "last": self.last, "relaxed": dict(self.relaxed),
+                "kept": copy.deepcopy(self.kept), "start": self.start}
 
     def snapshot(self) -> dict:
         """The session's state (people, control mesh, parameters, the last fit), to start
@@ -321,7 +354,8 @@ class Design:
         given = {**given, **shared_given(kind, len(self.people))}
         people = [dict(p, support=use) for p in self.people]
         data = self._data(people=people)
-        data["surface"] = {"template": {"kind": kind, **given}, **self.params}
+        data["surface"] = {"template": {"kind": kind, **given}, **self.params,
+                           **self.kept.get("surface", {})}
         try:
             built = furnished(self._parse(data), [self.place(p) for p in people])
         except ScenarioError as exc:
@@ -503,12 +537,14 @@ class Design:
     def _data(self, *, params: dict | None = None, people: list | None = None) -> dict:
         surface = {"control_mesh": {"vertices": self.vertices.tolist(),
                                     "faces": self.faces.tolist()},
-                   **(params or self.params)}
+                   **(params or self.params), **copy.deepcopy(self.kept.get("surface", {}))}
         if self.fixed:
             surface["fixed"] = sorted(self.fixed)
         if self.creases:
             surface["creases"] = [list(c) for c in sorted(self.creases)]
-        return {"surface": surface,
+        tables = {key: copy.deepcopy(self.kept[key]) for key in ("evaluation", "relief")
+                  if key in self.kept}
+        return {"surface": surface, **tables,
                 "person": copy.deepcopy(people if people is not None else self.people)}
 
     def _parse(self, data: dict) -> Scenario:
@@ -522,6 +558,147 @@ class Design:
 
     def scenario(self) -> Scenario:
         return self._parse(self.scenario_data())
+
+    def open_scenario(self, text: bytes | str, name: str = "<scenario>",
+                      base: str | os.PathLike | None = None) -> Scenario:
+        """Replaces the session by the scenario in `text` (a scenario file's TOML): one step.
+
+        Parameters
+        ----------
+        text : the file's content (UTF-8 bytes, or its text).
+        name : what the problems start with (the file's name).
+        base : the folder its relative paths are relative to, when the scenario was read from
+            one the studio may read: its OBJ control mesh (or a joint map's file) is then read
+            from there into the session; None (an upload, which comes alone): the scenario
+            must name no file.
+
+        Everything the session does not edit is kept as read (`kept`, each person's table),
+        and a grid or template stays the start that "Save TOML" writes (`start`): saved at
+        once, the scenario parses to what was opened. A template is built around the people
+        as `sitrelax fit` builds it (its unset dimensions measured on them). People pose from
+        the library (`db:`) or the bundled recordings (`bvh:bundled:`) only.
+
+        Returns
+        -------
+        Scenario: the opened one (`parse_scenario` of the file). Raises DesignError (or the
+        scenario's ScenarioError, naming the field) and leaves the session as it was when the
+        file is not UTF-8, not TOML, no valid scenario, or names a file the studio cannot read.
+        """
+        data = _scenario_data(text, name)
+        schema.validate(data, name)  # unknown keys, bounds: the field named
+        surface = copy.deepcopy(data["surface"])
+        base_dir = Path(base) if base is not None else None
+        people = [self._opened_person(p, k, name, base_dir)
+                  for k, p in enumerate(data["person"])]
+        if len(people) > MAX_PEOPLE:
+            raise DesignError(f"{name}: a studio scene holds at most {MAX_PEOPLE} people, the "
+                              f"scenario has {len(people)}")
+        if isinstance(surface.get("control_mesh"), str):
+            mesh = surface["control_mesh"]
+            if base_dir is None:
+                raise DesignError(f"{name}: surface.control_mesh names the file {mesh!r} beside "
+                                  f"it, which the studio was not given (an uploaded scenario "
+                                  f"comes alone): give the control mesh inline ({{vertices, "
+                                  f"faces}}), or open the scenario with a grid and load "
+                                  f"{Path(mesh).name} with Load control mesh (OBJ)")
+            v, f = read_control_mesh((base_dir / mesh).resolve(), name)
+            surface["control_mesh"] = {"vertices": v.tolist(), "faces": f.tolist()}
+        inline = {**data, "surface": surface, "person": people}
+        opened = parse_scenario(inline, name, files=False)  # the checks that need the mesh
+        params = {key: surface.get(key, schema.default(schema.Surface, key))
+                  for key in PARAMETERS}
+        kept = {"surface": {k: v for k, v in surface.items() if k not in _SURFACE_EDITED}}
+        kept.update({key: copy.deepcopy(data[key]) for key in ("evaluation", "relief")
+                     if key in data})
+        placed = []
+        for k, person in enumerate(people):  # each pose found, each body made
+            try:
+                placed.append(self.place(person))
+            except (ValueError, OSError) as exc:  # a library pose, a bundled recording missing
+                raise DesignError(f"{name}: person[{k}]: {exc}") from None
+        given = [tuple(c) for c in surface.get("creases", [])]
+        start = None
+        if opened.surface.template is not None:
+            try:
+                built = furnished(opened, placed).surface
+            except ScenarioError as exc:
+                raise DesignError(str(exc)) from None
+            vertices, faces, creases = built.vertices, built.faces, built.params.creases
+        else:
+            vertices, faces, creases = (opened.surface.vertices, opened.surface.faces,
+                                        opened.surface.params.creases)
+        creases = {(min(a, b), max(a, b)) for a, b in creases}
+        key = next((k for k in _STARTS if k in surface), None)
+        if key is not None:
+            start = {"key": key, "table": copy.deepcopy(surface[key]),
+                     "creases": [list(c) for c in given], "vertices": np.array(vertices),
+                     "faces": np.array(faces), "built": frozenset(creases),
+                     "people": copy.deepcopy(people)}
+        with self.edit():
+            self._set_mesh(vertices, faces)
+            self.fixed = {int(j) for j in surface.get("fixed", [])}
+            self.creases = creases
+            self.params = params
+            self.people = people
+            self.kept = kept
+            self.start = start
+            self.relaxed = {}
+        return opened
+
+    def _opened_person(self, table: dict, k: int, name: str, base: Path | None) -> dict:
+        """Person `k` of an opened scenario as the session holds people (a name and the
+        placement and support filled in where the file leaves them to their defaults), its
+        pose one the studio can pose and its joint map inline."""
+        at = f"{name}: person[{k}]"
+        pose = table["pose"]
+        if not pose.startswith(("db:", "bvh:bundled:")):
+            raise DesignError(f"{at}.pose names the BVH file of {pose!r}, which the studio "
+                              f"does not read: pose the people from the library (db:NAME) or "
+                              f"a bundled recording (bvh:bundled:NAME#frame=N)")
+        person = {"name": f"person {k + 1}", **schema.person_defaults(),
+                  **copy.deepcopy(table)}
+        if isinstance(person.get("joint_map"), str):
+            if base is None:
+                raise DesignError(f"{at}.joint_map names the file {person['joint_map']!r} "
+                                  f"beside it, which the studio was not given (an uploaded "
+                                  f"scenario comes alone): give the joint map inline")
+            from capture.jointmap import JointMapError, read_joint_map
+
+            try:
+                person["joint_map"] = read_joint_map(base / person["joint_map"])
+            except JointMapError as exc:
+                raise DesignError(f"{at}.joint_map: {exc}") from None
+        return person
+
+    def _start_holds(self) -> bool:
+        """Whether the opened scenario's grid or template is the session's start still: its
+        control mesh and creases unedited and (a template's, built around them) its people
+        as they were."""
+        start = self.start
+        return start is not None and np.array_equal(start["vertices"], self.vertices) and \
+            np.array_equal(start["faces"], self.faces) and start["built"] == self.creases \
+            and (start["key"] != "template" or start["people"] == self.people)
+
+    def saved_data(self, as_fitted: bool = False) -> dict:
+        """The scenario "Save TOML" writes: `scenario_data`, with an opened scenario's grid or
+        template (and its own creases) in place of the control mesh while it holds, and the
+        relief rounds of the fit on screen when it was relieved. `as_fitted` (an export's,
+        beside the fit on screen): the relief that fit had, none when it had none (an opened
+        scenario's `[relief]`, which the studio's fit does not run, is left out)."""
+        data = self.scenario_data()
+        if as_fitted:
+            data.pop("relief", None)
+        if self._start_holds():
+            surface = data["surface"]
+            del surface["control_mesh"]
+            surface.pop("creases", None)
+            surface = {self.start["key"]: copy.deepcopy(self.start["table"]), **surface}
+            if self.start["creases"]:
+                surface["creases"] = copy.deepcopy(self.start["creases"])
+            data["surface"] = surface
+        if self.fitted and self.last.relief is not None:  # (the fit on screen was relieved)
+            data["relief"] = self.last.relief
+        return data
 
     def fit(self, progress: Callable[[int, float, float], None] | None = None, *,
             warm: bool = False, cancel: Callable[[], bool] | None = None,
@@ -670,14 +847,12 @@ class Design:
         # as `sitrelax relax --save` does: a relaxation that kept the captured pose stores it
         return save_relaxed(self.db, [(outcome.placed, outcome.result)], "studio")[0]
 
-    def save_toml(self, path: str | os.PathLike) -> Path:
+    def save_toml(self, path: str | os.PathLike, as_fitted: bool = False) -> Path:
+        """Writes `saved_data` (`as_fitted` as it takes it) as a scenario file."""
         path = Path(path)
         if path.suffix.lower() != ".toml":
             raise DesignError(f"Expected a .toml file name, got {path.name!r}")
-        data = self.scenario_data()
-        if self.fitted and self.last.relief is not None:  # (the fit on screen was relieved)
-            data["relief"] = self.last.relief
-        text = scenario_toml(data)
+        text = scenario_toml(self.saved_data(as_fitted))
         self._parse(tomllib.loads(text))  # what is written reads back
         path.parent.mkdir(parents=True, exist_ok=True)
         write_atomic(path, text.encode())
@@ -717,9 +892,12 @@ class Design:
             raise DesignError("Fit first: the session was edited since its last fit (or has "
                               "none), and the export writes the fit on screen")
         out = Path(out_dir)
-        report = run_fit(self.scenario(), out, db=self.db, progress=progress, formats=formats,
-                         fitted=self.last.result, title=title)
-        self.save_toml(out / "scenario.toml")
+        # the relief the fit on screen had (an opened scenario's rounds are not run here)
+        relief = schema.Relief(**(self.last.relief or {}))
+        report = run_fit(dataclasses.replace(self.scenario(), relief=relief), out, db=self.db,
+                         progress=progress, formats=formats, fitted=self.last.result,
+                         title=title)
+        self.save_toml(out / "scenario.toml", as_fitted=True)
         return report
 
     def export_zip(self, name: str, progress: Callable[[str], None] | None = None,

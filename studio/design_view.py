@@ -489,6 +489,10 @@ class DesignView:
                                                "tabs that join it")
             self.join = gui.add_button("Join session")
             self.name = gui.add_text("Name", initial_value="studio-design")
+            self.open = gui.add_upload_button(
+                "Open scenario (TOML)", mime_type=".toml",
+                hint="a scenario file (Save TOML's, sitrelax design's): its people, surface "
+                     "and parameters replace the session's (one step: Undo brings it back)")
             self.save_db = gui.add_button("Save to library")
             self.save_toml = gui.add_button("Save TOML")
             self.export = gui.add_button("Export (zip)")
@@ -524,6 +528,7 @@ class DesignView:
             handle.on_update(lambda _e, name=name, handle=handle: None if self._syncing else
                              self._guarded(lambda: self._set_parameter(name, handle.value)))
         self.upload.on_upload(lambda _e: self._guarded(self._load_mesh))
+        self.open.on_upload(lambda _e: self._guarded(self._open_scenario))
         # (not guarded: the Fit button's fit holds the session's lock while it runs)
         self.cancel.on_click(lambda _e: self._cancel())
 
@@ -960,6 +965,27 @@ class DesignView:
         self.redraw()
         self._edited()
         self._status(f"Loaded {upload.name}: {len(self.design.vertices)} control vertices.")
+
+    def _open_scenario(self) -> None:
+        """The uploaded scenario file replaces the session (`Design.open_scenario`); its name
+        becomes the Name that Save TOML and the exports use."""
+        upload = self.open.value
+        if len(upload.content) > self.context.limit:
+            raise DesignError(f"{upload.name} is {len(upload.content)} bytes; the studio takes "
+                              f"scenario files up to {self.context.limit} bytes")
+        opened = self.design.open_scenario(upload.content, upload.name)
+        self.selection = []
+        stem = Path(upload.name).stem
+        try:
+            self._set(self.name, check_name(stem))
+        except DesignError:
+            pass  # (a file name that is no design name: the Name stays)
+        self.redraw()
+        self._edited()
+        people = len(self.design.people)
+        self._status(f"Opened {upload.name}: {people} {'person' if people == 1 else 'people'} "
+                     f"on {opened.surface.source} ({len(self.design.vertices)} control "
+                     f"vertices).")
 
     def _set_parameter(self, name: str, value) -> None:
         try:
