@@ -80,15 +80,27 @@ class Page:
         _wait(lambda: set(studio.views) - before, PATIENCE, "the tab's views")
         (self.client_id,) = set(studio.views) - before
         self.view = studio.view(self.client_id)
-        tab = _wait(lambda: driver.find_elements(By.XPATH,
-                                                 "//div[@role='tab'][@title='Design']"),
-                    PATIENCE, "the Design tab")
-        tab[0].click()
+        _wait(self._click_design_tab, PATIENCE, "the Design tab, clickable")
         _wait(lambda: self.button("Add person"), PATIENCE, "the Design view's controls")
         for close in driver.find_elements(By.CSS_SELECTOR,
                                           "button.mantine-Notification-closeButton"):
             close.click()  # the note that WebGL runs in software
         self.step = 0
+
+    def _click_design_tab(self) -> bool:
+        """Clicks the Design tab once it is there and takes the click (on a loaded machine
+        the page can list it before it is interactable); whether it did."""
+        from selenium.common.exceptions import (ElementNotInteractableException,
+                                                StaleElementReferenceException)
+
+        for tab in self.driver.find_elements(self.by.XPATH,
+                                             "//div[@role='tab'][@title='Design']"):
+            try:
+                tab.click()
+                return True
+            except (ElementNotInteractableException, StaleElementReferenceException):
+                pass
+        return False
 
     def button(self, label: str):
         found = self.driver.find_elements(self.by.XPATH,
