@@ -50,10 +50,11 @@ class AvatarNotSeenError(ValueError):
 
 @dataclass(frozen=True)
 class AvatarSelector:
-    """A chosen avatar: `text` is its name, or its index in decimal digits.
+    """A chosen avatar: `text` is its index in decimal digits, or else its name.
 
-    A frame matches when its avatar name equals `text`, or `text` is a whole number and the
-    frame's avatar index equals it.
+    A frame matches when `text` is a whole number equal to the frame's avatar index, or, for
+    any other text, when its avatar name equals `text`: one avatar, never two (an avatar named
+    "1" beside the avatar of index 1 is chosen by its own index).
     """
 
     text: str
@@ -63,9 +64,9 @@ class AvatarSelector:
             index, name = frame.index, frame.name
         else:
             index, name = frame.avatar_index, frame.avatar_name
-        if name == self.text:
-            return True
-        return self.text.isdecimal() and int(self.text) == index
+        if self.text.isdecimal():
+            return int(self.text) == index
+        return name == self.text
 
     def not_seen(self, counts: Mapping[AvatarKey, int], *, takes: bool = False
                  ) -> AvatarNotSeenError:

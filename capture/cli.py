@@ -338,7 +338,7 @@ def _register_capture(subparsers) -> None:
                     help="also write the exact bytes received to a raw capture")
     ls.add_argument("--avatar", metavar="NAME_OR_INDEX", default=None,
                     help="count only this avatar's frames (its name, e.g. Avatar01, or its "
-                         "index); every avatar on the stream is listed with its frame count "
+                         "index: digits are an index); every avatar on the stream is listed with its frame count "
                          "either way, and one that never comes is an error naming those that "
                          "did")
     ls.add_argument("--json", action="store_true", help="print one summary object")

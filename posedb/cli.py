@@ -546,7 +546,8 @@ def _register_record(capture_sub) -> None:
     rec.add_argument("--notes", default="")
     rec.add_argument("--unit", default="auto", help="length unit of the skeleton header")
     rec.add_argument("--avatar", metavar="NAME_OR_INDEX", default=None,
-                     help="keep only this avatar (its name, e.g. Avatar01, or its index), in "
+                     help="keep only this avatar (its name, e.g. Avatar01, or its index: "
+                          "digits are an index), in "
                           "the take --take; an avatar that never comes is an error naming "
                           "those that did, and nothing is stored (default: every avatar, each "
                           "as its own take TAKE-AVATARNAME when several come)")

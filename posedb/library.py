@@ -572,8 +572,9 @@ class PoseLibrary:
     def check_changeable(self) -> None:
         """Refuses, with the errors a change (`edit`) would give, a library no change could be
         made to (missing, no pose library, damaged, read-only, or locked by another writer
-        past the lock timeout), without changing it: for callers that store into it after
-        long work and should fail before."""
+        past the lock timeout), without changing its content (copies earlier writers left
+        are removed, as before any change): for callers that store into it after long work
+        and should fail before."""
         with self._writer_lock():
             self._verified_for_change(self.target)
 

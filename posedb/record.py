@@ -85,6 +85,21 @@ class _AlreadyStored(Exception):
         self.take_ids = take_ids
 
 
+def _storable_names(take: str, names: dict) -> dict:
+    """The avatars' take names (`avatar_take_names`), each one the library takes
+    (`checked_name`): a name derived from a long take name or shaped like an id (`take` and
+    an avatar named `00002`) becomes `<take>-avatar<index>`, the take's part shortened to fit
+    (the recording's take name was checked when it began; its avatars' names were not)."""
+    out = {}
+    for key, name in names.items():
+        try:
+            out[key] = checked_name(name, "take")
+        except LibraryError:
+            suffix = f"-avatar{key.index}"
+            out[key] = checked_name(take[:200 - len(suffix)].rstrip() + suffix, "take")
+    return out
+
+
 def _stored_takes(takes: Iterable[TakeInfo], recording_id: str
                   ) -> list[tuple[AvatarKey | None, TakeInfo]]:
     """The takes a recording already became (one per avatar), as (None, take)."""
@@ -213,7 +228,8 @@ def import_journal_takes(lib: PoseLibrary, path: Path, limit: int | Mapping | No
     if not groups:
         path.unlink()
         return []
-    names = avatar_take_names(str(meta.get("name", path.stem)), groups)
+    names = _storable_names(str(meta.get("name", path.stem)),
+                            avatar_take_names(str(meta.get("name", path.stem)), groups))
     per_avatar = {(a["index"], a["name"]): a for a in source.decoder.stats.avatar_dicts()}
     stats = source.stats()
     marks = raw_marks(path)

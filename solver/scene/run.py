@@ -922,10 +922,10 @@ def fitted_material(path: Path) -> tuple[float, dict] | None:
     report beside the file lists it; None otherwise (a surface from CAD). A RelaxError naming
     the report when it cannot be read or its values are not what a scenario may hold (the
     foam of a report without one is the scenario's)."""
-    from pydantic import ValidationError
+    from pydantic import TypeAdapter, ValidationError
 
     from solver.body.relax import RelaxError
-    from solver.scene.schema import Evaluation
+    from solver.scene.schema import FIT_FIELDS, Evaluation
 
     report_path = path.parent / "report.json"
     if not report_path.exists():
@@ -941,10 +941,14 @@ def fitted_material(path: Path) -> tuple[float, dict] | None:
         return None  # (another command's report, or a file the fit did not write)
     params = report.get("parameters")
     margin = params.get("margin") if isinstance(params, dict) else None
-    if isinstance(margin, bool) or not isinstance(margin, (int, float)) or \
-            not 0 <= margin < float("inf"):
+    try:  # (a scenario's bounds: 0-0.5 m)
+        TypeAdapter(FIT_FIELDS["margin"]).validate_python(
+            float(margin) if isinstance(margin, int) and not isinstance(margin, bool)
+            else margin)
+    except ValidationError as exc:
         raise RelaxError(f"Expected the fit's margin in metres in {report_path} "
-                         f"(parameters.margin), got {margin!r}")
+                         f"(parameters.margin): {exc.errors()[0]['msg']}, got "
+                         f"{margin!r}") from None
     given = params.get("evaluation")
     given = given if isinstance(given, dict) else {}
     foam = {key: given[key] for key in SURFACE_FOAM if key in given}

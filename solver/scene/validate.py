@@ -161,8 +161,8 @@ def _friction_coefficients(mus: Sequence[float]) -> list[float]:
     try:
         values = [float(mu) for mu in mus]
     except (TypeError, ValueError):
-        raise ValueError(f"Expected friction coefficients as numbers, got {list(mus)!r}") \
-            from None
+        raise ValueError(f"Expected friction coefficients as a list of numbers, got "
+                         f"{mus!r}") from None
     if not values:
         raise ValueError("Expected at least one friction coefficient, got none")
     for mu in values:

@@ -172,3 +172,32 @@ def test_cli_record_names_each_avatar_and_its_take(tmp_path):
     assert "recorded 2 avatars, each into a take of its own" in run.stdout
     assert "Avatar00 (index 0): 4 frames, 0 dropped  -> take sofa-Avatar00" in run.stdout
     assert "Avatar01 (index 1): 4 frames, 0 dropped  -> take sofa-Avatar01" in run.stdout
+
+
+def test_derived_take_names_the_library_refuses_fall_back_to_the_avatars_index(tmp_path):
+    """A take name of 195 characters with two avatars (`<take>-Avatar00` is over 200), or a
+    take `take` with an avatar named `00002` (`take-00002` is an id's form): the recording is
+    stored (it failed at the end, and `db recover` failed the same way every time)."""
+    pieces, _ = interleaved()
+    db = tmp_path / "poses.h5"
+    s = record(raw_file(tmp_path / "long.raw", pieces), db, "x" * 195, SKELETON,
+               lock_timeout=5)
+    names = [t["name"] for t in s["takes"]]
+    assert names == ["x" * 192 + "-avatar0", "x" * 192 + "-avatar1"], names
+    sent = {a: payloads(3, 354, seed=a) for a in (0, 1)}
+    odd = [binary_frame(sent[a][k], 100 + k, avatar=a, name=("00002", "Avatar01")[a])
+           for k in range(3) for a in (0, 1)]
+    s = record(raw_file(tmp_path / "odd.raw", odd), db, "take", SKELETON, lock_timeout=5)
+    assert [t["name"] for t in s["takes"]] == ["take-avatar0", "take-Avatar01"]
+    assert not list(journal_dir(db).glob("*.raw"))
+
+
+def test_an_avatar_chosen_by_index_is_one_avatar_even_beside_one_named_so():
+    """`--avatar 1` with avatar 0 named "1" and avatar 1 named Avatar01: digits are an index,
+    so only avatar 1 is kept (both were, and mixed into one count)."""
+    from capture.avatars import AvatarKey, avatar_selector
+
+    chosen = avatar_selector("1")
+    assert [chosen.matches(AvatarKey(0, "1")), chosen.matches(AvatarKey(1, "Avatar01"))] == \
+        [False, True]
+    assert avatar_selector("Avatar01").matches(AvatarKey(1, "Avatar01"))

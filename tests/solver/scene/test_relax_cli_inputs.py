@@ -97,6 +97,23 @@ def test_relax_refuses_a_fit_report_it_cannot_read(fitted, tmp_path, capsys):
     assert "report.json cannot be read" in report["error"] and not out.exists()
 
 
+@pytest.mark.parametrize("margin", [7.0, -0.01, "3 cm", None])
+def test_relax_refuses_a_fit_report_whose_margin_no_scenario_may_hold(fitted, tmp_path, capsys,
+                                                                      margin):
+    """A report's margin is the fit's only within a scenario's bounds (0-0.5 m): 7 m was
+    used as the depth bodies may sink (only a negative or non-number one was refused)."""
+    shutil.copytree(fitted, tmp_path / "fit")
+    report_path = tmp_path / "fit" / "report.json"
+    report = json.loads(report_path.read_text())
+    report["parameters"]["margin"] = margin
+    report_path.write_text(json.dumps(report))
+    out = tmp_path / "out"
+    code, answer, err = _relax([SEATED, "--surface", tmp_path / "fit", "--out", out], capsys)
+    assert code == 2 and answer["error"].startswith("Expected the fit's margin in metres in "), \
+        answer
+    assert not out.exists()
+
+
 # -- the surface's formats and paths ---------------------------------------------------------
 
 

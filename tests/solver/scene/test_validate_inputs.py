@@ -69,6 +69,9 @@ def test_a_pictures_folder_that_cannot_be_made_is_refused_before_the_work(tmp_pa
     ({"mus": [0.5, -0.1]}, r"friction coefficients >= 0 \(finite\), got -0.1"),
     ({"mus": [float("nan")]}, r"friction coefficients >= 0 \(finite\), got nan"),
     ({"mus": []}, "at least one friction coefficient"),
+    # (not a list: the message itself raised a TypeError)
+    ({"mus": 0.5}, r"friction coefficients as a list of numbers, got 0.5"),
+    ({"mus": ["high"]}, r"friction coefficients as a list of numbers, got \['high'\]"),
     ({"references": ["rigid mould", "soft layer"]}, "Expected a reference in .*got 'soft layer'"),
     ({"references": []}, "at least one reference"),
 ])
