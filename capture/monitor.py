@@ -176,7 +176,8 @@ class StreamMonitor:
             return False
         for frame in frames:
             self.add([frame])
-            if self.most_kept() >= limit:
+            key = avatar_key(frame)  # (only its avatar's count moved)
+            if self.kept(key) and self._clocks[key].count >= limit:
                 return True
         return self.most_kept() >= limit
 
