@@ -96,20 +96,37 @@ class DecoderStats:
     avatars : the counters of each avatar, keyed by (avatar index, avatar name), in the order
         the avatars first appeared. Axis sends one frame per avatar per sample when several
         people wear suits, each avatar counting its own frame index: gaps and restarts are
-        judged within an avatar's own frames, and the totals above are their sums.
+        judged within an avatar's own frames.
+
+    `frames`, `dropped`, `restarts` and `damaged_index` are the sums of the avatars' own
+    counters (read-only: a frame is counted once, in its avatar); the other counters belong to
+    the stream, since what they count (a rejected frame, skipped bytes) has no avatar, and the
+    first and last index are of the stream's order across avatars.
     """
 
-    frames: int = 0
-    dropped: int = 0
     corrupt: int = 0
     resynced: int = 0
     skipped_bytes: int = 0
-    restarts: int = 0
-    damaged_index: int = 0
     first_index: int | None = None
     last_index: int | None = None
     gaps: list[tuple[int, int]] = field(default_factory=list)
     avatars: dict[tuple[int, str], "AvatarStats"] = field(default_factory=dict)
+
+    @property
+    def frames(self) -> int:
+        return sum(a.frames for a in self.avatars.values())
+
+    @property
+    def dropped(self) -> int:
+        return sum(a.dropped for a in self.avatars.values())
+
+    @property
+    def restarts(self) -> int:
+        return sum(a.restarts for a in self.avatars.values())
+
+    @property
+    def damaged_index(self) -> int:
+        return sum(a.damaged_index for a in self.avatars.values())
 
     def avatar(self, index: int, name: str) -> "AvatarStats | None":
         """The counters of avatar (index, name), made at its first frame; None for a new one
@@ -364,7 +381,6 @@ class StreamDecoder:
             return
         del self._suspect[key]
         if (index - suspect) & _U32 != 1 and 1 <= (index - last) & _U32 <= MAX_INDEX_GAP:
-            st.damaged_index += 1
             avatar.damaged_index += 1
             self._step(avatar, last, (index - 1) & _U32)  # the damaged frame took one place
             self._accept_index(avatar, index)
@@ -384,10 +400,8 @@ class StreamDecoder:
         st = self.stats
         step = (index - last) & _U32
         if step == 0 or step > MAX_INDEX_GAP:  # backwards, repeated or implausibly far
-            st.restarts += 1
             avatar.restarts += 1
         elif step > 1:
-            st.dropped += step - 1
             avatar.dropped += step - 1
             st.gaps.append((last, index))
             if len(st.gaps) > _MAX_GAPS_KEPT:
@@ -517,7 +531,6 @@ class StreamDecoder:
         self.mode = "binary"
         self._found()
         self._count_index(avatar, head.frame_index)
-        self.stats.frames += 1
         avatar.frames += 1
         out.append(NeuronFrame(values, head.frame_index, head.avatar_index, name,
                                head.displacement, head.reference, head.kind,
@@ -724,7 +737,6 @@ class StreamDecoder:
             return False
         self.mode = "string"
         self._found()
-        self.stats.frames += 1
         counts.frames += 1
         out.append(NeuronFrame(values, None, avatar, name, *flags, "string", self._time_at(end)))
         return True

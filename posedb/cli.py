@@ -312,9 +312,11 @@ def _cmd_compact(args) -> int:
 
 
 def _cmd_recover(args) -> int:
-    from .record import recover
+    from .record import AS_RECORDED, recover
 
-    rows = recover(args.db, lock_timeout=_lock_timeout(args), on_wait=_waiting(args.db))
+    avatar = None if args.every_avatar else AS_RECORDED if args.avatar is None else args.avatar
+    rows = recover(args.db, journal=args.journal, avatar=avatar,
+                   lock_timeout=_lock_timeout(args), on_wait=_waiting(args.db))
     _print(rows, args.json, "\n".join(
         f"{r['take']}: {r['status']}" + (f" (its journal {r['journal']} is kept)"
                                          if r["status"].startswith("failed") else "")
@@ -505,7 +507,21 @@ def _register_library_commands(sub) -> None:
     p.add_argument("--end", type=int, default=None, help="last frame, inclusive")
     p.set_defaults(func=_cmd_export)
 
-    p = _library_options(sub.add_parser("recover", help="turn interrupted recordings into takes"))
+    p = _library_options(sub.add_parser(
+        "recover", help="turn interrupted recordings into takes",
+        description="Stores the journals that interrupted recordings left as takes, as their "
+                    "recorders would have. A recording made with --avatar of which no frame "
+                    "came is refused and kept, naming the avatars that came: --journal with "
+                    "--avatar or --every-avatar stores it."))
+    p.add_argument("--journal", metavar="PATH", default=None,
+                   help="recover this journal only (as `db recover` and `db stats` name it)")
+    who = p.add_mutually_exclusive_group()
+    who.add_argument("--avatar", metavar="NAME_OR_INDEX", default=None,
+                     help="with --journal: keep this avatar (its name, or its index: digits "
+                          "are an index) instead of the one chosen when it was recorded")
+    who.add_argument("--every-avatar", action="store_true",
+                     help="with --journal: keep every avatar, each as a take of its own when "
+                          "several came, instead of the one chosen when it was recorded")
     p.set_defaults(func=_cmd_recover)
 
     p = _library_options(sub.add_parser("stats", help="what the library holds"))

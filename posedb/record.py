@@ -39,8 +39,8 @@ from typing import Callable, Iterable, Mapping
 import numpy as np
 
 from capture import parse_bvh, read_bvh, resolve_path
-from capture.avatars import (AvatarKey, AvatarNotSeenError, avatar_selector, describe_avatars,
-                             split_by_avatar)
+from capture.avatars import (AvatarKey, AvatarNotSeenError, AvatarSelector, avatar_selector,
+                             describe_avatars, split_by_avatar)
 from capture.avatars import avatar_take_names
 from capture.monitor import StreamMonitor, sender_timing
 from capture.rawcapture import (MARK, RawCaptureError, RawCaptureWriter, raw_header,
@@ -54,6 +54,9 @@ from .locking import LockedError, exclusive, lock_path, try_exclusive
 from .regions import DEFAULT_SUPPORT, support_regions
 from .schema import InvalidDataError, LibraryError
 from .tags import normalise_tags
+
+# `import_journal_takes` keeps the avatar chosen when the recording started
+AS_RECORDED = object()
 
 _SYNC_EVERY = 0.5  # seconds between fsyncs of the journal
 _COMMON_RATES = (24, 25, 30, 48, 50, 60, 90, 96, 100, 120, 125, 200, 240, 250)
@@ -184,8 +187,8 @@ def _limited(groups: dict[AvatarKey, list], limit: int | Mapping | None) -> dict
     return {k: frames for k, frames in cut.items() if frames}
 
 
-def import_journal_takes(lib: PoseLibrary, path: Path, limit: int | Mapping | None = None
-                         ) -> list[tuple[AvatarKey, TakeInfo]]:
+def import_journal_takes(lib: PoseLibrary, path: Path, limit: int | Mapping | None = None,
+                         *, avatar: object = AS_RECORDED) -> list[tuple[AvatarKey, TakeInfo]]:
     """Turns a journal into takes (or finds those it already became) and removes it.
 
     The frames of each avatar on the stream are kept apart (Axis sends one frame per avatar
@@ -198,6 +201,8 @@ def import_journal_takes(lib: PoseLibrary, path: Path, limit: int | Mapping | No
         journal holds every byte received, so a frame whose bytes came with the last one
         counted may be whole in it too): an int for every avatar, a mapping from `AvatarKey`
         to a count, or None for all.
+    avatar : the avatar to keep in place of the one chosen when the recording started (a name
+        or an index; None: every avatar, as without a choice); `AS_RECORDED` for that choice.
 
     Returns [(avatar, take)] in the order the avatars first appeared; [] for a journal that
     holds no frame (it is removed too). A chosen avatar of which no frame came raises
@@ -213,7 +218,8 @@ def import_journal_takes(lib: PoseLibrary, path: Path, limit: int | Mapping | No
     if not isinstance(header.get("skeleton_bvh"), str):
         raise LibraryError(f"{path}: the journal's header holds no skeleton, so its frames "
                            "cannot be read")
-    selector = avatar_selector(meta.get("avatar"))
+    asked = avatar_selector(meta.get("avatar"))
+    selector = asked if avatar is AS_RECORDED else avatar_selector(avatar)
     unit = meta.get("unit_m")
     skeleton = parse_bvh(header["skeleton_bvh"], unit=unit if unit else "auto").skeleton
     layout = StreamLayout(skeleton)
@@ -235,6 +241,11 @@ def import_journal_takes(lib: PoseLibrary, path: Path, limit: int | Mapping | No
     marks = raw_marks(path)
     notes = meta.get("notes", "")
     others = {k: len(v) for k, v in seen.items() if k not in groups}
+    asked_note = ""
+    if asked is not None and not any(asked.matches(k) for k in seen):
+        chosen = "every avatar" if selector is None else f"avatar {selector.text!r}"
+        asked_note = (f"; recorded with --avatar {asked.text!r}, of which no frame came, and "
+                      f"stored by `sitrelax db recover` choosing {chosen}")
     several = len(seen) > 1 or selector is not None
     try:
         with lib.edit() as ed:
@@ -255,6 +266,7 @@ def import_journal_takes(lib: PoseLibrary, path: Path, limit: int | Mapping | No
                     if others:
                         summary += (f"; the stream also carried {describe_avatars(others)}, "
                                     "not kept")
+                summary += asked_note
                 wanted = names[key]
                 name = _free(ed, wanted)
                 if name != wanted:  # (another take took it while this one recorded)
@@ -343,9 +355,23 @@ def _drop_lock(journal: Path) -> None:
         pass
 
 
-def _recover_one(lib: PoseLibrary, rec: Recording) -> dict:
+def _unseen_avatar(lib: PoseLibrary, rec: Recording, exc: AvatarNotSeenError) -> dict:
+    """The row of a journal whose chosen avatar never came: refused (nothing of it is stored,
+    as its recorder would have stored nothing), naming the avatars that came, with how to
+    store them. The journal stays, unlike at a recorder's refusal: no one saw this one when
+    the stream came, and the recording may be of the avatar meant under another name."""
+    counts = {AvatarKey(a["index"], a["name"]): a["frames"] for a in exc.avatars}
+    command = f"sitrelax db recover --db {lib.path} --journal {rec.path}"
+    advice = (f"To store it, run `{command}` with --avatar NAME_OR_INDEX (one of those, as "
+              f"take {rec.take!r}) or --every-avatar (each avatar as a take of its own); "
+              "delete the journal to drop the recording")
+    error = AvatarSelector(exc.chosen).not_seen(counts, advice=advice)
+    return {"status": f"failed: {error}", "avatars": exc.avatars}
+
+
+def _recover_one(lib: PoseLibrary, rec: Recording, avatar: object = AS_RECORDED) -> dict:
     """Stores one journal, holding its lock so that its recorder (if it is finishing) and any
-    other `recover` wait or skip it."""
+    other `recover` wait or skip it; `avatar` as in `import_journal_takes`."""
     row = {"journal": str(rec.path), "take": rec.take}
     lock = try_exclusive(rec.path)
     if lock is None:
@@ -353,7 +379,9 @@ def _recover_one(lib: PoseLibrary, rec: Recording) -> dict:
     try:
         if not rec.path.exists():  # its recorder stored it meanwhile
             return row | {"status": "stored by its recorder"}
-        takes = [take for _, take in import_journal_takes(lib, rec.path)]
+        takes = [take for _, take in import_journal_takes(lib, rec.path, avatar=avatar)]
+    except AvatarNotSeenError as exc:
+        return row | _unseen_avatar(lib, rec, exc)
     except (ValueError, OSError) as exc:  # (LibraryError and RawCaptureError among them)
         return row | {"status": f"failed: {exc}"}
     finally:
@@ -372,12 +400,32 @@ def _recover_one(lib: PoseLibrary, rec: Recording) -> dict:
                   "takes": [t.name for t in takes]}
 
 
-def recover(library: str | os.PathLike, *, lock_timeout: float | None | str = "default",
+def recover(library: str | os.PathLike, *, journal: str | os.PathLike | None = None,
+            avatar: object = AS_RECORDED, lock_timeout: float | None | str = "default",
             on_wait: Callable[[float], None] | None = None) -> list[dict]:
-    """Imports the journals that killed recorders left; skips those still being written."""
+    """Imports the journals that killed recorders left; skips those still being written.
+
+    A journal recorded with a chosen avatar of which no frame came is refused (its row's
+    status says so, naming the avatars that came, and `avatars` lists them with their
+    frames) and kept: `journal` (its path) with `avatar` (a name or an index, or None for
+    every avatar, each as a take of its own) stores it. `journal` alone recovers that journal
+    only; `avatar` applies to one journal, so it needs `journal`.
+    """
+    if avatar is not AS_RECORDED:
+        if journal is None:
+            raise LibraryError("Expected the journal whose avatar to choose (--journal), got "
+                               "none: an avatar applies to one recording")
+        avatar_selector(avatar)  # refused now (an empty name) rather than at the import
+    found = recordings(library)
+    if journal is not None:
+        wanted = Path(journal).resolve()
+        found = [r for r in found if r.path.resolve() == wanted]
+        if not found:
+            raise LibraryError(f"Expected a journal of an interrupted recording in "
+                               f"{journal_dir(library)}, got {journal}")
     lib = PoseLibrary(library, lock_timeout=lock_timeout, on_wait=on_wait)
     return [{"journal": str(r.path), "take": r.take, "status": "still recording"} if r.running
-            else _recover_one(lib, r) for r in recordings(library)]
+            else _recover_one(lib, r, avatar) for r in found]
 
 
 def _store_journal(lib: PoseLibrary, journal: Path, take: str,

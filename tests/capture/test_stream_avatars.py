@@ -53,6 +53,27 @@ def test_a_gap_in_one_avatar_is_its_own():
     assert stats.dropped == 1 and stats.restarts == 0
 
 
+def test_stream_totals_are_the_sums_of_the_avatars_counters_and_kept_nowhere_else():
+    """A gap and a restart in avatar 1, a damaged index in avatar 0: the totals are the sums
+    (one count, in its avatar), and they cannot be set apart from the avatars."""
+    sent = {a: payloads(8, 354, seed=30 + a) for a in (0, 1)}
+    indices = {0: [100, 101, 102, 7_000_103, 104, 105, 106, 107],  # 103: a flipped bit
+               1: [100, 101, 104, 105, 106, 5, 6, 7]}  # two dropped, then a restart
+    stream = b"".join(binary_frame(sent[a][k], indices[a][k], avatar=a, name=NAMES[a])
+                      for k in range(8) for a in (0, 1))
+    frames, stats = decode_all(stream, counts=COUNTS)
+    per = {a["name"]: a for a in stats.avatar_dicts()}
+    assert [(per[n]["frames"], per[n]["dropped"], per[n]["restarts"],
+             per[n]["damaged_index"]) for n in NAMES] == [(8, 0, 0, 1), (8, 2, 1, 0)]
+    totals = stats.as_dict()
+    assert {k: totals[k] for k in ("frames", "dropped", "restarts", "damaged_index")} == {
+        "frames": 16, "dropped": 2, "restarts": 1, "damaged_index": 1}
+    assert (stats.frames, stats.dropped, stats.restarts, stats.damaged_index) == (16, 2, 1, 1)
+    for name in ("frames", "dropped", "restarts", "damaged_index"):
+        with pytest.raises(AttributeError):
+            setattr(stats, name, 0)
+
+
 def test_split_by_avatar_keeps_each_avatars_frames_in_order():
     from capture.avatars import split_by_avatar
 

@@ -201,3 +201,115 @@ def test_an_avatar_chosen_by_index_is_one_avatar_even_beside_one_named_so():
     assert [chosen.matches(AvatarKey(0, "1")), chosen.matches(AvatarKey(1, "Avatar01"))] == \
         [False, True]
     assert avatar_selector("Avatar01").matches(AvatarKey(1, "Avatar01"))
+
+
+def _killed_recording(tmp_path, *args, n=5):
+    """Records a stream of two avatars (`n` frames each, then the sender stays connected and
+    silent) with `capture record ... args` in a process of its own, killed with SIGKILL once
+    its journal holds every byte sent. Returns (library, journal, frames sent per avatar)."""
+    import signal
+    import time
+
+    from capture.rawcapture import read_raw_capture
+
+    pieces, sent = interleaved(n=n)
+    port = serve_tcp(pieces + [30.0])
+    db = tmp_path / "poses.h5"
+    recorder = subprocess.Popen(
+        [sys.executable, "-m", "studio.cli", "capture", "record", f"tcp://127.0.0.1:{port}",
+         "--db", str(db), "--take", "t", "--skeleton", SKELETON, "--duration", "60", *args],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline, got = time.monotonic() + 20, 0
+        while got < sum(map(len, pieces)) and time.monotonic() < deadline:
+            time.sleep(0.05)
+            journals = list(journal_dir(db).glob("*.raw")) if journal_dir(db).is_dir() else []
+            if journals:
+                got = sum(map(len, read_raw_capture(journals[0]).data_chunks()))
+        assert got == sum(map(len, pieces)), "the recorder never received the stream"
+    finally:
+        recorder.send_signal(signal.SIGKILL)
+        recorder.wait()
+    return db, journals[0], sent
+
+
+def test_a_killed_recording_of_an_avatar_that_came_is_recovered_as_its_recorder_would(
+        tmp_path):
+    from posedb.record import recover
+
+    db, journal, sent = _killed_recording(tmp_path, "--avatar", "Avatar01")
+    rows = recover(db, lock_timeout=5)
+    assert [(r["status"], r["takes"], r["frames"]) for r in rows] == [("recovered", ["t"], 5)]
+    lib = PoseLibrary(db)
+    assert [t.name for t in lib.takes()] == ["t"]
+    data = lib.take_data("t")
+    np.testing.assert_array_equal(data.frame_indices, np.arange(100, 105))
+    np.testing.assert_allclose(data.channels[:, :6], sent[1][:, :6], rtol=1e-6)
+    assert "avatar Avatar01 (index 1)" in lib.take("t").notes
+    assert not journal.exists()
+
+
+def test_a_killed_recording_of_an_avatar_that_never_came_is_refused_and_kept_for_a_choice(
+        tmp_path):
+    """What its recorder would have said (the avatars that came, with their frames), nothing
+    stored, the journal kept (no one saw the refusal when it was made) with the command that
+    stores it; `db recover` once told to pass --avatar, which it did not take, and refused
+    the journal at every run."""
+    from posedb.record import recover
+
+    db, journal, sent = _killed_recording(tmp_path, "--avatar", "Bob")
+    for _ in range(2):  # refused again, never half-stored
+        run = _cli("db", "recover", "--db", str(db), "--json")
+        assert run.returncode == 1, run.stderr
+        [row] = json.loads(run.stdout)
+        assert row["status"].startswith("failed: No frame of avatar 'Bob' arrived; the stream "
+                                        "carried Avatar00 (index 0, 5 frames), Avatar01 "
+                                        "(index 1, 5 frames)"), row
+        assert f"--journal {journal}` with --avatar NAME_OR_INDEX" in row["status"]
+        assert "--every-avatar" in row["status"]
+        assert [(a["name"], a["frames"]) for a in row["avatars"]] == [("Avatar00", 5),
+                                                                      ("Avatar01", 5)]
+        assert journal.exists() and PoseLibrary(db).takes() == []
+    text = _cli("db", "recover", "--db", str(db))
+    assert text.returncode == 1 and "Avatar00 (index 0, 5 frames)" in text.stdout
+    # a choice of avatar applies to one journal
+    run = _cli("db", "recover", "--db", str(db), "--avatar", "Avatar01")
+    assert run.returncode == 2 and "--journal" in run.stderr, run.stderr
+    assert journal.exists()
+    # another avatar that never came is refused the same way
+    [row] = recover(db, journal=journal, avatar="Carol", lock_timeout=5)
+    assert row["status"].startswith("failed: No frame of avatar 'Carol'") and journal.exists()
+    [row] = recover(db, journal=journal, avatar="1", lock_timeout=5)
+    assert (row["status"], row["takes"], row["frames"]) == ("recovered", ["t"], 5), row
+    lib = PoseLibrary(db)
+    data = lib.take_data("t")
+    np.testing.assert_array_equal(data.frame_indices, np.arange(100, 105))
+    np.testing.assert_allclose(data.channels[:, :6], sent[1][:, :6], rtol=1e-6)
+    assert "recorded with --avatar 'Bob', of which no frame came" in lib.take("t").notes
+    assert not journal.exists() and recover(db, lock_timeout=5) == []
+
+
+def test_recover_keeps_every_avatar_of_a_journal_when_told(tmp_path):
+    import time
+
+    from capture.rawcapture import DATA
+    from posedb.record import TakeRecorder, recover
+
+    pieces, _ = interleaved(n=4)
+    db = tmp_path / "poses.h5"
+    recorder = TakeRecorder(db, "pair", SKELETON, "tcp://test", lock_timeout=5, avatar="Bob")
+    t0 = time.time()
+    for k, piece in enumerate(pieces):
+        recorder.writer.write(DATA, t0 + (k // 2) / 60, piece)
+    recorder.abandon()  # as a killed recorder leaves it
+    with pytest.raises(ValueError, match=r"Expected a journal of an interrupted recording"):
+        recover(db, journal=tmp_path / "other.raw", avatar=None, lock_timeout=5)
+    with pytest.raises(ValueError, match=r"Expected the journal whose avatar to choose"):
+        recover(db, avatar=None, lock_timeout=5)
+    assert recorder.journal.exists()
+    run = _cli("db", "recover", "--db", str(db), "--journal", str(recorder.journal),
+               "--every-avatar", "--json")
+    assert run.returncode == 0, run.stderr
+    [row] = json.loads(run.stdout)
+    assert (row["takes"], row["frames"]) == (["pair-Avatar00", "pair-Avatar01"], 8), row
+    assert not recorder.journal.exists()
