@@ -144,9 +144,14 @@ def furnish(kind: str, given: dict, people: Sequence, *, waterfall: bool = False
         else measure(kind, given, people, frame)
     values = {k: float(v) if isinstance(v, (float, np.floating)) else v
               for k, v in values.items()}
+    measured = set(values) - set(given)
     values.update(given)
     values["heading_deg"] = frame.heading_deg
-    return make_template(kind, **values)
+    try:
+        return make_template(kind, **values)
+    except TemplateError as exc:
+        exc.measured = measured  # (what the scenario's error may blame on the people)
+        raise
 
 
 # measurements -------------------------------------------------------------------------------

@@ -285,14 +285,17 @@ def template_error(exc: TemplateError, where: str, given: dict | None = None
                    ) -> ScenarioError:
     """A template's error as the scenario's: `where: surface.template.<parameter>: ...`.
     `given`: the parameters the scenario sets, once the others have been measured on the
-    people: an error about one it does not set says so (the people's pose made it)."""
+    people: an error about one it does not set says so, and whether the people's pose made it
+    (the error's `measured`, as `furnish` sets it) or it is the template's default."""
     message = str(exc)
     head, _, rest = message.partition(": ")
     kind, dot, name = head.partition(".")
     if dot and kind in TEMPLATE_PARAMS and " " not in head:
-        if given is not None and _template_parameter(exc) not in given:
+        parameter = _template_parameter(exc)
+        if given is not None and parameter not in given:
             rest += (" (not set in the scenario: measured on the people as placed; set it "
-                     "there, or move the people)")
+                     "there, or move the people)" if parameter in getattr(exc, "measured", ())
+                     else " (not set in the scenario: the template's default; set it there)")
         return _fail(where, f"surface.template.{name}", rest)
     return _fail(where, "surface.template", message)
 

@@ -132,9 +132,11 @@ class BenchParams(ChairParams):
             raise TemplateError(f"bench.seat_profiles: expected one table per seat "
                                 f"({self.seats}), got {len(self.seat_profiles)}")
         for k in range(self.seats):
-            _seat_of(self, k)
+            seat = _seat_of(self, k)
             _check(f"bench.seat_profiles[{k}]", "rear",
                    self.seat_profiles[k].get("rear", 0.0), -1.0, 1.0)
+            if self.arms and self.back and k in (0, self.seats - 1):
+                _check_arms("bench", self, seat, f" (seat_profiles[{k}])")
 
 
 def _seat_of(p: BenchParams, k: int) -> ChairParams:
@@ -151,6 +153,7 @@ def _seat_of(p: BenchParams, k: int) -> ChairParams:
                             f"{list(SEAT_PROFILE_KEYS)})")
     values = {f.name: getattr(p, f.name) for f in dataclasses.fields(ChairParams)}
     values.update({key: v for key, v in entry.items() if key != "rear"})
+    values["arms"] = False  # (the bench's arms stand on its end seats: checked there)
     try:
         return ChairParams(**values)
     except TemplateError as exc:
@@ -209,6 +212,11 @@ class FloorCushionParams:
         _check_quads(kind, "quads", self.quads, 2)
         _check(kind, "back_quads", self.back_quads, 1, 40, whole=True)
         _check_placement(kind, self.position, self.heading_deg)
+        _check_rounding(kind, "edge_drop", self.edge_drop, {"width": self.width,
+                        "depth": self.depth})
+        back = (self.back_angle_deg, self.back_height) if self.back else None
+        _check_corners(kind, "edge_drop", self.edge_drop, {"height": self.height},
+                       lambda drop: _rounded_sheet_low(self.height, self.depth, 0.0, drop, back))
 
 
 @dataclass(frozen=True)
@@ -278,6 +286,10 @@ class BedParams:
         _check(kind, "edge_drop", self.edge_drop, 0.0, min(self.height, 0.15))
         _check_quads(kind, "quads", self.quads, 2)
         _check_placement(kind, self.position, self.heading_deg)
+        _check_rounding(kind, "edge_drop", self.edge_drop, {"width": self.width,
+                        "length": self.length})
+        _check_corners(kind, "edge_drop", self.edge_drop, {"height": self.height},
+                       lambda drop: _rounded_sheet_low(self.height, self.length, 0.0, drop))
 
 
 def _check_quads(kind: str, name: str, value, low: int) -> None:
@@ -316,7 +328,77 @@ def _check_seat(p, kind: str) -> None:
         _check_flag(kind, "seams", p.seams)
         _check(kind, "arm_height", p.arm_height, 0.03, 0.6)
         _check(kind, "arm_width", p.arm_width, 0.02, 0.4)
+        if p.arms and p.back and not getattr(p, "seat_profiles", ()):
+            _check_arms(kind, p, p)  # (a bench with a profile per seat: its end seats')
     _check_placement(kind, p.position, p.heading_deg)
+    if not hasattr(p, "back"):  # a stool: rounded all round
+        _check_rounding(kind, "edge_drop", p.edge_drop, {"seat_width": p.seat_width,
+                        "seat_depth": p.seat_depth})
+        _check_corners(kind, "edge_drop", p.edge_drop, {
+            "seat_height": p.seat_height, "seat_depth": p.seat_depth,
+            "seat_tilt_deg": p.seat_tilt_deg},
+            lambda drop: _rounded_sheet_low(p.seat_height, p.seat_depth, p.seat_tilt_deg, drop))
+
+
+def _check_rounding(kind: str, name: str, drop: float, sides: dict[str, float]) -> None:
+    """A TemplateError unless the rounding `drop` of a sheet's edges takes at most a quarter
+    of each of its `sides` (name -> metres): more, and the rounded edges of opposite sides meet
+    (zero-area quads) or cross (flipped ones)."""
+    limit = min(sides.values()) / 4
+    if drop > limit:
+        given = ", ".join(f"{key} {value:g} m" for key, value in sides.items())
+        raise TemplateError(f"{kind}.{name}: expected at most a quarter of "
+                            f"{' and '.join(sides)}, {limit:.3f} here ({given}), got {drop:g} "
+                            f"(the rounded edges would meet)")
+
+
+def _check_corners(kind: str, name: str, drop: float, involved: dict[str, float],
+                   lowest) -> None:
+    """A TemplateError unless a sheet rounded down by `drop` keeps its corners above the floor:
+    rounded along both edges, a corner drops further than either edge. `lowest(drop)`: the
+    height of the sheet's lowest control point (metres), falling as the drop grows; the
+    message names the `involved` parameters (name -> value)."""
+    low = lowest(drop)
+    if low >= 0.0:
+        return
+    keep, lose = 0.0, drop
+    for _ in range(40):  # the largest drop that keeps the corners above the floor
+        mid = (keep + lose) / 2
+        keep, lose = (mid, lose) if lowest(mid) >= 0.0 else (keep, mid)
+    given = ", ".join(f"{key} {value:g}" for key, value in involved.items())
+    raise TemplateError(f"{kind}.{name}: expected a drop that keeps the corners above the "
+                        f"floor, at most {keep:.3f} here ({given}), got {drop:g} (a corner "
+                        f"would be at {low:.3f} m)")
+
+
+def _rounded_sheet_low(height: float, depth: float, tilt_deg: float, drop: float,
+                       back: tuple[float, float] | None = None) -> float:
+    """The lowest control point (y, metres) of a sheet `depth` long whose front edge is
+    `height` high, tilted `tilt_deg`, with every edge rounded down by `drop` (its sides the
+    profile offset by -drop, as `_sweep` makes them) but the rear's, with a `back`."""
+    keys, counts, _ = _seat_profile(height, depth, tilt_deg, drop, drop, back, 1, 1)
+    sides = keys - drop * _offset_normals(keys, counts)
+    return float(min(keys[:, 1].min(), sides[:, 1].min()))
+
+
+def _check_arms(kind: str, p, seat, where: str = "") -> None:
+    """A TemplateError unless the arms of `p` (their height, offset from the seat's profile
+    along its normal) fit in the profile of `seat` (a chair's parameters: its seat and back):
+    an arm band offset from the inner corner where the seat meets the back loses length on
+    both; too high, its top shrinks to nothing and folds over itself."""
+    keys, counts, junction = _seat_profile(
+        seat.seat_height, seat.seat_depth, seat.seat_tilt_deg, p.front_drop, 0.0,
+        (seat.back_angle_deg, seat.back_height), p.seat_quads[1], p.back_quads)
+    reach, j = _offset_reach(keys, counts)
+    if p.arm_height < reach:
+        return
+    part = "back" if j >= junction else "seat"
+    given = ", ".join(f"{key} {getattr(seat, key):g}" for key in (
+        "seat_depth", "seat_tilt_deg", "back_angle_deg", "back_height"))
+    raise TemplateError(f"{kind}.arm_height: expected arms that the {part}{where} is long "
+                        f"enough to carry, below {reach:.3f} here ({given}), got "
+                        f"{p.arm_height:g} (where the seat meets the back, the arms' tops "
+                        f"would fold over themselves)")
 
 
 TEMPLATE_PARAMS: dict[str, type] = {
@@ -466,6 +548,33 @@ def _miter_normals(points: np.ndarray) -> np.ndarray:
     return (before + after) / (1.0 + np.einsum("ij,ij->i", before, after))[:, None]
 
 
+def _offset_normals(profile: np.ndarray, counts) -> np.ndarray:
+    """(m, 2) normals that the key polyline `profile` (m, 2) of (z, y) is offset along in a
+    sweep (`_miter_normals`, but for a rounded front edge, `counts[0]` one step)."""
+    normals = _miter_normals(profile)
+    if counts[0] == 1 and len(profile) > 2:
+        # a rounded front edge: bands offset from it (arms) are the rounded edge moved along
+        # the seat's normal, not rolled forward around it
+        normals[:2] = _miter_normals(profile[1:3])[0]
+    return normals
+
+
+def _offset_reach(profile: np.ndarray, counts) -> tuple[float, int]:
+    """How far (metres) the key polyline `profile` (m, 2) can be offset towards the body
+    (`_offset_normals`) before one of its segments shrinks to nothing (and beyond, turns back
+    on itself: the offset band folds), and that segment's index (inf, -1: never)."""
+    normals = _offset_normals(profile, counts)
+    step = np.diff(profile, axis=0)
+    # segment j offset by h runs step_j + h (n_j+1 - n_j); along step_j it keeps
+    # |step_j|^2 + h (n_j+1 - n_j) . step_j
+    length2 = np.einsum("ij,ij->i", step, step)
+    shrink = -np.einsum("ij,ij->i", np.diff(normals, axis=0), step)
+    reach = np.full(len(step), np.inf)
+    np.divide(length2, shrink, out=reach, where=shrink > 1e-12 * length2)
+    j = int(np.argmin(reach))
+    return (float(reach[j]), j) if math.isfinite(reach[j]) else (math.inf, -1)
+
+
 def _sweep(columns: np.ndarray, keys: np.ndarray, counts, crease_cols, crease_key_rows
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The grid of a side profile swept across columns (k, 2) of (x, offset): column i's
@@ -481,11 +590,7 @@ def _sweep(columns: np.ndarray, keys: np.ndarray, counts, crease_cols, crease_ke
     for profile, h in zip(each, columns[:, 1]):
         normals = normals_of.get(id(profile))
         if normals is None:
-            normals = normals_of[id(profile)] = _miter_normals(profile)
-            if counts[0] == 1 and len(profile) > 2:
-                # a rounded front edge: bands offset from it (arms) are the rounded edge moved
-                # along the seat's normal, not rolled forward around it
-                normals[:2] = _miter_normals(profile[1:3])[0]
+            normals = normals_of[id(profile)] = _offset_normals(profile, counts)
         rows.append(_polyline(profile + h * normals, counts)[0])
     _, at = _polyline(each[0], counts)
     zy = np.stack(rows)  # (nu, nv, 2)

@@ -133,6 +133,13 @@ def test_a_template_is_not_refused_for_a_default_that_will_be_measured(tmp_path,
     ('{ kind = "chair", seat_height = 100.0 }', r"seat_height: expected a number <= 1\.2, got 100"),
     ('{ kind = "lounger", seat_height = 0.3, knee_height = 0.9 }',
      r"knee_height: expected within thigh_length"),
+    # corners rounded under the floor, arms folded over a short seat: the parameter named
+    ('{ kind = "floor_cushion", height = 0.1, edge_drop = 0.1 }',
+     r"edge_drop: expected a drop that keeps the corners above the floor, at most 0\.050 here "
+     r"\(height 0\.1\), got 0\.1"),
+    ('{ kind = "chair", seat_depth = 0.3, back_angle_deg = 0.0, seat_tilt_deg = 0.0, '
+     'arms = true, arm_height = 0.35 }',
+     r"arm_height: expected arms that the seat is long enough to carry, below 0\.300 here"),
 ])
 def test_a_template_is_still_refused_for_values_given(tmp_path, template, message):
     with pytest.raises(ScenarioError, match=r"s\.toml: surface\.template\." + message):
@@ -158,3 +165,17 @@ def test_a_template_value_the_scenario_sets_is_blamed_on_it_alone(tmp_path):
     with pytest.raises(ScenarioError, match=r"surface\.template\.seat_width") as caught:
         place_scene(load_scenario(path))
     assert "not set in the scenario" not in str(caught.value)
+
+
+def test_a_template_default_that_clashes_is_not_blamed_on_the_people(tmp_path):
+    """A cushion 5 cm high with its default edge drop (measured on no one): the corners would go
+    under the floor. The error names the drop as the template's default, not as measured on the
+    people (moving them would change nothing)."""
+    from solver.scene.placement import place_scene
+
+    path = _write(tmp_path, 'template = { kind = "floor_cushion", height = 0.05 }')
+    with pytest.raises(ScenarioError, match=r"surface\.template\.edge_drop: .*not set in the "
+                                            r"scenario: the template's default; set it there"
+                   ) as caught:
+        place_scene(load_scenario(path))
+    assert "measured on the people" not in str(caught.value)

@@ -243,3 +243,131 @@ def test_parameters_are_frozen_and_lists_become_tuples():
         p.seat_height = 0.3
     t = make_template("chair", p)
     assert len(t.quads) == 6 * (5 + p.back_quads)
+
+
+# above the floor and not folded, at every allowed value ---------------------------------------
+
+@pytest.mark.parametrize("kind, values, message", [
+    # rounded along both edges, a corner drops twice: the edge stays up, the corner goes under
+    ("bed", {"height": 0.16, "edge_drop": 0.15},
+     r"bed\.edge_drop: expected a drop that keeps the corners above the floor, at most 0\.080 "
+     r"here \(height 0\.16\), got 0\.15 \(a corner would be at -0\.140 m\)"),
+    ("floor_cushion", {"height": 0.1, "edge_drop": 0.1},
+     r"floor_cushion\.edge_drop: expected a drop that keeps the corners above the floor, at "
+     r"most 0\.050 here \(height 0\.1\), got 0\.1 \(a corner would be at -0\.100 m\)"),
+    ("floor_cushion", {"height": 0.1, "edge_drop": 0.1, "back": True},
+     r"floor_cushion\.edge_drop: .* at most 0\.050 here"),
+    ("stool", {"seat_height": 0.49, "seat_depth": 1.5, "seat_tilt_deg": 15.0, "edge_drop": 0.06},
+     r"stool\.edge_drop: expected a drop that keeps the corners above the floor, at most "
+     r"0\.049 here \(seat_height 0\.49, seat_depth 1\.5, seat_tilt_deg 15\), got 0\.06 "
+     r"\(a corner would be at -0\.020 m\)"),
+    ("stool", {"seat_height": 0.12, "seat_depth": 0.4, "seat_tilt_deg": -10.0, "edge_drop": 0.08},
+     r"stool\.edge_drop: .* at most 0\.061 here"),
+    # rounded edges of opposite sides meeting (zero-area quads) or crossing (flipped ones)
+    ("bed", {"width": 0.3, "edge_drop": 0.15},
+     r"bed\.edge_drop: expected at most a quarter of width and length, 0\.075 here \(width "
+     r"0\.3 m, length 2 m\), got 0\.15"),
+    ("floor_cushion", {"depth": 0.19, "edge_drop": 0.09, "height": 0.6},
+     r"floor_cushion\.edge_drop: expected at most a quarter of width and depth, 0\.048 here"),
+    ("stool", {"seat_width": 0.1, "seat_depth": 0.4, "edge_drop": 0.1},
+     r"stool\.edge_drop: expected at most a quarter of seat_width and seat_depth, 0\.025 here"),
+    # arm bands offset into the seat-back corner: higher than the seat (or back) is long, their
+    # tops fold over themselves
+    ("chair", {"arms": True, "seat_depth": 0.3, "back_angle_deg": 0.0, "seat_tilt_deg": 0.0,
+               "arm_height": 0.35},
+     r"chair\.arm_height: expected arms that the seat is long enough to carry, below 0\.300 "
+     r"here \(seat_depth 0\.3, seat_tilt_deg 0, back_angle_deg 0, back_height 0\.5\), got 0\.35"),
+    ("chair", {"arms": True, "back_height": 0.1, "back_angle_deg": 0.0, "seat_tilt_deg": 0.0,
+               "arm_height": 0.3},
+     r"chair\.arm_height: expected arms that the back is long enough to carry, below 0\.100"),
+    ("bench", {"arms": True, "back": True, "arm_height": 0.4, "seat_profiles": (
+        {}, {"seat_depth": 0.3, "seat_tilt_deg": 0.0, "back_angle_deg": 0.0})},
+     r"bench\.arm_height: expected arms that the seat \(seat_profiles\[1\]\) is long enough"),
+])
+def test_parameters_that_put_the_mesh_under_the_floor_or_fold_it_are_refused(kind, values,
+                                                                             message):
+    with pytest.raises(TemplateError, match=message):
+        make_template(kind, **values)
+
+
+@pytest.mark.parametrize("kind, values, name", [
+    ("bed", {"height": 0.16, "edge_drop": 0.08}, "edge_drop"),
+    ("floor_cushion", {"height": 0.1, "edge_drop": 0.05}, "edge_drop"),
+    ("stool", {"seat_height": 0.49, "seat_depth": 1.5, "seat_tilt_deg": 15.0, "edge_drop": 0.048},
+     "edge_drop"),
+    ("chair", {"arms": True, "seat_depth": 0.3, "back_angle_deg": 0.0, "seat_tilt_deg": 0.0,
+               "arm_height": 0.29}, "arm_height"),
+])
+def test_up_to_the_limits_the_mesh_stays_above_the_floor_unfolded(kind, values, name):
+    t = make_template(kind, **values)
+    assert t.vertices[:, 1].min() >= 0.0
+    mesh = _trimesh(t.vertices, t.quads)
+    assert (mesh.area_faces > 1e-9).all()
+    # the middle of the allowed drop or height keeps both splits of every quad facing one way
+    half = make_template(kind, **{**values, name: values[name] / 2})
+    assert _quad_twist(half).min() > 0.0
+
+
+def _quad_twist(t) -> np.ndarray:
+    """(F,) cosine between the normals of a quad's two triangles, both ways of splitting it:
+    -1 for a quad folded flat onto itself."""
+    v = t.vertices[t.quads]
+    a, b, c, d = v[:, 0], v[:, 1], v[:, 2], v[:, 3]
+
+    def cos(x, y):
+        return np.einsum("ij,ij->i", x, y) / np.maximum(
+            np.linalg.norm(x, axis=1) * np.linalg.norm(y, axis=1), 1e-300)
+
+    return np.minimum(cos(np.cross(b - a, c - a), np.cross(c - a, d - a)),
+                      cos(np.cross(b - a, d - a), np.cross(c - b, d - b)))
+
+
+_SWEEP = {  # each kind's numeric parameters and their bounds (the templates' own checks)
+    "chair": {"seat_height": (0.05, 1.2), "seat_depth": (0.1, 1.5), "seat_width": (0.1, 3.0),
+              "seat_tilt_deg": (-30.0, 30.0), "front_drop": (0.0, 0.1),
+              "back_angle_deg": (-10.0, 60.0), "back_height": (0.05, 1.5),
+              "arm_height": (0.03, 0.6), "arm_width": (0.02, 0.4)},
+    "stool": {"seat_height": (0.05, 1.2), "seat_depth": (0.1, 1.5), "seat_width": (0.1, 3.0),
+              "seat_tilt_deg": (-30.0, 30.0), "edge_drop": (0.0, 0.1)},
+    "floor_cushion": {"height": (0.02, 0.6), "depth": (0.1, 2.0), "width": (0.1, 6.0),
+                      "edge_drop": (0.0, 0.1), "back_angle_deg": (-10.0, 80.0),
+                      "back_height": (0.05, 1.5)},
+    "lounger": {"seat_height": (0.05, 1.2), "width": (0.2, 6.0), "back_angle_deg": (10.0, 85.0),
+                "back_length": (0.2, 2.0), "thigh_length": (0.1, 1.0),
+                "knee_height": (0.05, 1.5), "leg_length": (0.1, 1.2),
+                "foot_height": (0.02, 1.5)},
+    "bed": {"height": (0.05, 1.2), "width": (0.3, 6.0), "length": (0.5, 3.5),
+            "edge_drop": (0.0, 0.15)},
+}
+_SWEEP["bench"] = _SWEEP["chair"]
+_FLAGS = {"chair": ("back", "arms"), "bench": ("back", "arms"), "floor_cushion": ("back",)}
+_COARSE = {"chair": {"seat_quads": (2, 2), "back_quads": 1},
+           "bench": {"seat_quads": (2, 2), "back_quads": 1, "seats": 2},
+           "stool": {"seat_quads": (2, 2)}, "floor_cushion": {"quads": (2, 2), "back_quads": 1},
+           "lounger": {"quads_across": 1, "back_quads": 1, "thigh_quads": 1, "leg_quads": 1},
+           "bed": {"quads": (2, 2)}}
+
+
+@pytest.mark.parametrize("kind", sorted(_SWEEP))
+def test_every_allowed_template_stays_above_the_floor_and_unfolded(kind):
+    """A seeded sweep of each kind's parameter box, its corners half the time: every template
+    the checks let through has its control mesh, so its limit surface (each level a convex
+    combination of it), on or above the floor, no quad without area, none folded onto itself."""
+    rng = np.random.default_rng(7)
+    built = 0
+    for k in range(200):
+        values = {name: float(rng.choice([lo, hi]) if k % 2 or rng.random() < 0.3
+                              else rng.uniform(lo, hi))
+                  for name, (lo, hi) in _SWEEP[kind].items()}
+        values.update({flag: bool(rng.random() < 0.6) for flag in _FLAGS.get(kind, ())})
+        values.update(_COARSE[kind], position=(float(rng.uniform(-2, 2)), 0.5),
+                      heading_deg=float(rng.uniform(-360, 360)))
+        try:
+            t = make_template(kind, **values)
+        except TemplateError:
+            continue
+        built += 1
+        assert t.vertices[:, 1].min() >= 0.0, values
+        assert (_trimesh(t.vertices, t.quads).area_faces > 1e-12).all(), values
+        assert _quad_twist(t).min() > -0.5, values
+    assert built > 25
