@@ -36,7 +36,7 @@ import numpy as np
 from fastapi import FastAPI, HTTPException, Query, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
@@ -65,11 +65,23 @@ CEILINGS = {"level": 3, "max_iterations": 100, "sigma": 100.0, "gamma": 1e6, "an
 MAX_FOAM_STIFFNESS = 1e5
 FITS_KEPT = 8  # the last fits a server keeps for warm refits (`/api/fit?warm=FIT_ID`)
 
-Coord = Annotated[float, Field(ge=-COORD, le=COORD)]
+# (NaN and infinity are refused as such, not as numbers past the bound)
+Coord = Annotated[float, Field(ge=-COORD, le=COORD, allow_inf_nan=False)]
 Point = Annotated[list[Coord], Field(min_length=3, max_length=3)]
 Index = Annotated[int, Field(ge=0, le=MAX_EVAL_VERTICES - 1)]
-Quad = Annotated[list[Index], Field(min_length=4, max_length=4)]
-Triangle = Annotated[list[Index], Field(min_length=3, max_length=3)]
+Face = Annotated[list[Index], Field(min_length=3, max_length=4)]
+
+
+def _one_kind_of_face(faces: list[list[int]]) -> list[list[int]]:
+    """Faces all triangles or all quads (one list type, so an error names the face at fault
+    rather than a branch of a union of the two)."""
+    sizes = {len(face) for face in faces}
+    if len(sizes) > 1:
+        first = next(k for k, face in enumerate(faces) if len(face) != len(faces[0]))
+        raise ValueError(f"expected every face a triangle or every face a quad, got face 0 "
+                         f"with {len(faces[0])} corners and face {first} with "
+                         f"{len(faces[first])}")
+    return faces
 
 
 class _Model(BaseModel):
@@ -87,7 +99,8 @@ class RelaxRequest(_Model):
 
 class EvaluateRequest(_Model):
     vertices: Annotated[list[Point], Field(min_length=3, max_length=MAX_EVAL_VERTICES)]
-    faces: Annotated[list[Quad] | list[Triangle], Field(min_length=1, max_length=400_000)]
+    faces: Annotated[list[Face], Field(min_length=1, max_length=400_000),
+                     AfterValidator(_one_kind_of_face)]
     person: Annotated[list[schema.Person], Field(min_length=1, max_length=MAX_PEOPLE)]
     margin: schema.FIT_FIELDS["margin"] = FitParams.margin  # type: ignore[valid-type]
     evaluation: schema.Evaluation = schema.Evaluation()
@@ -148,6 +161,12 @@ def _check_person(p: schema.Person, loc: list) -> None:
     if max(abs(c) for c in p.position) > COORD:
         raise _limit([*loc, "position"], f"expected coordinates within {COORD:g} m here, got "
                                          f"{p.position}")
+    if p.pose.startswith("bvh:") and not p.pose.startswith("bvh:bundled:"):
+        # (a file of the server's disk: refused as the malformed field it is here, without
+        # quoting it back, which would show it cut where it names folders)
+        raise _limit([*loc, "pose"], "Expected db:NAME or bvh:bundled:NAME#frame=N, got a BVH "
+                                     "file: this server reads no files (the bundled recordings "
+                                     "are at /api/recordings)")
     if p.pose.startswith("bvh:bundled:"):
         name = p.pose[len("bvh:bundled:"):].split("#", 1)[0]
         if "/" in name or "\\" in name:
@@ -328,8 +347,8 @@ def _error_handlers(app: FastAPI, db: str | None = None) -> None:
             # (FastAPI's own answer to a body its JSON reader gives up on, such as one nested
             # too deep): malformed, as the other malformed bodies
             return reply(422, [{"type": "json_invalid", "loc": ["body"],
-                                "msg": "The body is not JSON this server can read (nested "
-                                       "too deep, or a number too long)"}])
+                                "msg": "The body is not JSON this server can read (not "
+                                       "UTF-8, nested too deep, or a number too long)"}])
         return reply(exc.status_code, exc.detail)
 
     @app.exception_handler(NotFoundError)

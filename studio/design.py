@@ -41,10 +41,10 @@ from capture.files import write_atomic
 from solver.contact.pressure import reachable
 from solver.mesh import split_quad
 from solver.scene import schema
-from solver.scene.quality import design_misses
+from solver.scene.quality import design_misses, surface_misses
 from solver.surface.fit import FitResult
-from solver.scene.run import (SURFACE_FORMATS, evaluate_fit, fit_people, relax_person,
-                              relax_text, relieve_fit, run_fit, save_relaxed)
+from solver.scene.run import (SURFACE_FORMATS, evaluate_fit, fit_guarantees, fit_people,
+                              relax_person, relax_text, relieve_fit, run_fit, save_relaxed)
 from solver.scene.scenario import (PersonSpec, Scenario, ScenarioError, parse_scenario,
                                    read_control_mesh, scenario_toml)
 from solver.scene.design import RELIEF_ROUNDS, shared_given
@@ -72,6 +72,20 @@ TEMPLATES = {"chair": ("chair", {"seams": False}, "chair"),
              "floor cushion": ("floor_cushion", {}, "floor"), "lounger": ("lounger", {}, "lounger"),
              "bed": ("bed", {}, "bed")}
 ONE_PERSON = ("chair", "stool")  # kinds for one person (several share a bench)
+
+
+def template_name(table: dict) -> str:
+    """The `TEMPLATES` name of a scenario's `[surface] template` table (its `kind`, and for a
+    bench whether it has a back): what the studio's Template list calls it."""
+    kind = table.get("kind")
+    names = [name for name, (k, _, _) in TEMPLATES.items() if k == kind]
+    if not names:
+        raise DesignError(f"Expected a template kind of "
+                          f"{', '.join(sorted({k for k, _, _ in TEMPLATES.values()}))}, "
+                          f"got {kind!r}")
+    back = bool(table.get("back", False))
+    return next((name for name in names if bool(TEMPLATES[name][1].get("back", False)) == back),
+                names[0])
 
 
 def _template_problem(name: str, message: str) -> str:
@@ -173,6 +187,11 @@ class FitOutcome:
     limit: np.ndarray | None = None  # (ns, 3) m: the level-s vertices' limit points (exported)
     data: dict | None = None  # the scenario data (`Design.scenario_data`) it is the fit of
     relief: dict | None = None  # the `[relief]` asked (rounds, target) when rounds were kept
+    params: object = None  # the fit's `FitParams` (margin, floor, creases): what it is judged by
+    # the surface's guarantees as the export's report.json holds them (`fit_guarantees`), once
+    # judged (`Design.judge`), and the seconds the check took
+    guarantees: dict | None = None
+    judge_seconds: float | None = None
 
 
 @dataclass(frozen=True)
@@ -730,8 +749,9 @@ class Design:
             surface_faces = subdivision(len(scenario.surface.vertices), faces, params.level,
                                         params.creases or None).faces
 
-            def each(iteration: int, control: np.ndarray, surface: np.ndarray) -> None:
+            def shown(iteration: int, control: np.ndarray, surface: np.ndarray) -> None:
                 iterates(Iterate(iteration, control, faces, surface, surface_faces))
+            each = shown
         result = fit_people(scenario, people, progress, warm=self._warm_start() if warm else None,
                             cancel=cancel, iterates=each)
         if result.stop_reason.startswith("cancelled") or (cancel is not None and cancel()):
@@ -742,7 +762,8 @@ class Design:
             self._keep_resume(result, resumable)
             return None
         self.last = FitOutcome(result, people, persons, [m.pressure_kpa for m in settles],
-                               time.perf_counter() - start, limit, data)
+                               time.perf_counter() - start, limit, data,
+                               params=scenario.surface.params)
         self.resume = None
         self.relaxed = {}  # relaxed onto the surface before
         return self.last
@@ -764,12 +785,19 @@ class Design:
         scenario = dataclasses.replace(self._parse(self.last.data), relief=relief)
         people, result = self.last.people, self.last.result
         _, persons, maps = evaluate_fit(scenario, people, result)  # (the settles again)
-        result, persons, maps, done = relieve_fit(scenario, people, result, persons, maps, say)
+        checked = []  # (fit, guarantees, seconds) of the fits whose guarantees relief checked
+        result, persons, maps, done = relieve_fit(scenario, people, result, persons, maps, say,
+                                                  checked=checked)
         if done.kept:
             self.last = FitOutcome(result, people, persons, [m.pressure_kpa for m in maps],
                                    time.perf_counter() - start,
                                    result.limit_surface(scenario.surface.params.creases),
-                                   self.last.data, relief.model_dump())
+                                   self.last.data, relief.model_dump(),
+                                   params=scenario.surface.params)
+            # the kept fit was checked against the bars the first met: judged already
+            known = [(g, seconds) for fit, g, seconds in checked if fit is result]
+            if known:
+                self.last.guarantees, self.last.judge_seconds = known[0]
             self.resume = None
             self.relaxed = {}
         return done.record()
@@ -810,13 +838,45 @@ class Design:
                                 f"cannot sit on the surface; pick a seated one")
         return warnings
 
+    def judge(self, outcome: FitOutcome | None = None) -> dict:
+        """The surface guarantees of a fit (`outcome`, default the last) as the export's
+        report.json holds them (`fit_guarantees`: self-crossings, folds over 60 degrees, slits
+        across a crease, the floor, and the deepest cut on a dense sampling against the margin
+        plus 1 mm), checked once and kept with the fit (`FitOutcome.guarantees`).
+
+        The check is no part of `fit`: it takes far longer than a warm refit (0.11 s for one
+        seated person on an 8 x 6 grid at level 3, 1.3 s for six, the dense sampling most of
+        it), so the studio asks for it once a fit has settled. It reads the fit alone (its
+        result, its people, its parameters), never the session, so it may run beside edits."""
+        outcome = self.last if outcome is None else outcome
+        if outcome is None:
+            raise DesignError("Fit first: the guarantees are those of a fitted surface")
+        if outcome.guarantees is None:
+            params = outcome.params
+            if params is None:  # (a fit kept before its parameters were)
+                params = self._parse(outcome.data).surface.params
+            start = time.perf_counter()
+            guarantees = fit_guarantees(outcome.result, outcome.people, params)
+            outcome.judge_seconds = time.perf_counter() - start
+            outcome.guarantees = guarantees
+        return outcome.guarantees
+
+    def surface_warnings(self) -> list[str]:
+        """What the last fit's surface misses of its guarantees, in report.json's words
+        (`solver.scene.quality.surface_misses`); none before it is judged (`judge`)."""
+        if self.last is None or self.last.guarantees is None:
+            return []
+        return surface_misses(self.last.guarantees)
+
     def result_warnings(self) -> list[str]:
-        """What the last fit misses of the bars (`solver.scene.quality.design_misses`)."""
+        """What the last fit misses of the bars: its surface's guarantees once judged
+        (`surface_warnings`), then each person's (`solver.scene.quality.design_misses`)."""
         if self.last is None:
             return []
         # the margin the fit on screen was made with (the panel's may have changed since)
         margin = (self.last.data or {}).get("surface", {}).get("margin", self.params["margin"])
-        return [m for p in self.last.persons for m in design_misses(p, margin)]
+        return self.surface_warnings() + [m for p in self.last.persons
+                                          for m in design_misses(p, margin)]
 
     def relax(self, k: int) -> RelaxOutcome:
         self._person(k)
@@ -898,6 +958,9 @@ class Design:
                          progress=progress, formats=formats, fitted=self.last.result,
                          title=title)
         self.save_toml(out / "scenario.toml", as_fitted=True)
+        if self.last.guarantees is None:  # the export judged the fit on screen: kept with it
+            self.last.guarantees = report["guarantees"]
+            self.last.judge_seconds = report["timing"].get("guarantees_s")
         return report
 
     def export_zip(self, name: str, progress: Callable[[str], None] | None = None,

@@ -13,8 +13,12 @@ fit goes on from the cancelled one's last iterate, warm), and fits start no fast
 finish, so the machine keeps up. A fit's accepted iterates stream to the tabs as they come: the
 surface node's vertices (level s) and the fitted control net are updated in place, as often as
 showing them takes at most `SHOW_SHARE` of the fit's time; the finished fit replaces them with
-its limit surface (the same quads), the bodies coloured by pressure and the figures. Everything
-goes through `Design` (the same solver and library calls as the command line).
+its limit surface (the same quads), the bodies coloured by pressure and the figures. Every
+finished fit's surface is then judged by the guarantees the export's report.json holds (no
+self-crossing, no fold, no slit, above the floor, no cut past the margin on a dense sampling:
+`Design.judge`) on a thread of its own (`Judge`), once no newer fit runs or is asked for, and
+what it misses is shown beside each person's misses, in the report's words. Everything goes
+through `Design` (the same solver and library calls as the command line).
 
 A tab has its own session; tabs that join the same session name share one (each with its own
 selection and status line, all drawing every edit).
@@ -45,8 +49,8 @@ from solver.scene.relief import relief_text
 from solver.scene.run import pressure_on_skin
 
 from .context import INTERNAL, PROBLEM, LibraryWatch, StudioContext, guarded, notice
-from .design import (DEFAULT_POSE, TEMPLATES, Design, DesignError, Iterate, check_name,
-                     control_edges)
+from .design import (DEFAULT_POSE, TEMPLATES, Design, DesignError, FitOutcome, Iterate,
+                     check_name, control_edges, template_name)
 
 CONTROL_COLOR = (40, 40, 48)
 FIXED_COLOR = (220, 50, 40)
@@ -60,6 +64,9 @@ BODY_MODES = {"shown": 1.0, "ghost": 0.25, "hidden": 0.0}  # opacity of the bodi
 QUIET_S = 0.03  # a refit waits this long for the drag's next event before it starts
 SHOW_SHARE = 0.2  # showing a fit's iterates takes at most this share of the fit's time
 STEP_GRACE_S = 0.15  # a newer edit lets a fit run this long for its first accepted iterate
+# a refit's surface is judged (`Judge`) once no fit has run or been asked for this long: the
+# check (0.1 s for one person, 1.3 s for six) would otherwise hold up a drag's refits
+SETTLE_S = 0.3
 
 
 def _rgb(color) -> tuple[int, int, int]:
@@ -226,6 +233,95 @@ class Refitter:
             self._cond.notify()
 
 
+class Judge:
+    """Judges the surface of a session's finished fit (`Design.judge`) on a thread of its own,
+    once the fit has settled: `request` after a fit is drawn; the newest request wins, and it
+    is judged when its delay has passed and no fit runs or is asked for (a drag's refit never
+    waits for the check, which is no use to an outdated surface; a check already running when
+    a drag starts again shares the machine with its refits), then every view shows the verdict
+    (`DesignView.judged`). A fit no longer the session's last is not judged."""
+
+    def __init__(self, session: "Session"):
+        self.session = session
+        self._cond = threading.Condition()
+        self._wanted: tuple[FitOutcome, float] | None = None  # the fit and when it is due
+        self._judging = False  # a fit is being judged now
+        self._closed = False
+        self.judged = 0  # fits judged (and shown, when still the last)
+        self._thread = threading.Thread(target=self._run, daemon=True, name="sitrelax-judge")
+        self._thread.start()
+
+    def request(self, outcome: FitOutcome, delay: float = SETTLE_S) -> None:
+        """Judges `outcome` once `delay` seconds have passed with no fit running or asked for
+        (at once when it is judged already)."""
+        with self._cond:
+            self._wanted = (outcome, time.perf_counter() + delay)
+            self._cond.notify_all()
+
+    @property
+    def pending(self) -> bool:
+        """A fit waits to be judged, or is being judged."""
+        return self._wanted is not None or self._judging
+
+    def _settled(self) -> bool:
+        session = self.session
+        return not (session.fit_lock.locked() or session.refitter.busy or
+                    session.refitter.wanted)
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while self._wanted is None and not self._closed:
+                    self._cond.wait()
+                if self._closed:
+                    return
+                outcome, due = self._wanted
+                wait = due - time.perf_counter()
+                if outcome.guarantees is None and (wait > 0 or not self._settled()):
+                    # (a newer request, or the fit asked for, is seen when the wait ends)
+                    self._cond.wait(max(wait, QUIET_S))
+                    continue
+                self._wanted, self._judging = None, True
+            try:
+                self._judge(outcome)
+            finally:
+                with self._cond:
+                    self._judging = False
+                    self.judged += 1
+                    self._cond.notify_all()
+
+    def _judge(self, outcome: FitOutcome) -> None:
+        session = self.session
+        if session.design.last is not outcome:
+            return  # a newer fit, or an edit that dropped it: its surface is not on screen
+        try:
+            session.design.judge(outcome)  # (the fit alone is read: no lock held)
+        except Exception as exc:  # noqa: BLE001 (the thread lives on; the tabs are told)
+            session.problem(exc, "the check of the surface's guarantees failed")
+            return
+        with session.lock:
+            if session.design.last is outcome:
+                for view in list(session.views):
+                    view.judged()
+
+    def wait(self, timeout: float) -> bool:
+        """Waits until no fit waits to be judged or is being judged (True), or `timeout`
+        seconds pass (False)."""
+        deadline = time.perf_counter() + timeout
+        with self._cond:
+            while self.pending and not self._closed:
+                left = deadline - time.perf_counter()
+                if left <= 0:
+                    return False
+                self._cond.wait(left)
+        return True
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+
 class Session:
     """One design session and the views (tabs) showing it: a lock for its edits, the worker
     that refits it, the count of fits drawn and of iterates shown (streamed while fitting)."""
@@ -242,6 +338,7 @@ class Session:
         self.shown = 0
         self.showing_s = 0.0  # the seconds the last fit spent showing its iterates
         self.refitter = Refitter(self)
+        self.judge = Judge(self)
         self.stopped = False  # the running fit was cancelled by the Cancel button
 
     def changed(self, source: "DesignView | None" = None) -> None:
@@ -313,7 +410,15 @@ class Session:
             self.fits += 1
             for view in list(self.views):
                 view.fitted(source)
+            # the Fit button's fit is judged at once, a refit once the drag has settled
+            self.judge.request(outcome, 0.0 if source is not None else SETTLE_S)
         return True
+
+    def judge_last(self, delay: float = SETTLE_S) -> None:
+        """Asks for the last fit to be judged (after an undo, a relief), if it is not yet."""
+        last = self.design.last
+        if last is not None and last.guarantees is None:
+            self.judge.request(last, delay)
 
     def cancel_fit(self) -> None:
         """Stops the running fit at its next iteration (the surface drawn stays the last
@@ -321,12 +426,11 @@ class Session:
         self.stopped = True
         self.refitter.bump()
 
-    def problem(self, exc: Exception) -> None:
-        """A refit failed (a person out of reach, ...): every view says so, in its status line
-        (the next action clears it) and as a notice."""
+    def problem(self, exc: Exception, what: str = "the refit failed") -> None:
+        """A refit (or `what` else) failed (a person out of reach, ...): every view says so,
+        in its status line (the next action clears it) and as a notice."""
         bad_input = isinstance(exc, (ValueError, OSError, KeyError))
-        text = f"the refit failed: {exc}" if bad_input else \
-            f"the refit failed: {type(exc).__name__}: {exc}"
+        text = f"{what}: {exc}" if bad_input else f"{what}: {type(exc).__name__}: {exc}"
         for view in list(self.views):
             view.progress.content = ""
             view._status(f"{PROBLEM if bad_input else INTERNAL} {text}")
@@ -334,6 +438,7 @@ class Session:
 
     def close(self) -> None:
         self.refitter.close()
+        self.judge.close()
 
 
 class DesignView:
@@ -368,6 +473,7 @@ class DesignView:
         self._leaving: str | None = None  # the session a join was warned about (pressed again)
         self._unread: Exception | None = None  # why the library could not be read at the start
         self._saved: set = set()  # the files and scenarios this tab saved (saved again freely)
+        self._shown_start = None  # the session's start the panel shows (`_show_start`)
         self._replacing = None  # the one a save was warned about (pressed again: replaced)
         with tab:
             self._build_gui()
@@ -1044,6 +1150,7 @@ class DesignView:
         self.selection = [j for j in self.selection if j < len(self.design.vertices)]
         self.redraw()
         self._edited()
+        self.session.judge_last()  # (a fit back on screen that was never judged)
         self._status(f"{what}." + (f"\n\n{self._figures()}" if self.design.last else ""))
 
     # fitting ------------------------------------------------------------------------------
@@ -1073,6 +1180,7 @@ class DesignView:
 
         record = self.design.relieve(say=say)
         self.fitted()
+        self.session.judge_last(0.0)  # (a kept fit relief checked is judged already)
         line = relief_text(record)
         if line is None:  # a peak set against a flat seat's is what relief lowers
             measured = [p for p in self.design.last.persons if p.get("peak_of_flat") is not None
@@ -1180,10 +1288,56 @@ class DesignView:
         self._drawn_fit, self._drawn_quads = None, (None, None)
 
     def _show_warnings(self) -> None:
+        """What the poses and the fit on screen miss (its surface's guarantees once judged,
+        then each person's bars), and whether its surface meets its guarantees."""
         lines = self.design.pose_warnings() + self.design.result_warnings()
-        self.warnings.content = "\n".join(
-            f"<span style='color:#c0392b'>&#9888; {line}</span>  " for line in lines)
+        shown = [f"<span style='color:#c0392b'>&#9888; {line}</span>  " for line in lines]
+        verdict = self._verdict()
+        self.warnings.content = "\n".join(shown + ([verdict] if verdict else []))
         self.warning_lines = lines
+
+    def _verdict(self) -> str:
+        """One line: whether the surface on screen meets its guarantees (the export's: no
+        self-crossing, no fold, no slit, above the floor, no cut past the margin), not yet
+        judged, or what it misses (listed above, in report.json's words); '' with no fit."""
+        last = self.design.last
+        if last is None:
+            return ""
+        g = last.guarantees
+        if g is None:
+            return ("*The surface's guarantees (no self-crossing, no fold, no slit, above the "
+                    "floor, no cut past the margin) are checked once the fit settles...*")
+        took = "" if last.judge_seconds is None else f"; checked in {last.judge_seconds:.2f} s"
+        misses = self.design.surface_warnings()
+        if misses:
+            return (f"*The surface misses {len(misses)} of its guarantees, as the export's "
+                    f"report.json will say (above){took}.*")
+        floor = "" if g["floor_m"] is None else ", above the floor"
+        return (f"<span style='color:#1e8449'>&#10003; The surface meets its guarantees: no "
+                f"self-crossing, no fold (neighbouring faces at most {g['max_fold_deg']:.0f} "
+                f"degrees apart), no slit{floor}, deepest cut into a body "
+                f"{1000 * g['max_penetration_dense_m']:.0f} mm (margin "
+                f"{1000 * g['margin_m']:.0f} mm){took}.</span>")
+
+    def judged(self) -> None:
+        """The last fit's surface was judged (`Judge`): its verdict and misses shown."""
+        self._show_warnings()
+
+    def _show_start(self) -> None:
+        """The panel's Template, or its Grid size, faces and height, as the session's start
+        (an opened scenario's template or grid, `Design.start`) has them."""
+        start = self._shown_start = self.design.start
+        if start is None:
+            return
+        if start["key"] == "template":
+            name = template_name(start["table"])
+            if self.template.value != name:
+                self._set(self.template, name)
+            return
+        grid = schema.Grid(**start["table"])  # (the schema's defaults where the file has none)
+        self._set(self.grid_size, tuple(float(c) for c in grid.size))
+        self._set(self.grid_res, tuple(int(c) for c in grid.resolution))
+        self._set(self.grid_height, float(grid.height))
 
     # files --------------------------------------------------------------------------------
     def _may_replace(self, key: tuple, exists: bool, what: str, button: str) -> bool:
@@ -1238,8 +1392,8 @@ class DesignView:
         self.exported = data
         with zipfile.ZipFile(io.BytesIO(data)) as pack:
             count = len(pack.namelist())
-        # report.json's misses: the surface's bars (crossing, folds, floor, the dense cut)
-        # are judged by the export's check alone, so those not shown above are listed here
+        # report.json's misses: those not shown above (the surface's bars before the fit on
+        # screen was judged, a person's bar judged otherwise) are listed here
         misses = report["misses"]
         unseen = [m for m in misses if m not in self.warning_lines]
         self._status(f"Exported the fit on screen (fit {self.session.fits}) as {name}.zip: "
@@ -1247,6 +1401,7 @@ class DesignView:
                      (f" Its report.json lists {len(misses)} missed bar(s)" if misses else "") +
                      (":" + "".join(f"\n\n- {m}" for m in unseen) if unseen else
                       ", shown above." if misses else ""))
+        self._show_warnings()  # (the export judged the fit on screen: `Design.export`)
 
     # sessions -----------------------------------------------------------------------------
     def _join(self) -> None:
@@ -1285,6 +1440,7 @@ class DesignView:
             new.views.append(self)
             self.selection = []
             self.redraw()
+            new.judge_last()  # (a fit carried over from this tab's session, not yet judged)
         kept = " with this tab's design" if carried is not None and carried["people"] else ""
         self._status(f"Joined the session {name!r}{kept} ({len(new.views)} tab(s))." if name
                      else f"This tab's own session{kept}.")
@@ -1313,6 +1469,8 @@ class DesignView:
                 self._syncing = False
             self._show_person()
             self._show_parameters()
+            if self.design.start is not self._shown_start:  # (an open, an undo, a join)
+                self._show_start()
             self.selection = [j for j in self.selection if j < len(self.design.vertices)]
             self._draw_control()
             self._draw_surface()

@@ -147,7 +147,12 @@ def check_grid(grid: dict) -> None:
     for key, values in grid.items():
         table, _, name = _setting(key).partition(".")
         if table not in models or not name or "." in name:
-            raise BatchError(f"--grid {key}: {GRID_KEYS_EXPECTED}")
+            # a misspelt shortcut or table (`sigmaa`, `surfce.sigma`) gets a suggestion too
+            known = sorted(SURFACE_SHORTCUTS) + [f"{t}.{n}" for t, model in models.items()
+                                                 for n in model.model_fields]
+            close = difflib.get_close_matches(key.strip(), known, n=1)
+            hint = f"no such setting (did you mean {close[0]}?); " if close else ""
+            raise BatchError(f"--grid {key}: {hint}{GRID_KEYS_EXPECTED}")
         fields = models[table].model_fields
         if name not in fields:
             close = difflib.get_close_matches(name, list(fields), n=1)

@@ -49,6 +49,11 @@ def _scenario(surface=None, person=None) -> dict:
     ("/api/fit", _scenario(person={"pose": "bvh:bundled:../../../../etc/passwd#frame=0"}), 422,
      '"person", 0, "pose"'),
     ("/api/body", {"person": {"pose": "bvh:bundled:nope.bvh#frame=1"}}, 404, "nope.bvh"),
+    # a file named as a pose is no pose here: the field named, the path not sent back
+    ("/api/body", {"person": {"pose": "bvh:/etc/passwd#frame=1"}}, 422,
+     '"person", "pose", "msg": "Expected db:NAME or bvh:bundled:NAME#frame=N, got a BVH file'),
+    ("/api/fit", _scenario(person={"pose": "bvh:../poses/sit.bvh#frame=0"}), 422,
+     '"person", 0, "pose"'),
     ("/api/body", {"person": {"pose": "db:perch"}}, 409, "no pose library"),
     ("/api/fit", b'{"surface": {"grid": {}}, "person": [{"pose": "' + HIGH_SIT.encode()
      + b'", "position": [NaN, 0, 0]}]}', 422, '"position", 0'),
@@ -82,6 +87,37 @@ def test_evaluate_takes_face_indices_as_far_as_its_vertices_go(api):
     status, payload = _request(api, "POST", "/api/evaluate", body)
     assert status != 422, payload[:300]
 
+
+_QUAD = [[-1, 0.4, -1], [-1, 0.4, 1], [1, 0.4, 1], [1, 0.4, -1]]
+
+
+@pytest.mark.parametrize("body, loc, words", [
+    # NaN and infinity are said to be such, not numbers past the coordinate bound
+    (b'{"vertices": [[0, 0.4, NaN], [1, 0.4, 0], [1, 0.4, 1]], "faces": [[0, 1, 2]], '
+     b'"person": [{"pose": "' + HIGH_SIT.encode() + b'"}]}', ["body", "vertices", 0, 2],
+     "finite number"),
+    (b'{"vertices": [[0, 0.4, 0], [1, 0.4, -Infinity], [1, 0.4, 1]], "faces": [[0, 1, 2]], '
+     b'"person": [{"pose": "' + HIGH_SIT.encode() + b'"}]}', ["body", "vertices", 1, 2],
+     "finite number"),
+    # faces: one error naming the face at fault, not a branch of a union of quads and triangles
+    ({"vertices": _QUAD, "faces": [[0, 1, 2, 3], [0, 1, 2]], "person": [{"pose": HIGH_SIT}]},
+     ["body", "faces"], "face 0 with 4 corners and face 1 with 3"),
+    ({"vertices": _QUAD, "faces": [[0, 1, 2, 10**6]], "person": [{"pose": HIGH_SIT}]},
+     ["body", "faces", 0, 3], "less than or equal to 199999"),
+    ({"vertices": _QUAD, "faces": [[0, 1]], "person": [{"pose": HIGH_SIT}]},
+     ["body", "faces", 0], "at least 3"),
+])
+def test_evaluate_names_the_one_value_at_fault(api, body, loc, words):
+    status, payload = _request(api, "POST", "/api/evaluate", body)
+    errors = json.loads(payload)["detail"]
+    assert status == 422 and len(errors) == 1, errors
+    assert errors[0]["loc"] == loc and words in errors[0]["msg"], errors
+
+
+def test_a_body_that_is_not_utf8_is_said_to_be_so(api):
+    status, payload = _request(api, "POST", "/api/body", b'{"person": {"pose": "db:\xff\xfe"}}')
+    assert status == 422 and "not UTF-8" in json.loads(payload)["detail"][0]["msg"], payload
+    assert _request(api, "GET", "/api/health")[0] == 200
 
 @pytest.mark.slow
 def test_a_fit_past_the_time_limit_is_stopped_and_refused(api):

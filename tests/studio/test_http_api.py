@@ -163,7 +163,7 @@ def test_pressure_evaluate_and_relax(api):
 
 
 @pytest.mark.parametrize("change, status, words", [
-    ({"pose": "bvh:/etc/passwd#frame=0"}, 400, "files are not read here"),
+    ({"pose": "bvh:/etc/passwd#frame=0"}, 422, "got a BVH file: this server reads no files"),
     ({"pose": "bvh:bundled:../../etc/passwd#frame=0"}, 422, "got a path (the bundled ones "
                                                             "are at /api/recordings)"),
     ({"pose": "bvh:bundled:nobody.bvh#frame=0"}, 404, "No bundled recording 'nobody.bvh' "

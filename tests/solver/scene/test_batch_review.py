@@ -24,6 +24,12 @@ SEATED = EXAMPLES / "single_seated.toml"
     ("body.wieght=0.2", r"--grid body.wieght: body has no setting 'wieght' \(did you mean "
                         r"body.weight\?"),
     ("evaluation.x=1", r"--grid evaluation.x: evaluation has no setting 'x'"),
+    # a misspelt shortcut or table gets a suggestion as well
+    ("sigmaa=0.1", r"--grid sigmaa: no such setting \(did you mean sigma\?\); expected sigma, "),
+    ("tau_mx=0.1", r"--grid tau_mx: no such setting \(did you mean tau_max\?\)"),
+    ("surfce.sigma=0.1", r"--grid surfce.sigma: no such setting \(did you mean surface.sigma\?"),
+    ("bdy.weight=0.2", r"--grid bdy.weight: no such setting \(did you mean body.weight\?"),
+    ("xyz=1", r"--grid xyz: expected sigma, tau_max, margin, level, surface.KEY"),
     ("level=3,7", r"--grid level: surface.level cannot be 7 \(input should be less than or "
                   r"equal to 5\)"),
     ("level=2.5", r"--grid level: surface.level cannot be 2.5"),
