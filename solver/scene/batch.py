@@ -90,11 +90,16 @@ def parse_grid(items: Sequence[str]) -> dict[str, list]:
         for v in values.split(","):
             v = v.strip()
             try:
+                if "_" in v:  # (float() reads 1_0 as 10: no one means that)
+                    raise ValueError(v)
                 number = float(v)
             except ValueError:
                 raise BatchError(f"--grid {key}: expected numbers, got {v!r}") from None
             if not math.isfinite(number):
                 raise BatchError(f"--grid {key}: expected finite numbers, got {v!r}")
+            if number == 0.0 and any(c in "123456789" for c in v.lower().partition("e")[0]):
+                raise BatchError(f"--grid {key}: expected a number a float can hold, got {v!r} "
+                                 "(too small: it would be read as 0)")
             # (a whole number is one however written: level=3.0 is level 3)
             parsed.append(int(number) if number.is_integer() and abs(number) < 2 ** 53 else
                           number)

@@ -238,3 +238,14 @@ def test_summary_figures_judge_the_seated_against_their_flat_seat_and_skip_stand
     row = summary_figures([sitter, tipped])
     assert row["peak_pressure_kpa_max"] is None and row["all_rest"] is False
     assert row["peak_of_flat_max"] == 0.78
+
+
+@pytest.mark.parametrize("value, message", [
+    ("1_0", "expected numbers, got '1_0'"),  # (float() reads it as 10)
+    ("1e-400", "too small: it would be read as 0"),
+    ("-2.5e-999", "too small"),
+])
+def test_a_grid_value_no_one_means_as_read_is_refused(value, message):
+    with pytest.raises(BatchError, match=message):
+        parse_grid([f"sigma=0.003,{value}"])
+    assert parse_grid(["sigma=0e5,1e-3"]) == {"sigma": [0, 0.001]}  # a zero written as one stays
