@@ -956,7 +956,8 @@ class Design:
         relief = schema.Relief(**(self.last.relief or {}))
         report = run_fit(dataclasses.replace(self.scenario(), relief=relief), out, db=self.db,
                          progress=progress, formats=formats, fitted=self.last.result,
-                         title=title)
+                         title=title, judged=None if self.last.guarantees is None else
+                         (self.last.guarantees, self.last.judge_seconds))
         self.save_toml(out / "scenario.toml", as_fitted=True)
         if self.last.guarantees is None:  # the export judged the fit on screen: kept with it
             self.last.guarantees = report["guarantees"]

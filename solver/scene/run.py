@@ -394,7 +394,8 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
             unit: str | None = None, up: str | None = None,
             workshop: WorkshopOptions | None = None, pictures: bool = True,
             beside: bool | None = None, fitted: FitResult | None = None,
-            title: str | None = None) -> dict:
+            title: str | None = None, judged: tuple[dict, float | None] | None = None
+            ) -> dict:
     """Fits a scenario and writes everything into `out_dir` (`sitrelax fit`).
 
     Parameters
@@ -418,6 +419,8 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     fitted : the scenario's fit made already (the studio's, as on screen): written as it is,
         not fitted again (its control mesh must be the scenario's).
     title : the design sheet's title (default: the scenario file's name).
+    judged : with `fitted`: its guarantees (`fit_guarantees`) and the seconds their check took,
+        when checked already (the studio's, of the fit on screen): not checked again.
 
     Returns
     -------
@@ -466,6 +469,8 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
                 raise ValueError("Expected a fit of the scenario's control mesh, got one of "
                                  "another mesh")
             result, timing["fit_s"] = fitted, fitted.seconds  # (its own, when it was made)
+            if judged is not None:
+                checked.append((result, *judged))
             say(f"the fit given ({result.iterations} iterations: {result.stop_reason})")
         # the guarantees' check, then the design sheet, on a second thread: the check beside
         # the evaluation, the sheet beside the exports (their numpy, PNG compression and file

@@ -143,3 +143,27 @@ def test_a_refit_is_not_judged_while_another_fit_runs(design_view):
 def _fitted(view):
     """The view's session fitted (as the Fit button fits, its check not asked for)."""
     return view.design.fit(warm=True)
+
+
+def test_an_export_of_a_judged_fit_writes_its_verdict_without_checking_again(tmp_path,
+                                                                             monkeypatch):
+    """The export of the fit on screen, once judged, writes the judged guarantees into its
+    report rather than checking them again (as long again as a warm refit)."""
+    import json
+
+    import solver.scene.run as run
+    from studio.design import Design
+
+    design = Design()
+    design.open_scenario((SCENARIOS / "single_seated.toml").read_text(), "single_seated.toml")
+    assert design.fit() is not None
+    judged = design.judge()
+
+    def again(*args, **kwargs):
+        raise AssertionError("the export checked the judged fit again")
+
+    monkeypatch.setattr(run, "fit_guarantees", again)
+    design.export(tmp_path / "export", formats=("obj",))
+    report = json.loads((tmp_path / "export" / "report.json").read_text())
+    assert report["guarantees"] == json.loads(json.dumps(judged))
+    assert report["timing"]["guarantees_s"] == design.last.judge_seconds
