@@ -37,7 +37,7 @@ import numpy as np
 
 from solver.body.model import BODY_REGIONS
 from solver.surface.templates import (TEMPLATE_PARAMS, TemplateError, TemplateMesh,
-                                      make_template)
+                                      edge_drop_limit, make_template)
 
 CLEARANCE = 0.01  # metres between the starting surface and the skin it supports
 SIDE_MARGIN = 0.04  # metres of seat beyond the outermost hip or thigh, each side
@@ -147,6 +147,11 @@ def furnish(kind: str, given: dict, people: Sequence, *, waterfall: bool = False
     measured = set(values) - set(given)
     values.update(given)
     values["heading_deg"] = frame.heading_deg
+    limit = None if "edge_drop" in given else edge_drop_limit(kind, values)
+    if limit is not None and values.get("edge_drop", TEMPLATE_PARAMS[kind].edge_drop) > limit:
+        # a top measured low: its edges rounded down by as much as its corners allow
+        values["edge_drop"] = limit
+        measured.add("edge_drop")
     try:
         return make_template(kind, **values)
     except TemplateError as exc:

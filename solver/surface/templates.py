@@ -214,9 +214,8 @@ class FloorCushionParams:
         _check_placement(kind, self.position, self.heading_deg)
         _check_rounding(kind, "edge_drop", self.edge_drop, {"width": self.width,
                         "depth": self.depth})
-        back = (self.back_angle_deg, self.back_height) if self.back else None
         _check_corners(kind, "edge_drop", self.edge_drop, {"height": self.height},
-                       lambda drop: _rounded_sheet_low(self.height, self.depth, 0.0, drop, back))
+                       dataclasses.asdict(self))
 
 
 @dataclass(frozen=True)
@@ -289,7 +288,7 @@ class BedParams:
         _check_rounding(kind, "edge_drop", self.edge_drop, {"width": self.width,
                         "length": self.length})
         _check_corners(kind, "edge_drop", self.edge_drop, {"height": self.height},
-                       lambda drop: _rounded_sheet_low(self.height, self.length, 0.0, drop))
+                       dataclasses.asdict(self))
 
 
 def _check_quads(kind: str, name: str, value, low: int) -> None:
@@ -310,11 +309,13 @@ def _check_seat(p, kind: str) -> None:
     drop = getattr(p, drop_name)
     _check(kind, drop_name, drop, 0.0, min(0.1, p.seat_depth / 4))
     low = p.seat_height - p.seat_depth * math.tan(math.radians(max(p.seat_tilt_deg, 0.0)))
-    if low - drop < 0.02:
-        if low >= 0.02 and drop > 0:  # (the seat stands clear: its dropped edge does not)
+    if low < EDGE_CLEARANCE or drop > 0 and low - drop < EDGE_CLEARANCE and hasattr(p, "back"):
+        if low >= EDGE_CLEARANCE:  # (the seat stands clear, its dropped edge does not; a
+            # stool's corners, rounded along both edges, drop further: named below, one limit)
             raise TemplateError(f"{kind}.{drop_name}: expected a drop that keeps the seat's "
-                                f"edge above the floor, at most {low - 0.02:.3f} here, got "
-                                f"{drop:g} (the edge would be at {low - drop:.3f} m)")
+                                f"edge above the floor, at most "
+                                f"{_floor_mm(low - EDGE_CLEARANCE):.3f} here, got {drop:g} (the "
+                                f"edge would be at {low - drop:.3f} m)")
         raise TemplateError(f"{kind}.seat_tilt_deg: expected a tilt that keeps the seat above "
                             f"the floor, got {p.seat_tilt_deg:g} (its rear would be at "
                             f"{low - drop:.3f} m)")
@@ -336,39 +337,89 @@ def _check_seat(p, kind: str) -> None:
                         "seat_depth": p.seat_depth})
         _check_corners(kind, "edge_drop", p.edge_drop, {
             "seat_height": p.seat_height, "seat_depth": p.seat_depth,
-            "seat_tilt_deg": p.seat_tilt_deg},
-            lambda drop: _rounded_sheet_low(p.seat_height, p.seat_depth, p.seat_tilt_deg, drop))
+            "seat_tilt_deg": p.seat_tilt_deg}, dataclasses.asdict(p))
+
+
+FLAT_MIDDLE = 0.02  # metres of flat top at least between the rounded edges of opposite sides
+EDGE_CLEARANCE = 0.02  # metres a seat's dropped edge (and a stool's corners) stay above the floor
 
 
 def _check_rounding(kind: str, name: str, drop: float, sides: dict[str, float]) -> None:
-    """A TemplateError unless the rounding `drop` of a sheet's edges takes at most a quarter
-    of each of its `sides` (name -> metres): more, and the rounded edges of opposite sides meet
-    (zero-area quads) or cross (flipped ones)."""
-    limit = min(sides.values()) / 4
-    if drop > limit:
+    """A TemplateError unless the rounding `drop` of a sheet's edges leaves FLAT_MIDDLE of
+    flat top on each of its `sides` (name -> metres) between the rounded edges of opposite
+    sides: at half a side they meet (zero-area quads), past it they cross (flipped ones)."""
+    limit = (min(sides.values()) - FLAT_MIDDLE) / 2
+    if drop > limit + 1e-9:
         given = ", ".join(f"{key} {value:g} m" for key, value in sides.items())
-        raise TemplateError(f"{kind}.{name}: expected at most a quarter of "
-                            f"{' and '.join(sides)}, {limit:.3f} here ({given}), got {drop:g} "
-                            f"(the rounded edges would meet)")
+        raise TemplateError(f"{kind}.{name}: expected a drop that leaves "
+                            f"{100 * FLAT_MIDDLE:g} cm of flat top between the rounded edges of "
+                            f"{' and '.join(sides)}, at most {_floor_mm(limit):.3f} here "
+                            f"({given}), got {drop:g} (the rounded edges would meet)")
+
+
+def _floor_mm(metres: float) -> float:
+    """`metres` rounded down to the millimetre (a limit quoted never above the true one)."""
+    return math.floor(metres * 1000 + 1e-9) / 1000
+
+
+def _corner_lowest(kind: str, values: dict):
+    """lowest(drop) -> the height (m) of the lowest control point of a `kind` template rounded
+    down all round by `drop`, with its other parameters `values` (name -> value; None for a
+    kind without rounded corners), and the clearance its corners keep above the floor."""
+    if kind == "bed":
+        return (lambda drop: _rounded_sheet_low(values["height"], values["length"], 0.0,
+                                                drop)), 0.0
+    if kind == "floor_cushion":
+        back = (values["back_angle_deg"], values["back_height"]) if values["back"] else None
+        return (lambda drop: _rounded_sheet_low(values["height"], values["depth"], 0.0, drop,
+                                                back)), 0.0
+    if kind == "stool":
+        return (lambda drop: _rounded_sheet_low(values["seat_height"], values["seat_depth"],
+                                                values["seat_tilt_deg"], drop)), EDGE_CLEARANCE
+    return None, 0.0
+
+
+def _largest_drop(lowest, drop: float, clearance: float) -> float:
+    """The largest drop up to `drop` whose lowest point (`lowest(drop)`) keeps `clearance`
+    above the floor (0 when none does), to a nanometre."""
+    if lowest(drop) >= clearance - 1e-9:
+        return drop
+    keep, lose = 0.0, drop
+    for _ in range(40):
+        mid = (keep + lose) / 2
+        keep, lose = (mid, lose) if lowest(mid) >= clearance - 1e-9 else (keep, mid)
+    return keep
+
+
+def edge_drop_limit(kind: str, values: dict) -> float | None:
+    """The largest `edge_drop` that keeps the corners of a `kind` template clear of the floor
+    (a stool's by EDGE_CLEARANCE), with its other parameters `values` (name -> value; those
+    left out at their defaults), rounded down to the millimetre; None for a kind whose edges
+    are not rounded down all round. For a default that must not be refused (`furnish`)."""
+    defaults = {f.name: f.default for f in dataclasses.fields(TEMPLATE_PARAMS[kind])
+                if f.default is not dataclasses.MISSING}
+    lowest, clearance = _corner_lowest(kind, defaults | values)
+    if lowest is None:
+        return None
+    return _floor_mm(_largest_drop(lowest, 1.0, clearance))
 
 
 def _check_corners(kind: str, name: str, drop: float, involved: dict[str, float],
-                   lowest) -> None:
-    """A TemplateError unless a sheet rounded down by `drop` keeps its corners above the floor:
-    rounded along both edges, a corner drops further than either edge. `lowest(drop)`: the
-    height of the sheet's lowest control point (metres), falling as the drop grows; the
-    message names the `involved` parameters (name -> value)."""
+                   values: dict) -> None:
+    """A TemplateError unless a sheet rounded down by `drop` keeps its corners clear of the
+    floor (`_corner_lowest`, of `kind` with its parameters `values`): rounded along both
+    edges, a corner drops further than either edge. The message names the `involved`
+    parameters (name -> value)."""
+    lowest, clearance = _corner_lowest(kind, values)
     low = lowest(drop)
-    if low >= 0.0:
+    if low >= clearance - 1e-9:
         return
-    keep, lose = 0.0, drop
-    for _ in range(40):  # the largest drop that keeps the corners above the floor
-        mid = (keep + lose) / 2
-        keep, lose = (mid, lose) if lowest(mid) >= 0.0 else (keep, mid)
+    keep = _floor_mm(_largest_drop(lowest, drop, clearance))
     given = ", ".join(f"{key} {value:g}" for key, value in involved.items())
-    raise TemplateError(f"{kind}.{name}: expected a drop that keeps the corners above the "
-                        f"floor, at most {keep:.3f} here ({given}), got {drop:g} (a corner "
-                        f"would be at {low:.3f} m)")
+    above = f"{100 * clearance:g} cm above the floor" if clearance else "above the floor"
+    raise TemplateError(f"{kind}.{name}: expected a drop that keeps the corners {above}, at "
+                        f"most {keep:.3f} here ({given}), got {drop:g} (a corner would be at "
+                        f"{low:.3f} m)")
 
 
 def _rounded_sheet_low(height: float, depth: float, tilt_deg: float, drop: float,

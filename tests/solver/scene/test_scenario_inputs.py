@@ -4,6 +4,8 @@ posed), and what is no mistake is read."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import shutil
 
 import numpy as np
@@ -167,15 +169,34 @@ def test_a_template_value_the_scenario_sets_is_blamed_on_it_alone(tmp_path):
     assert "not set in the scenario" not in str(caught.value)
 
 
-def test_a_template_default_that_clashes_is_not_blamed_on_the_people(tmp_path):
-    """A cushion 5 cm high with its default edge drop (measured on no one): the corners would go
-    under the floor. The error names the drop as the template's default, not as measured on the
-    people (moving them would change nothing)."""
+def test_a_low_cushions_default_edge_drop_is_as_much_as_its_corners_allow(tmp_path):
+    """A cushion 5 cm high: the default edge drop (3 cm, rounded along both edges at a corner)
+    would take its corners under the floor. Left unset, it is as much as they allow, not an
+    error the designer did not cause; set, it is refused."""
     from solver.scene.placement import place_scene
+    from solver.surface.templates import FloorCushionParams, edge_drop_limit
 
-    path = _write(tmp_path, 'template = { kind = "floor_cushion", height = 0.05 }')
-    with pytest.raises(ScenarioError, match=r"surface\.template\.edge_drop: .*not set in the "
-                                            r"scenario: the template's default; set it there"
-                   ) as caught:
-        place_scene(load_scenario(path))
-    assert "measured on the people" not in str(caught.value)
+    scenario, _ = place_scene(load_scenario(_write(
+        tmp_path, 'template = { kind = "floor_cushion", height = 0.05 }')))
+    built = dataclasses.asdict(scenario.surface.template.built)
+    assert built["edge_drop"] == edge_drop_limit("floor_cushion", built)
+    assert 0.0 < built["edge_drop"] < FloorCushionParams.edge_drop
+    assert scenario.surface.vertices[:, 1].min() >= -1e-9
+    with pytest.raises(ScenarioError, match=r"surface\.template\.edge_drop: expected a drop "
+                                            r"that keeps the corners above the floor"):
+        place_scene(load_scenario(_write(
+            tmp_path, 'template = { kind = "floor_cushion", height = 0.05, edge_drop = 0.03 }')))
+
+
+def test_a_template_default_that_clashes_is_not_blamed_on_the_people():
+    """A value the scenario leaves unset is named as measured on the people only when it was
+    (moving them changes it); a default is named as the default."""
+    from solver.scene.scenario import template_error
+    from solver.surface.templates import TemplateError
+
+    for measured, said in (({"arm_height"}, "measured on the people as placed"),
+                           ({"seat_depth"}, "the template's default; set it there")):
+        exc = TemplateError("chair.arm_height: expected arms the seat is long enough to carry")
+        exc.measured = measured
+        text = str(template_error(exc, "s.toml", {"kind": "chair"}))
+        assert "surface.template.arm_height" in text and said in text, text

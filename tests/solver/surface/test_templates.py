@@ -258,19 +258,25 @@ def test_parameters_are_frozen_and_lists_become_tuples():
     ("floor_cushion", {"height": 0.1, "edge_drop": 0.1, "back": True},
      r"floor_cushion\.edge_drop: .* at most 0\.050 here"),
     ("stool", {"seat_height": 0.49, "seat_depth": 1.5, "seat_tilt_deg": 15.0, "edge_drop": 0.06},
-     r"stool\.edge_drop: expected a drop that keeps the corners above the floor, at most "
-     r"0\.049 here \(seat_height 0\.49, seat_depth 1\.5, seat_tilt_deg 15\), got 0\.06 "
+     r"stool\.edge_drop: expected a drop that keeps the corners 2 cm above the floor, at most "
+     r"0\.037 here \(seat_height 0\.49, seat_depth 1\.5, seat_tilt_deg 15\), got 0\.06 "
      r"\(a corner would be at -0\.020 m\)"),
     ("stool", {"seat_height": 0.12, "seat_depth": 0.4, "seat_tilt_deg": -10.0, "edge_drop": 0.08},
-     r"stool\.edge_drop: .* at most 0\.061 here"),
+     r"stool\.edge_drop: .* at most 0\.050 here"),
+    # one limit for a stool whose edge and corners both reach down: the corners' (the edge's
+    # own, 0.037 here, would be refused again)
+    ("stool", {"seat_height": 0.12, "seat_tilt_deg": 10.0, "edge_drop": 0.036},
+     r"stool\.edge_drop: expected a drop that keeps the corners 2 cm above the floor, at most "
+     r"0\.020 here"),
     # rounded edges of opposite sides meeting (zero-area quads) or crossing (flipped ones)
     ("bed", {"width": 0.3, "edge_drop": 0.15},
-     r"bed\.edge_drop: expected at most a quarter of width and length, 0\.075 here \(width "
-     r"0\.3 m, length 2 m\), got 0\.15"),
+     r"bed\.edge_drop: expected a drop that leaves 2 cm of flat top between the rounded edges "
+     r"of width and length, at most 0\.140 here \(width 0\.3 m, length 2 m\), got 0\.15"),
     ("floor_cushion", {"depth": 0.19, "edge_drop": 0.09, "height": 0.6},
-     r"floor_cushion\.edge_drop: expected at most a quarter of width and depth, 0\.048 here"),
+     r"floor_cushion\.edge_drop: expected a drop that leaves 2 cm .* at most 0\.085 here"),
     ("stool", {"seat_width": 0.1, "seat_depth": 0.4, "edge_drop": 0.1},
-     r"stool\.edge_drop: expected at most a quarter of seat_width and seat_depth, 0\.025 here"),
+     r"stool\.edge_drop: expected a drop that leaves 2 cm of flat top between the rounded "
+     r"edges of seat_width and seat_depth, at most 0\.040 here"),
     # arm bands offset into the seat-back corner: higher than the seat (or back) is long, their
     # tops fold over themselves
     ("chair", {"arms": True, "seat_depth": 0.3, "back_angle_deg": 0.0, "seat_tilt_deg": 0.0,
@@ -293,7 +299,11 @@ def test_parameters_that_put_the_mesh_under_the_floor_or_fold_it_are_refused(kin
 @pytest.mark.parametrize("kind, values, name", [
     ("bed", {"height": 0.16, "edge_drop": 0.08}, "edge_drop"),
     ("floor_cushion", {"height": 0.1, "edge_drop": 0.05}, "edge_drop"),
-    ("stool", {"seat_height": 0.49, "seat_depth": 1.5, "seat_tilt_deg": 15.0, "edge_drop": 0.048},
+    ("stool", {"seat_height": 0.49, "seat_depth": 1.5, "seat_tilt_deg": 15.0, "edge_drop": 0.037},
+     "edge_drop"),
+    # rounded edges up to nearly half a side: 2 cm of flat top left, nothing folds
+    ("bed", {"width": 0.3, "edge_drop": 0.14}, "edge_drop"),
+    ("floor_cushion", {"width": 0.2, "depth": 0.2, "height": 0.3, "edge_drop": 0.06},
      "edge_drop"),
     ("chair", {"arms": True, "seat_depth": 0.3, "back_angle_deg": 0.0, "seat_tilt_deg": 0.0,
                "arm_height": 0.29}, "arm_height"),
