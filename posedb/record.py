@@ -30,6 +30,7 @@ import contextlib
 import json
 import os
 import re
+import shlex
 import time
 import uuid
 from dataclasses import dataclass
@@ -361,7 +362,8 @@ def _unseen_avatar(lib: PoseLibrary, rec: Recording, exc: AvatarNotSeenError) ->
     store them. The journal stays, unlike at a recorder's refusal: no one saw this one when
     the stream came, and the recording may be of the avatar meant under another name."""
     counts = {AvatarKey(a["index"], a["name"]): a["frames"] for a in exc.avatars}
-    command = f"sitrelax db recover --db {lib.path} --journal {rec.path}"
+    command = (f"sitrelax db recover --db {shlex.quote(str(lib.path))} "
+               f"--journal {shlex.quote(str(rec.path))}")
     advice = (f"To store it, run `{command}` with --avatar NAME_OR_INDEX (one of those, as "
               f"take {rec.take!r}) or --every-avatar (each avatar as a take of its own); "
               "delete the journal to drop the recording")

@@ -161,9 +161,10 @@ def _check_person(p: schema.Person, loc: list) -> None:
     if max(abs(c) for c in p.position) > COORD:
         raise _limit([*loc, "position"], f"expected coordinates within {COORD:g} m here, got "
                                          f"{p.position}")
-    if p.pose.startswith("bvh:") and not p.pose.startswith("bvh:bundled:"):
-        # (a file of the server's disk: refused as the malformed field it is here, without
-        # quoting it back, which would show it cut where it names folders)
+    if not p.pose.startswith(("db:", "bvh:bundled:")):
+        # (a file of the server's disk, `bvh:` written or left out: refused as the malformed
+        # field it is here, without quoting it back, which would show it cut where it names
+        # folders)
         raise _limit([*loc, "pose"], "Expected db:NAME or bvh:bundled:NAME#frame=N, got a BVH "
                                      "file: this server reads no files (the bundled recordings "
                                      "are at /api/recordings)")

@@ -951,17 +951,17 @@ class Design:
         if not self.fitted:
             raise DesignError("Fit first: the session was edited since its last fit (or has "
                               "none), and the export writes the fit on screen")
-        out = Path(out_dir)
+        out, outcome = Path(out_dir), self.last  # (a refit may replace `last` meanwhile)
         # the relief the fit on screen had (an opened scenario's rounds are not run here)
-        relief = schema.Relief(**(self.last.relief or {}))
+        relief = schema.Relief(**(outcome.relief or {}))
         report = run_fit(dataclasses.replace(self.scenario(), relief=relief), out, db=self.db,
-                         progress=progress, formats=formats, fitted=self.last.result,
-                         title=title, judged=None if self.last.guarantees is None else
-                         (self.last.guarantees, self.last.judge_seconds))
+                         progress=progress, formats=formats, fitted=outcome.result,
+                         title=title, judged=None if outcome.guarantees is None else
+                         (outcome.guarantees, outcome.judge_seconds))
         self.save_toml(out / "scenario.toml", as_fitted=True)
-        if self.last.guarantees is None:  # the export judged the fit on screen: kept with it
-            self.last.guarantees = report["guarantees"]
-            self.last.judge_seconds = report["timing"].get("guarantees_s")
+        if outcome.guarantees is None:  # the export judged the fit it wrote: kept with it
+            outcome.guarantees = report["guarantees"]
+            outcome.judge_seconds = report["timing"].get("guarantees_s")
         return report
 
     def export_zip(self, name: str, progress: Callable[[str], None] | None = None,

@@ -54,6 +54,11 @@ def _scenario(surface=None, person=None) -> dict:
      '"person", "pose", "msg": "Expected db:NAME or bvh:bundled:NAME#frame=N, got a BVH file'),
     ("/api/fit", _scenario(person={"pose": "bvh:../poses/sit.bvh#frame=0"}), 422,
      '"person", 0, "pose"'),
+    # ... with `bvh:` left out (as a scenario file may), or written otherwise
+    ("/api/body", {"person": {"pose": "/etc/passwd#frame=1"}}, 422,
+     '"person", "pose", "msg": "Expected db:NAME or bvh:bundled:NAME#frame=N, got a BVH file'),
+    ("/api/fit", _scenario(person={"pose": "sit.bvh#frame=0"}), 422, '"person", 0, "pose"'),
+    ("/api/body", {"person": {"pose": "BVH:/etc/passwd#frame=1"}}, 422, '"person", "pose"'),
     ("/api/body", {"person": {"pose": "db:perch"}}, 409, "no pose library"),
     ("/api/fit", b'{"surface": {"grid": {}}, "person": [{"pose": "' + HIGH_SIT.encode()
      + b'", "position": [NaN, 0, 0]}]}', 422, '"position", 0'),

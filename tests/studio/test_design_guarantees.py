@@ -6,6 +6,7 @@ a grid's size, faces and height) in the panel."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from solver.scene.quality import surface_misses
@@ -91,9 +92,14 @@ def test_a_judged_fit_is_not_judged_again_and_a_newer_fit_outdates_a_request(des
     view.session.judge_last(0.0)
     assert view.session.judge.wait(60) and first.guarantees is checked
     view.design.update_person(0, position=[0.01, 0.0, 0.0])
-    view._guarded(view._new_grid)  # (the fit requested above is no longer on screen)
-    view.session.judge.request(first, 0.0)
-    assert view.session.judge.wait(60) and view.design.last is None
+    view._guarded(view._new_grid)  # (the fit requested below is no longer on screen)
+    assert view.design.last is None
+    stale = dataclasses.replace(first, guarantees=None, judge_seconds=None)  # (not judged)
+    calls = []
+    view.design.judge = lambda *args, **kwargs: calls.append(args)  # (would judge it)
+    view.session.judge.request(stale, 0.0)
+    assert view.session.judge.wait(60)
+    assert not calls and stale.guarantees is None
 
 
 def test_every_template_name_is_found_from_its_scenario_table():
