@@ -163,16 +163,26 @@ def write_3dm(path: str | os.PathLike, control_vertices: np.ndarray, control_fac
     return _write(model, Path(path))
 
 
+# Rhino names no layer with one of these first (nor with nothing): rhino3dm gave such a layer
+# a name of its own ("Layer 03"), and the body's name was lost
+_NOT_FIRST_IN_NAME = "()[]{}"
+
+
 def _layer_names(body_names, count: int) -> list[str]:
     """The bodies' layer names: each run of whitespace (a line break, a tab) one space and
     none at either end (Rhino refuses a layer name with control characters: rhino3dm named
-    such a layer "Layer 03"), "::" one colon (Rhino reads it as a sublayer's path)."""
+    such a layer "Layer 03"), "::" one colon (Rhino reads it as a sublayer's path). An empty
+    name, or one beginning with a bracket or parenthesis, is refused."""
     names = [" ".join(str(n).split()).replace("::", ":") for n in body_names] \
         if body_names is not None else [f"person {k}" for k in range(1, count + 1)]
     if len(names) != count or len(set(names)) != len(names) or \
             {"control net", "surface"} & set(names):
         raise ExportError(f"Expected {count} distinct body names other than the "
                           f"'control net' and 'surface' layers, got {names}")
+    refused = [n for n in names if not n or n[0] in _NOT_FIRST_IN_NAME]
+    if refused:
+        raise ExportError(f"Expected body names Rhino takes as layer names (not empty, not "
+                          f"beginning with one of {_NOT_FIRST_IN_NAME}), got {refused}")
     return names
 
 

@@ -182,7 +182,17 @@ def _validate(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
     if f.min() < 0 or f.max() >= len(v):
         raise SolidError(f"Expected face indices in 0..{len(v) - 1}, got "
                          f"{int(f.min())}..{int(f.max())}")
-    return v, f.astype(np.int64)
+    f = f.astype(np.int64)
+    # a triangle without area has no normal to offset along (its NaN reached the trimming's
+    # tree queries, which failed without naming the surface)
+    tris = f if f.shape[1] == 3 else quad_triangles(f)
+    flat = np.flatnonzero(np.linalg.norm(face_cross(v, tris), axis=1) <= 0.0)
+    if len(flat):
+        face = int(flat[0]) % len(f)  # (`quad_triangles` puts every quad's halves F apart)
+        raise SolidError(f"Expected surface faces with area, got {len(flat)} triangles "
+                         f"without (face {face}: corners {f[face].tolist()} at "
+                         f"{np.round(v[f[face]], 6).tolist()} m)")
+    return v, f
 
 
 def _close(top: np.ndarray, faces: np.ndarray, bottom: np.ndarray) -> np.ndarray:
@@ -1202,7 +1212,9 @@ def _underside(solid: Solid):
     edges = boundary_edges(solid.surface_triangles)
     on_surface = np.arange(len(solid.vertices)) < solid.n_surface
     faults = _sheet_faults(solid.vertices, solid.triangles, on_surface, surface, edges, t)
-    if faults.distance is None:
+    if faults.distance is None or not len(faults.distance):
+        # (an underside with no corner over the surface's inside, as under a single quad,
+        # has no thickness to measure there)
         return len(faults.folds), None, None, 0, None
     low, high = float(faults.distance.min()), float(faults.distance.max())
     inside = np.setdiff1d(np.arange(solid.n_surface), edges)
