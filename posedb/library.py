@@ -435,6 +435,11 @@ class PoseLibrary:
                 if bad.any():
                     problems.append(f"{where}/{name}: values that are not numbers in frame "
                                     f"{start + int(np.argmax(bad))}")
+        rotations = arrays.get("local_rotations")
+        bad = None if rotations is None else schema.non_unit_quaternion(rotations)
+        if bad is not None:
+            problems.append(f"{where}/local_rotations: frame {start + bad[0]} holds a rotation "
+                            f"of norm {bad[1]:.6g}, not a unit quaternion")
         if problems:
             raise schema.damaged_content(self.path, problems)
 
@@ -496,6 +501,11 @@ class PoseLibrary:
             raise schema.damaged_content(self.path, [
                 f"pose {info.name!r}: /poses/rotations rows {start}..{start + count} hold "
                 "values that are not numbers"])
+        bad = schema.non_unit_quaternion(rot)
+        if bad is not None:
+            raise schema.damaged_content(self.path, [
+                f"pose {info.name!r}: /poses/rotations row {start + bad[0]} holds a rotation of "
+                f"norm {bad[1]:.6g}, not a unit quaternion"])
         return info, sk, np.asarray(rot, dtype=np.float64), t.root[row].copy()
 
     def find_poses(self, expr: str | None = None, *, take: str | None = None,
@@ -802,6 +812,10 @@ class Editor:
         if not (np.isfinite(rot).all() and np.isfinite(root).all()):  # (a pose copies them)
             raise schema.damaged_content(self.lib.path, [
                 f"/takes/{info.id}: frame {frame}'s rotations or root position are not numbers"],
+                refused_change=True)
+        if schema.non_unit_quaternion(rot) is not None:
+            raise schema.damaged_content(self.lib.path, [
+                f"/takes/{info.id}: frame {frame}'s rotations are not unit quaternions"],
                 refused_change=True)
         pid = self.next_pose
         self.next_pose += 1

@@ -262,6 +262,28 @@ def frame_time_problem(frame_time) -> str | None:
             f"{MAX_FRAME_TIME:g}")
 
 
+UNIT_QUATERNION_TOLERANCE = 1e-3  # |norm - 1|: float32 xyzw written unit are within 1e-6
+
+
+def non_unit_quaternion(rotations: np.ndarray) -> tuple[int, float] | None:
+    """The first stored rotation that is no unit quaternion, as (row along the first axis, its
+    norm), or None when each is one (NaN counts as none: it is reported as not a number).
+
+    rotations : (..., 4) xyzw, as the library keeps them (a take's (T, J, 4), the poses'
+    (R, 4)). A zero or scaled quaternion is damage: every writer stores unit ones, and a
+    reader would refuse the zero one or silently normalise another.
+    """
+    values = np.asarray(rotations, dtype=np.float64)
+    if values.size == 0:
+        return None
+    norm = np.linalg.norm(values, axis=-1)
+    bad = np.abs(norm - 1.0) > UNIT_QUATERNION_TOLERANCE  # (NaN compares False)
+    if not bad.any():
+        return None
+    at = np.unravel_index(int(np.argmax(bad)), bad.shape)
+    return int(at[0]), float(norm[at])
+
+
 def _first(mask: np.ndarray, values: np.ndarray) -> tuple[int, object]:
     """The frame (first index) and the value of the first element where `mask` is true."""
     at = np.unravel_index(int(np.argmax(mask)), mask.shape)

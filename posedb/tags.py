@@ -1,6 +1,6 @@
 """Tags and tag expressions.
 
-A tag is a lower-case word of letters, digits, `_`, `-`, `.` or `:` (`sit`, `high-seat`,
+A tag is a lower-case word of ASCII letters, digits, `_`, `-`, `.` or `:` (`sit`, `high-seat`,
 `session:2026-11`). An expression combines tags with `and`, `or`, `not` and parentheses
 (`sit and not floor`, `lean or lounge`, `not (sit or lie)`); `and` binds tighter than `or`.
 Expressions compile to a function over a boolean membership matrix (items x vocabulary), so a
@@ -20,6 +20,7 @@ from .schema import LibraryError
 _TAG = re.compile(r"[a-z0-9_][a-z0-9_.:\-]*")
 _TOKEN = re.compile(r"\s*(\(|\)|[^\s()]+)")
 KEYWORDS = ("and", "or", "not")
+MAX_NESTING = 100  # parentheses and `not`s inside one another: parsed and matched by recursion
 
 
 class TagError(LibraryError):
@@ -31,8 +32,8 @@ def normalise_tag(tag: str) -> str:
     text = str(tag).strip().lower()
     if not _TAG.fullmatch(text) or text in KEYWORDS:
         raise TagError(
-            f"Expected a tag of letters, digits, '_', '-', '.' or ':' (not and/or/not), "
-            f"got {tag!r}"
+            f"Expected a tag of ASCII letters (a-z), digits, '_', '-', '.' or ':', starting with "
+            f"a letter, digit or '_' (not and/or/not), got {tag!r}"
         )
     return text
 
@@ -67,6 +68,7 @@ def compile_expression(expr: str) -> Matcher:
         raise TagError("Expected a tag expression, got an empty one")
     tokens = _expression_tokens(text)
     at = 0
+    depth = 0
 
     def peek() -> str | None:
         return tokens[at][0].lower() if at < len(tokens) else None
@@ -77,30 +79,42 @@ def compile_expression(expr: str) -> Matcher:
         return TagError(f"In tag expression {expr!r} at column {col}: expected {what}, got {got}")
 
     def parse_infix(keyword: str, operand: Callable[[], Matcher],
-                    combine: Callable[[Matcher, Matcher], Matcher]) -> Matcher:
+                    combine: Callable[[Sequence[Matcher]], Matcher]) -> Matcher:
         nonlocal at
-        left = operand()
+        operands = [operand()]
         while peek() == keyword:
             at += 1
-            left = combine(left, operand())
-        return left
+            operands.append(operand())
+        # one flat combination, however long the chain: matching it recurses no deeper
+        return operands[0] if len(operands) == 1 else combine(operands)
+
+    def nest() -> None:
+        nonlocal depth
+        depth += 1
+        if depth > MAX_NESTING:
+            raise fail(f"at most {MAX_NESTING} parentheses and 'not's inside one another")
 
     def parse_not() -> Matcher:
-        nonlocal at
+        nonlocal at, depth
         if peek() == "not":
+            nest()
             at += 1
-            return _negated(parse_not())
+            inner = parse_not()
+            depth -= 1
+            return _negated(inner)
         return parse_atom()
 
     def parse_atom() -> Matcher:
-        nonlocal at
+        nonlocal at, depth
         tok = peek()
         if tok == "(":
+            nest()
             at += 1
             inner = parse_or()
             if peek() != ")":
                 raise fail("')'")
             at += 1
+            depth -= 1
             return inner
         if tok is None or tok in KEYWORDS or tok == ")":
             raise fail("a tag or '('")
@@ -133,12 +147,12 @@ def _expression_tokens(text: str) -> list[tuple[str, int]]:
     return tokens
 
 
-def _either(a: Matcher, b: Matcher) -> Matcher:
-    return lambda m, v: a(m, v) | b(m, v)
+def _either(operands: Sequence[Matcher]) -> Matcher:
+    return lambda m, v: functools.reduce(np.logical_or, (a(m, v) for a in operands))
 
 
-def _both(a: Matcher, b: Matcher) -> Matcher:
-    return lambda m, v: a(m, v) & b(m, v)
+def _both(operands: Sequence[Matcher]) -> Matcher:
+    return lambda m, v: functools.reduce(np.logical_and, (a(m, v) for a in operands))
 
 
 def _negated(inner: Matcher) -> Matcher:

@@ -28,8 +28,10 @@ _STORAGE = (OSError, KeyError, RuntimeError, ValueError, TypeError, UnicodeDecod
 _TAKE_ARRAYS = ("channels", "local_rotations", "root_positions", "frame_indices")
 
 
-def _read_all(ds: h5py.Dataset, name: str, problems: list[str]) -> None:
-    """Reads a dataset chunk row by chunk row, naming the first unreadable or non-finite one."""
+def _read_all(ds: h5py.Dataset, name: str, problems: list[str], *,
+              quaternions: bool = False) -> None:
+    """Reads a dataset chunk row by chunk row, naming the first unreadable or non-finite one
+    (and with `quaternions`, the first rotation that is no unit quaternion)."""
     rows = ds.shape[0] if ds.ndim else 1
     step = max(1, (ds.chunks[0] if ds.chunks else 4096))
     for start in range(0, rows, step * 16):
@@ -40,6 +42,11 @@ def _read_all(ds: h5py.Dataset, name: str, problems: list[str]) -> None:
             return
         if block.dtype.kind == "f" and not np.isfinite(block).all():
             problems.append(f"{name}: non-finite values in rows from {start}")
+            return
+        bad = schema.non_unit_quaternion(block) if quaternions else None
+        if bad is not None:
+            problems.append(f"{name}: row {start + bad[0]} holds a rotation of norm "
+                            f"{bad[1]:.6g}, not a unit quaternion")
             return
 
 
@@ -84,7 +91,7 @@ def _check_take(g: h5py.Group, key: str, shapes: dict, full: bool, problems: lis
             problems.append(f"{where}/{name}: expected ({frames}, "
                             f"{', '.join(map(str, expected.get(name, ())))}) got {ds.shape}")
         elif full:
-            _read_all(ds, f"{where}/{name}", problems)
+            _read_all(ds, f"{where}/{name}", problems, quaternions=name == "local_rotations")
 
 
 def _check_poses(f: h5py.File, take_frames: dict[int, int], full: bool,
@@ -92,7 +99,7 @@ def _check_poses(f: h5py.File, take_frames: dict[int, int], full: bool,
     g = f["poses"]
     rotations = g["rotations"]
     if full:
-        _read_all(rotations, "/poses/rotations", problems)
+        _read_all(rotations, "/poses/rotations", problems, quaternions=True)
     problems += pose_table_problems(PoseTable.read(g), take_frames, rotations.shape[0])
 
 

@@ -6,8 +6,9 @@ hold or a frame as a pose, rename, tag, untag, delete).
 Every edit is one commit of the library's own editing (`PoseLibrary.edit`), made under the
 studio's library lock: it happens whole or not at all, as the same command would make it.
 Thumbnails are rendered on the server (`studio.skeleton_draw`) and cached by pose or take
-frame (poses never change their rotations, and ids are never reused). The skeleton is drawn
-under `/library` in the scene (Y up, metres).
+frame (poses never change their rotations, and a library never reuses an id; a library made
+anew at the same path does, so its items' creation times are part of the key). The skeleton
+is drawn under `/library` in the scene (Y up, metres).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import numpy as np
 
 from capture import skeleton_fk
 from posedb import PoseLibrary
-from posedb.library import TakeData
+from posedb.library import TakeData, checked_name
 from posedb.regions import DEFAULT_SUPPORT
 from posedb.suggest import HeldPosture, take_holds
 
@@ -29,7 +30,9 @@ from .record import split_words
 from .skeleton_draw import SceneFigure, png_base64, pose_world, posed_body, skeleton_thumbnail
 
 MAX_THUMBNAILS = 24  # pictures of poses (and of takes) shown at once: a search's first
-_THUMBS: dict[tuple, str] = {}  # (library file, "pose"/"take", id, frame) -> base64 PNG
+# (library file, "pose"/"take", id, frame, and what tells apart the pose or take of that id in
+# a library made anew at that path: ids start again there) -> base64 PNG
+_THUMBS: dict[tuple, str] = {}
 _MAX_CACHED = 4096
 NONE = "(none)"
 
@@ -201,11 +204,12 @@ class LibraryView:
         self._set_options(self.take, [t.name for t in lib.takes()], keep=True)
         key = str(lib.target)
         self.pose_gallery.content = gallery_html(
-            [(_cached((key, "pose", p.id, p.frame), lambda p=p: self._pose_picture(p)), p.name,
+            [(_cached((key, "pose", p.id, p.frame, p.created_at),
+                      lambda p=p: self._pose_picture(p)), p.name,
               f"{take_names[p.take]} #{p.frame}: {' '.join(p.tags) or 'no tags'}")
              for p in poses[:MAX_THUMBNAILS]], max(0, len(poses) - MAX_THUMBNAILS))
         self.take_gallery.content = gallery_html(
-            [(_cached((key, "take", t.id, t.frames // 2),
+            [(_cached((key, "take", t.id, t.frames // 2, t.recorded_at, t.skeleton, t.source),
                       lambda t=t: self._take_picture(t.id, t.frames // 2)), t.name,
               f"take, {t.duration:.1f} s: {' '.join(t.tags) or 'no tags'}")
              for t in takes[:MAX_THUMBNAILS]], max(0, len(takes) - MAX_THUMBNAILS))
@@ -316,6 +320,7 @@ class LibraryView:
         with self._edit() as ed:
             ed.add_pose(take.id, frame, name, tags=tuple(take.tags)
                         + tuple(split_words(self.new_tags.value)), supports=support)
+        name = checked_name(name)  # as stored (composed, NFC): as the list has it
         self.new_pose.value = ""
         self._list()
         self.pose.value = name
@@ -346,6 +351,7 @@ class LibraryView:
         old, new = self._pose_name(), self.rename_to.value.strip()
         with self._edit() as ed:
             ed.rename(old, new)
+        new = checked_name(new)  # as stored (composed, NFC): as the list has it
         self.rename_to.value = ""
         self._list()
         self.pose.value = new
