@@ -290,7 +290,8 @@ def _cmd_export(args) -> int:
     write_bvh(args.out, bvh.skeleton, bvh.motion)
     _print({"kind": "take", "id": take.id, "name": take.name, "path": str(args.out),
             "start": args.start, "end": end, "frames": bvh.motion.num_frames}, args.json,
-           f"wrote {bvh.motion.num_frames} frames of {take.name} to {args.out}")
+           f"wrote {bvh.motion.num_frames} frame{'' if bvh.motion.num_frames == 1 else 's'} "
+           f"of {take.name} to {args.out}")
     return 0
 
 

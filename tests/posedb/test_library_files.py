@@ -354,7 +354,7 @@ def test_export_range_is_checked_as_the_flags_say_both_ends_included(tmp_path, c
             in capsys.readouterr().err
     assert main(["db", "export", "cmu_75_18_high_sit", "--db", str(path), "--out", str(out),
                  "--start", "76", "--end", "76"]) == 0
-    assert "wrote 1 frames" in capsys.readouterr().out
+    assert "wrote 1 frame of" in capsys.readouterr().out
     assert main(["db", "export", "cmu_75_18_high_sit", "--db", str(path), "--out",
                  str(tmp_path)]) == 2
     assert f"got a folder: {tmp_path}" in capsys.readouterr().err
