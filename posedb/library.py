@@ -535,7 +535,7 @@ class PoseLibrary:
         takes = self.takes()
         if subject is not None:
             takes = [t for t in takes if t.subject == subject]
-        if expr:
+        if expr is not None and expr.strip():  # (empty, or spaces: every take)
             matrix, vocab = membership([t.tags for t in takes])
             keep = compile_expression(expr)(matrix, vocab)
             takes = [t for t, k in zip(takes, keep) if k]

@@ -162,9 +162,10 @@ class PoseTable:
         return self._notes[row]
 
     def mask(self, expr: str | None) -> np.ndarray:
-        """(P,) bool: the rows whose tags satisfy a tag expression (all rows for None)."""
+        """(P,) bool: the rows whose tags satisfy a tag expression (all rows for None or an
+        empty one, spaces alone included)."""
         self._flush()
-        if not expr:
+        if expr is None or not expr.strip():
             return np.ones(len(self), dtype=bool)
         vocab = {v: k for k, v in enumerate(self.vocab)}
         return compile_expression(expr)(self.matrix, vocab)
