@@ -414,7 +414,20 @@ def run_benchmarks(
 
     Keys: name, description, median_s, repeats, and where a baseline exists baseline,
     baseline_median_s, speedup (baseline median / our median).
+
+    `repeats` (timed runs per entry, each entry's own count when None) must be a whole number
+    >= 1: ValueError otherwise, before anything runs. Each entry (its setup, warm-up and timed
+    runs, and its baseline's) runs with the BLAS threads the product runs with
+    (`solver.threads.limited_threads`, `SITRELAX_THREADS`), so that an entry calling a part of
+    the fit or the evaluation directly is timed as the fit and the evaluation run it.
     """
+    import numbers
+
+    from solver.threads import limited_threads
+
+    if repeats is not None and (isinstance(repeats, bool) or
+                                not isinstance(repeats, numbers.Integral) or repeats < 1):
+        raise ValueError(f"Expected repeats as a whole number >= 1 (or None), got {repeats!r}")
     cases = all_cases()
     known = {c.name: c for c in cases}
     names = list(names)
@@ -428,27 +441,33 @@ def run_benchmarks(
     for k, case in enumerate(chosen, start=1):
         if progress:
             progress(f"[{k}/{len(chosen)}] {case.name}: {case.description}")
-        try:
-            arg = case.setup()
-        except BenchUnavailable as exc:
-            results.append({"name": case.name, "description": case.description,
-                            "skipped": str(exc)})
-            continue
-        n = repeats or case.repeats
-        row = {"name": case.name, "description": case.description,
-               "median_s": _median_time(case.run, arg, n, case.warmup, case.self_timed),
-               "repeats": n}
-        if case.per_second is not None:
-            row["per_second"] = case.per_second / row["median_s"]
-        if case.baseline is not None:
-            nb = repeats or case.baseline_repeats
-            if progress:
-                progress(f"[{k}/{len(chosen)}] {case.name}: baseline {case.baseline_name}")
-            base = _median_time(case.baseline, arg, nb, case.warmup, case.self_timed)
-            row.update(baseline=case.baseline_name, baseline_median_s=base,
-                       baseline_repeats=nb, speedup=base / row["median_s"])
+        with limited_threads():
+            row = _run_case(case, k, len(chosen), repeats, progress)
         results.append(row)
     return results
+
+
+def _run_case(case: BenchCase, k: int, count: int, repeats: int | None,
+              progress: Callable[[str], None] | None) -> dict:
+    """One entry of `run_benchmarks`: its row (`skipped` when its data is missing)."""
+    try:
+        arg = case.setup()
+    except BenchUnavailable as exc:
+        return {"name": case.name, "description": case.description, "skipped": str(exc)}
+    n = case.repeats if repeats is None else repeats
+    row = {"name": case.name, "description": case.description,
+           "median_s": _median_time(case.run, arg, n, case.warmup, case.self_timed),
+           "repeats": n}
+    if case.per_second is not None:
+        row["per_second"] = case.per_second / row["median_s"]
+    if case.baseline is not None:
+        nb = case.baseline_repeats if repeats is None else repeats
+        if progress:
+            progress(f"[{k}/{count}] {case.name}: baseline {case.baseline_name}")
+        base = _median_time(case.baseline, arg, nb, case.warmup, case.self_timed)
+        row.update(baseline=case.baseline_name, baseline_median_s=base,
+                   baseline_repeats=nb, speedup=base / row["median_s"])
+    return row
 
 
 def format_table(rows: list[dict]) -> str:

@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import threading
 import time
 from pathlib import Path
@@ -55,8 +56,10 @@ class DemoError(ValueError):
 
 
 def _stream_and_record(source: str, library: Path, take: str, frames: int, tags: list[str],
-                       results: dict, say: Callable[[str], None]) -> threading.Thread:
-    """Serves `source` on a free loopback port and records it into `take` (a thread)."""
+                       results: dict, say: Callable[[str], None], stop: threading.Event,
+                       running: list) -> None:
+    """Serves `source` on a free loopback port and records it into `take` on a thread, which
+    (with its replay) joins `running`; both end early once `stop` is set."""
     from capture.replay import Replay, ReplayThread, TcpServerSink
     from posedb.record import record
 
@@ -64,25 +67,27 @@ def _stream_and_record(source: str, library: Path, take: str, frames: int, tags:
     sink = TcpServerSink("127.0.0.1", 0)
     replay = ReplayThread(Replay.from_bvh(path), sink, wait_for_client=True, rate=1.0,
                           max_frames=frames).start()
-    say(f"streaming {Path(path).name} on {sink.name}")
 
     def main() -> None:
         try:
             results[take] = record(sink.name, library, take, path, frames=frames, tags=tags,
-                                   subject="demo")
+                                   subject="demo", stop=stop.is_set)
         except BaseException as exc:  # reported by run_demo
             results[take] = exc
         finally:
             replay.stop()
 
     thread = threading.Thread(target=main, daemon=True)
+    running.append((replay, thread))
     thread.start()
-    return thread
+    say(f"streaming {Path(path).name} on {sink.name}")
 
 
 def _capture(library: Path, say: Callable[[str], None]) -> tuple[dict, dict]:
     """Streams both recordings at once from replay servers and records them into a new
-    library; returns each take's (source, frames, tags) and its recording result."""
+    library; returns each take's (source, frames, tags) and its recording result. Should it
+    fail or be interrupted, the streams and recorders are stopped before it raises (nothing
+    goes on writing into the library)."""
     from capture import read_bvh
     from posedb import PoseLibrary
 
@@ -92,10 +97,19 @@ def _capture(library: Path, say: Callable[[str], None]) -> tuple[dict, dict]:
     jobs = {"standing": (STANDING, int(STANDING_SECONDS / standing.motion.frame_time), ["stand"]),
             "sitting": (SITTING, sitting.motion.num_frames, ["sit"])}
     results: dict = {}
-    threads = [_stream_and_record(src, library, take, frames, tags, results, say)
-               for take, (src, frames, tags) in jobs.items()]
-    for thread in threads:
-        thread.join(60)
+    stop = threading.Event()
+    running: list = []
+    try:
+        for take, (src, frames, tags) in jobs.items():
+            _stream_and_record(src, library, take, frames, tags, results, say, stop, running)
+        for _, thread in running:
+            thread.join(60)
+    except BaseException:
+        stop.set()
+        for replay, thread in running:
+            replay.stop()
+            thread.join(10)
+        raise
     for take in jobs:
         got = results.get(take)
         if isinstance(got, BaseException):
@@ -108,22 +122,51 @@ def _capture(library: Path, say: Callable[[str], None]) -> tuple[dict, dict]:
 
 def run_demo(out_dir: str | os.PathLike, progress: Callable[[str], None] | None = None
              ) -> dict:
-    """Runs the demo into `out_dir` (see the module docstring); returns its summary."""
-    from posedb import PoseLibrary
-    from posedb.suggest import suggest_poses
+    """Runs the demo into `out_dir` (see the module docstring); returns its summary.
 
-    from solver.scene.run import run_fit, run_relax
-
+    `out_dir` must be a new or empty folder (DemoError for a folder that holds files, a file,
+    or an empty name, before any work). A demo that fails or is interrupted (Ctrl-C) leaves the
+    folder as it was: empty, or gone when the demo made it."""
     report = progress or (lambda message: None)
 
     def say(message: str) -> None:  # the stages' news, without the fit's every iteration
         if not message.startswith("iteration "):
             report(message)
 
+    if not os.fspath(out_dir).strip():
+        raise DemoError("Expected a folder for the demo (--out), got an empty name")
     out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise DemoError(f"Expected a folder for the demo (--out), got a file: {out}")
     if out.is_dir() and any(out.iterdir()):  # (its files would mix with the demo's)
         raise DemoError(f"{out} is not empty: give the demo an empty or new folder (--out)")
+    made = [f for f in (out, *out.parents) if not f.exists()]  # the deepest first
     out.mkdir(parents=True, exist_ok=True)
+    try:
+        return _demo(out, say)
+    except BaseException:
+        # a demo that fails or is interrupted leaves no half-written folder: everything in
+        # `out` is its own (the folder was empty or new), and the folders it made go too
+        for entry in list(out.iterdir()):
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry, ignore_errors=True)
+            else:
+                entry.unlink(missing_ok=True)
+        for folder in made:
+            try:
+                folder.rmdir()
+            except OSError:
+                break
+        raise
+
+
+def _demo(out: Path, say: Callable[[str], None]) -> dict:
+    """`run_demo`'s work into the empty folder `out`."""
+    from posedb import PoseLibrary
+    from posedb.suggest import suggest_poses
+
+    from solver.scene.run import run_fit, run_relax
+
     library = out / "poses.h5"
     stages: dict[str, float] = {}
     start = time.perf_counter()

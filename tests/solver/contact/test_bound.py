@@ -83,3 +83,68 @@ def test_skin_facing_up_cannot_carry_anything():
     v, n, a, t, s, _ = _box_and_plate()
     with pytest.raises(BoundError, match="No supported skin faces down or sideways"):
         least_peak(v, -n, a, t, s, MASS)
+
+
+def _least_peak_in_the_cone(v, n, a, t, s, mu):
+    """The same least peak with the exact Coulomb cone |t_k| <= mu p_k, a second-order cone
+    programme solved by Clarabel (coded here from the statement, not from `least_peak`)."""
+    import clarabel
+    import scipy.sparse as sp
+
+    up = np.array([0.0, 1.0, 0.0])
+    skin = np.flatnonzero(s & (n @ up <= 0.17) & (a > 0))
+    k = len(skin)
+    corners = v[t]  # the box's centroid, from its closed triangles
+    vol = np.einsum("ij,ij->i", corners[:, 0], np.cross(corners[:, 1], corners[:, 2]))
+    centre = (corners.sum(axis=1) * vol[:, None]).sum(axis=0) / (4 * vol.sum())
+    nk, ak, arm = n[skin], a[skin], v[skin] - centre
+    e1 = np.cross(nk, up)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(nk, e1)
+    unit = WEIGHT / ak.sum()  # unknowns in units of the mean pressure: p, t1, t2 per vertex, peak
+    directions = [-nk, e1, e2]
+    balance = np.zeros((6, 3 * k + 1))
+    for j, d in enumerate(directions):
+        force = d * (ak * unit)[:, None]
+        balance[:3, j * k:(j + 1) * k] = force.T
+        balance[3:, j * k:(j + 1) * k] = np.cross(arm, force).T
+    peak = np.zeros((k, 3 * k + 1))
+    peak[:, :k] = np.eye(k)
+    peak[:, -1] = -1.0
+    cone = np.zeros((3 * k, 3 * k + 1))
+    for i in range(k):
+        cone[3 * i, i] = -mu
+        cone[3 * i + 1, k + i] = -1.0
+        cone[3 * i + 2, 2 * k + i] = -1.0
+    a_all = sp.csc_matrix(np.vstack([balance, peak, -np.eye(3 * k + 1)[:k], cone]))
+    b_all = np.concatenate([[0.0, WEIGHT, 0.0, 0.0, 0.0, 0.0], np.zeros(2 * k + 3 * k)])
+    cones = [clarabel.ZeroConeT(6), clarabel.NonnegativeConeT(2 * k)] + \
+        [clarabel.SecondOrderConeT(3)] * k
+    q = np.zeros(3 * k + 1)
+    q[-1] = 1.0
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    solution = clarabel.DefaultSolver(sp.csc_matrix((3 * k + 1, 3 * k + 1)), q, a_all, b_all,
+                                      cones, settings).solve()
+    assert str(solution.status) == "Solved"
+    return solution.x[-1] * unit / 1e3
+
+
+def test_with_friction_the_least_peak_is_a_bound_below_the_exact_cones():
+    """Skin of mixed slopes (the plate's normals tilted every way, some steeply): the
+    programme's least peak never exceeds the exact Coulomb cone's (Clarabel, a different
+    solver), and lies within the polygon's 1 / cos(pi / 16) of friction of it."""
+    sides = 16  # (`solver.contact.bound.CONE_SIDES`)
+    v, n, a, t, s, _ = _box_and_plate(offset=0.06, n=9)
+    rng = np.random.default_rng(3)
+    tilt = rng.normal(size=(len(v) - 8, 3)) * [1.0, 0.0, 1.0]
+    n = n.copy()
+    n[8:] = [0.0, -1.0, 0.0] + 1.5 * tilt
+    n[8:] /= np.linalg.norm(n[8:], axis=1, keepdims=True)
+    bound = least_peak(v, n, a, t, s, MASS, mu=0.5)
+    exact = _least_peak_in_the_cone(v, n, a, t, s, 0.5)
+    wider = _least_peak_in_the_cone(v, n, a, t, s, 0.5 / np.cos(np.pi / sides))
+    assert wider * (1 - 1e-6) <= bound.peak_kpa <= exact * (1 + 1e-6)
+    # and without friction the two solvers agree
+    assert least_peak(v, n, a, t, s, MASS).peak_kpa == pytest.approx(
+        _least_peak_in_the_cone(v, n, a, t, s, 0.0), rel=1e-5)
