@@ -69,6 +69,10 @@ def _balance(z, n, a, x, w, mu, shear):
     return net, jac, delta
 
 
+UNBALANCED = 1e-6  # of the unit load: a balance left over past this is no balance (the Newton
+# steps stop at `tol`, 1e-8, when they converge)
+
+
 def equilibrium_compression(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray,
                             gravity: np.ndarray, centre: np.ndarray, *, mu: float = 0.5,
                             shear_ratio: float = SHEAR_RATIO, max_iterations: int = 40,
@@ -102,6 +106,11 @@ def equilibrium_compression(vertices: np.ndarray, normals: np.ndarray, areas: np
             scale /= 2
         z = z + scale * step
         r, jac, delta = trial
+    if not np.abs(r).max() < UNBALANCED:
+        raise ValueError(f"The body finds no balance on its envelope of springs within "
+                         f"{max_iterations} Newton steps (the net force and moment left are "
+                         f"{np.abs(r).max():.3g} of the load): its compression would not "
+                         f"carry it")
     out = np.zeros(len(vertices))
     out[contact] = np.maximum(delta, 0.0)
     return out

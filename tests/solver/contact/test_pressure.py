@@ -141,3 +141,20 @@ def test_bad_bodies_are_named_not_given_zero_importance():
         pressure_field(v[:, :2], t)
     with pytest.raises(ValueError, match="a mask of 4 entries"):
         pressure_field(v, t, mask=np.ones(3, dtype=bool))
+
+
+def test_the_equilibrium_model_balances_the_body_or_says_it_cannot(seated):
+    """The equilibrium compression carries the unit load (its springs' forces and moments
+    balance it); when its Newton steps stop short of a balance, it says so rather than
+    returning the compression of the last step."""
+    from solver.contact.equilibrium import equilibrium_compression
+
+    body, verts = seated
+    t = body.triangles
+    n, a = vertex_normals(verts, t), voronoi_areas(verts, t)
+    g, c = np.array([0.0, -1.0, 0.0]), volume_centroid(verts, t)
+    delta = equilibrium_compression(verts, n, a, g, c, mu=0.0)
+    force = ((a * delta)[:, None] * n).sum(axis=0)  # springs push along -n on the skin ...
+    assert np.allclose(-force / np.linalg.norm(force), -g, atol=1e-6)  # ... against gravity
+    with pytest.raises(ValueError, match="finds no balance on its envelope of springs within 0"):
+        equilibrium_compression(verts, n, a, g, c, max_iterations=0)
