@@ -165,6 +165,7 @@ def _demo(out: Path, say: Callable[[str], None]) -> dict:
     from posedb import PoseLibrary
     from posedb.suggest import suggest_poses
 
+    from solver.contact.evaluate import flat_text
     from solver.scene.run import run_fit, run_relax
 
     library = out / "poses.h5"
@@ -205,7 +206,7 @@ def _demo(out: Path, say: Callable[[str], None]) -> dict:
                 "coverage": fitted["coverage"], "max_penetration_m": fitted["max_penetration_m"],
                 "peak_pressure_kpa": fitted["peak_pressure_kpa"],
                 "flat_peak_pressure_kpa": fitted["flat"]["peak_pressure_kpa"],
-                "relaxed": rel["after"]} for fitted, rel in zip(fit["persons"],
+                "flat": flat_text(fitted), "relaxed": rel["after"]} for fitted, rel in zip(fit["persons"],
                                                                 relaxed["persons"])]
     return {
         "out": str(out), "library": library.name, "scenario": scenario.name,
@@ -235,9 +236,8 @@ def format_summary(summary: dict) -> str:
     for p in summary["persons"]:
         lines.append(f"  {p['name']} ({p['mass_kg']:.0f} kg): coverage {p['coverage']:.2f}, "
                      f"deepest cut {p['max_penetration_m'] * 1000:.0f} mm, peak "
-                     f"{_kpa(p['peak_pressure_kpa'])} (flat seat "
-                     f"{_kpa(p['flat_peak_pressure_kpa'])}); relaxed coverage "
-                     f"{p['relaxed']['coverage']:.2f}")
+                     f"{_kpa(p['peak_pressure_kpa'])} (flat seat {p['flat']}); relaxed "
+                     f"coverage {p['relaxed']['coverage']:.2f}")
     lines.append(f"  time: capture {t['capture_s']:.1f} s, poses {t['poses_s']:.1f} s, fit and "
                  f"export {t['fit_s']:.1f} s, relax {t['relax_s']:.1f} s, total "
                  f"{t['total_s']:.1f} s")

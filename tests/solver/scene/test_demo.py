@@ -54,7 +54,7 @@ def test_demo_makes_everything(tmp_path, capsys):
     # the figures: both supported, neither cut deeper than the margin plus 5 mm, and the fitted
     # surface presses less than a flat seat at its height where that carries them at all
     masses = []
-    for person, relaxed in zip(summary["persons"], relax["persons"]):
+    for person, relaxed, fitted in zip(summary["persons"], relax["persons"], fit["persons"]):
         assert person["coverage"] >= 0.9
         assert person["max_penetration_m"] <= 0.035
         # the fitted surface carries the body; a flat seat without a back may let it tip over
@@ -62,6 +62,9 @@ def test_demo_makes_everything(tmp_path, capsys):
         assert (person["flat_peak_pressure_kpa"] is None
                 or person["peak_pressure_kpa"] < person["flat_peak_pressure_kpa"])
         assert relaxed["after"] == person["relaxed"]
+        # the summary's flat seat is the baseline the bars use, the flat seat at the same load
+        assert person["flat"].startswith(f"{fitted['flat']['same_load']['peak_pressure_kpa']:.1f}"
+                                         " kPa at the same load"), person["flat"]
         masses.append(person["mass_kg"])
     assert masses[1] > masses[0] + 10  # two different builds
     assert np.isclose(summary["timing"]["total_s"], sum(
