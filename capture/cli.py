@@ -9,7 +9,7 @@ import signal
 import time
 
 # numpy and the readers load when a command runs: `sitrelax --help` stays fast
-from .cli_output import print_event, print_status
+from .cli_output import number, print_event, print_status
 from .recordings import bundled_recordings, resolve_path
 
 
@@ -99,6 +99,7 @@ def listen(source_url: str, skeleton: str, *, duration: float | None = None,
     or the first to reach it). An `avatar` that never came while frames of others did raises
     `capture.avatars.AvatarNotSeenError`, naming those that came.
     """
+    _check_limits(duration, frames)
     from .avatars import avatar_selector
     from .bvh import read_bvh
     from .monitor import StreamMonitor
@@ -142,6 +143,23 @@ def listen(source_url: str, skeleton: str, *, duration: float | None = None,
     if selector is not None and monitor.avatars and not monitor.count:
         raise selector.not_seen(monitor.avatars)
     return summary
+
+
+def _check_limits(duration, frames) -> None:
+    """Refuses limits that could not end a reading as meant (a ValueError naming the limit):
+    a duration not a finite number of seconds > 0 (NaN never ends one), frames not a whole
+    number >= 1 (0 or fewer would end it before its first frame)."""
+    if duration is not None:
+        try:
+            seconds = float(duration)
+        except (TypeError, ValueError):
+            seconds = math.nan
+        if not (math.isfinite(seconds) and seconds > 0):
+            raise ValueError(f"Expected a duration in seconds > 0, got {duration!r}")
+    if frames is not None:
+        whole = isinstance(frames, int) and not isinstance(frames, bool)
+        if not whole or frames < 1:
+            raise ValueError(f"Expected a whole number of frames >= 1, got {frames!r}")
 
 
 def avatars_text(avatars: list[dict]) -> str:
@@ -205,6 +223,10 @@ def _no_frame_status(summary: dict) -> int:
     import sys
 
     why = summary["events"][-1] if summary.get("events") else "nothing arrived"
+    rejected = summary.get("corrupt") or 0
+    if rejected:  # bytes came, only none of them made a frame: say so, not just the last event
+        why += (f"; {rejected} candidate frame{'s' if rejected != 1 else ''} rejected as "
+                f"corrupt (cut short, followed by stray bytes, or holding NaN)")
     print(f"sitrelax: error: no frame received from {summary['source']} ({why})",
           file=sys.stderr)
     return 2
@@ -305,7 +327,7 @@ def _register_capture(subparsers) -> None:
     to.add_argument("--serial", metavar="URL", help="write to a serial port or pyserial URL")
     rp.add_argument("--format", choices=FORMATS, default="binary",
                     help="binary (current header), binary-old or string (default: binary)")
-    rp.add_argument("--rate", type=float, default=1.0,
+    rp.add_argument("--rate", type=number(0), default=1.0,
                     help="speed relative to real time; 0 sends as fast as possible")
     rp.add_argument("--loop", action="store_true", help="start over at the end, forever")
     rp.add_argument("--no-displacement", action="store_true",
@@ -314,14 +336,17 @@ def _register_capture(subparsers) -> None:
     rp.add_argument("--avatar", default="Avatar00",
                     help="with a .bvh file: the avatar name the frames carry (default "
                          "Avatar00; a raw capture replays its avatars as received)")
-    rp.add_argument("--start-index", type=int, default=0, help="first frame index")
+    rp.add_argument("--start-index", type=number(0, 0xFFFFFFFF, whole=True), default=0,
+                    help="first frame index, 0 to 4294967295 (the header's u32; it wraps "
+                         "to 0 after that, as Axis's does)")
     rp.add_argument("--restart-index", action="store_true",
                     help="with --loop: start the frame index over on every pass")
-    rp.add_argument("--max-datagram", type=int, default=None, metavar="BYTES",
+    rp.add_argument("--max-datagram", type=number(1, whole=True), default=None, metavar="BYTES",
                     help="with --udp: split each frame into datagrams of at most BYTES")
     rp.add_argument("--wait-client", action="store_true",
                     help="with --tcp: start only once a client has connected")
-    rp.add_argument("--frames", type=int, default=None, help="stop after N frames")
+    rp.add_argument("--frames", type=number(1, whole=True), default=None,
+                    help="stop after N frames, at least 1")
     rp.add_argument("--json", action="store_true", help="machine-readable summary")
     rp.set_defaults(func=_cmd_replay)
 
@@ -330,8 +355,10 @@ def _register_capture(subparsers) -> None:
                                    "a pyserial URL, or file:PATH (raw capture)")
     ls.add_argument("--skeleton", required=True,
                     help="the BVH header paired with the stream (path or bundled:NAME)")
-    ls.add_argument("--duration", type=float, default=None, help="stop after S seconds")
-    ls.add_argument("--frames", type=int, default=None, help="stop after N frames")
+    ls.add_argument("--duration", type=number(0, low_open=True), default=None,
+                    help="stop after S seconds, > 0 (default: until Ctrl-C or the source ends)")
+    ls.add_argument("--frames", type=number(1, whole=True), default=None,
+                    help="stop after N frames of one avatar, at least 1")
     ls.add_argument("--format", choices=("auto", "binary", "string"), default="auto",
                     help="stream format (default: detected)")
     ls.add_argument("--save-raw", metavar="PATH", default=None,

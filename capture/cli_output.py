@@ -32,6 +32,11 @@ def print_event(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
+def _bound(value: float) -> str:
+    """A bound as a reader types it: whole numbers in full (4294967295, not 4.29497e+09)."""
+    return str(int(value)) if float(value).is_integer() else f"{value:g}"
+
+
 def number(low: float | None = None, high: float | None = None, *, whole: bool = False,
            low_open: bool = False):
     """An argparse `type` for a finite number (a whole one with `whole`) within [low, high]
@@ -50,9 +55,9 @@ def number(low: float | None = None, high: float | None = None, *, whole: bool =
             raise argparse.ArgumentTypeError(f"expected {noun}, got {text!r}")
         if low is not None and (value <= low if low_open else value < low):
             raise argparse.ArgumentTypeError(
-                f"expected {noun} {'>' if low_open else '>='} {low:g}, got {text!r}")
+                f"expected {noun} {'>' if low_open else '>='} {_bound(low)}, got {text!r}")
         if high is not None and value > high:
-            raise argparse.ArgumentTypeError(f"expected {noun} <= {high:g}, got {text!r}")
+            raise argparse.ArgumentTypeError(f"expected {noun} <= {_bound(high)}, got {text!r}")
         return int(value) if whole else value
 
     parse.__name__ = "whole number" if whole else "number"  # (argparse's fallback message)

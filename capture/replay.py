@@ -12,6 +12,7 @@ the TCP clients (they reconnect as they would to Axis).
 from __future__ import annotations
 
 import errno
+import ipaddress
 import select
 import socket
 import threading
@@ -36,6 +37,14 @@ class ReplayError(ValueError):
 # -- sinks ------------------------------------------------------------------------------------
 
 
+def _is_loopback(host: str) -> bool:
+    """Whether a bound address is reachable from this machine only."""
+    try:
+        return ipaddress.ip_address(host.split("%")[0]).is_loopback
+    except ValueError:
+        return host == "localhost"
+
+
 class TcpServerSink:
     """Listens on HOST:PORT and sends every frame to every connected client."""
 
@@ -54,6 +63,9 @@ class TcpServerSink:
         self.server.setblocking(False)
         self.clients: list[socket.socket] = []
         self.host, self.port = self.server.getsockname()[:2]
+        if not _is_loopback(self.host):
+            self._say(f"warning: serving {self.name} to other machines too (the stream has no "
+                      f"authentication); give no host, or 127.0.0.1, to keep it on this one")
 
     @property
     def name(self) -> str:
@@ -248,6 +260,9 @@ class Replay:
         over at `start_index` on every pass (as an emulator looping its file does)."""
         if fmt not in FORMATS:
             raise ReplayError(f"Expected a format from {FORMATS}, got {fmt!r}")
+        if not (isinstance(start_index, (int, np.integer)) and 0 <= start_index <= 0xFFFFFFFF):
+            raise ReplayError(f"Expected a start index from 0 to 4294967295 (the header's u32), "
+                              f"got {start_index!r}")
         bvh = read_bvh(path, unit=None)
         layout = StreamLayout(bvh.skeleton)
         payload = layout.to_payload(bvh.motion.channels, with_displacement, with_reference)
@@ -300,6 +315,9 @@ class Replay:
         """Sends the programme through `sink` until it ends, `stop` is set or `max_frames`."""
         if rate < 0 or not np.isfinite(rate):
             raise ReplayError(f"Expected a rate >= 0 (0: as fast as possible), got {rate}")
+        if max_frames is not None and not (isinstance(max_frames, (int, np.integer))
+                                           and max_frames >= 1):
+            raise ReplayError(f"Expected a whole number of frames >= 1, got {max_frames!r}")
         stop = stop or threading.Event()
         stats = ReplayStats()
         start = time.monotonic()

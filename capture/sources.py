@@ -203,11 +203,19 @@ class SerialTransport:
     def poll(self, timeout: float) -> list[Record]:
         import serial
 
+        if self.exhausted:
+            return []
         try:
             self.port.timeout = timeout
             data = self.port.read(max(1, self.port.in_waiting))
-        except serial.SerialException as exc:
-            raise StreamSourceError(f"Serial port {self.name} failed: {exc}") from None
+        except (serial.SerialException, OSError) as exc:
+            # A bridge unplugged or its peer gone: the end of this source, as the end of a
+            # file is, so the frames that came are kept (and a take recording is stored)
+            # rather than thrown away with an error.
+            self.exhausted = True
+            return [(DISCONNECTED, time.time(),
+                     f"the serial port {self.name} went away ({exc}); the source has "
+                     f"ended".encode())]
         return [(DATA, time.time(), data)] if data else []
 
     def close(self) -> None:

@@ -23,8 +23,6 @@ from __future__ import annotations
 import threading
 import time
 
-import numpy as np
-
 from capture import read_bvh, resolve_path, skeleton_fk
 from capture.recordings import bundled_recordings
 from capture.replay import Replay, ReplayThread, TcpServerSink
@@ -117,6 +115,8 @@ class LiveStream:
                         self._on_frame(world, last.received_at)
         except UnknownProtocolError as exc:
             self._fail(str(exc), discard=True)
+        except ValueError as exc:  # a stream the header does not fit, bad input: its own words
+            self._fail(str(exc), discard=False)
         except Exception as exc:  # noqa: BLE001 (the view shows it; the studio stays up)
             self._fail(f"{type(exc).__name__}: {exc}", discard=False)
 
