@@ -216,19 +216,25 @@ def avatar_not_seen(exc, as_json: bool) -> int:
     return 2
 
 
+def no_frame_reason(summary: dict) -> str:
+    """Why a listen's or a recording's `summary` holds no frame: its last event, and how many
+    candidate frames were rejected as corrupt, if any (bytes came, only none made a frame)."""
+    why = summary["events"][-1] if summary.get("events") else "nothing arrived"
+    rejected = summary.get("corrupt") or 0
+    if rejected:
+        why += (f"; {rejected} candidate frame{'s' if rejected != 1 else ''} rejected as "
+                f"corrupt (cut short, followed by stray bytes, or holding NaN)")
+    return why
+
+
 def _no_frame_status(summary: dict) -> int:
-    """0 once a frame came; else names why on stderr (the last event) and returns 2."""
+    """0 once a frame came; else names why on stderr (`no_frame_reason`) and returns 2."""
     if summary["frames"]:
         return 0
     import sys
 
-    why = summary["events"][-1] if summary.get("events") else "nothing arrived"
-    rejected = summary.get("corrupt") or 0
-    if rejected:  # bytes came, only none of them made a frame: say so, not just the last event
-        why += (f"; {rejected} candidate frame{'s' if rejected != 1 else ''} rejected as "
-                f"corrupt (cut short, followed by stray bytes, or holding NaN)")
-    print(f"sitrelax: error: no frame received from {summary['source']} ({why})",
-          file=sys.stderr)
+    print(f"sitrelax: error: no frame received from {summary['source']} "
+          f"({no_frame_reason(summary)})", file=sys.stderr)
     return 2
 
 

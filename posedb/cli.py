@@ -348,6 +348,17 @@ def _cmd_record(args) -> int:
 
     existed = os.path.exists(args.db)
 
+    def nothing_made() -> None:
+        """A recording that stored nothing leaves nothing: not even the empty library (and
+        journal folder) this command made."""
+        if existed:
+            return
+        _drop_if_empty(args.db)
+        try:
+            journal_dir(args.db).rmdir()
+        except OSError:
+            pass  # (not empty, or gone: left as it is)
+
     def progress(s: dict) -> None:
         fps = f"{s['fps']:.1f}" if s["fps"] else "-"
         who = f"  avatars {avatars_text(s['avatars'])}" if s.get("avatars") else ""
@@ -361,12 +372,7 @@ def _cmd_record(args) -> int:
                          on_event=print_event, on_progress=progress,
                          stop=lambda: stopping["flag"], lock_timeout=_lock_timeout(args))
     except AvatarNotSeenError as exc:
-        if not existed:  # nothing half-written: not even the empty library this command made
-            _drop_if_empty(args.db)
-            try:
-                journal_dir(args.db).rmdir()
-            except OSError:
-                pass  # (not empty, or gone: left as it is)
+        nothing_made()
         return avatar_not_seen(exc, args.json)
     finally:
         signal.signal(signal.SIGINT, previous)
@@ -387,8 +393,11 @@ def _cmd_record(args) -> int:
     _print(summary, args.json, text)
     if take:
         return 0
-    why = summary["events"][-1] if summary.get("events") else "nothing arrived"
-    print(f"sitrelax: error: no frame received from {args.source} ({why})", file=sys.stderr)
+    nothing_made()
+    from capture.cli import no_frame_reason
+
+    print(f"sitrelax: error: no frame received from {args.source} "
+          f"({no_frame_reason(summary)})", file=sys.stderr)
     return 2
 
 

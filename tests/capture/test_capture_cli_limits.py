@@ -109,3 +109,10 @@ def test_no_frame_message_counts_rejected_candidates(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "no frame received" in err
     assert "4 candidate frames rejected as corrupt" in err
+    # a recording of the same says the same, and stores nothing
+    db = tmp_path / "poses.h5"
+    assert main(["capture", "record", f"file:{raw}", "--skeleton", AXIS, "--db", str(db),
+                 "--take", "noisy"]) == 2
+    err = capsys.readouterr().err
+    assert "no frame received" in err and "4 candidate frames rejected as corrupt" in err
+    assert not db.exists()
