@@ -162,12 +162,16 @@ def _check_person(p: schema.Person, loc: list) -> None:
         raise _limit([*loc, "position"], f"expected coordinates within {COORD:g} m here, got "
                                          f"{p.position}")
     if not p.pose.startswith(("db:", "bvh:bundled:")):
-        # (a file of the server's disk, `bvh:` written or left out: refused as the malformed
-        # field it is here, without quoting it back, which would show it cut where it names
-        # folders)
-        raise _limit([*loc, "pose"], "Expected db:NAME or bvh:bundled:NAME#frame=N, got a BVH "
-                                     "file: this server reads no files (the bundled recordings "
-                                     "are at /api/recordings)")
+        # (a file of the server's disk, `bvh:` written or left out, or no reference at all:
+        # refused as the malformed field it is here, without quoting it back, which would show
+        # it cut where it names folders)
+        text = p.pose.strip().lower()
+        file = text.startswith("bvh:") or "/" in text or "\\" in text or \
+            (".bvh" in text and not text.startswith("bundled:"))
+        got = "a BVH file: this server reads no files" if file else \
+            "no db: or bvh:bundled: reference (a library pose is db:NAME)"
+        raise _limit([*loc, "pose"], f"Expected db:NAME or bvh:bundled:NAME#frame=N, got {got} "
+                                     "(the bundled recordings are at /api/recordings)")
     if p.pose.startswith("bvh:bundled:"):
         name = p.pose[len("bvh:bundled:"):].split("#", 1)[0]
         if "/" in name or "\\" in name:

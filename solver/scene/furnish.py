@@ -148,8 +148,10 @@ def furnish(kind: str, given: dict, people: Sequence, *, waterfall: bool = False
     values.update(given)
     values["heading_deg"] = frame.heading_deg
     limit = None if "edge_drop" in given else edge_drop_limit(kind, values)
-    if limit is not None and values.get("edge_drop", TEMPLATE_PARAMS[kind].edge_drop) > limit:
-        # a top measured low: its edges rounded down by as much as its corners allow
+    if limit is not None and 0 < limit < values.get("edge_drop", TEMPLATE_PARAMS[kind].edge_drop):
+        # a top measured low: its edges rounded down by as much as its corners allow (not to
+        # nothing: an unrounded top has other faces, so a drop its corners allow none of is
+        # refused by name)
         values["edge_drop"] = limit
         measured.add("edge_drop")
     try:

@@ -142,7 +142,8 @@ def validate_pressure(out_dir: str | Path | None = None, *, mus: Sequence[float]
         One row per pose, reference, mu and model: `field_metrics`, the model's time
         (`model_ms`), the reference's (`reference_s`), its equilibrium residual, whether it
         `converged` (the finite elements' friction fixed point may stop at its most
-        iterations: its figures are then not a solution's), and for the first model of a
+        iterations: its figures are then not a solution's; None for the references that
+        report their `residual` alone), and for the first model of a
         pose with pictures, `picture`.
 
     Raises
@@ -227,7 +228,8 @@ def _compare(out_dir: Path | None, mus: list[float], references: list[str],
                                      ** 2))),
                                  "model_ms": ms, "reference_s": seconds,
                                  "residual": float(ref.residual),
-                                 "converged": bool(getattr(ref, "converged", True))})
+                                 "converged": None if getattr(ref, "converged", None) is None
+                                 else bool(ref.converged)})
         if out_dir is not None and shown is not None:
             path = _picture(Path(out_dir), pose, body, contact, shown,
                             {m: f for m, (f, _) in models.items()})

@@ -59,6 +59,11 @@ def _scenario(surface=None, person=None) -> dict:
      '"person", "pose", "msg": "Expected db:NAME or bvh:bundled:NAME#frame=N, got a BVH file'),
     ("/api/fit", _scenario(person={"pose": "sit.bvh#frame=0"}), 422, '"person", 0, "pose"'),
     ("/api/body", {"person": {"pose": "BVH:/etc/passwd#frame=1"}}, 422, '"person", "pose"'),
+    # no file named, only no reference the server reads: not said to be a file
+    ("/api/body", {"person": {"pose": "sitting-f00039"}}, 422,
+     "got no db: or bvh:bundled: reference (a library pose is db:NAME)"),
+    ("/api/body", {"person": {"pose": "bundled:cmu_75_18_high_sit.bvh#frame=39"}}, 422,
+     "got no db: or bvh:bundled: reference"),
     ("/api/body", {"person": {"pose": "db:perch"}}, 409, "no pose library"),
     ("/api/fit", b'{"surface": {"grid": {}}, "person": [{"pose": "' + HIGH_SIT.encode()
      + b'", "position": [NaN, 0, 0]}]}', 422, '"position", 0'),

@@ -200,3 +200,17 @@ def test_a_template_default_that_clashes_is_not_blamed_on_the_people():
         exc.measured = measured
         text = str(template_error(exc, "s.toml", {"kind": "chair"}))
         assert "surface.template.arm_height" in text and said in text, text
+
+
+def test_a_stool_whose_corners_allow_no_drop_is_refused_by_name(tmp_path):
+    """A stool tilted so far that its corners allow no rounding at all: the default drop is
+    not clamped to nothing (an unrounded top has other faces, which read as a template built
+    with other faces than the one read), but refused naming edge_drop as the default."""
+    from solver.scene.placement import place_scene
+
+    path = _write(tmp_path, 'template = { kind = "stool", seat_height = 0.2, seat_depth = 0.36, '
+                            'seat_width = 0.4, seat_tilt_deg = 26.527 }')
+    with pytest.raises(ScenarioError, match=r"surface\.template\.edge_drop: expected a drop that "
+                                            r"keeps the corners 2 cm above the floor.*the "
+                                            r"template's default"):
+        place_scene(load_scenario(path))
