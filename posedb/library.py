@@ -861,12 +861,16 @@ class Editor:
                 raise NotFoundError(f"No pose or take {ref!r} in {self.lib.path}") from None
             self.rename_take(ref, new_name)
             return
+        if checked_name(new_name, "pose") == self.table.names[row]:
+            return  # (its own name already: nothing to change, no clash with itself)
         self.table.rename(row, self._check_name(new_name, "pose"))
         self._table_dirty = True
 
     def rename_take(self, ref: str, new_name: str) -> None:
         """Renames a take (by id or name; a pose of that name is not looked at)."""
         take = self._take(ref)
+        if checked_name(new_name, "take") == take.name:
+            return  # (its own name already)
         new_name = self._check_name(new_name, "take")
         self.f["takes"][take.id].attrs["name"] = new_name
         self.takes[take.id] = replace(take, name=new_name)

@@ -59,18 +59,3 @@ def test_a_refused_tag_is_told_which_letters_and_first_characters_a_tag_takes(ta
     with pytest.raises(TagError, match=r"ASCII letters \(a-z\).*starting with a letter, digit"):
         normalise_tag(tag)
 
-
-def test_an_expression_of_spaces_alone_is_as_empty_every_pose_and_take(tmp_path):
-    """`--tag ""` lists everything; `--tag "   "` (a script's empty variable, quoted with a
-    space) was refused as a malformed expression. Both mean no filter."""
-    from posedb.library import PoseLibrary
-    from tests.conftest import recording
-
-    lib = PoseLibrary(tmp_path / "l.h5", create=True)
-    with lib.edit() as ed:
-        take = ed.import_bvh(recording("cmu_75_18_high_sit.bvh"), subject="75", tags=["sit"])
-        ed.add_pose(take, 39, "perch", tags=["sit"])
-    assert [p.name for p in lib.find_poses("   ")] == ["perch"]
-    assert lib.find_poses("   ") == lib.find_poses("") == lib.find_poses(None)
-    assert len(lib.find_takes("  \t")) == 1
-    assert lib.find_takes("  \t") == lib.find_takes("") == lib.find_takes(None)
