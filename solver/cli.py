@@ -382,9 +382,10 @@ def _cmd_validate_pressure(args: argparse.Namespace) -> int:
     with _library_prints_to_stderr():  # (the solvers' own prints: --json stays JSON)
         rows = validate_pressure(args.out, mus=args.mu, references=refs,
                                  progress=lambda line: print(line, file=sys.stderr, flush=True))
+    missed = _validation_misses(rows, args.bar)
     if args.json:
         print(json.dumps(rows, indent=2))
-        return 0
+        return 1 if missed else 0
     print("RMSE of each field normalised by its largest value, over all mould vertices and the "
           "loaded ones (reference above 5 % of its largest); the all-zero model's RMSE in "
           "brackets; Pearson r")
@@ -415,7 +416,20 @@ def _cmd_validate_pressure(args: argparse.Namespace) -> int:
     pictures = sorted({r["picture"] for r in rows if "picture" in r})
     for path in pictures:
         print(f"-> {path}")
-    return 0
+    for line in missed:
+        print(f"misses the bar: {line}")
+    return 1 if missed else 0
+
+
+def _validation_misses(rows: list[dict], bar: float | None) -> list[str]:
+    """With `--bar`, each row whose model is further than `bar` (RMSE over all mould
+    vertices) from its reference, or whose reference did not converge; none without."""
+    if bar is None:
+        return []
+    return [f"{r['pose']}, {r['model']} model vs {r['reference']}, mu = {r['mu']}: "
+            + ("the reference did not converge" if r.get("converged") is False else
+               f"RMSE {r['rmse_all']:.3f} over {bar:g}")
+            for r in rows if r.get("converged") is False or r["rmse_all"] > bar]
 
 
 class _Parser(argparse.ArgumentParser):
@@ -597,6 +611,10 @@ def _register_checks(sub) -> None:
                     help="only this reference (repeatable; default: all three)")
     vp.add_argument("--quick", action="store_true",
                     help="skip the finite-element reference (a few seconds instead of a minute)")
+    vp.add_argument("--bar", type=number(0, 1), default=None, metavar="RMSE",
+                    help="exit with status 1 when a model is further than this from a reference "
+                         "(RMSE over all mould vertices), or a reference did not converge "
+                         "(default: report only)")
     vp.add_argument("--json", action="store_true", help="machine-readable output")
     vp.set_defaults(func=_cmd_validate_pressure)
 

@@ -138,3 +138,32 @@ def test_what_the_solvers_print_leaves_the_json_alone(monkeypatch, capfd):
     captured = capfd.readouterr()
     assert json.loads(captured.out) == []
     assert "solver says hello" in captured.err and "LDL_factor" in captured.err
+
+
+def _rows(rmse: float, converged=True) -> list[dict]:
+    return [{"pose": "seated", "vertices": 3, "reference": "soft layer FE", "mu": 0.5,
+             "model": "paper", "rmse_all": rmse, "zero_all": 0.5, "rmse_loaded": rmse,
+             "zero_loaded": 0.5, "pearson_r": 0.9, "model_ms": 1.0, "reference_s": 1.0,
+             "residual": 0.0, "converged": converged}]
+
+
+@pytest.mark.parametrize("rows, bar, status, said", [
+    (_rows(0.04), None, 0, None),  # (reports only, as before)
+    (_rows(0.06), None, 0, None),
+    (_rows(0.04), 0.05, 0, None),
+    (_rows(0.06), 0.05, 1, "paper model vs soft layer FE, mu = 0.5: RMSE 0.060 over 0.05"),
+    (_rows(0.01, converged=False), 0.05, 1, "the reference did not converge"),
+])
+def test_a_bar_makes_validate_fail_where_a_model_misses_it(monkeypatch, capsys, rows, bar,
+                                                           status, said):
+    """`--bar RMSE`: exit status 1 (for a script or CI) when a model is further than that from
+    a reference, or a reference did not converge; without it the command reports only."""
+    import solver.scene.validate as module
+
+    monkeypatch.setattr(module, "validate_pressure", lambda *a, **k: rows)
+    args = ["validate", "pressure", "--quick"] + (["--bar", str(bar)] if bar else [])
+    assert main(args) == status
+    out = capsys.readouterr().out
+    assert (said in out) if said else "misses the bar" not in out
+    assert main(args + ["--json"]) == status
+    assert json.loads(capsys.readouterr().out) == rows
