@@ -93,8 +93,9 @@ def surface_miss_kinds(guarantees: dict) -> list[tuple[str, str]]:
                                 f"under the floor"))
     deepest, margin = g["max_penetration_dense_m"], g["margin_m"]
     if deepest > margin + CUT_TOLERANCE_M:
-        misses.append(("cut", f"cuts {1000 * deepest:.0f} mm into a body (margin "
-                              f"{1000 * margin:.0f} mm)"))
+        # (between the skin's vertices too: deeper than a person's own cut, taken at them)
+        misses.append(("cut", f"cuts {1000 * deepest:.0f} mm into a body on a dense sampling "
+                              f"of the surface (margin {1000 * margin:.0f} mm)"))
     return misses
 
 

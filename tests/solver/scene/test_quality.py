@@ -30,7 +30,8 @@ def test_a_surface_within_every_bar_misses_none():
     ({"self_intersections": 3}, "crosses itself (3 pairs"),
     ({"folds": 2, "max_fold_deg": 75.0}, "2 folds: neighbouring faces up to 75 degrees"),
     ({"below_floor": True, "min_height_m": -0.012}, "dips 12 mm under the floor"),
-    ({"max_penetration_dense_m": 0.0312}, "cuts 31 mm into a body (margin 30 mm)"),
+    ({"max_penetration_dense_m": 0.0312},
+     "cuts 31 mm into a body on a dense sampling of the surface (margin 30 mm)"),
 ])
 def test_each_surface_bar_missed_is_said(change, words):
     misses = surface_misses({**GOOD_SURFACE, **change})
