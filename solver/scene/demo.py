@@ -206,8 +206,8 @@ def _demo(out: Path, say: Callable[[str], None]) -> dict:
                 "coverage": fitted["coverage"], "max_penetration_m": fitted["max_penetration_m"],
                 "peak_pressure_kpa": fitted["peak_pressure_kpa"],
                 "flat_peak_pressure_kpa": fitted["flat"]["peak_pressure_kpa"],
-                "flat": flat_text(fitted), "relaxed": rel["after"]} for fitted, rel in zip(fit["persons"],
-                                                                relaxed["persons"])]
+                "flat": flat_text(fitted), "relaxed": rel["after"]}
+               for fitted, rel in zip(fit["persons"], relaxed["persons"])]
     return {
         "out": str(out), "library": library.name, "scenario": scenario.name,
         "takes": {take: {"frames": results[take]["frames"], "dropped": results[take]["dropped"],
