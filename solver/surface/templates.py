@@ -310,7 +310,7 @@ def _check_seat(p, kind: str) -> None:
     # (a stool's edges, rounded all round, are held to `_check_rounding`'s flat top below)
     _check(kind, drop_name, drop, 0.0, min(0.1, p.seat_depth / 4) if hasattr(p, "back") else 0.1)
     low = p.seat_height - p.seat_depth * math.tan(math.radians(max(p.seat_tilt_deg, 0.0)))
-    if low < EDGE_CLEARANCE or drop > 0 and low - drop < EDGE_CLEARANCE and hasattr(p, "back"):
+    if low < EDGE_CLEARANCE or (drop > 0 and low - drop < EDGE_CLEARANCE and hasattr(p, "back")):
         if low >= EDGE_CLEARANCE:  # (the seat stands clear, its dropped edge does not; a
             # stool's corners, rounded along both edges, drop further: named below, one limit)
             raise TemplateError(f"{kind}.{drop_name}: expected a drop that keeps the seat's "
