@@ -77,6 +77,12 @@ class NeuronFrame(NamedTuple):
     received_at: float | None = None
 
 
+def _avatars_sum(name: str) -> property:
+    """A read-only stream total: the sum of counter `name` over the avatars' counters."""
+    return property(lambda stats: sum(getattr(a, name) for a in stats.avatars.values()),
+                    doc=f"{name} over every avatar (the sum of their own counters)")
+
+
 @dataclass
 class DecoderStats:
     """Counters of what a decoder met.
@@ -112,21 +118,10 @@ class DecoderStats:
     gaps: list[tuple[int, int]] = field(default_factory=list)
     avatars: dict[tuple[int, str], "AvatarStats"] = field(default_factory=dict)
 
-    @property
-    def frames(self) -> int:
-        return sum(a.frames for a in self.avatars.values())
-
-    @property
-    def dropped(self) -> int:
-        return sum(a.dropped for a in self.avatars.values())
-
-    @property
-    def restarts(self) -> int:
-        return sum(a.restarts for a in self.avatars.values())
-
-    @property
-    def damaged_index(self) -> int:
-        return sum(a.damaged_index for a in self.avatars.values())
+    frames = _avatars_sum("frames")
+    dropped = _avatars_sum("dropped")
+    restarts = _avatars_sum("restarts")
+    damaged_index = _avatars_sum("damaged_index")
 
     def avatar(self, index: int, name: str) -> "AvatarStats | None":
         """The counters of avatar (index, name), made at its first frame; None for a new one
