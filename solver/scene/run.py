@@ -809,15 +809,15 @@ def run_relax(scenario_path: str | os.PathLike, out_dir: str | os.PathLike, *,
     chosen = range(len(scenario.persons)) if person is None else [person - 1]
     # what can be refused without the work is refused before it: the surface, the library
     scenario_margin = scenario.surface.params.margin
-    margin, margin_from, foam = scenario_margin, "scenario", {}
+    margin, margin_from = scenario_margin, "scenario"
     if surface_dir is not None:
         source = surface_file(surface_dir)
         surface, faces = _read_surface(source)
         material = fitted_material(source)
         if material is not None:  # the surface's own, as fitted
-            (margin, foam), margin_from = material, "surface"
+            (margin, fitted_foam), margin_from = material, "surface"
             scenario = dataclasses.replace(
-                scenario, evaluation=scenario.evaluation.model_copy(update=foam))
+                scenario, evaluation=scenario.evaluation.model_copy(update=fitted_foam))
     foam = {key: getattr(scenario.evaluation, key) for key in SURFACE_FOAM}  # judged with
     if save:
         check_library_for_save(db, lambda seconds: say(
