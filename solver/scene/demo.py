@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Callable
 
 from capture import resolve_path
+from capture.files import made_folder
 
 STANDING = "bundled:axis_neuron_standing_yxz.bvh"
 SITTING = "bundled:cmu_75_18_high_sit.bvh"
@@ -140,24 +141,18 @@ def run_demo(out_dir: str | os.PathLike, progress: Callable[[str], None] | None 
         raise DemoError(f"Expected a folder for the demo (--out), got a file: {out}")
     if out.is_dir() and any(out.iterdir()):  # (its files would mix with the demo's)
         raise DemoError(f"{out} is not empty: give the demo an empty or new folder (--out)")
-    made = [f for f in (out, *out.parents) if not f.exists()]  # the deepest first
-    out.mkdir(parents=True, exist_ok=True)
-    try:
-        return _demo(out, say)
-    except BaseException:
-        # a demo that fails or is interrupted leaves no half-written folder: everything in
-        # `out` is its own (the folder was empty or new), and the folders it made go too
-        for entry in list(out.iterdir()):
-            if entry.is_dir() and not entry.is_symlink():
-                shutil.rmtree(entry, ignore_errors=True)
-            else:
-                entry.unlink(missing_ok=True)
-        for folder in made:
-            try:
-                folder.rmdir()
-            except OSError:
-                break
-        raise
+    with made_folder(out):  # (the folders it made go again when the demo fails)
+        try:
+            return _demo(out, say)
+        except BaseException:
+            # a demo that fails or is interrupted leaves no half-written folder: everything
+            # in `out` is its own (the folder was empty or new)
+            for entry in list(out.iterdir()):
+                if entry.is_dir() and not entry.is_symlink():
+                    shutil.rmtree(entry, ignore_errors=True)
+                else:
+                    entry.unlink(missing_ok=True)
+            raise
 
 
 def _demo(out: Path, say: Callable[[str], None]) -> dict:
