@@ -436,10 +436,10 @@ class PoseLibrary:
                     problems.append(f"{where}/{name}: values that are not numbers in frame "
                                     f"{start + int(np.argmax(bad))}")
         rotations = arrays.get("local_rotations")
-        bad = None if rotations is None else schema.non_unit_quaternion(rotations)
+        bad = None if rotations is None else schema.non_unit_quaternion_problem(
+            rotations, f"{where}/local_rotations", "frame", start)
         if bad is not None:
-            problems.append(f"{where}/local_rotations: frame {start + bad[0]} holds a rotation "
-                            f"of norm {bad[1]:.6g}, not a unit quaternion")
+            problems.append(bad)
         if problems:
             raise schema.damaged_content(self.path, problems)
 
@@ -501,11 +501,10 @@ class PoseLibrary:
             raise schema.damaged_content(self.path, [
                 f"pose {info.name!r}: /poses/rotations rows {start}..{start + count} hold "
                 "values that are not numbers"])
-        bad = schema.non_unit_quaternion(rot)
+        bad = schema.non_unit_quaternion_problem(rot, f"pose {info.name!r}: /poses/rotations",
+                                                 start=start)
         if bad is not None:
-            raise schema.damaged_content(self.path, [
-                f"pose {info.name!r}: /poses/rotations row {start + bad[0]} holds a rotation of "
-                f"norm {bad[1]:.6g}, not a unit quaternion"])
+            raise schema.damaged_content(self.path, [bad])
         return info, sk, np.asarray(rot, dtype=np.float64), t.root[row].copy()
 
     def find_poses(self, expr: str | None = None, *, take: str | None = None,

@@ -284,6 +284,17 @@ def non_unit_quaternion(rotations: np.ndarray) -> tuple[int, float] | None:
     return int(at[0]), float(norm[at])
 
 
+def non_unit_quaternion_problem(rotations: np.ndarray, where: str, unit: str = "row",
+                                start: int = 0) -> str | None:
+    """`non_unit_quaternion` of `rotations` as a damage report naming `where` and the `unit`
+    (row, frame) of the first, counted from `start`; None when every rotation is a unit one."""
+    bad = non_unit_quaternion(rotations)
+    if bad is None:
+        return None
+    return (f"{where}: {unit} {start + bad[0]} holds a rotation of norm {bad[1]:.6g}, not a "
+            f"unit quaternion")
+
+
 def _first(mask: np.ndarray, values: np.ndarray) -> tuple[int, object]:
     """The frame (first index) and the value of the first element where `mask` is true."""
     at = np.unravel_index(int(np.argmax(mask)), mask.shape)

@@ -43,10 +43,10 @@ def _read_all(ds: h5py.Dataset, name: str, problems: list[str], *,
         if block.dtype.kind == "f" and not np.isfinite(block).all():
             problems.append(f"{name}: non-finite values in rows from {start}")
             return
-        bad = schema.non_unit_quaternion(block) if quaternions else None
+        bad = schema.non_unit_quaternion_problem(block, name, start=start) \
+            if quaternions else None
         if bad is not None:
-            problems.append(f"{name}: row {start + bad[0]} holds a rotation of norm "
-                            f"{bad[1]:.6g}, not a unit quaternion")
+            problems.append(bad)
             return
 
 
