@@ -6,24 +6,12 @@ import pytest
 
 from solver.io.solid import SolidError, check_solid, plinth, thicken
 from solver.scene.workshop import WorkshopOptions, export_workshop
+from solver.surface.subdivision import grid_mesh
 
 
 def flat_grid(n: int = 4, size: float = 0.4, height: float = 0.45):
-    """An n x n grid of quads at `height`, counter-clockwise seen from above (the bodies)."""
-    u = np.linspace(-size / 2, size / 2, n + 1)
-    x, z = np.meshgrid(u, u, indexing="ij")
-    vertices = np.stack([x.ravel(), np.full(x.size, height), z.ravel()], axis=1)
-    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
-    quads = np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:], idx[1:, :-1]],
-                     axis=-1).reshape(-1, 4)
-    return vertices, quads
-
-
-def test_the_grid_faces_the_bodies():
-    from solver.mesh import quad_triangles, vertex_normals
-
-    vertices, quads = flat_grid()
-    assert np.allclose(vertex_normals(vertices, quad_triangles(quads)), [0.0, 1.0, 0.0])
+    """An n x n grid of quads at `height`, facing up (the bodies)."""
+    return grid_mesh((size, size), (n, n), height)
 
 
 def test_a_surface_with_a_face_without_area_is_refused_by_name():
