@@ -43,8 +43,9 @@ from solver.mesh import split_quad
 from solver.scene import schema
 from solver.scene.quality import design_misses, surface_misses
 from solver.surface.fit import FitResult
-from solver.scene.run import (SURFACE_FORMATS, evaluate_fit, fit_guarantees, fit_people,
-                              relax_person, relax_text, relieve_fit, run_fit, save_relaxed)
+from solver.scene.run import (SURFACE_FORMATS, checked_guarantees, evaluate_fit,
+                              fit_guarantees, fit_people, relax_person, relax_text, relieve_fit,
+                              run_fit, save_relaxed)
 from solver.scene.scenario import (PersonSpec, Scenario, ScenarioError, parse_scenario,
                                    read_control_mesh, scenario_toml)
 from solver.scene.design import RELIEF_ROUNDS, shared_given
@@ -785,7 +786,10 @@ class Design:
         scenario = dataclasses.replace(self._parse(self.last.data), relief=relief)
         people, result = self.last.people, self.last.result
         _, persons, maps = evaluate_fit(scenario, people, result)  # (the settles again)
-        checked = []  # (fit, guarantees, seconds) of the fits whose guarantees relief checked
+        # (fit, guarantees, seconds) of the fits whose guarantees are known: the first's when
+        # judged already, and those relief checks
+        checked = [] if self.last.guarantees is None else \
+            [(result, self.last.guarantees, self.last.judge_seconds)]
         result, persons, maps, done = relieve_fit(scenario, people, result, persons, maps, say,
                                                   checked=checked)
         if done.kept:
@@ -795,9 +799,9 @@ class Design:
                                    self.last.data, relief.model_dump(),
                                    params=scenario.surface.params)
             # the kept fit was checked against the bars the first met: judged already
-            known = [(g, seconds) for fit, g, seconds in checked if fit is result]
-            if known:
-                self.last.guarantees, self.last.judge_seconds = known[0]
+            known = checked_guarantees(checked, result)
+            if known is not None:
+                self.last.guarantees, self.last.judge_seconds = known
             self.resume = None
             self.relaxed = {}
         return done.record()
@@ -852,11 +856,8 @@ class Design:
         if outcome is None:
             raise DesignError("Fit first: the guarantees are those of a fitted surface")
         if outcome.guarantees is None:
-            params = outcome.params
-            if params is None:  # (a fit kept before its parameters were)
-                params = self._parse(outcome.data).surface.params
             start = time.perf_counter()
-            guarantees = fit_guarantees(outcome.result, outcome.people, params)
+            guarantees = fit_guarantees(outcome.result, outcome.people, outcome.params)
             outcome.judge_seconds = time.perf_counter() - start
             outcome.guarantees = guarantees
         return outcome.guarantees

@@ -247,7 +247,6 @@ class Judge:
         self._wanted: tuple[FitOutcome, float] | None = None  # the fit and when it is due
         self._judging = False  # a fit is being judged now
         self._closed = False
-        self.judged = 0  # fits judged (and shown, when still the last)
         self._thread = threading.Thread(target=self._run, daemon=True, name="sitrelax-judge")
         self._thread.start()
 
@@ -287,7 +286,6 @@ class Judge:
             finally:
                 with self._cond:
                     self._judging = False
-                    self.judged += 1
                     self._cond.notify_all()
 
     def _judge(self, outcome: FitOutcome) -> None:

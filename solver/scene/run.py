@@ -351,6 +351,12 @@ def relieved(scenario: Scenario, people: list[PlacedPerson], result: FitResult,
     return relieve_fit(scenario, people, result, persons, maps, say, cancel=cancel)[0]
 
 
+def checked_guarantees(checked: list, fit: FitResult) -> tuple[dict, float | None] | None:
+    """The guarantees of `fit` and the seconds their check took, from `checked` ((fit,
+    guarantees, seconds) of the fits checked so far), or None when it is not among them."""
+    return next(((g, seconds) for f, g, seconds in checked if f is fit), None)
+
+
 def relieve_fit(scenario: Scenario, people: list[PlacedPerson], result: FitResult,
                 persons: list[dict], maps: list, say: Callable[[str], None] | None = None,
                 cancel: Callable[[], bool] | None = None,
@@ -360,7 +366,8 @@ def relieve_fit(scenario: Scenario, people: list[PlacedPerson], result: FitResul
     figures; `cancel` as `relieve` takes it (each fit is given it too); a fit kept must also
     miss none of the surface's bars (`fit_guarantees`) that the first met. `checked`, a list,
     receives (fit, guarantees, seconds) of every fit whose guarantees were checked (the kept
-    fit's among them: the caller need not check it again)."""
+    fit's among them: the caller need not check it again); a fit it holds already (the first,
+    judged by the caller) is not checked again."""
     from solver.scene.quality import surface_miss_kinds
     from solver.scene.relief import relieve
 
@@ -371,9 +378,11 @@ def relieve_fit(scenario: Scenario, people: list[PlacedPerson], result: FitResul
         return evaluate_fit(scenario, people, candidate)[1:]
 
     def missed(fit: FitResult) -> dict:
-        guarantees, seconds = _timed(fit_guarantees, fit, people, params)
-        checked.append((fit, guarantees, seconds))
-        return {kind: text for kind, text in surface_miss_kinds(guarantees)}
+        known = checked_guarantees(checked, fit)
+        if known is None:
+            known = _timed(fit_guarantees, fit, people, params)
+            checked.append((fit, *known))
+        return {kind: text for kind, text in surface_miss_kinds(known[0])}
 
     def check(candidate: FitResult) -> str | None:  # the surface's bars the first fit met
         nonlocal first_missed
@@ -481,8 +490,8 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         beside = (os.cpu_count() or 1) > 1 if beside is None else beside
         with limited_threads(), ThreadPoolExecutor(1, "sitrelax-beside") as pool:
             submit = pool.submit if beside else _now
-            known = [(g, seconds) for fit, g, seconds in checked if fit is result]
-            checking = _now(lambda: known[0]) if known else \
+            known = checked_guarantees(checked, result)
+            checking = _now(lambda: known) if known is not None else \
                 submit(_timed, fit_guarantees, result, people, scenario.surface.params)
             if relief is None:
                 t = time.perf_counter()

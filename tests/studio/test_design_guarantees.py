@@ -173,3 +173,22 @@ def test_an_export_of_a_judged_fit_writes_its_verdict_without_checking_again(tmp
     report = json.loads((tmp_path / "export" / "report.json").read_text())
     assert report["guarantees"] == json.loads(json.dumps(judged))
     assert report["timing"]["guarantees_s"] == design.last.judge_seconds
+
+
+def test_relief_does_not_check_again_the_guarantees_of_a_judged_fit(monkeypatch):
+    """Relief compares each relieved fit's surface bars with the first fit's: a first fit the
+    studio judged already is not checked again (0.1-1.3 s)."""
+    import solver.scene.run as run
+    from studio.design import Design
+
+    design = Design()
+    design.open_scenario((SCENARIOS / "single_seated.toml").read_text(), "single_seated.toml")
+    first = design.fit()
+    design.judge()
+    checked = []
+    real = run.fit_guarantees
+    monkeypatch.setattr(run, "fit_guarantees",
+                        lambda fit, *a, **k: checked.append(fit) or real(fit, *a, **k))
+    design.relieve(rounds=2)
+    assert checked, "relief checked no fit (nothing to compare with)"
+    assert all(fit is not first.result for fit in checked)
