@@ -176,7 +176,14 @@ class StoolParams:
     heading_deg: float = 0.0
 
     def __post_init__(self):
-        _check_seat(self, "stool")
+        kind = "stool"
+        _check_seat(self, kind)
+        # rounded all round, as a bed or a cushion is
+        _check_rounding(kind, "edge_drop", self.edge_drop, {"seat_width": self.seat_width,
+                        "seat_depth": self.seat_depth})
+        _check_corners(kind, "edge_drop", self.edge_drop, {
+            "seat_height": self.seat_height, "seat_depth": self.seat_depth,
+            "seat_tilt_deg": self.seat_tilt_deg}, dataclasses.asdict(self))
 
 
 @dataclass(frozen=True)
@@ -307,12 +314,12 @@ def _check_seat(p, kind: str) -> None:
     _check(kind, "seat_tilt_deg", p.seat_tilt_deg, -30.0, 30.0)
     drop_name = "front_drop" if hasattr(p, "front_drop") else "edge_drop"
     drop = getattr(p, drop_name)
-    # (a stool's edges, rounded all round, are held to `_check_rounding`'s flat top below)
+    # (a stool's edges, rounded all round, are held to `_check_rounding`'s flat top: its own)
     _check(kind, drop_name, drop, 0.0, min(0.1, p.seat_depth / 4) if hasattr(p, "back") else 0.1)
     low = p.seat_height - p.seat_depth * math.tan(math.radians(max(p.seat_tilt_deg, 0.0)))
     if low < EDGE_CLEARANCE or (drop > 0 and low - drop < EDGE_CLEARANCE and hasattr(p, "back")):
         if low >= EDGE_CLEARANCE:  # (the seat stands clear, its dropped edge does not; a
-            # stool's corners, rounded along both edges, drop further: named below, one limit)
+            # stool's corners, rounded along both edges, drop further: its own check names one limit)
             raise TemplateError(f"{kind}.{drop_name}: expected a drop that keeps the seat's "
                                 f"edge above the floor, at most "
                                 f"{_floor_mm(low - EDGE_CLEARANCE):.3f} here, got {drop:g} (the "
@@ -333,12 +340,6 @@ def _check_seat(p, kind: str) -> None:
         if p.arms and p.back and not getattr(p, "seat_profiles", ()):
             _check_arms(kind, p, p)  # (a bench with a profile per seat: its end seats')
     _check_placement(kind, p.position, p.heading_deg)
-    if not hasattr(p, "back"):  # a stool: rounded all round
-        _check_rounding(kind, "edge_drop", p.edge_drop, {"seat_width": p.seat_width,
-                        "seat_depth": p.seat_depth})
-        _check_corners(kind, "edge_drop", p.edge_drop, {
-            "seat_height": p.seat_height, "seat_depth": p.seat_depth,
-            "seat_tilt_deg": p.seat_tilt_deg}, dataclasses.asdict(p))
 
 
 FLAT_MIDDLE = 0.02  # metres of flat top at least between the rounded edges of opposite sides
