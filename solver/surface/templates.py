@@ -319,7 +319,7 @@ def _check_seat(p, kind: str) -> None:
     low = p.seat_height - p.seat_depth * math.tan(math.radians(max(p.seat_tilt_deg, 0.0)))
     if low < EDGE_CLEARANCE or (drop > 0 and low - drop < EDGE_CLEARANCE and hasattr(p, "back")):
         if low >= EDGE_CLEARANCE:  # (the seat stands clear, its dropped edge does not; a
-            # stool's corners, rounded along both edges, drop further: its own check names one limit)
+            # stool's corners, rounded along both edges, drop further: its own check, one limit)
             raise TemplateError(f"{kind}.{drop_name}: expected a drop that keeps the seat's "
                                 f"edge above the floor, at most "
                                 f"{_floor_mm(low - EDGE_CLEARANCE):.3f} here, got {drop:g} (the "
