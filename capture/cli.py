@@ -9,7 +9,7 @@ import signal
 import time
 
 # numpy and the readers load when a command runs: `sitrelax --help` stays fast
-from .cli_output import number, print_event, print_status
+from .cli_output import check_limits, number, print_event, print_status
 from .recordings import bundled_recordings, resolve_path
 
 
@@ -99,7 +99,7 @@ def listen(source_url: str, skeleton: str, *, duration: float | None = None,
     or the first to reach it). An `avatar` that never came while frames of others did raises
     `capture.avatars.AvatarNotSeenError`, naming those that came.
     """
-    _check_limits(duration, frames)
+    check_limits(duration, frames)
     from .avatars import avatar_selector
     from .bvh import read_bvh
     from .monitor import StreamMonitor
@@ -143,23 +143,6 @@ def listen(source_url: str, skeleton: str, *, duration: float | None = None,
     if selector is not None and monitor.avatars and not monitor.count:
         raise selector.not_seen(monitor.avatars)
     return summary
-
-
-def _check_limits(duration, frames) -> None:
-    """Refuses limits that could not end a reading as meant (a ValueError naming the limit):
-    a duration not a finite number of seconds > 0 (NaN never ends one), frames not a whole
-    number >= 1 (0 or fewer would end it before its first frame)."""
-    if duration is not None:
-        try:
-            seconds = float(duration)
-        except (TypeError, ValueError):
-            seconds = math.nan
-        if not (math.isfinite(seconds) and seconds > 0):
-            raise ValueError(f"Expected a duration in seconds > 0, got {duration!r}")
-    if frames is not None:
-        whole = isinstance(frames, int) and not isinstance(frames, bool)
-        if not whole or frames < 1:
-            raise ValueError(f"Expected a whole number of frames >= 1, got {frames!r}")
 
 
 def avatars_text(avatars: list[dict]) -> str:

@@ -37,6 +37,27 @@ def _bound(value: float) -> str:
     return str(int(value)) if float(value).is_integer() else f"{value:g}"
 
 
+def check_limits(duration, frames, error: type[Exception] = ValueError) -> None:
+    """Refuses limits that could not end a reading or a recording as meant (an `error` naming
+    the limit): a duration not a finite number of seconds > 0 (NaN never ends one), frames
+    not a whole number >= 1 (0 or fewer would end it before its first frame)."""
+    import math
+
+    import numpy as np
+
+    if duration is not None:
+        try:
+            seconds = float(duration)
+        except (TypeError, ValueError):
+            seconds = math.nan
+        if not (math.isfinite(seconds) and seconds > 0):
+            raise error(f"Expected a duration in seconds > 0, got {duration!r}")
+    if frames is not None:
+        whole = isinstance(frames, (int, np.integer)) and not isinstance(frames, bool)
+        if not whole or frames < 1:
+            raise error(f"Expected a whole number of frames >= 1, got {frames!r}")
+
+
 def number(low: float | None = None, high: float | None = None, *, whole: bool = False,
            low_open: bool = False):
     """An argparse `type` for a finite number (a whole one with `whole`) within [low, high]

@@ -24,6 +24,7 @@ from typing import Callable
 import numpy as np
 
 from .bvh import read_bvh
+from .cli_output import check_limits
 from .neuron import FORMATS, encode_frame
 from .rawcapture import DATA, DISCONNECTED, read_raw_capture
 from .sources import StreamSourceError, parse_host_port
@@ -315,9 +316,7 @@ class Replay:
         """Sends the programme through `sink` until it ends, `stop` is set or `max_frames`."""
         if rate < 0 or not np.isfinite(rate):
             raise ReplayError(f"Expected a rate >= 0 (0: as fast as possible), got {rate}")
-        if max_frames is not None and not (isinstance(max_frames, (int, np.integer))
-                                           and max_frames >= 1):
-            raise ReplayError(f"Expected a whole number of frames >= 1, got {max_frames!r}")
+        check_limits(None, max_frames, ReplayError)
         stop = stop or threading.Event()
         stats = ReplayStats()
         start = time.monotonic()

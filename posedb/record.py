@@ -43,6 +43,7 @@ from capture import parse_bvh, read_bvh, resolve_path
 from capture.avatars import (AvatarKey, AvatarNotSeenError, AvatarSelector, avatar_selector,
                              describe_avatars, split_by_avatar)
 from capture.avatars import avatar_take_names
+from capture.cli_output import check_limits
 from capture.monitor import StreamMonitor, sender_timing
 from capture.rawcapture import (MARK, RawCaptureError, RawCaptureWriter, raw_header,
                                 raw_marks, skeleton_header_text)
@@ -632,22 +633,6 @@ class TakeRecorder:
             _drop_lock(self.journal)
 
 
-def _check_limits(duration, frames) -> None:
-    """Refuses a recording's limits that could not end it as meant (a LibraryError naming
-    the limit): a duration not a finite number > 0, frames not a whole number >= 1."""
-    if duration is not None:
-        try:
-            seconds = float(duration)
-        except (TypeError, ValueError):
-            seconds = float("nan")
-        if not (np.isfinite(seconds) and seconds > 0):
-            raise LibraryError(f"Expected a duration in seconds > 0, got {duration!r}")
-    if frames is not None:
-        whole = isinstance(frames, (int, np.integer)) and not isinstance(frames, bool)
-        if not whole or frames < 1:
-            raise LibraryError(f"Expected a whole number of frames >= 1, got {frames!r}")
-
-
 def record(source_url: str, library: str | os.PathLike, take: str, skeleton: str, *,
            duration: float | None = None, frames: int | None = None, subject: str = "",
            tags: Iterable[str] = (), notes: str = "", unit: str | float = "auto",
@@ -676,7 +661,7 @@ def record(source_url: str, library: str | os.PathLike, take: str, skeleton: str
     name of the take it became or None), `take` (the first take, or None), `takes` (every
     take) and `library`.
     """
-    _check_limits(duration, frames)
+    check_limits(duration, frames, LibraryError)
     transport = open_transport(source_url)
     try:
         recorder = TakeRecorder(library, take, skeleton, source_url,
