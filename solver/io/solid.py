@@ -616,22 +616,32 @@ def _free_ahead(v: np.ndarray, tris: np.ndarray, starts: np.ndarray, directions:
         ray, tri = pairs // len(tris), pairs % len(tris)
         mine = tri == own[ray]
         ray, tri = ray[~mine], tri[~mine]
-        a, b, c = (corners[tri, i] for i in range(3))
-        e1, e2 = b - a, c - a
-        d = directions[ray]
-        pvec = np.cross(d, e2)
-        det = np.einsum("ij,ij->i", e1, pvec)
-        ok = np.abs(det) > 1e-18
-        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        triangle = corners[tri]
         for k in range(starts.shape[1]):
-            tvec = starts[ray, k] - a
-            u = np.einsum("ij,ij->i", tvec, pvec) * inv
-            qvec = np.cross(tvec, e1)
-            w = np.einsum("ij,ij->i", qvec, d) * inv
-            far = np.einsum("ij,ij->i", e2, qvec) * inv
-            hit = ok & (u >= 0) & (w >= 0) & (u + w <= 1) & (far > 1e-9)
+            hit, far = _ray_hits(starts[ray, k], directions[ray], triangle)
+            hit &= far > 1e-9
             np.minimum.at(free, ray[hit], far[hit])
     return free
+
+
+def _ray_hits(origin: np.ndarray, direction: np.ndarray, triangles: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Rays from `origin` along `direction` ((K, 3) each, or (3,) for all) against the
+    triangles (K, 3, 3), one each (the Moller-Trumbore test): (K,) whether each ray's line
+    crosses its triangle, and how far along the direction (any sign; 0 where it does not)."""
+    a = triangles[:, 0]
+    e1, e2 = triangles[:, 1] - a, triangles[:, 2] - a
+    d = np.broadcast_to(direction, a.shape)
+    pvec = np.cross(d, e2)
+    det = np.einsum("ij,ij->i", e1, pvec)
+    ok = np.abs(det) > 1e-18
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    tvec = origin - a
+    u = np.einsum("ij,ij->i", tvec, pvec) * inv
+    qvec = np.cross(tvec, e1)
+    w = np.einsum("ij,ij->i", qvec, d) * inv
+    along = np.einsum("ij,ij->i", e2, qvec) * inv
+    return ok & (u >= 0) & (w >= 0) & (u + w <= 1), along
 
 
 SLIVER_HEIGHT = 1e-6  # m: a triangle of the trimmed solid lower than this is taken away
@@ -1291,18 +1301,8 @@ def _fold_depths(vertices: np.ndarray, underside: np.ndarray, feet: np.ndarray,
         samples = foot + np.outer(np.linspace(0.0, 2.0 * t, 32), direction)
         near = np.unique(np.concatenate(
             tree.query_ball_point(samples, reach + 0.1 * t))).astype(np.int64)
-        a, b, c = (corners[near, i] for i in range(3))
-        e1, e2 = b - a, c - a
-        pvec = np.cross(direction, e2)
-        det = np.einsum("ij,ij->i", e1, pvec)
-        ok = np.abs(det) > 1e-18
-        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-        tvec = foot - a
-        u = np.einsum("ij,ij->i", tvec, pvec) * inv
-        qvec = np.cross(tvec, e1)
-        w = (qvec @ direction) * inv
-        along = np.einsum("ij,ij->i", e2, qvec) * inv
-        hit = ok & (u >= 0) & (w >= 0) & (u + w <= 1) & (along > 0) & (along < 2.0 * t)
+        hit, along = _ray_hits(foot, direction, corners[near])
+        hit &= (along > 0) & (along < 2.0 * t)
         if hit.sum() >= 2:
             depths[k] = float(np.ptp(along[hit]))
     return depths
