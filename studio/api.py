@@ -157,11 +157,12 @@ def _limit(loc: list, message: str, status: int = 422, kind: str = "limit") -> H
 
 def _check_person(p: schema.Person, loc: list) -> None:
     from capture.recordings import bundled_recordings
+    from solver.scene.scenario import reads_no_file
 
     if max(abs(c) for c in p.position) > COORD:
         raise _limit([*loc, "position"], f"expected coordinates within {COORD:g} m here, got "
                                          f"{p.position}")
-    if not p.pose.startswith(("db:", "bvh:bundled:")):
+    if not reads_no_file(p.pose):
         # (a file of the server's disk, `bvh:` written or left out, or no reference at all:
         # refused as the malformed field it is here, without quoting it back, which would show
         # it cut where it names folders)

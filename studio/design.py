@@ -47,7 +47,7 @@ from solver.scene.run import (SURFACE_FORMATS, checked_guarantees, evaluate_fit,
                               fit_guarantees, fit_people, relax_person, relax_text, relieve_fit,
                               run_fit, save_relaxed)
 from solver.scene.scenario import (PersonSpec, Scenario, ScenarioError, parse_scenario,
-                                   read_control_mesh, scenario_toml)
+                                   read_control_mesh, reads_no_file, scenario_toml)
 from solver.scene.design import RELIEF_ROUNDS, shared_given
 from solver.scene.placement import (PlacedPerson, furnished, place_person, scene_posture,
                                     skin_support)
@@ -671,7 +671,7 @@ class Design:
         pose one the studio can pose and its joint map inline."""
         at = f"{name}: person[{k}]"
         pose = table["pose"]
-        if not pose.startswith(("db:", "bvh:bundled:")):
+        if not reads_no_file(pose):
             raise DesignError(f"{at}.pose names the BVH file of {pose!r}, which the studio "
                               f"does not read: pose the people from the library (db:NAME) or "
                               f"a bundled recording (bvh:bundled:NAME#frame=N)")

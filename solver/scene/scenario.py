@@ -371,10 +371,16 @@ def _control_mesh(surf, where: str, base: Path,
     return verts, faces, str(path)
 
 
+def reads_no_file(pose: str) -> bool:
+    """Whether a pose reference names no file (a library pose, `db:`, or a bundled recording,
+    `bvh:bundled:`): the only ones a scenario read without files (an upload, a request) takes."""
+    return pose.startswith(("db:", "bvh:bundled:"))
+
+
 def _person(p: schema.Person, k: int, where: str, base: Path, files: bool) -> PersonSpec:
     at = f"person[{k}]"
     pose = p.pose
-    if not files and not (pose.startswith("db:") or pose.startswith("bvh:bundled:")):
+    if not files and not reads_no_file(pose):
         raise _fail(where, f"{at}.pose", "expected db:NAME or bvh:bundled:NAME#frame=N "
                     f"(files are not read here), got {pose!r}")
     if not pose.startswith("db:"):  # a BVH frame, `bvh:` written or left out
