@@ -47,7 +47,8 @@ from solver.scene.run import (SURFACE_FORMATS, checked_guarantees, evaluate_fit,
                               fit_guarantees, fit_people, relax_person, relax_text, relieve_fit,
                               run_fit, save_relaxed)
 from solver.scene.scenario import (PersonSpec, Scenario, ScenarioError, parse_scenario,
-                                   read_control_mesh, reads_no_file, scenario_toml)
+                                   read_control_mesh, reads_no_file, scenario_content,
+                                   scenario_toml)
 from solver.scene.design import RELIEF_ROUNDS, shared_given
 from solver.scene.placement import (PlacedPerson, furnished, place_person, scene_posture,
                                     skin_support)
@@ -105,21 +106,6 @@ def _template_problem(name: str, message: str) -> str:
 
 class DesignError(ValueError):
     """An edit or a run the session cannot make (the message says why)."""
-
-
-def _scenario_data(text: bytes | str, name: str) -> dict:
-    """The data of a scenario file's content (as `load_scenario` reads a file): DesignError
-    naming `name` when it is not UTF-8 or not TOML."""
-    if isinstance(text, bytes):
-        try:
-            text = text.decode("utf-8")  # TOML is UTF-8
-        except UnicodeDecodeError as exc:
-            raise DesignError(f"{name}: not a text file (expected UTF-8, got byte "
-                              f"0x{exc.object[exc.start]:02x} at offset {exc.start})") from None
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise DesignError(f"{name}: not valid TOML: {exc}") from None
 
 
 NAME_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789-_. ")
@@ -604,7 +590,7 @@ class Design:
         scenario's ScenarioError, naming the field) and leaves the session as it was when the
         file is not UTF-8, not TOML, no valid scenario, or names a file the studio cannot read.
         """
-        data = _scenario_data(text, name)
+        data = scenario_content(text, name)
         schema.validate(data, name)  # unknown keys, bounds: the field named
         surface = copy.deepcopy(data["surface"])
         base_dir = Path(base) if base is not None else None

@@ -435,15 +435,23 @@ def load_scenario(path: str | Path) -> Scenario:
     if path.is_dir():
         raise ScenarioError(f"{path}: expected a scenario file (TOML), got a folder")
     try:
-        data = tomllib.loads(path.read_bytes().decode("utf-8"))  # TOML is UTF-8
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
-    except UnicodeDecodeError as exc:
-        raise ScenarioError(f"{path}: not a text file (expected UTF-8, got byte "
-                            f"0x{exc.object[exc.start]:02x} at offset {exc.start})") from None
+        content = path.read_bytes()
     except OSError as exc:
         raise ScenarioError(f"{path}: cannot read it: {exc.strerror or exc}") from None
-    return parse_scenario(data, str(path), path.parent)
+    return parse_scenario(scenario_content(content, str(path)), str(path), path.parent)
+
+
+def scenario_content(content: bytes | str, where: str) -> dict:
+    """The data of a scenario file's `content` (TOML, which is UTF-8): ScenarioError naming
+    `where` when it is not UTF-8 or not TOML."""
+    try:
+        text = content.decode("utf-8") if isinstance(content, bytes) else content
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{where}: not valid TOML: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(f"{where}: not a text file (expected UTF-8, got byte "
+                            f"0x{exc.object[exc.start]:02x} at offset {exc.start})") from None
 
 
 def scenario_toml(data: dict) -> str:
