@@ -32,15 +32,20 @@ def _print(obj, as_json: bool, text: str) -> None:
     print(_json(obj) if as_json else text)
 
 
-def _lock_timeout(args) -> float | None:
-    value = getattr(args, "lock_timeout", None)
-    if value is None:
-        from .library import default_lock_timeout
+def add_lock_timeout_option(parser, when: str = "") -> None:
+    """A command's `--lock-timeout S` (read with `posedb.locking.lock_timeout_of`); `when`:
+    what it applies to, as a help text's start ("with --save: ")."""
+    parser.add_argument("--lock-timeout", type=float, default=None, metavar="S",
+                        help=f"{when}seconds to wait for another writer of the library, "
+                             f"negative: as long as it runs (default: $SITRELAX_LOCK_TIMEOUT "
+                             f"or 600)")
 
-        return default_lock_timeout()
-    from .locking import lock_wait
 
-    return lock_wait(value, "--lock-timeout")
+def lock_timeout_of(args) -> float | None:
+    """`posedb.locking.lock_timeout_of`, loaded when a command runs."""
+    from .locking import lock_timeout_of as of
+
+    return of(args)
 
 
 def _waiting(db: str):
@@ -54,7 +59,7 @@ def _open(args, create: bool = False):
     says; the notes of its opening (killed writers' copies removed) go to stderr."""
     from .library import PoseLibrary
 
-    lib = PoseLibrary(args.db, create=create, lock_timeout=_lock_timeout(args),
+    lib = PoseLibrary(args.db, create=create, lock_timeout=lock_timeout_of(args),
                       on_wait=_waiting(args.db))
     for note in lib.notes:
         print_event(f"note: {note}")
@@ -317,7 +322,7 @@ def _cmd_recover(args) -> int:
 
     avatar = None if args.every_avatar else AS_RECORDED if args.avatar is None else args.avatar
     rows = recover(args.db, journal=args.journal, avatar=avatar,
-                   lock_timeout=_lock_timeout(args), on_wait=_waiting(args.db))
+                   lock_timeout=lock_timeout_of(args), on_wait=_waiting(args.db))
     _print(rows, args.json, "\n".join(
         f"{r['take']}: {r['status']}" + (f" (its journal {r['journal']} is kept)"
                                          if r["status"].startswith("failed") else "")
@@ -370,7 +375,7 @@ def _cmd_record(args) -> int:
                          frames=args.frames, subject=args.subject, tags=args.tag,
                          notes=args.notes, unit=args.unit, avatar=args.avatar,
                          on_event=print_event, on_progress=progress,
-                         stop=lambda: stopping["flag"], lock_timeout=_lock_timeout(args))
+                         stop=lambda: stopping["flag"], lock_timeout=lock_timeout_of(args))
     except AvatarNotSeenError as exc:
         nothing_made()
         return avatar_not_seen(exc, args.json)
@@ -415,9 +420,7 @@ def _library_options(p):
     """The options every library command takes: `--db`, `--lock-timeout` and `--json`."""
     p.add_argument("--db", default=DEFAULT_DB,
                    help=f"the pose library file (default: $SITRELAX_DB or {DEFAULT_DB})")
-    p.add_argument("--lock-timeout", type=float, default=None, metavar="S",
-                   help="seconds to wait for another writer, negative: as long as it runs "
-                        "(default: $SITRELAX_LOCK_TIMEOUT or 600)")
+    add_lock_timeout_option(p)
     p.add_argument("--json", action="store_true", help="machine-readable output")
     return p
 

@@ -103,3 +103,14 @@ def try_exclusive(path: str | Path) -> filelock.BaseFileLock | None:
         return None
     return lock
 
+
+
+def lock_timeout_of(args) -> float | None:
+    """The seconds a command's `--lock-timeout` waits (`add_lock_timeout_option`): the
+    library's default when not given, None for as long as the other writer runs."""
+    value = getattr(args, "lock_timeout", None)
+    if value is None:
+        from .library import default_lock_timeout
+
+        return default_lock_timeout()
+    return lock_wait(value, "--lock-timeout")

@@ -342,10 +342,9 @@ def _cmd_relax(args: argparse.Namespace) -> int:
 
     from solver.scene.run import foam_text, run_relax
 
-    from posedb.locking import lock_wait
+    from posedb.locking import lock_timeout_of
 
-    wait = "default" if args.lock_timeout is None else lock_wait(args.lock_timeout,
-                                                                 "--lock-timeout")
+    wait = lock_timeout_of(args)
     with _library_prints_to_stderr():
         report = run_relax(args.scenario, args.out, surface_dir=args.surface,
                            person=args.person, db=args.db, save=args.save, lock_timeout=wait,
@@ -587,10 +586,7 @@ def _register_fitting(sub) -> None:
                     help="store the relaxed poses in the --db library, linked to their origin "
                          "(the library is checked before the work: a damaged, read-only or "
                          "locked one is refused at once)")
-    rx.add_argument("--lock-timeout", type=float, default=None, metavar="S",
-                    help="with --save: seconds to wait for another writer of the library "
-                         "(negative: as long as it runs; default: $SITRELAX_LOCK_TIMEOUT or "
-                         "the library's own)")
+    posedb_cli.add_lock_timeout_option(rx, "with --save: ")
     rx.add_argument("--out", required=True, help="output folder")
     rx.add_argument("--json", action="store_true", help="print the report")
     rx.set_defaults(func=_cmd_relax)
