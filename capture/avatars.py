@@ -40,13 +40,14 @@ def avatar_key(frame: NeuronFrame) -> AvatarKey:
 
 
 class AvatarNotSeenError(ValueError):
-    """The chosen avatar never appeared in the stream; `avatars` lists those that did, as
-    plain data ({"index", "name", "frames"}), in the order they first appeared."""
+    """The chosen avatar never appeared in the stream: `what` says so, naming the avatars that
+    came, and the message adds what to do; `avatars` lists those that came, as plain data
+    ({"index", "name", "frames"}), in the order they first appeared."""
 
-    def __init__(self, message: str, avatars: list[dict], chosen: str = ""):
-        super().__init__(message)
+    def __init__(self, what: str, advice: str, avatars: list[dict]):
+        super().__init__(f"{what} {advice}")
+        self.what = what
         self.avatars = avatars
-        self.chosen = chosen  # the avatar asked for, as its selector's text
 
 
 @dataclass(frozen=True)
@@ -69,20 +70,18 @@ class AvatarSelector:
             return int(self.text) == index
         return name == self.text
 
-    def not_seen(self, counts: Mapping[AvatarKey, int], *, takes: bool = False,
-                 advice: str | None = None) -> AvatarNotSeenError:
+    def not_seen(self, counts: Mapping[AvatarKey, int], *, takes: bool = False
+                 ) -> AvatarNotSeenError:
         """The error for a stream in which this avatar never appeared, naming those that did
         (`counts`: frames of each avatar seen); `takes`: the stream was being recorded, and
-        without --avatar each avatar would become a take of its own. `advice`: what to do
-        instead, in place of passing another --avatar or none."""
+        without --avatar each avatar would become a take of its own."""
         seen = describe_avatars(counts) if counts else "no frame of any avatar"
         every = " (each as a take of its own)" if takes else ""
-        if advice is None:
-            advice = ("Pass --avatar with one of those names or indices, or leave --avatar out "
-                      f"to keep every avatar{every}")
         return AvatarNotSeenError(
-            f"No frame of avatar {self.text!r} arrived; the stream carried {seen}. {advice}",
-            [k.as_dict() | {"frames": int(n)} for k, n in counts.items()], self.text)
+            f"No frame of avatar {self.text!r} arrived; the stream carried {seen}.",
+            "Pass --avatar with one of those names or indices, or leave --avatar out to keep "
+            f"every avatar{every}",
+            [k.as_dict() | {"frames": int(n)} for k, n in counts.items()])
 
 
 def avatar_selector(text: str | int | None) -> AvatarSelector | None:

@@ -40,9 +40,8 @@ from typing import Callable, Iterable, Mapping
 import numpy as np
 
 from capture import parse_bvh, read_bvh, resolve_path
-from capture.avatars import (AvatarKey, AvatarNotSeenError, AvatarSelector, avatar_selector,
+from capture.avatars import (AvatarKey, AvatarNotSeenError, avatar_selector, avatar_take_names,
                              describe_avatars, split_by_avatar)
-from capture.avatars import avatar_take_names
 from capture.cli_output import check_limits
 from capture.monitor import StreamMonitor, sender_timing
 from capture.rawcapture import (MARK, RawCaptureError, RawCaptureWriter, raw_header,
@@ -362,14 +361,12 @@ def _unseen_avatar(lib: PoseLibrary, rec: Recording, exc: AvatarNotSeenError) ->
     as its recorder would have stored nothing), naming the avatars that came, with how to
     store them. The journal stays, unlike at a recorder's refusal: no one saw this one when
     the stream came, and the recording may be of the avatar meant under another name."""
-    counts = {AvatarKey(a["index"], a["name"]): a["frames"] for a in exc.avatars}
     command = (f"sitrelax db recover --db {shlex.quote(str(lib.path))} "
                f"--journal {shlex.quote(str(rec.path))}")
     advice = (f"To store it, run `{command}` with --avatar NAME_OR_INDEX (one of those, as "
               f"take {rec.take!r}) or --every-avatar (each avatar as a take of its own); "
               "delete the journal to drop the recording")
-    error = AvatarSelector(exc.chosen).not_seen(counts, advice=advice)
-    return {"status": f"failed: {error}", "avatars": exc.avatars}
+    return {"status": f"failed: {exc.what} {advice}", "avatars": exc.avatars}
 
 
 def _recover_one(lib: PoseLibrary, rec: Recording, avatar: object = AS_RECORDED) -> dict:
