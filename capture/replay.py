@@ -12,7 +12,6 @@ the TCP clients (they reconnect as they would to Axis).
 from __future__ import annotations
 
 import errno
-import ipaddress
 import select
 import socket
 import threading
@@ -27,7 +26,7 @@ from .bvh import read_bvh
 from .cli_output import check_limits
 from .neuron import FORMATS, encode_frame
 from .rawcapture import DATA, DISCONNECTED, read_raw_capture
-from .sources import StreamSourceError, parse_host_port
+from .sources import StreamSourceError, is_loopback, parse_host_port
 from .stream_layout import StreamLayout
 
 
@@ -36,14 +35,6 @@ class ReplayError(ValueError):
 
 
 # -- sinks ------------------------------------------------------------------------------------
-
-
-def _is_loopback(host: str) -> bool:
-    """Whether a bound address is reachable from this machine only."""
-    try:
-        return ipaddress.ip_address(host.split("%")[0]).is_loopback
-    except ValueError:
-        return host == "localhost"
 
 
 class TcpServerSink:
@@ -64,7 +55,7 @@ class TcpServerSink:
         self.server.setblocking(False)
         self.clients: list[socket.socket] = []
         self.host, self.port = self.server.getsockname()[:2]
-        if not _is_loopback(self.host):
+        if not is_loopback(self.host):
             self._say(f"warning: serving {self.name} to other machines too (the stream has no "
                       f"authentication); give no host, or 127.0.0.1, to keep it on this one")
 

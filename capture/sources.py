@@ -14,6 +14,7 @@ peer, a reconnection and the gap it left) through `events` and an optional callb
 
 from __future__ import annotations
 
+import ipaddress
 import logging
 import select
 import socket
@@ -68,6 +69,21 @@ def describe_bytes(data: bytes, first_read: int | None = None) -> str:
     if data[:2] == TOKEN:
         return f"they start with the binary token but no frame fits (first bytes {head})"
     return f"first bytes {head}"
+
+
+def is_loopback(host: str) -> bool:
+    """Whether every address `host` names is a loopback one (127.0.0.0/8, ::1)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        pass
+    try:
+        infos = socket.getaddrinfo(host, None)
+    except OSError:
+        return False
+    return bool(infos) and all(ipaddress.ip_address(i[4][0]).is_loopback for i in infos)
 
 
 def parse_host_port(text: str, *, default_host: str = "127.0.0.1", what: str = "address"

@@ -5,31 +5,17 @@ timeouts that keep idle connections from holding the server."""
 from __future__ import annotations
 
 import asyncio
-import ipaddress
 import json
 import re
-import socket
+
+from capture.sources import is_loopback
 
 from .loopback import LOOPBACK, LOOPBACK_NAMES  # noqa: F401 (studio.net.LOOPBACK, as before)
+
 HEAD_TIMEOUT = 10.0  # seconds a client has to send a request head
 BODY_TIMEOUT = 30.0  # seconds a request body may pause between chunks
 DECLARED_PAUSE = 1.0  # seconds a body refused on its declared size is still drained when paused
 DRAIN_FACTOR, DRAIN_MAX = 4, 64 * 1024 * 1024  # bytes of a refused body still read and dropped
-
-
-def is_loopback(host: str) -> bool:
-    """Whether every address `host` names is a loopback one (127.0.0.0/8, ::1)."""
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        pass
-    try:
-        infos = socket.getaddrinfo(host, None)
-    except OSError:
-        return False
-    return bool(infos) and all(ipaddress.ip_address(i[4][0]).is_loopback for i in infos)
 
 
 def exposure_warning(host: str, what: str) -> str | None:
