@@ -80,17 +80,23 @@ def test_a_refit_is_judged_once_it_settles_and_an_opened_scenario_drops_the_verd
     assert view.design.last is None and "guarantees" not in view.warnings.content
 
 
-def test_a_judged_fit_is_not_judged_again_and_a_newer_fit_outdates_a_request(design_view):
+def test_a_judged_fit_is_not_judged_again_and_a_newer_fit_outdates_a_request(design_view,
+                                                                              monkeypatch):
     """The check runs once per fit (kept with it); a request for a fit no longer on screen
     judges nothing."""
+    import studio.design
+
     view = design_view
     _open(view, "single_seated.toml")
     view._guarded(view.run_fit)
     assert view.session.judge.wait(60)
     first = view.design.last
-    checked = first.guarantees
-    view.session.judge_last(0.0)
-    assert view.session.judge.wait(60) and first.guarantees is checked
+    checked, again = first.guarantees, []
+    real = studio.design.fit_guarantees
+    monkeypatch.setattr(studio.design, "fit_guarantees",
+                        lambda *a, **k: again.append(a) or real(*a, **k))
+    view.session.judge.request(first, 0.0)  # (the fit on screen, judged already)
+    assert view.session.judge.wait(60) and first.guarantees is checked and not again
     view.design.update_person(0, position=[0.01, 0.0, 0.0])
     view._guarded(view._new_grid)  # (the fit requested below is no longer on screen)
     assert view.design.last is None

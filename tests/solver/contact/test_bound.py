@@ -134,7 +134,7 @@ def test_with_friction_the_least_peak_is_a_bound_below_the_exact_cones():
     """Skin of mixed slopes (the plate's normals tilted every way, some steeply): the
     programme's least peak never exceeds the exact Coulomb cone's (Clarabel, a different
     solver), and lies within the polygon's 1 / cos(pi / 16) of friction of it."""
-    sides = 16  # (`solver.contact.bound.CONE_SIDES`)
+    from solver.contact.bound import CONE_SIDES as sides
     v, n, a, t, s, _ = _box_and_plate(offset=0.06, n=9)
     rng = np.random.default_rng(3)
     tilt = rng.normal(size=(len(v) - 8, 3)) * [1.0, 0.0, 1.0]
