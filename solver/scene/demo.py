@@ -200,7 +200,8 @@ def _demo(out: Path, say: Callable[[str], None]) -> dict:
     persons = [{"name": fitted["name"], "mass_kg": fitted["mass_kg"],
                 "coverage": fitted["coverage"], "max_penetration_m": fitted["max_penetration_m"],
                 "peak_pressure_kpa": fitted["peak_pressure_kpa"],
-                "flat_peak_pressure_kpa": fitted["flat"]["peak_pressure_kpa"],
+                "flat_peak_pressure_kpa": _same_load_peak(fitted),
+                "peak_of_flat": fitted.get("peak_of_flat"),
                 "flat": flat_text(fitted), "relaxed": rel["after"]}
                for fitted, rel in zip(fit["persons"], relaxed["persons"])]
     return {
@@ -212,6 +213,12 @@ def _demo(out: Path, say: Callable[[str], None]) -> dict:
         "relax": {"folder": "relax", "files": sorted(os.listdir(out / "relax"))},
         "persons": persons, "timing": stages,
     }
+
+
+def _same_load_peak(person: dict) -> float | None:
+    """The flat seat's peak the bars and the printed summary use: at the load the fitted seat
+    carries (`flat_text`, a batch's `flat_peak_pressure_kpa_max`); None where there is none."""
+    return ((person.get("flat") or {}).get("same_load") or {}).get("peak_pressure_kpa")
 
 
 def _kpa(value: float | None) -> str:

@@ -65,6 +65,9 @@ def test_demo_makes_everything(tmp_path, capsys):
         # the summary's flat seat is the baseline the bars use, the flat seat at the same load
         assert person["flat"].startswith(f"{fitted['flat']['same_load']['peak_pressure_kpa']:.1f}"
                                          " kPa at the same load"), person["flat"]
+        # and --json gives the same flat seat, with the ratio the bars judge
+        assert person["flat_peak_pressure_kpa"] == fitted["flat"]["same_load"]["peak_pressure_kpa"]
+        assert person["peak_of_flat"] == fitted["peak_of_flat"]
         masses.append(person["mass_kg"])
     assert masses[1] > masses[0] + 10  # two different builds
     assert np.isclose(summary["timing"]["total_s"], sum(
