@@ -241,6 +241,7 @@ def _utc_stamp(text: str) -> str:
 
 
 _ID_FORM = re.compile(r"take-\d{5,}|pose-\d{6,}")  # the ids' own, zero-padded forms
+MAX_NAME_LENGTH = 200  # characters of a take's or a pose's name (`checked_name`)
 
 
 def name_holder(takes: dict[str, TakeInfo], table: PoseTable, name: str) -> str | None:
@@ -283,13 +284,22 @@ def checked_name(name: str, kind: str = "pose") -> str:
     # composed (NFC), so that "café" typed and "café" from a decomposing file system (macOS)
     # are one name, not two that look alike and a reference tells apart by invisible bytes
     name = unicodedata.normalize("NFC", checked_text(name, f"a {kind} name"))
-    if len(name) > 200:
-        raise LibraryError(f"Expected a {kind} name of at most 200 characters, got "
-                           f"{len(name)}")
+    if len(name) > MAX_NAME_LENGTH:
+        raise LibraryError(f"Expected a {kind} name of at most {MAX_NAME_LENGTH} characters, "
+                           f"got {len(name)}")
     if _ID_FORM.fullmatch(name):
         raise LibraryError(f"Expected a {kind} name that is not of an id's form (take-00002, "
                            f"pose-000007: a reference to it would name the id), got {name!r}")
     return name
+
+
+def derived_name(base: str, suffix: str) -> str:
+    """A name made from another by a suffix (`NAME-2` for a name taken, `TAKE-f00039` for a
+    pose of a take): `base` shortened as far as needed for the whole to stay within
+    `MAX_NAME_LENGTH` characters, the suffix kept whole, since it is what tells the names
+    made from one base apart (a base of the limit's length is a valid name, and the name made
+    from it must be one too). Whether the name is free is the caller's to check."""
+    return base[:max(MAX_NAME_LENGTH - len(suffix), 0)].rstrip() + suffix
 
 
 def skeleton_key(sk: Skeleton) -> str:

@@ -5,7 +5,8 @@ folder `<library>.recordings/` next to the library, with each read going straigh
 operating system and the file forced to disk every half second. When the recording ends, the
 journal becomes a take in one library commit and is then removed. A recorder killed at any
 moment leaves the library untouched and the journal holding everything received up to the
-kill; `recover` turns such journals into takes. The library itself is never held open during a
+kill; `recover` turns such journals into takes (no more frames than the recording's frame
+limit, which its journal keeps). The library itself is never held open during a
 recording, so other processes can list and read it, and several streams can be recorded at once.
 
 A recorder holds its journal's lock (`<journal>.lock`, see `posedb.locking`) from the first
@@ -50,7 +51,7 @@ from capture.sources import RawFileTransport, Source, UnknownProtocolError, open
 from capture.stream_layout import StreamLayout
 
 from .library import (DuplicateNameError, Editor, PoseLibrary, TakeInfo, checked_name,
-                      checked_text)
+                      checked_text, derived_name)
 from .locking import LockedError, exclusive, lock_path, try_exclusive
 from .regions import DEFAULT_SUPPORT, support_regions
 from .schema import InvalidDataError, LibraryError
@@ -93,14 +94,14 @@ def _storable_names(take: str, names: dict) -> dict:
     """The avatars' take names (`avatar_take_names`), each one the library takes
     (`checked_name`): a name derived from a long take name or shaped like an id (`take` and
     an avatar named `00002`) becomes `<take>-avatar<index>`, the take's part shortened to fit
-    (the recording's take name was checked when it began; its avatars' names were not)."""
+    (`derived_name`; the recording's take name was checked when it began; its avatars' names
+    were not)."""
     out = {}
     for key, name in names.items():
         try:
             out[key] = checked_name(name, "take")
         except LibraryError:
-            suffix = f"-avatar{key.index}"
-            out[key] = checked_name(take[:200 - len(suffix)].rstrip() + suffix, "take")
+            out[key] = checked_name(derived_name(take, f"-avatar{key.index}"), "take")
     return out
 
 
@@ -113,7 +114,12 @@ def _stored_takes(takes: Iterable[TakeInfo], recording_id: str
 
 @dataclass(frozen=True)
 class Recording:
-    """A journal in `<library>.recordings/`: a recording running, or one a killed recorder left."""
+    """A journal in `<library>.recordings/`: a recording running, or one a killed recorder left.
+
+    unseen_avatar : for a journal `recover` refused because the avatar chosen when it was
+        recorded never came (kept for a choice of avatar), what it said and what to run to
+        store it; empty otherwise. avatars : the avatars that came then, with their frames.
+    """
 
     path: Path
     take: str
@@ -121,12 +127,22 @@ class Recording:
     started_at: str
     size_bytes: int
     running: bool
+    unseen_avatar: str = ""
+    avatars: tuple = ()
 
     def as_dict(self) -> dict:
-        return {"kind": "recording", "name": self.take, "journal": str(self.path),
-                "source": self.source, "started_at": self.started_at,
-                "size_bytes": self.size_bytes, "state": "recording" if self.running
-                else "interrupted (run `sitrelax db recover`)", "tags": []}
+        if self.running:
+            state = "recording"
+        elif self.unseen_avatar:
+            state = f"waiting for a choice of avatar: {self.unseen_avatar}"
+        else:
+            state = "interrupted (run `sitrelax db recover`)"
+        row = {"kind": "recording", "name": self.take, "journal": str(self.path),
+               "source": self.source, "started_at": self.started_at,
+               "size_bytes": self.size_bytes, "state": state, "tags": []}
+        if self.unseen_avatar and not self.running:
+            row["avatars"] = list(self.avatars)
+        return row
 
 
 def recordings(library: str | os.PathLike) -> list[Recording]:
@@ -136,12 +152,44 @@ def recordings(library: str | os.PathLike) -> list[Recording]:
     for path in sorted(folder.glob("*.raw")) if folder.is_dir() else []:
         try:
             header = raw_header(path)
+            size = path.stat().st_size
         except (RawCaptureError, OSError):
             continue
         take = header.get("take", {}).get("name", path.stem)
+        note = _unseen_avatar_note(path, size)
+        unseen = "" if note is None else \
+            f"{note['what']} {_unseen_avatar_advice(library, path, take)}"
         out.append(Recording(path, take, header.get("source", ""), header.get("started_at", ""),
-                             path.stat().st_size, _locked_by_someone(path)))
+                             size, _locked_by_someone(path), unseen,
+                             tuple(note.get("avatars", ())) if note else ()))
     return out
+
+
+def _note_path(journal: Path) -> Path:
+    """Where `recover` notes that it refused `journal` for an avatar that never came."""
+    return journal.with_name(journal.name + ".unseen-avatar.json")
+
+
+def _unseen_avatar_note(journal: Path, size: int) -> dict | None:
+    """`recover`'s note on `journal` ({"what", "avatars", "size_bytes"}), or None: none, one
+    that cannot be read, or one of the journal as it was at another size."""
+    try:
+        note = json.loads(_note_path(journal).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if (not isinstance(note, dict) or not isinstance(note.get("what"), str)
+            or note.get("size_bytes") != size or not isinstance(note.get("avatars", []), list)):
+        return None
+    return note
+
+
+def _unseen_avatar_advice(library: str | os.PathLike, journal: Path, take: str) -> str:
+    """What stores a journal whose chosen avatar never came (`recover` with a choice)."""
+    command = (f"sitrelax db recover --db {shlex.quote(str(Path(library)))} "
+               f"--journal {shlex.quote(str(journal))}")
+    return (f"To store it, run `{command}` with --avatar NAME_OR_INDEX (one of those, as "
+            f"take {take!r}) or --every-avatar (each avatar as a take of its own); delete the "
+            "journal to drop the recording")
 
 
 def _frame_time(frames, header_frame_time: float) -> float:
@@ -188,6 +236,21 @@ def _limited(groups: dict[AvatarKey, list], limit: int | Mapping | None) -> dict
     return {k: frames for k, frames in cut.items() if frames}
 
 
+def _recorded_limit(path: Path, frame_limit: object, frames: list, selector
+                    ) -> dict[AvatarKey, int] | None:
+    """The frames of each avatar a recording with `frame_limit` (`record`'s `frames`, from
+    its journal; None: no limit) counted when it stopped: those up to the frame that brought
+    a kept avatar to the limit, counted as its recorder counts them (`StreamMonitor`)."""
+    if frame_limit is None:
+        return None
+    if isinstance(frame_limit, bool) or not isinstance(frame_limit, int) or frame_limit < 1:
+        raise LibraryError(f"{path}: expected the journal's frame limit as a whole number >= 1 "
+                           f"or null, got {frame_limit!r}")
+    monitor = StreamMonitor(selector)
+    monitor.add_up_to(frames, frame_limit)
+    return {k: n for k, n in monitor.avatars.items() if monitor.kept(k)}
+
+
 def import_journal_takes(lib: PoseLibrary, path: Path, limit: int | Mapping | None = None,
                          *, avatar: object = AS_RECORDED) -> list[tuple[AvatarKey, TakeInfo]]:
     """Turns a journal into takes (or finds those it already became) and removes it.
@@ -201,7 +264,10 @@ def import_journal_takes(lib: PoseLibrary, path: Path, limit: int | Mapping | No
     limit : the frames of each avatar its recorder counted, which its take holds at most (the
         journal holds every byte received, so a frame whose bytes came with the last one
         counted may be whole in it too): an int for every avatar, a mapping from `AvatarKey`
-        to a count, or None for all.
+        to a count, or None for the frames up to the recording's frame limit (`record`'s
+        `frames`, in the journal's `take.frame_limit`: the frames up to the one that brought
+        a kept avatar to it, where its recorder stops) or, without one (a journal made before
+        the limit was written into journals), all.
     avatar : the avatar to keep in place of the one chosen when the recording started (a name
         or an index; None: every avatar, as without a choice); `AS_RECORDED` for that choice.
 
@@ -226,6 +292,8 @@ def import_journal_takes(lib: PoseLibrary, path: Path, limit: int | Mapping | No
     layout = StreamLayout(skeleton)
     with Source(RawFileTransport(path), layout) as source:
         frames = list(source)
+    if limit is None:
+        limit = _recorded_limit(path, meta.get("frame_limit"), frames, selector)
     seen = split_by_avatar(frames)
     groups = _limited(seen, limit)
     if selector is not None:
@@ -318,13 +386,14 @@ def marked_frame(received_at: np.ndarray, t: float) -> int:
 def _free(ed: Editor, name: str) -> str:
     """`name` or the first of `name-2`, `name-3`... that no take or pose holds (`name_holder`):
     a recording, or a pose marked in it, is never lost to a name taken while it ran; the take's
-    notes say what was renamed."""
+    notes say what was renamed. A name near the length limit is shortened before its suffix
+    (`derived_name`), so that the new name is one the library takes."""
     if ed.name_holder(name) is None:
         return name
     k = 2
-    while ed.name_holder(f"{name}-{k}") is not None:
+    while ed.name_holder(derived_name(name, f"-{k}")) is not None:
         k += 1
-    return f"{name}-{k}"
+    return derived_name(name, f"-{k}")
 
 
 def _add_marked_poses(ed: Editor, take_id: str, received_at: np.ndarray,
@@ -334,7 +403,7 @@ def _add_marked_poses(ed: Editor, take_id: str, received_at: np.ndarray,
     renamed = []
     for t, mark in marks:
         frame = marked_frame(received_at, t)
-        wanted = str(mark.get("name") or f"{take.name}-f{frame:05d}")
+        wanted = str(mark.get("name") or derived_name(take.name, f"-f{frame:05d}"))
         name = _free(ed, wanted)
         if name != wanted:
             renamed.append(f"the pose marked {wanted!r} is {name!r} (the name was taken)")
@@ -345,27 +414,32 @@ def _add_marked_poses(ed: Editor, take_id: str, received_at: np.ndarray,
         ed.set_take(take_id, notes="\n".join([take.notes, *renamed]))
 
 
-def _drop_lock(journal: Path) -> None:
+def _drop_leftovers(journal: Path) -> None:
     """Removes a stored journal's lock file (released: nothing takes it again once the journal
-    is gone); a journal still there keeps it."""
+    is gone) and `recover`'s note on it; a journal still there keeps them."""
     if journal.exists():
         return
-    try:
-        os.unlink(lock_path(journal))
-    except OSError:
-        pass
+    for path in (lock_path(journal), _note_path(journal)):
+        try:
+            os.unlink(path)
+        except OSError:
+            pass
 
 
 def _unseen_avatar(lib: PoseLibrary, rec: Recording, exc: AvatarNotSeenError) -> dict:
     """The row of a journal whose chosen avatar never came: refused (nothing of it is stored,
     as its recorder would have stored nothing), naming the avatars that came, with how to
     store them. The journal stays, unlike at a recorder's refusal: no one saw this one when
-    the stream came, and the recording may be of the avatar meant under another name."""
-    command = (f"sitrelax db recover --db {shlex.quote(str(lib.path))} "
-               f"--journal {shlex.quote(str(rec.path))}")
-    advice = (f"To store it, run `{command}` with --avatar NAME_OR_INDEX (one of those, as "
-              f"take {rec.take!r}) or --every-avatar (each avatar as a take of its own); "
-              "delete the journal to drop the recording")
+    the stream came, and the recording may be of the avatar meant under another name. A
+    note beside it (called with the journal's lock held) lets `recordings` say so, and what
+    it needs, rather than send the user to `recover` again."""
+    advice = _unseen_avatar_advice(lib.path, rec.path, rec.take)
+    try:
+        _note_path(rec.path).write_text(json.dumps(
+            {"what": exc.what, "avatars": exc.avatars, "size_bytes": rec.path.stat().st_size}),
+            encoding="utf-8")
+    except OSError:
+        pass  # (only `db list`'s wording depends on it: `recover` refuses the journal again)
     return {"status": f"failed: {exc.what} {advice}", "avatars": exc.avatars}
 
 
@@ -386,7 +460,7 @@ def _recover_one(lib: PoseLibrary, rec: Recording, avatar: object = AS_RECORDED)
         return row | {"status": f"failed: {exc}"}
     finally:
         lock.release()
-        _drop_lock(rec.path)
+        _drop_leftovers(rec.path)
     if not takes:
         status = "empty, removed"
     elif len(takes) > 1:
@@ -469,13 +543,17 @@ class TakeRecorder:
     datagram : whether the transport delivers datagrams (UDP) rather than a byte stream.
     avatar : the avatar to keep (its name, or its index), or None to keep every avatar on the
         stream, each as a take of its own when several come (see `import_journal_takes`).
+    frames : the frames of one avatar the recording stops at (see `record`), or None: written
+        into the journal, so that a journal its recorder never stored (`recover`) becomes
+        the takes the recorder would have stored, of no more frames than were asked for.
     """
 
     def __init__(self, library: str | os.PathLike, take: str, skeleton: str, source_url: str,
                  *, datagram: bool = False, subject: str = "", tags: Iterable[str] = (),
                  notes: str = "", unit: str | float = "auto",
                  on_event: Callable[[str], None] | None = None,
-                 lock_timeout: float | None | str = "default", avatar: str | int | None = None):
+                 lock_timeout: float | None | str = "default", avatar: str | int | None = None,
+                 frames: int | None = None):
         def waiting(seconds: float) -> None:
             if on_event is not None and (int(seconds) == 1 or int(seconds) % 5 == 0):
                 on_event(f"waiting {seconds:.0f} s for another writer of {library} to finish")
@@ -487,6 +565,7 @@ class TakeRecorder:
         notes = checked_text(notes, f"the notes of take {self.take!r}")
         checked_text(source_url, f"the source of take {self.take!r}")
         tags = normalise_tags(tags, new=True)
+        check_limits(None, frames, LibraryError)
         self.selector = avatar_selector(avatar)
         if self.selector is not None:
             checked_text(self.selector.text, "the avatar")
@@ -506,7 +585,8 @@ class TakeRecorder:
         meta = {"name": self.take, "subject": subject, "tags": list(tags), "notes": notes,
                 "recording_id": uuid.uuid4().hex, "unit_m": header.skeleton.unit_m,
                 "frame_time": header.motion.frame_time, "pid": os.getpid(),
-                "avatar": None if self.selector is None else self.selector.text}
+                "avatar": None if self.selector is None else self.selector.text,
+                "frame_limit": None if frames is None else int(frames)}
         self._held = contextlib.ExitStack()
         # held until the take is stored: tells `recover` this journal is alive
         self._held.enter_context(exclusive(self.journal, timeout=10.0, what="The journal"))
@@ -542,7 +622,7 @@ class TakeRecorder:
                 self.journal.unlink(missing_ok=True)
             finally:
                 self._held.close()
-                _drop_lock(self.journal)
+                _drop_leftovers(self.journal)
             raise
 
     def _check_free(self, library) -> None:
@@ -567,8 +647,9 @@ class TakeRecorder:
 
         The mark is written to the journal at once (and forced to disk): it becomes a pose of
         the take, carrying the take's tags and `tags`, when the take is stored. An empty name
-        becomes "<take>-fNNNNN" (its frame). Names, tags and supports are checked now, a name
-        against the library's poses and the marks before. `avatar`: the avatar of the frame
+        becomes "<take>-fNNNNN" (its frame; the take's name shortened to keep it within the
+        library's 200 characters, `derived_name`). Names, tags and supports are checked now, a
+        name against the library's poses and the marks before. `avatar`: the avatar of the frame
         marked, whose take the pose goes to when several avatars are recorded (None: the
         first avatar's). Returns the mark as stored, with its `received_at`.
         """
@@ -610,7 +691,7 @@ class TakeRecorder:
             return self.stored[0][1] if self.stored else None
         finally:
             self._held.close()
-            _drop_lock(self.journal)
+            _drop_leftovers(self.journal)
 
     def abandon(self) -> None:
         """Closes the journal and releases its lock without storing it, as a recorder that
@@ -627,7 +708,7 @@ class TakeRecorder:
             self.journal.unlink(missing_ok=True)
         finally:
             self._held.close()
-            _drop_lock(self.journal)
+            _drop_leftovers(self.journal)
 
 
 def record(source_url: str, library: str | os.PathLike, take: str, skeleton: str, *,
@@ -664,7 +745,7 @@ def record(source_url: str, library: str | os.PathLike, take: str, skeleton: str
         recorder = TakeRecorder(library, take, skeleton, source_url,
                                 datagram=transport.datagram, subject=subject, tags=tags,
                                 notes=notes, unit=unit, on_event=on_event,
-                                lock_timeout=lock_timeout, avatar=avatar)
+                                lock_timeout=lock_timeout, avatar=avatar, frames=frames)
     except BaseException:
         transport.close()
         raise

@@ -181,16 +181,17 @@ def suggest_poses(library, take: str, *, accept: bool = False, tags=(),
                   min_duration: float = DEFAULT_MIN_DURATION,
                   min_bottom_duration: float | None = DEFAULT_MIN_BOTTOM_DURATION) -> list[dict]:
     """The held postures of a library take (`posedb.PoseLibrary`), as dicts; with `accept`,
-    each becomes a pose "<take>-fNNNNN" carrying the take's tags and `tags`, all in one commit
-    (its entry gains `name`, the name later commands take, `pose`, the id, `tags`, and
-    `added`: True).
+    each becomes a pose "<take>-fNNNNN" (the take's name shortened to keep it within the
+    library's 200 characters: `posedb.library.derived_name`) carrying the take's tags and
+    `tags`, all in one commit (its entry gains `name`, the name later commands take, `pose`,
+    the id, `tags`, and `added`: True).
 
     Accepting again is safe: a hold whose frame is a pose of the take already (an earlier
     acceptance, whatever it is called now) is skipped, its entry naming that pose with
     `added` False, and only the other holds are added. A name held by another take or pose
     refuses the whole batch (a DuplicateNameError), leaving the library as it was.
     """
-    from .library import _pose_id
+    from .library import _pose_id, derived_name
 
     info = library.take(take)
     held = take_holds(library.take_data(info.id), max_speed=max_speed,
@@ -205,7 +206,7 @@ def suggest_poses(library, take: str, *, accept: bool = False, tags=(),
                 for row in rows:
                     known = existing.get(row["frame"])
                     if known is None:
-                        row["name"] = f"{info.name}-f{row['frame']:05d}"
+                        row["name"] = derived_name(info.name, f"-f{row['frame']:05d}")
                         row["pose"] = ed.add_pose(info.id, row["frame"], row["name"],
                                                   tags=inherited, supports=supports)
                         known = ed.table.row_of(row["pose"])
