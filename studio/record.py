@@ -80,6 +80,7 @@ class LiveStream:
         self.recorder: TakeRecorder | None = None
         self.shown_at: float | None = None  # receive time of the frame last drawn
         self.frames_in_take = 0
+        self.take_counts: dict[AvatarKey, int] = {}  # the frames of each kept avatar in the take
         self.error: str | None = None
         self._on_frame, self._on_error = on_frame, on_error
         self._period = 1.0 / draw_hz
@@ -98,6 +99,9 @@ class LiveStream:
                     kept = [f for f in frames if self.monitor.kept(avatar_key(f))]
                     if self.recorder is not None:
                         self.frames_in_take += len(kept)
+                        for f in kept:
+                            key = avatar_key(f)
+                            self.take_counts[key] = self.take_counts.get(key, 0) + 1
                         self.recorder.tick()
                 with self._figures:
                     self.monitor.add(frames)
@@ -153,6 +157,7 @@ class LiveStream:
             self.source.raw = recorder.writer
             self.recorder = recorder
             self.frames_in_take = 0
+            self.take_counts = {}
         return recorder
 
     def mark(self, **fields) -> dict:
@@ -173,11 +178,14 @@ class LiveStream:
         with self._io:
             recorder, self.recorder = self.recorder, None
             self.source.raw = None
+            counted = dict(self.take_counts)
         if recorder is None:
             raise ValueError("No take is recording")
         self.last_take_name = recorder.take
         try:
-            return recorder.finish()
+            # the frames counted, as the readout shows them: the journal may hold one more
+            # whole frame, whose bytes came before the decoder let it out
+            return recorder.finish(counted)
         finally:
             self.stored = recorder.stored
 

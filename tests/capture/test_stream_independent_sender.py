@@ -52,8 +52,8 @@ def payloads(n, count, seed=0):
 
 
 def serve_tcp(pieces):
-    """A one-client TCP server (as Axis is) sending `pieces` (bytes, or a float: a pause in
-    seconds), then closing. Returns the port."""
+    """A one-client TCP server (as Axis is) sending `pieces` (bytes, a float: a pause in
+    seconds, or a threading.Event: a wait until it is set), then closing. Returns the port."""
     server = socket.create_server(("127.0.0.1", 0))
     port = server.getsockname()[1]
 
@@ -69,6 +69,8 @@ def serve_tcp(pieces):
                 for piece in pieces:
                     if isinstance(piece, float):
                         time.sleep(piece)
+                    elif isinstance(piece, threading.Event):
+                        piece.wait(10)  # (until the receiver is ready)
                     else:
                         conn.sendall(piece)
                 time.sleep(0.05)
