@@ -145,12 +145,21 @@ def peak_text(figures: dict) -> str:
     return f"{figures['peak_pressure_kpa']:.1f} kPa"
 
 
+def seated_skin(same_load: dict) -> str:
+    """The regions a flat seat carries, as a flat seat's `same_load` names them, in words
+    ("pelvis and thighs"; "seated skin" where it names none)."""
+    regions = [r.replace("_", " ") for r in same_load.get("regions") or ()]
+    if not regions:
+        return "seated skin"
+    return regions[0] if len(regions) == 1 else ", ".join(regions[:-1]) + " and " + regions[-1]
+
+
 def flat_text(person: dict) -> str:
     """A person's flat-seat baseline for people: its peak at the same load and the fitted
-    seat's own peak (which may be less than the person's peak on the whole surface, a back or
-    a leg rest included) as a share of it ("10.4 kPa at the same load; the seat's 7.7 kPa is
-    0.74 of it"), or the flat seat's own settle (`peak_text`) where there is no same-load
-    figure."""
+    surface's peak on the regions it carries (which may be less than the person's peak on the
+    whole surface, a back included) as a share of it ("10.4 kPa at the same load; the surface's
+    7.7 kPa on the pelvis and thighs is 0.74 of it"), or the flat seat's own settle
+    (`peak_text`) where there is no same-load figure."""
     flat = person.get("flat") or {}
     same_load = flat.get("same_load") or {}
     same = same_load.get("peak_pressure_kpa")
@@ -159,7 +168,8 @@ def flat_text(person: dict) -> str:
     ratio, seat = person.get("peak_of_flat"), same_load.get("fitted_peak_kpa")
     if not ratio or seat is None:
         return f"{same:.1f} kPa at the same load"
-    return f"{same:.1f} kPa at the same load; the seat's {seat:.1f} kPa is {ratio:.2f} of it"
+    return (f"{same:.1f} kPa at the same load; the surface's {seat:.1f} kPa on the "
+            f"{seated_skin(same_load)} is {ratio:.2f} of it")
 
 
 def equilibrium_figures(settled: Settled) -> dict:
@@ -515,7 +525,10 @@ def flat_at_same_load(person: SupportedBody, settled: Settled, foam: Foam) -> di
     under a seat do not reach it). Pressure is the settle's law: stiffness times depth,
     `bottom_factor` times stiffer past the foam's thickness, over each vertex's Voronoi area
     projected on the plane. A back or a leg rest keeps its load: the flat seat takes the seat's
-    place only, so the fitted seat's own peak is what it is compared with (`fitted_peak_kpa`).
+    place only. What it is compared with (`fitted_peak_kpa`) is the fitted surface's peak on the
+    body regions the flat seat presses (pelvis and thighs on a seat), whichever of its parts
+    presses them: a seat's front or sides rising steeper than 45 degrees against the thighs
+    count, a back or an arm rest pressing other regions does not.
 
     Parameters
     ----------
@@ -531,9 +544,11 @@ def flat_at_same_load(person: SupportedBody, settled: Settled, foam: Foam) -> di
     dict or None
         ``height_m`` (the plane), ``load_n`` and ``load_share`` (of m g) it carries,
         ``peak_pressure_kpa``, ``peak_pressure_index_kpa``, ``mean_pressure_kpa``,
-        ``contact_area_m2`` as `surface_figures` gives them, and ``fitted_peak_kpa``, the fitted
-        seat's peak; None when the body does not rest on the fitted surface, its seat carries
-        no vertical load or no supported skin faces down.
+        ``contact_area_m2`` as `surface_figures` gives them, ``fitted_peak_kpa``, the fitted
+        surface's peak on the regions the flat seat presses (None where it presses none of
+        them), and ``regions``, their names (None for a body without regions); None when the
+        body does not rest on the fitted surface, its seat carries no vertical load or no
+        supported skin faces down.
     """
     if not settled.stable:
         return None
@@ -573,12 +588,31 @@ def flat_at_same_load(person: SupportedBody, settled: Settled, foam: Foam) -> di
     areas = np.zeros(len(settled.vertices))
     areas[index[on]] = footprint[on]
     f = contact_figures([contact], areas, settled.weight_n)
-    fitted = surface_figures(settled, ("seat",))["peak_pressure_kpa"]
+    fitted, regions = _peak_on_regions_pressed(settled, person, index[on])
     return {"height_m": height, "load_n": load, "load_share": load / settled.weight_n,
             "peak_pressure_kpa": f["peak_kpa"],
             "peak_pressure_index_kpa": f["peak_pressure_index_kpa"],
             "mean_pressure_kpa": f["mean_kpa"], "contact_area_m2": f["contact_area_cm2"] / 1e4,
-            "fitted_peak_kpa": fitted}
+            "fitted_peak_kpa": fitted, "regions": regions}
+
+
+def _peak_on_regions_pressed(settled: Settled, person: SupportedBody, pressed: np.ndarray
+                             ) -> tuple[float | None, list[str] | None]:
+    """The fitted surface's peak (kPa; None for none) on the body regions the flat seat
+    presses (its vertices `pressed`), whichever part of the surface presses them: the seat,
+    or a seat's edge or side rising steeper than 45 degrees beside the thighs (a "leg rest"),
+    which a designer judges as the seat; and those regions' names (None without regions: then
+    the whole surface's peak)."""
+    from solver.body.model import BODY_REGIONS
+
+    skin = skin_pressure(settled, len(settled.vertices), SURFACE_PARTS)
+    names = None
+    if person.regions is not None:
+        held = np.unique(person.regions[pressed])
+        skin = np.where(np.isin(person.regions, held), skin, 0.0)
+        names = [BODY_REGIONS[r] for r in held]
+    peak = float(skin.max(initial=0.0))
+    return (peak if peak > 0 else None), names
 
 
 def flat_surface(height: float, centre: np.ndarray, half: float = 5.0) -> SurfaceMesh:

@@ -10,10 +10,12 @@ the floor, no body point deeper than the margin (plus 1 mm) on a dense sampling.
     peak               the highest pressure on the surface lies on a region asked to be supported
     seated             a person seated upright carries >= 60 % of the weight on the pelvis and
                        thighs and < 10 % on the calves (`solver.body.posture`)
-    flat seat          the peak pressure on the surface's seat is at most 0.6 of a flat seat's
-                       at the same load (what a shaped surface is for; report.json's
-                       `peak_of_flat`, `solver.contact.evaluate.flat_at_same_load`); not for a
-                       person standing, who leans on a surface and sits on none
+    flat seat          the surface's peak pressure on the regions a flat seat carries (pelvis
+                       and thighs on a seat, a seat's edge or side rising against the thighs
+                       included) is at most 0.6 of a flat seat's at the same load (what a
+                       shaped surface is for; report.json's `peak_of_flat`,
+                       `solver.contact.evaluate.flat_at_same_load`); not for a person
+                       standing, who leans on a surface and sits on none
 
 A design in progress is held to one more (`design_misses`): no point of the person's skin cut
 deeper than the margin.
@@ -129,8 +131,10 @@ def person_miss_kinds(person: dict, margin: float | None = None) -> list[tuple[s
     ratio = person.get("peak_of_flat")
     if ratio is not None and ratio > PEAK_OF_FLAT_MAX and \
             person.get("posture") not in NO_SEAT_POSTURES:
+        from solver.contact.evaluate import seated_skin
+
         same = person["flat"]["same_load"]
-        misses.append(("flat_seat", f"{name}: peak pressure on the seat "
+        misses.append(("flat_seat", f"{name}: peak pressure on the {seated_skin(same)} "
                        f"{same['fitted_peak_kpa']:.1f} kPa, {ratio:.2f} of a flat seat's at "
                        f"the same load ({same['peak_pressure_kpa']:.1f} kPa; bar "
                        f"{PEAK_OF_FLAT_MAX})"))

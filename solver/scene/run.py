@@ -75,7 +75,7 @@ def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.n
         flat["same_load"] = flat_at_same_load(p, pm.settled, foam)
         same = flat["same_load"]  # (its seat carries load: both peaks are positive)
         figures["peak_of_flat"] = same["fitted_peak_kpa"] / same["peak_pressure_kpa"] \
-            if same else None
+            if same and same["fitted_peak_kpa"] is not None else None
         others = [(q.vertices, q.triangles) for j, q in enumerate(people) if j != k]
         rows.append({"name": p.label, "body": p.spec.body.as_dict(),
                      "height_m": p.body.height_m, "mass_kg": p.body.mass_kg,

@@ -22,12 +22,15 @@ def test_a_peak_is_zero_only_for_a_body_at_rest_on_something_else():
 
 
 def test_the_flat_seat_text_names_the_seat_peak_its_ratio_is_of():
-    """The person's peak may lie on a leg rest or a back; the ratio is the seat's own peak over
-    the flat seat's, and the text gives both numbers it divides."""
+    """The person's peak may lie on a back; the ratio is the surface's peak on the regions the
+    flat seat carries over the flat seat's, and the text gives both numbers it divides and
+    names those regions."""
     person = {"peak_pressure_kpa": 8.0, "peak_of_flat": 5.69 / 9.51,
-              "flat": {"same_load": {"peak_pressure_kpa": 9.51, "fitted_peak_kpa": 5.69}}}
+              "flat": {"same_load": {"peak_pressure_kpa": 9.51, "fitted_peak_kpa": 5.69,
+                                     "regions": ["pelvis", "thighs"]}}}
     text = flat_text(person)
-    assert text == "9.5 kPa at the same load; the seat's 5.7 kPa is 0.60 of it"
+    assert text == ("9.5 kPa at the same load; the surface's 5.7 kPa on the pelvis and thighs "
+                    "is 0.60 of it")
     flat, seat, ratio = (float(x) for x in re.findall(r"\d+\.\d+", text))
     assert abs(seat / flat - ratio) < 0.01
     # no same-load figure: the flat seat's own settle

@@ -79,11 +79,12 @@ def test_a_body_that_does_not_rest_says_why_and_has_no_loads():
 
 
 def test_a_peak_over_six_tenths_of_the_flat_seat_s_at_the_same_load_is_said_but_not_standing():
-    flat = {"same_load": {"peak_pressure_kpa": 10.0, "fitted_peak_kpa": 7.5}}
+    flat = {"same_load": {"peak_pressure_kpa": 10.0, "fitted_peak_kpa": 7.5,
+                          "regions": ["pelvis", "thighs"]}}
     assert person_misses(_person(peak_of_flat=0.6, flat=flat)) == []
     misses = person_misses(_person(peak_of_flat=0.75, flat=flat))
-    assert misses == ["sitter: peak pressure on the seat 7.5 kPa, 0.75 of a flat seat's at the "
-                      "same load (10.0 kPa; bar 0.6)"]
+    assert misses == ["sitter: peak pressure on the pelvis and thighs 7.5 kPa, 0.75 of a flat "
+                      "seat's at the same load (10.0 kPa; bar 0.6)"]
     assert person_misses(_person(peak_of_flat=0.75, flat=flat, posture="standing")) == []
     assert person_misses(_person(peak_of_flat=None, flat={"same_load": None})) == []
 
