@@ -449,7 +449,8 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
         scenario = load_scenario(scenario_path)
     # written whole or not at all: the folder's earlier result, if any, stays until this one is
     # complete and then goes (gone again if made and nothing could be posed or fitted)
-    with results_folder(out_dir, previous_results, "report.json") as out:
+    read = [scenario_path, db, scenario.surface.source]  # (the source: a control mesh's path)
+    with results_folder(out_dir, _sparing(previous_results, read), "report.json") as out:
         t = time.perf_counter()
         scenario, people = place_scene(scenario, db)
         timing["pose_s"] = time.perf_counter() - t
@@ -579,6 +580,19 @@ def previous_results(folder: Path, listing: type = dict) -> set[str]:
 
     collect(report["files"])
     return names
+
+
+def _sparing(previous: Callable[[Path], set], read) -> Callable[[Path], set]:
+    """`previous` (the earlier result's files, which a new result replaces) without the files
+    this run reads (`read`: paths, or None, or other text): a scenario that `sitrelax design`
+    wrote into the folder, fitted into the same folder, stays."""
+    def listed(folder: Path) -> set:
+        inputs = set()
+        for path in read:
+            if path is not None and os.path.isfile(path):
+                inputs.add(Path(path).resolve())
+        return {name for name in previous(folder) if (folder / name).resolve() not in inputs}
+    return listed
 
 
 def _timed(func: Callable, *args):

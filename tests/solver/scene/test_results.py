@@ -29,6 +29,30 @@ def test_a_fit_written_again_into_its_folder_leaves_no_file_of_the_earlier_one(t
     assert json.loads((out / "report.json").read_text())["files"] == second["files"]
 
 
+def test_a_fit_into_the_folder_its_scenario_came_from_keeps_the_scenario(tmp_path):
+    """`sitrelax design` lists the scenario it writes among its results, and says to go on with
+    `sitrelax fit`: fitting that scenario into the same folder replaced the design's results
+    and removed the scenario it read. The files a fit reads stay (its control mesh too)."""
+    out = tmp_path / "design"
+    out.mkdir()
+    scenario = (EXAMPLES / "single_seated.toml").read_text()
+    grid = 'grid = { size = [0.5, 0.6], resolution = [8, 6], height = 0.42 }'
+    assert grid in scenario
+    run_fit(EXAMPLES / "single_seated.toml", tmp_path / "first", formats=("obj",),
+            pictures=False)
+    (out / "start.obj").write_bytes((tmp_path / "first" / "control.obj").read_bytes())
+    (out / "scenario.toml").write_text(scenario.replace(grid, 'control_mesh = "start.obj"'))
+    (out / "surface.obj").write_text("the design's")
+    (out / "report.json").write_text(json.dumps(  # a design's, listing what it wrote
+        {"files": {"scenario": "scenario.toml", "control_mesh": "start.obj",
+                   "surface": "surface.obj"}}))
+    run_fit(out / "scenario.toml", out, formats=("ply",), pictures=False)
+    assert (out / "scenario.toml").read_text() == \
+        scenario.replace(grid, 'control_mesh = "start.obj"')
+    assert (out / "start.obj").exists()
+    assert not (out / "surface.obj").exists()  # the earlier result's own file goes
+
+
 def test_a_fit_that_fails_leaves_the_earlier_result(tmp_path):
     out = tmp_path / "out"
     run_fit(EXAMPLES / "single_seated.toml", out, formats=("obj",), pictures=False)
