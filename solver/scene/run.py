@@ -374,7 +374,10 @@ def relieve_fit(scenario: Scenario, people: list[PlacedPerson], result: FitResul
     params, first_missed = scenario.surface.params, None
     checked = [] if checked is None else checked
 
+    tell = say or (lambda message: None)
+
     def evaluate(candidate: FitResult):
+        tell(f"relief: evaluating {len(people)} person(s) on the refitted surface")
         return evaluate_fit(scenario, people, candidate)[1:]
 
     def missed(fit: FitResult) -> dict:
@@ -392,7 +395,8 @@ def relieve_fit(scenario: Scenario, people: list[PlacedPerson], result: FitResul
         return f"the surface misses a bar it met: {new[0]}" if new else None
 
     return relieve(scenario, people, result, persons, maps,
-                   fit=lambda targets: fit_people(scenario, targets, cancel=cancel),
+                   fit=lambda targets: fit_people(scenario, targets, lambda i, e, tau: tell(
+                       f"relief fit: iteration {i}: energy {e:.6g}"), cancel=cancel),
                    evaluate=evaluate, rounds=scenario.relief.rounds,
                    target=scenario.relief.target, say=say, cancel=cancel, check=check)
 

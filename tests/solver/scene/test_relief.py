@@ -247,3 +247,32 @@ def test_relief_lowers_the_seated_peak_and_keeps_every_bar_the_fit_met(tmp_path)
         relieved["timing"]["fit_s"] == kept["fit_s"]
     assert relieved["persons"][0]["peak_of_flat"] == pytest.approx(kept["peak_of_flat"][0])
     json.dumps(relieved, allow_nan=False)
+
+
+def test_a_relief_round_shows_its_fit_s_iterations_and_evaluation(monkeypatch):
+    """A relief try on a large scene takes tens of seconds: its fit's iterations and its
+    evaluation are told as they come, as the first fit's are."""
+    import solver.scene.relief as relief_module
+    import solver.scene.run as run
+
+    def fake_fit_people(scenario, people, progress=None, **_):
+        for i in (1, 2):
+            progress(i, 0.5 / i, 0.5)
+        return "refit"
+
+    def fake_relieve(scenario, people, result, persons, maps, *, fit, evaluate, say, **_):
+        evaluate(fit(people))
+        say("relief round 1: kept")
+        return result, persons, maps, None
+
+    monkeypatch.setattr(run, "fit_people", fake_fit_people)
+    monkeypatch.setattr(run, "evaluate_fit", lambda scenario, people, fit: (None, [], []))
+    monkeypatch.setattr(relief_module, "relieve", fake_relieve)
+    said = []
+    scenario = SimpleNamespace(surface=SimpleNamespace(params=None),
+                               relief=SimpleNamespace(rounds=1, target=0.5))
+    run.relieve_fit(scenario, ["a", "b"], "fit", [], [], said.append)
+    assert said == ["relief fit: iteration 1: energy 0.5",
+                    "relief fit: iteration 2: energy 0.25",
+                    "relief: evaluating 2 person(s) on the refitted surface",
+                    "relief round 1: kept"]
