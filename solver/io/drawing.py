@@ -403,7 +403,7 @@ def write_overall_dxf(path: str | os.PathLike, vertices: np.ndarray, faces: np.n
     # (x, -z) with y; from +X, (-z, y) with x
     for view, depth in ((plan, v[:, 1]), (side, v[:, 0])):
         for loop in silhouette(np.column_stack([view, depth]), faces):
-            _polyline(msp, loop, "SURFACE")
+            _polyline(msp, loop, "SOLID" if what == "solid" else "SURFACE")
     (x0, y0), (x1, y1) = plan.min(axis=0), plan.max(axis=0)
     (s0, _), (s1, top) = side.min(axis=0), side.max(axis=0)
     _dimension(msp, (x0, y0), (x1, y0), (0, y0 - 60), 0)

@@ -358,10 +358,26 @@ def _fit_design(out: Path, header: str, data: dict, db, say, pictures: bool) -> 
 
     path = out / "scenario.toml"
     write_atomic(path, (header + scenario_toml(data)).encode())
-    report = run_fit(path, out, db=db, progress=say, pictures=pictures)
+    report = run_fit(path, out, db=db, progress=say, pictures=pictures,
+                     title=_design_title(data))
     # listed with the results, so that a later result in the same folder (a fit) removes it
     report.setdefault("files", {})["scenario"] = path.name
     return report
+
+
+def _design_title(data: dict) -> str:
+    """The design sheet's title: the template and the poses it was designed for ("a chair for
+    cmu_75_17_medium_sit.bvh frame 150"), not the scenario file's name, which every design
+    shares."""
+    kind = str((data.get("surface", {}).get("template") or {}).get("kind", "surface"))
+    poses = []
+    for person in data.get("person", []):
+        ref = str(person.get("pose", ""))
+        where, _, frame = ref.partition("#frame=")
+        name = Path(where.split(":")[-1]).name if where.startswith("bvh:") else where
+        poses.append(f"{name} frame {frame}" if frame else name)
+    shown = ", ".join(poses[:3]) + (f" and {len(poses) - 3} more" if len(poses) > 3 else "")
+    return f"sitrelax design: a {kind.replace('_', ' ')} for {shown}"
 
 
 def _on_calves(report: dict) -> bool:

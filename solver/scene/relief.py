@@ -187,7 +187,9 @@ def relieve(scenario, people: Sequence, result, persons: list[dict], maps: list,
         if all(r is None or r <= target for r in ratios):
             break
         steps = _steps(people, persons, maps, target, stiffness, ratios)
-        for share in SHARES:
+        for attempt, share in enumerate(SHARES, 1):
+            tried = "" if attempt == 1 else \
+                f", try {attempt} ({share:g} of the step, and where the last try pressed harder)"
             if cancel is not None and cancel():
                 relief.stopped = True
                 return result, persons, maps, relief
@@ -210,7 +212,7 @@ def relieve(scenario, people: Sequence, result, persons: list[dict], maps: list,
                                       "moved_out_m": moved, "fit_s": None,
                                       "iterations": None})
                 if say is not None:
-                    say(f"relief round {k}: refused ({why})")
+                    say(f"relief round {k}{tried}: refused ({why})")
                 continue
             if cancel is not None and cancel():
                 relief.stopped = True
@@ -227,7 +229,8 @@ def relieve(scenario, people: Sequence, result, persons: list[dict], maps: list,
                                   "fit_s": candidate.seconds,
                                   "iterations": candidate.iterations})
             if say is not None:
-                say(f"relief round {k}: skin aimed at moved out up to {1000 * moved:.1f} mm, "
+                say(f"relief round {k}{tried}: skin aimed at moved out up to "
+                    f"{1000 * moved:.1f} mm, "
                     f"highest peak {'none' if worst is None else f'{worst:.2f}'} of a flat "
                     f"seat's: {'kept' if why is None else 'refused (' + why + ')'}")
             if why is None:

@@ -143,9 +143,11 @@ def test_overall_dxf_outlines_what_the_mesh_covers_from_above_and_the_side(tmp_p
     else:
         tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
         write_overall_dxf(tmp_path / "overall.dxf", vertices, quads)
+    layer = "SOLID" if solid else "SURFACE"  # (the solid's outline on the solid's layer)
+    msp = ezdxf.readfile(tmp_path / "overall.dxf").modelspace()
+    assert not msp.query(f"LWPOLYLINE[layer=='{'SURFACE' if solid else 'SOLID'}']")
     loops = [np.array([(q[0], q[1]) for q in p.get_points()])
-             for p in ezdxf.readfile(tmp_path / "overall.dxf").modelspace().query(
-                 "LWPOLYLINE[layer=='SURFACE']")]
+             for p in msp.query(f"LWPOLYLINE[layer=='{layer}']")]
     mm = vertices * 1000.0
     plan = np.stack([mm[:, 0], -mm[:, 2]], axis=1)
     side = np.stack([-mm[:, 2], mm[:, 1]], axis=1)

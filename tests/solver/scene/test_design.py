@@ -422,3 +422,14 @@ def test_a_designs_scenario_is_listed_with_its_results(tmp_path, monkeypatch):
     saved = json.loads((out / "report.json").read_text())
     assert saved["files"]["scenario"] == "scenario.toml"
     assert "scenario.toml" in run.previous_results(out)
+
+
+def test_a_design_sheet_is_titled_by_its_template_and_poses():
+    """Every design's scenario is scenario.toml: its sheet's title names what was designed."""
+    from solver.scene.design import _design_title
+
+    data = {"surface": {"template": {"kind": "floor_cushion"}},
+            "person": [{"pose": "bvh:/data/cmu_75_17_medium_sit.bvh#frame=150"},
+                       {"pose": "db:alice-sit"}]}
+    assert _design_title(data) == ("sitrelax design: a floor cushion for "
+                                   "cmu_75_17_medium_sit.bvh frame 150, db:alice-sit")

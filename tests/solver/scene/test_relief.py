@@ -276,3 +276,21 @@ def test_a_relief_round_shows_its_fit_s_iterations_and_evaluation(monkeypatch):
                     "relief fit: iteration 2: energy 0.25",
                     "relief: evaluating 2 person(s) on the refitted surface",
                     "relief round 1: kept"]
+
+
+def test_the_tries_of_a_round_are_told_apart():
+    """A refused try is tried again (as long, then shorter, and where the refused fit pressed
+    harder): each line says which try it is, so two alike are not read as one said twice."""
+    scenario, people, persons, maps = _stub_scene([0.8])
+    ratio = iter([0.85, 0.7])  # the first try raises the peak: refused; the second is kept
+
+    def evaluate(_):
+        return [_person("p0", next(ratio))], maps
+
+    said = []
+    relieve(scenario, people, "fit", persons, maps,
+            fit=lambda targets: SimpleNamespace(seconds=0.1, iterations=5), evaluate=evaluate,
+            rounds=1, target=0.5, say=said.append)
+    assert len(said) == 2 and said[0].startswith("relief round 1: skin aimed at moved out")
+    assert said[1].startswith("relief round 1, try 2 (1 of the step, and where the last try "
+                              "pressed harder): skin aimed at moved out"), said
