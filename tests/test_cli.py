@@ -319,6 +319,7 @@ def test_validate_pressure_command(tmp_path, capsys):
                 "reference_s"} <= set(r)
         if r["model"] == "paper":
             assert r["zero_all"] >= 2 * r["rmse_all"], r
+            assert r["crude_all"] >= 2 * r["rmse_all"], r  # (the crude baseline too)
         assert (tmp_path / r["picture"].rsplit("/", 1)[-1]).stat().st_size > 10_000
     assert main(["validate", "pressure", "--quick", "--mu", "0.5",
                  "--reference", "rigid mould"]) == 0

@@ -118,6 +118,14 @@ def _model_fields(vertices, triangles, contact, repeats: int = 5) -> dict:
     return out
 
 
+def _crude_field(vertices, triangles, contact) -> np.ndarray:
+    """A crude baseline on the contact vertices: each vertex's area where the skin faces down
+    at all, whatever its angle (the paper's field without its n . g): a model that beats the
+    all-zero field but not this one has learnt only where the body faces down."""
+    field = pressure_field(vertices, triangles)
+    return (field.area * (field.pressure > 0))[contact]
+
+
 def validate_pressure(out_dir: str | Path | None = None, *, mus: Sequence[float] = MUS,
                       references: Sequence[str] = REFERENCES,
                       progress: Callable[[str], None] | None = None) -> list[dict]:
@@ -139,7 +147,10 @@ def validate_pressure(out_dir: str | Path | None = None, *, mus: Sequence[float]
     Returns
     -------
     list of dict
-        One row per pose, reference, mu and model: `field_metrics`, the model's time
+        One row per pose, reference, mu and model: `field_metrics`, the crude baseline's
+        RMSE over all and loaded vertices (`crude_all`, `crude_loaded`: `_crude_field`), the
+        RMSE against the reference's whole reaction (normal and tangential, each field
+        normalised by its own largest value: `rmse_all_reaction`), the model's time
         (`model_ms`), the reference's (`reference_s`), its equilibrium residual, whether it
         `converged` (the finite elements' friction fixed point may stop at its most
         iterations: its figures are then not a solution's; None for the references that
@@ -209,6 +220,7 @@ def _compare(out_dir: Path | None, mus: list[float], references: list[str],
     for pose, verts in validation_poses().items():
         contact = mould_vertices(verts, body.triangles)
         models = _model_fields(verts, body.triangles, contact)
+        crude = _crude_field(verts, body.triangles, contact)
         shown = None
         for ref_name in references:
             for mu in mus:
@@ -220,11 +232,14 @@ def _compare(out_dir: Path | None, mus: list[float], references: list[str],
                 assert np.array_equal(ref.vertices, contact)
                 if shown is None or (ref_name == shown[0] and mu == 0.5):
                     shown = (ref_name, mu, ref.normal)
+                baseline = field_metrics(crude, ref.normal)
                 for model, (field, ms) in models.items():
                     rows.append({"pose": pose, "reference": ref_name, "mu": float(mu),
                                  "model": model, **field_metrics(field, ref.normal),
+                                 "crude_all": baseline["rmse_all"],
+                                 "crude_loaded": baseline["rmse_loaded"],
                                  "rmse_all_reaction": float(np.sqrt(np.mean(
-                                     (field / field.max() - ref.reaction / ref.normal.max())
+                                     (field / field.max() - ref.reaction / ref.reaction.max())
                                      ** 2))),
                                  "model_ms": ms, "reference_s": seconds,
                                  "residual": float(ref.residual),

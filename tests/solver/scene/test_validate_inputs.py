@@ -143,7 +143,7 @@ def test_what_the_solvers_print_leaves_the_json_alone(monkeypatch, capfd):
 def _rows(rmse: float, converged=True) -> list[dict]:
     return [{"pose": "seated", "vertices": 3, "reference": "soft layer FE", "mu": 0.5,
              "model": "paper", "rmse_all": rmse, "zero_all": 0.5, "rmse_loaded": rmse,
-             "zero_loaded": 0.5, "pearson_r": 0.9, "model_ms": 1.0, "reference_s": 1.0,
+             "zero_loaded": 0.5, "crude_all": 0.2, "crude_loaded": 0.3, "pearson_r": 0.9, "model_ms": 1.0, "reference_s": 1.0,
              "residual": 0.0, "converged": converged}]
 
 
@@ -167,3 +167,24 @@ def test_a_bar_makes_validate_fail_where_a_model_misses_it(monkeypatch, capsys, 
     assert (said in out) if said else "misses the bar" not in out
     assert main(args + ["--json"]) == status
     assert json.loads(capsys.readouterr().out) == rows
+
+
+def test_the_text_says_when_a_reference_did_not_converge_or_matches_exactly(monkeypatch,
+                                                                           capsys):
+    """Without --bar the text report flagged nothing of a reference that did not converge (a
+    perfect-looking row, exit 0), and an RMSE of exactly 0 ended it in a ZeroDivisionError; a
+    run without the finite elements says what its references share with the model."""
+    import solver.scene.validate as module
+
+    rows = _rows(0.0, converged=False)
+    monkeypatch.setattr(module, "validate_pressure", lambda *a, **k: rows)
+    assert main(["validate", "pressure", "--quick"]) == 0
+    out = capsys.readouterr().out
+    assert "reference not converged" in out
+    assert "warning: seated, soft layer FE, mu = 0.5: the reference did not converge" in out
+    assert "equal to the reference (RMSE 0)" in out
+    rows[0].update(reference="contact programme", converged=None, rmse_all=0.01)
+    assert main(["validate", "pressure", "--quick"]) == 0
+    out = capsys.readouterr().out
+    assert "warning" not in out and "50.0x better" in out
+    assert "share the model's vertices and contact law" in out
