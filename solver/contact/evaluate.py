@@ -30,7 +30,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from solver.contact.mat import SupportContact, contact_figures, mat_figures
-from solver.contact.settle import UP, Foam, Settled, Support, reach_depth, settle
+from solver.contact.settle import TOUCHING, UP, Foam, Settled, Support, reach_depth, settle
 from solver.contact.skins import body_closest, body_winding, vertex_tree
 from solver.contact.supported import SupportedBody
 from solver.mesh import SurfaceMesh
@@ -256,6 +256,7 @@ def cut_vertices(vertices: np.ndarray, triangles: np.ndarray, signed: np.ndarray
             winding = body_winding(vertices, triangles)
         cut[behind] = winding.winding_number(np.asarray(closest[behind],
                                                         dtype=np.float64)) > 0.5
+        cut[behind] |= signed[behind] > -TOUCHING  # (on the surface: it touches it)
     return cut
 
 
