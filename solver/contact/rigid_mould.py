@@ -114,6 +114,6 @@ def rigid_mould_contact(vertices: np.ndarray, triangles: np.ndarray, *, load: fl
         if err < 1e-9:
             break
     z, err = best
-    fn, ft = forces(z)
-    return ContactForces(contact, fn, ft, z[:3] * length, z[3:] * length / arm,
+    fn, ft = forces(z)  # (on the body: the support's reaction)
+    return ContactForces(contact, -fn, -ft, z[:3] * length, z[3:] * length / arm,
                            err * load)
