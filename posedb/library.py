@@ -298,8 +298,13 @@ def derived_name(base: str, suffix: str) -> str:
     pose of a take): `base` shortened as far as needed for the whole to stay within
     `MAX_NAME_LENGTH` characters, the suffix kept whole, since it is what tells the names
     made from one base apart (a base of the limit's length is a valid name, and the name made
-    from it must be one too). Whether the name is free is the caller's to check."""
-    return base[:max(MAX_NAME_LENGTH - len(suffix), 0)].rstrip() + suffix
+    from it must be one too), never between a letter and the marks that follow it (a letter
+    cut from its accent would be another letter). Whether the name is free is the caller's
+    to check."""
+    end = max(MAX_NAME_LENGTH - len(suffix), 0)
+    while 0 < end < len(base) and unicodedata.combining(base[end]):
+        end -= 1
+    return base[:end].rstrip() + suffix
 
 
 def skeleton_key(sk: Skeleton) -> str:

@@ -44,6 +44,7 @@ from capture import parse_bvh, read_bvh, resolve_path
 from capture.avatars import (AvatarKey, AvatarNotSeenError, avatar_selector, avatar_take_names,
                              describe_avatars, split_by_avatar)
 from capture.cli_output import check_limits
+from capture.files import write_atomic
 from capture.monitor import StreamMonitor, sender_timing
 from capture.rawcapture import (MARK, RawCaptureError, RawCaptureWriter, raw_header,
                                 raw_marks, skeleton_header_text)
@@ -149,6 +150,9 @@ def recordings(library: str | os.PathLike) -> list[Recording]:
     """Journals of recordings running or interrupted, oldest first."""
     folder = journal_dir(library)
     out = []
+    for note in sorted(folder.glob("*.raw.unseen-avatar.json")) if folder.is_dir() else []:
+        if not note.with_name(note.name[:-len(".unseen-avatar.json")]).exists():
+            note.unlink(missing_ok=True)  # (its journal deleted by hand, as the advice says)
     for path in sorted(folder.glob("*.raw")) if folder.is_dir() else []:
         try:
             header = raw_header(path)
@@ -435,9 +439,9 @@ def _unseen_avatar(lib: PoseLibrary, rec: Recording, exc: AvatarNotSeenError) ->
     it needs, rather than send the user to `recover` again."""
     advice = _unseen_avatar_advice(lib.path, rec.path, rec.take)
     try:
-        _note_path(rec.path).write_text(json.dumps(
-            {"what": exc.what, "avatars": exc.avatars, "size_bytes": rec.path.stat().st_size}),
-            encoding="utf-8")
+        write_atomic(_note_path(rec.path), json.dumps(
+            {"what": exc.what, "avatars": exc.avatars,
+             "size_bytes": rec.path.stat().st_size}).encode())
     except OSError:
         pass  # (only `db list`'s wording depends on it: `recover` refuses the journal again)
     return {"status": f"failed: {exc.what} {advice}", "avatars": exc.avatars}
@@ -679,7 +683,7 @@ class TakeRecorder:
         it. The journal's lock is released either way. `frames`: the frames of each avatar
         the reader counted (an int, or a mapping from `AvatarKey`), which its take holds (the
         journal may hold more whole frames than were read: every byte received); None for
-        every frame in the journal."""
+        every frame in the journal up to the recording's frame limit (`frames`), if any."""
         try:
             self.writer.close()
             try:

@@ -147,11 +147,21 @@ def peak_text(figures: dict) -> str:
 
 def seated_skin(same_load: dict) -> str:
     """The regions a flat seat carries, as a flat seat's `same_load` names them, in words
-    ("pelvis and thighs"; "seated skin" where it names none)."""
+    ("pelvis and thighs"; "skin the flat seat presses" for a body without regions)."""
     regions = [r.replace("_", " ") for r in same_load.get("regions") or ()]
     if not regions:
-        return "seated skin"
+        return "skin the flat seat presses"
     return regions[0] if len(regions) == 1 else ", ".join(regions[:-1]) + " and " + regions[-1]
+
+
+PEAK_OF_FLAT_BAR = 0.6  # the most a surface's peak may be of the flat seat's (the quality bar)
+
+
+def ratio_text(ratio: float, bar: float = PEAK_OF_FLAT_BAR) -> str:
+    """A peak over the flat seat's, as the bar reads it: two decimals, three where two would
+    show a ratio over the bar as the bar itself (0.602 is "0.602", not "0.60")."""
+    text = f"{ratio:.2f}"
+    return f"{ratio:.3f}" if ratio > bar and float(text) <= bar else text
 
 
 def flat_text(person: dict) -> str:
@@ -169,7 +179,7 @@ def flat_text(person: dict) -> str:
     if not ratio or seat is None:
         return f"{same:.1f} kPa at the same load"
     return (f"{same:.1f} kPa at the same load; the surface's {seat:.1f} kPa on the "
-            f"{seated_skin(same_load)} is {ratio:.2f} of it")
+            f"{seated_skin(same_load)} is {ratio_text(ratio)} of it")
 
 
 def equilibrium_figures(settled: Settled) -> dict:

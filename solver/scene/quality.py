@@ -27,6 +27,8 @@ from __future__ import annotations
 
 import math
 
+from solver.contact.evaluate import PEAK_OF_FLAT_BAR
+
 COVERAGE_MIN = 0.95
 CONTACT_COVERAGE_MIN = 0.8
 SEATED_LOAD_MIN = 0.6  # share of m g on the pelvis and thighs
@@ -34,7 +36,8 @@ SEATED_CALVES_MAX = 0.1  # share of m g on the calves
 SEATED_POSTURES = ("seated",)
 NO_SEAT_POSTURES = ("standing",)  # no flat-seat baseline
 CUT_TOLERANCE_M = 1e-3  # a cut deeper than the margin by more than this misses the bar
-PEAK_OF_FLAT_MAX = 0.6  # the peak pressure over the flat seat's at the same load
+PEAK_OF_FLAT_MAX = PEAK_OF_FLAT_BAR  # the peak pressure over the flat seat's at the same load
+# (its home is beside the texts that read it, `solver.contact.evaluate`)
 
 
 def person_loads(person: dict) -> dict:
@@ -131,11 +134,12 @@ def person_miss_kinds(person: dict, margin: float | None = None) -> list[tuple[s
     ratio = person.get("peak_of_flat")
     if ratio is not None and ratio > PEAK_OF_FLAT_MAX and \
             person.get("posture") not in NO_SEAT_POSTURES:
-        from solver.contact.evaluate import seated_skin
+        from solver.contact.evaluate import ratio_text, seated_skin
 
         same = person["flat"]["same_load"]
         misses.append(("flat_seat", f"{name}: peak pressure on the {seated_skin(same)} "
-                       f"{same['fitted_peak_kpa']:.1f} kPa, {ratio:.2f} of a flat seat's at "
+                       f"{same['fitted_peak_kpa']:.1f} kPa, "
+                       f"{ratio_text(ratio, PEAK_OF_FLAT_MAX)} of a flat seat's at "
                        f"the same load ({same['peak_pressure_kpa']:.1f} kPa; bar "
                        f"{PEAK_OF_FLAT_MAX})"))
     if person.get("posture") in SEATED_POSTURES:

@@ -187,9 +187,15 @@ def relieve(scenario, people: Sequence, result, persons: list[dict], maps: list,
         if all(r is None or r <= target for r in ratios):
             break
         steps = _steps(people, persons, maps, target, stiffness, ratios)
+        widened, last = False, None  # (steps widened where a refused fit pressed harder; the
+        # last try's share and widening: the same again is the same fit, not tried twice)
         for attempt, share in enumerate(SHARES, 1):
-            tried = "" if attempt == 1 else \
-                f", try {attempt} ({share:g} of the step, and where the last try pressed harder)"
+            if (share, widened) == last:
+                continue
+            last = (share, widened)
+            tried = "" if attempt == 1 else (
+                f", try {attempt} ({share:g} of the step"
+                f"{', and where the refused fits pressed harder' if widened else ''})")
             if cancel is not None and cancel():
                 relief.stopped = True
                 return result, persons, maps, relief
@@ -238,6 +244,7 @@ def relieve(scenario, people: Sequence, result, persons: list[dict], maps: list,
             # tried again where the refused fit pressed too hard as well (a peak moved there)
             steps = [np.maximum(a, b) for a, b in zip(steps, _steps(people, after, after_maps,
                                                                     target, stiffness, now))]
+            widened = True
         if why is not None:
             break
         result, persons, maps, relief.offsets = candidate, after, after_maps, offsets

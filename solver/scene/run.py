@@ -58,7 +58,7 @@ def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.n
                    faces: np.ndarray) -> tuple[list[dict], list[np.ndarray]]:
     """Per person: the fitted surface's figures (with `flat`, the flat-seat baseline and under
     its `same_load` that seat at the fitted seat's load (`flat_at_same_load`), `peak_of_flat`,
-    the fitted seat's peak pressure over that flat seat's, and `support_inside_others`, the
+    the fitted surface's peak on the regions that flat seat presses over its peak, and `support_inside_others`, the
     share of the person's importance inside other people's bodies) and the settle's
     `PressureMap` (the pressure in kPa per body vertex, the contacts)."""
     mesh = SurfaceMesh.from_quads(surface, faces)
@@ -454,6 +454,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
     # written whole or not at all: the folder's earlier result, if any, stays until this one is
     # complete and then goes (gone again if made and nothing could be posed or fitted)
     read = [scenario_path, db, scenario.surface.source]  # (the source: a control mesh's path)
+    _refuse_overwriting(read, Path(out_dir), ("control.obj", "report.json"))  # (before the work)
     with results_folder(out_dir, _sparing(previous_results, read), "report.json") as out:
         t = time.perf_counter()
         scenario, people = place_scene(scenario, db)
@@ -540,6 +541,7 @@ def run_fit(scenario_path: str | os.PathLike | Scenario, out_dir: str | os.PathL
             report["fabrication"] = fabrication
         write_atomic(out / "report.json",
                      json.dumps(report, indent=2, allow_nan=False).encode())
+        _refuse_overwriting(read, Path(out_dir), [p.name for p in out.iterdir()])
     return report
 
 
@@ -586,15 +588,29 @@ def previous_results(folder: Path, listing: type = dict) -> set[str]:
     return names
 
 
+def _inputs(read) -> set[Path]:
+    """The files among `read` (paths, or None, or other text), resolved."""
+    return {Path(path).resolve() for path in read if path is not None and os.path.isfile(path)}
+
+
+def _refuse_overwriting(read, folder: Path, names) -> None:
+    """A ValueError when a result of these `names` would replace a file this run reads (`read`)
+    in `folder`: a scenario whose control mesh is the folder's control.obj, fitted into it,
+    would lose its start to the fitted net."""
+    inputs = _inputs(read)
+    for name in names:
+        if (folder / name).resolve() in inputs:
+            raise ValueError(f"{folder / name} is a file this fit reads, and the fit writes a "
+                             f"{name} of its own there: give --out another folder (or rename "
+                             f"the file the scenario reads)")
+
+
 def _sparing(previous: Callable[[Path], set], read) -> Callable[[Path], set]:
     """`previous` (the earlier result's files, which a new result replaces) without the files
     this run reads (`read`: paths, or None, or other text): a scenario that `sitrelax design`
     wrote into the folder, fitted into the same folder, stays."""
     def listed(folder: Path) -> set:
-        inputs = set()
-        for path in read:
-            if path is not None and os.path.isfile(path):
-                inputs.add(Path(path).resolve())
+        inputs = _inputs(read)
         return {name for name in previous(folder) if (folder / name).resolve() not in inputs}
     return listed
 

@@ -124,6 +124,17 @@ def test_list_and_stats_say_what_recover_needs_for_a_journal_it_kept(db, capsys)
     assert recordings(db) == [] and list(journal_dir(db).iterdir()) == []
 
 
+def test_a_journal_deleted_by_hand_leaves_no_note_of_it(db):
+    """The advice says to delete the journal to drop the recording: recover's note beside it
+    goes with it at the next look at the recordings, and nothing lists it."""
+    journal = _unseen_avatar_journal(db)
+    recover(db, lock_timeout=5)
+    note = journal.with_name(journal.name + ".unseen-avatar.json")
+    assert note.exists() and json.loads(note.read_text())["avatars"]
+    journal.unlink()
+    assert recordings(db) == [] and not note.exists()
+
+
 # -- 3. a frame limit in the journal -------------------------------------------------------------
 
 
@@ -277,3 +288,16 @@ def test_a_recording_stopped_says_the_frames_it_stored(tmp_path, monkeypatch):
     with Source(RawFileTransport(saved), StreamLayout(read_bvh(SKELETON).skeleton)) as src:
         whole = [f for f in src if f.avatar_name == "Avatar00"]
     assert len(whole) == stored + 1
+
+
+def test_a_name_shortened_keeps_each_letter_with_its_marks():
+    """Cut by code points, a letter could lose the mark that follows it and become another
+    letter (a decomposed accent, a nukta): the cut moves before the letter instead."""
+    import unicodedata
+
+    from posedb.library import derived_name
+
+    base = "e\u0301" * 100  # 200 code points: "é" decomposed, a hundred times
+    name = derived_name(base, "-f00039")
+    assert len(name) <= 200 and name.endswith("e\u0301-f00039")
+    assert not unicodedata.combining(name[0])

@@ -109,3 +109,17 @@ def test_fit_and_its_report_say_every_bar_missed(tmp_path, capsys):
     assert f"misses 1 bar(s):\n  {expected[0]}\n" in printed
     _print_misses([])
     assert capsys.readouterr().out == "meets every bar\n"
+
+
+def test_a_ratio_just_over_the_bar_never_reads_as_the_bar():
+    """0.602 of the flat seat's misses the 0.6 bar: printed "0.60 ... (bar 0.6)" it read as
+    met (the gallery's facing_pair showed it so); three decimals where two would hide it."""
+    flat = {"same_load": {"peak_pressure_kpa": 11.503, "fitted_peak_kpa": 6.921,
+                          "regions": ["pelvis", "thighs"]}}
+    misses = person_misses(_person(peak_of_flat=6.921 / 11.503, flat=flat))
+    assert misses == ["sitter: peak pressure on the pelvis and thighs 6.9 kPa, 0.602 of a flat "
+                      "seat's at the same load (11.5 kPa; bar 0.6)"]
+    from solver.contact.evaluate import ratio_text
+
+    assert [ratio_text(r) for r in (0.598, 0.6, 0.6049, 0.61, 0.5)] == \
+        ["0.60", "0.60", "0.605", "0.61", "0.50"]

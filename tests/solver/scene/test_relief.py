@@ -68,7 +68,8 @@ def test_one_person_may_not_pay_for_another():
     assert "b: the peak over the flat seat's is lost" in refused(before, lost, 0.03)
     met = [_person("a", 0.9), _person("b", 0.58)]  # b meets the flat seat's bar (0.6)
     crossed = refused(met, [_person("a", 0.8), _person("b", 0.6 + RISE / 2)], 0.03)
-    assert "misses a bar it met: b: peak pressure on the seat" in crossed, crossed
+    assert "misses a bar it met: b: peak pressure on the skin the flat seat presses" in crossed, \
+        crossed
 
 
 def test_a_rise_is_counted_from_the_fit_before_any_round_not_round_by_round():
@@ -292,5 +293,24 @@ def test_the_tries_of_a_round_are_told_apart():
             fit=lambda targets: SimpleNamespace(seconds=0.1, iterations=5), evaluate=evaluate,
             rounds=1, target=0.5, say=said.append)
     assert len(said) == 2 and said[0].startswith("relief round 1: skin aimed at moved out")
-    assert said[1].startswith("relief round 1, try 2 (1 of the step, and where the last try "
-                              "pressed harder): skin aimed at moved out"), said
+    assert said[1].startswith("relief round 1, try 2 (1 of the step, and where the refused "
+                              "fits pressed harder): skin aimed at moved out"), said
+
+
+def test_a_failed_fit_is_not_tried_again_as_it_was():
+    """A try whose fit fails leaves nothing to widen the step by: the next try of the same
+    length would be the same fit, so the round goes on with the half step."""
+    from solver.surface.fit import FitError
+
+    scenario, people, persons, maps = _stub_scene([0.8])
+    fits, said = [], []
+
+    def fit(targets):
+        fits.append(float(-targets[0].vertices[0, 1]))
+        raise FitError("no fit")
+
+    relieve(scenario, people, "fit", persons, maps, fit=fit,
+            evaluate=lambda r: pytest.fail("not evaluated"), rounds=1, target=0.5,
+            say=said.append)
+    assert fits == pytest.approx([0.005, 0.0025, 0.00125])  # 1, then 0.5 and 0.25 of the step
+    assert said[1].startswith("relief round 1, try 3 (0.5 of the step): refused"), said

@@ -53,6 +53,22 @@ def test_a_fit_into_the_folder_its_scenario_came_from_keeps_the_scenario(tmp_pat
     assert not (out / "surface.obj").exists()  # the earlier result's own file goes
 
 
+def test_a_fit_that_would_write_over_its_own_control_mesh_is_refused(tmp_path):
+    """A scenario whose control mesh is the folder's control.obj, fitted into that folder,
+    would lose its start to the fitted net (the fit writes its own control.obj): refused
+    before any work, the folder as it was."""
+    out = tmp_path / "work"
+    run_fit(EXAMPLES / "single_seated.toml", out, formats=("obj",), pictures=False)
+    scenario = (EXAMPLES / "single_seated.toml").read_text().replace(
+        'grid = { size = [0.5, 0.6], resolution = [8, 6], height = 0.42 }',
+        'control_mesh = "control.obj"')
+    (out / "scenario.toml").write_text(scenario)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    with pytest.raises(ValueError, match=r"control.obj is a file this fit reads"):
+        run_fit(out / "scenario.toml", out, formats=("obj",), pictures=False)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
 def test_a_fit_that_fails_leaves_the_earlier_result(tmp_path):
     out = tmp_path / "out"
     run_fit(EXAMPLES / "single_seated.toml", out, formats=("obj",), pictures=False)
