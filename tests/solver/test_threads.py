@@ -99,6 +99,7 @@ def test_a_fit_overlaps_its_searches_unless_told_one_thread(monkeypatch, value, 
     import solver.threads as threads
 
     monkeypatch.setattr(threads, "_cores", lambda: cores)
+    monkeypatch.setattr(threads, "cores_busy", lambda: False)  # (whatever else runs now)
     if value is None:
         monkeypatch.delenv(ENV, raising=False)
     else:
@@ -112,3 +113,25 @@ def test_workers_do_not_overlap(monkeypatch):
     for name, value in worker_environment().items():
         monkeypatch.setenv(name, value)
     assert threads.overlapped() is False
+
+
+@pytest.mark.parametrize("line, busy", [
+    ("2.66 2.63 2.04 3/108 27543\n", True),  # two others runnable on two cores (and this one)
+    ("0.29 0.78 1.15 2/108 27543\n", False),  # one core free for a second thread
+    ("0.10 0.10 0.10 1/90 100\n", False),  # only this process
+    ("", False), ("garbage\n", False),  # unreadable: as if idle
+])
+def test_the_cores_are_busy_when_other_work_holds_every_one(tmp_path, monkeypatch, line, busy):
+    """A fit's second thread waits its turn at every step when other work holds every core
+    (with both of two cores busy, 1.3-6.7 s a fit against 0.66-0.79 s on one thread): the
+    tasks runnable at this moment, /proc/loadavg's fourth field, tell."""
+    import solver.threads as threads
+
+    monkeypatch.setattr(threads, "_cores", lambda: 2)
+    loadavg = tmp_path / "loadavg"
+    loadavg.write_text(line)
+    assert threads.cores_busy(str(loadavg)) is busy
+    monkeypatch.delenv(ENV, raising=False)
+    monkeypatch.setattr(threads, "LOADAVG", str(loadavg))
+    assert threads.overlapped() is (not busy)
+    assert threads.cores_busy(str(tmp_path / "none")) is False  # (no such file: not Linux)
