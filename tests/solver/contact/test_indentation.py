@@ -215,6 +215,7 @@ def test_fitted_seat_relief_is_winkler_s_not_the_finite_elements():
     assert 0 < fitted["folded"].mean() < 0.15
 
 
+@pytest.mark.slow  # (3 s)
 def test_the_ifd_modulus_is_below_the_uniaxial_one():
     """The foam that reads as 200 kPa/m in the IFD test (a 20 cm disc on a 38 cm, 10 cm
     sample) is softer than E = k h = 20 kPa: an elastic layer under a disc is stiffer than
