@@ -301,10 +301,10 @@ def derived_name(base: str, suffix: str) -> str:
     from it must be one too), never between a letter and the marks that follow it (a letter
     cut from its accent would be another letter). Whether the name is free is the caller's
     to check."""
-    end = max(MAX_NAME_LENGTH - len(suffix), 0)
-    while 0 < end < len(base) and unicodedata.combining(base[end]):
-        end -= 1
-    return base[:end].rstrip() + suffix
+    cut = end = max(MAX_NAME_LENGTH - len(suffix), 0)
+    while 0 < end < len(base) and unicodedata.category(base[end]).startswith("M"):
+        end -= 1  # (a mark, spacing or not, belongs to the letter before it)
+    return base[:end or cut].rstrip() + suffix
 
 
 def skeleton_key(sk: Skeleton) -> str:

@@ -152,7 +152,10 @@ def recordings(library: str | os.PathLike) -> list[Recording]:
     out = []
     for note in sorted(folder.glob("*.raw.unseen-avatar.json")) if folder.is_dir() else []:
         if not note.with_name(note.name[:-len(".unseen-avatar.json")]).exists():
-            note.unlink(missing_ok=True)  # (its journal deleted by hand, as the advice says)
+            try:  # (its journal deleted by hand, as the advice says)
+                note.unlink(missing_ok=True)
+            except OSError:  # (a library this process may only read: the note stays, unread)
+                pass
     for path in sorted(folder.glob("*.raw")) if folder.is_dir() else []:
         try:
             header = raw_header(path)

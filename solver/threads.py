@@ -18,10 +18,11 @@ A fit gives the same surface with one thread or several (tested to 1e-12).
 Apart from BLAS, a fit overlaps its two independent halves of judging a step (the pairing,
 energy and folds; the depths and rows against the bodies, nearest-point searches that run
 outside Python's lock) on a second thread when `overlapped()` says so: when the machine gives
-this process at least two cores (its CPU affinity: a container's CPU quota is not seen) and
-`SITRELAX_THREADS` is unset or ``all``, or when it is a count of two or more (which also gives
-BLAS that many). `SITRELAX_THREADS=1` (what batch workers get) keeps every fit on one thread.
-The surface is the same either way (tested bit for bit).
+this process at least two cores (its CPU affinity: a container's CPU quota is not seen),
+`SITRELAX_THREADS` is unset or ``all`` and the machine's cores are not all busy with other work
+as the fit starts (`cores_busy`), or when it is a count of two or more (which also gives BLAS
+that many). `SITRELAX_THREADS=1` (what batch workers get) keeps every fit on one thread. The
+surface is the same either way (tested bit for bit).
 """
 
 from __future__ import annotations
@@ -86,9 +87,9 @@ def overlapped() -> bool:
     Returns
     -------
     bool
-        True when this process may use at least two cores, they are not all busy with other
-        work (`cores_busy`), and `SITRELAX_THREADS` is unset, empty or ``all``, or is a count
-        of two or more; False for a count of one.
+        True when this process may use at least two cores, `SITRELAX_THREADS` is unset, empty
+        or ``all`` and the machine's cores are not all busy with other work (`cores_busy`), or
+        when it is a count of two or more (as asked); False for a count of one.
 
     Raises
     ------
@@ -97,7 +98,7 @@ def overlapped() -> bool:
     """
     count = blas_threads()
     if os.environ.get(ENV, "").strip() and count is not None:
-        return count >= 2 and not cores_busy()
+        return count >= 2
     return _cores() >= 2 and not cores_busy()
 
 
@@ -105,16 +106,18 @@ LOADAVG = "/proc/loadavg"  # Linux: its fourth field is "runnable/all" tasks at 
 
 
 def cores_busy(path: str | None = None) -> bool:
-    """Whether other work holds every core this process may use at this moment: at least as
-    many other tasks are runnable as there are cores (Linux's `/proc/loadavg`; False where it
-    cannot be read). A fit's second thread then waits for its turn at every step: with both of
-    two cores busy, 1.3-6.7 s a fit on two threads against 0.66-0.79 s on one (0.2 s idle)."""
+    """Whether other work holds every core of the machine at this moment: at least as many
+    other tasks are runnable as the machine has cores (Linux's `/proc/loadavg`, which counts the
+    machine's tasks, a container's host's included; False where it cannot be read). A fit's
+    second thread then waits for its turn at every step: with both of two cores busy, 1.3-6.7 s
+    a fit on two threads against 0.66-0.79 s on one (0.2 s idle). A process held to a few cores
+    of a larger machine is not told apart from an idle one (its own cores' load is not read)."""
     try:
         with open(path or LOADAVG, encoding="ascii") as file:
             runnable = int(file.read().split()[3].split("/")[0])
     except (OSError, ValueError, IndexError):
         return False
-    return runnable - 1 >= _cores()  # (this process's own reading thread is one of them)
+    return runnable - 1 >= (os.cpu_count() or 1)  # (this process's reading thread is one)
 
 
 @functools.lru_cache(maxsize=1)

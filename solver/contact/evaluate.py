@@ -30,6 +30,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from solver.contact.mat import SupportContact, contact_figures, mat_figures
+from solver.contact.ratios import ratio_text
 from solver.contact.settle import TOUCHING, UP, Foam, Settled, Support, reach_depth, settle
 from solver.contact.skins import body_closest, body_winding, vertex_tree
 from solver.contact.supported import SupportedBody
@@ -152,16 +153,6 @@ def seated_skin(same_load: dict) -> str:
     if not regions:
         return "skin the flat seat presses"
     return regions[0] if len(regions) == 1 else ", ".join(regions[:-1]) + " and " + regions[-1]
-
-
-PEAK_OF_FLAT_BAR = 0.6  # the most a surface's peak may be of the flat seat's (the quality bar)
-
-
-def ratio_text(ratio: float, bar: float = PEAK_OF_FLAT_BAR) -> str:
-    """A peak over the flat seat's, as the bar reads it: two decimals, three where two would
-    show a ratio over the bar as the bar itself (0.602 is "0.602", not "0.60")."""
-    text = f"{ratio:.2f}"
-    return f"{ratio:.3f}" if ratio > bar and float(text) <= bar else text
 
 
 def flat_text(person: dict) -> str:

@@ -38,7 +38,7 @@ compared node by node with the same quadrature (`pressure_figures`, `field_compa
 The modulus: a Winkler foam of stiffness k (Pa/m) and thickness h matches a layer of Young's
 modulus E = k h under uniaxial stress (free to bulge sideways), the way a foam's compression
 test is read; under a wide load the layer is closer to uniaxial strain, stiffer by
-E_oed / E = (1 - nu) / ((1 + nu)(1 - 2 nu)) (1.35 at nu = 0.3, 3.45 at 0.45), and its shear
+E_oed / E = (1 - nu) / ((1 + nu)(1 - 2 nu)) (1.35 at nu = 0.3, 3.79 at 0.45), and its shear
 spreads a load to neighbours, both of which the springs lack. The stiffness itself was read off
 an indentation test (ASTM D3574's IFD), whose disc presses a layer that is so restrained:
 `ifd_modulus` finds the E that reproduces that test (11.7 kPa at nu = 0.3, 8.3 at 0.45, for
@@ -626,7 +626,7 @@ def ifd_modulus(stiffness: float = 200e3, thickness: float = 0.1, poisson: float
     as stiffness x area x depth. Found by finite elements on a slab of node `spacing` (m),
     frictionless: linear, so one solve scales E = k h x (the finite elements' sink / the
     Winkler sink at the same force). Measured: 11.7 kPa at nu = 0.3 and 8.3 kPa at 0.45 for
-    the default foam (200 kPa/m, 10 cm; 1 cm and 7.5 cm nodes agree within 0.3 %), against
+    the default foam (200 kPa/m, 10 cm; 1 cm and 7.5 mm nodes agree within 0.3 %), against
     k h = 20 kPa."""
     half, radius = 0.19, 0.1015
     xs = np.linspace(-half, half, int(round(2 * half / spacing)) + 1)

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 
-from solver.contact.evaluate import PEAK_OF_FLAT_BAR
+from solver.contact.ratios import PEAK_OF_FLAT_BAR, ratio_text
 
 COVERAGE_MIN = 0.95
 CONTACT_COVERAGE_MIN = 0.8
@@ -37,7 +37,7 @@ SEATED_POSTURES = ("seated",)
 NO_SEAT_POSTURES = ("standing",)  # no flat-seat baseline
 CUT_TOLERANCE_M = 1e-3  # a cut deeper than the margin by more than this misses the bar
 PEAK_OF_FLAT_MAX = PEAK_OF_FLAT_BAR  # the peak pressure over the flat seat's at the same load
-# (its home is beside the texts that read it, `solver.contact.evaluate`)
+# (its home, with how its ratios read, is `solver.contact.ratios`)
 
 
 def person_loads(person: dict) -> dict:
@@ -134,7 +134,7 @@ def person_miss_kinds(person: dict, margin: float | None = None) -> list[tuple[s
     ratio = person.get("peak_of_flat")
     if ratio is not None and ratio > PEAK_OF_FLAT_MAX and \
             person.get("posture") not in NO_SEAT_POSTURES:
-        from solver.contact.evaluate import ratio_text, seated_skin
+        from solver.contact.evaluate import seated_skin
 
         same = person["flat"]["same_load"]
         misses.append(("flat_seat", f"{name}: peak pressure on the {seated_skin(same)} "

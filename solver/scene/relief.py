@@ -187,14 +187,16 @@ def relieve(scenario, people: Sequence, result, persons: list[dict], maps: list,
         if all(r is None or r <= target for r in ratios):
             break
         steps = _steps(people, persons, maps, target, stiffness, ratios)
-        widened, last = False, None  # (steps widened where a refused fit pressed harder; the
-        # last try's share and widening: the same again is the same fit, not tried twice)
-        for attempt, share in enumerate(SHARES, 1):
+        widened, last, made = False, None, 0  # (steps widened where a refused fit pressed
+        # harder; the last try's share and widening: the same again is the same fit, not tried
+        # twice; the tries made)
+        for share in SHARES:
             if (share, widened) == last:
                 continue
             last = (share, widened)
-            tried = "" if attempt == 1 else (
-                f", try {attempt} ({share:g} of the step"
+            made += 1
+            tried = "" if made == 1 else (
+                f", try {made} ({share:g} of the step"
                 f"{', and where the refused fits pressed harder' if widened else ''})")
             if cancel is not None and cancel():
                 relief.stopped = True
@@ -242,9 +244,10 @@ def relieve(scenario, people: Sequence, result, persons: list[dict], maps: list,
             if why is None:
                 break
             # tried again where the refused fit pressed too hard as well (a peak moved there)
-            steps = [np.maximum(a, b) for a, b in zip(steps, _steps(people, after, after_maps,
+            wider = [np.maximum(a, b) for a, b in zip(steps, _steps(people, after, after_maps,
                                                                     target, stiffness, now))]
-            widened = True
+            if any(not np.array_equal(a, b) for a, b in zip(wider, steps)):
+                steps, widened, last = wider, True, None  # (a new aim: each share again)
         if why is not None:
             break
         result, persons, maps, relief.offsets = candidate, after, after_maps, offsets

@@ -301,3 +301,7 @@ def test_a_name_shortened_keeps_each_letter_with_its_marks():
     name = derived_name(base, "-f00039")
     assert len(name) <= 200 and name.endswith("e\u0301-f00039")
     assert not unicodedata.combining(name[0])
+    # a spacing mark (a Devanagari vowel sign, which NFC keeps apart) stays with its letter
+    name = derived_name("a" * 197 + "\u0915\u093f" + "b", "-2")
+    assert name == "a" * 197 + "-2"
+    assert derived_name("\u0915" + "\u093f" * 210, "-2").endswith("-2")  # (all marks: cut)

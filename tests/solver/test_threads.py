@@ -128,6 +128,7 @@ def test_the_cores_are_busy_when_other_work_holds_every_one(tmp_path, monkeypatc
     import solver.threads as threads
 
     monkeypatch.setattr(threads, "_cores", lambda: 2)
+    monkeypatch.setattr(threads.os, "cpu_count", lambda: 2)
     loadavg = tmp_path / "loadavg"
     loadavg.write_text(line)
     assert threads.cores_busy(str(loadavg)) is busy
@@ -135,3 +136,7 @@ def test_the_cores_are_busy_when_other_work_holds_every_one(tmp_path, monkeypatc
     monkeypatch.setattr(threads, "LOADAVG", str(loadavg))
     assert threads.overlapped() is (not busy)
     assert threads.cores_busy(str(tmp_path / "none")) is False  # (no such file: not Linux)
+    monkeypatch.setenv(ENV, "2")  # (two threads asked for: two threads)
+    assert threads.overlapped() is True
+    monkeypatch.setattr(threads.os, "cpu_count", lambda: 64)  # (a larger machine's tasks)
+    assert threads.cores_busy(str(loadavg)) is False

@@ -119,7 +119,8 @@ def test_a_ratio_just_over_the_bar_never_reads_as_the_bar():
     misses = person_misses(_person(peak_of_flat=6.921 / 11.503, flat=flat))
     assert misses == ["sitter: peak pressure on the pelvis and thighs 6.9 kPa, 0.602 of a flat "
                       "seat's at the same load (11.5 kPa; bar 0.6)"]
-    from solver.contact.evaluate import ratio_text
+    from solver.contact.ratios import ratio_text
 
-    assert [ratio_text(r) for r in (0.598, 0.6, 0.6049, 0.61, 0.5)] == \
-        ["0.60", "0.60", "0.605", "0.61", "0.50"]
+    assert [ratio_text(r) for r in (0.598, 0.6, 0.6049, 0.61, 0.5, 0.6001, 0.60049)] == \
+        ["0.60", "0.60", "0.605", "0.61", "0.50", "0.6001", "0.6005"]
+    assert ratio_text(None) == ratio_text(float("nan")) == "not measured"
