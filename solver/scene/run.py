@@ -590,7 +590,8 @@ def previous_results(folder: Path, listing: type = dict) -> set[str]:
 
 def _inputs(read) -> set[Path]:
     """The files among `read` (paths, or None, or other text), resolved."""
-    return {Path(path).resolve() for path in read if path is not None and os.path.isfile(path)}
+    return {Path(path).resolve() for path in read
+            if isinstance(path, (str, os.PathLike)) and os.path.isfile(path)}
 
 
 def _refuse_overwriting(read, folder: Path, names) -> None:
