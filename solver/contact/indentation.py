@@ -205,28 +205,24 @@ def folded_triangles(block: FoamBlock, triangles: np.ndarray) -> np.ndarray:
 
 
 def underside_gaps(points: np.ndarray, directions: np.ndarray, vertices: np.ndarray,
-                   triangles: np.ndarray, batch: int = 512) -> np.ndarray:
+                   triangles: np.ndarray) -> np.ndarray:
     """(K,) m: how far each ray from points (K, 3) along unit directions (K, 3) runs before it
     first crosses one of the body's triangles (F, 3) of vertices (V, 3) (inf where it crosses
-    none, or only behind its start). Moeller-Trumbore, in batches of `batch` rays."""
-    p = np.asarray(points, dtype=np.float64)
-    d = np.asarray(directions, dtype=np.float64)
-    a, b, c = (vertices[triangles[:, i]] for i in range(3))
-    e1, e2 = b - a, c - a
+    none, or only behind its start): libigl's ray casting, a ray at a time."""
+    import igl
+
+    p = np.ascontiguousarray(points, dtype=np.float64)
+    d = np.ascontiguousarray(directions, dtype=np.float64)
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    t = np.ascontiguousarray(triangles, dtype=np.int64)
     out = np.full(len(p), np.inf)
-    for s in range(0, len(p), batch):
-        o, r = p[s:s + batch, None], d[s:s + batch, None]
-        q = np.cross(r, e2[None])
-        det = np.einsum("ijk,ijk->ij", q, e1[None])
-        ok = np.abs(det) > 1e-14
-        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-        tv = o - a[None]
-        u = np.einsum("ijk,ijk->ij", tv, q) * inv
-        qv = np.cross(tv, e1[None])
-        v = np.einsum("ijk,ijk->ij", r, qv) * inv
-        dist = np.einsum("ijk,ijk->ij", np.broadcast_to(e2[None], qv.shape), qv) * inv
-        hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (dist >= -1e-9)
-        out[s:s + batch] = np.where(hit, dist, np.inf).min(axis=1)
+    for k in range(len(p)):
+        # every hit, sorted (with `first`, libigl's binding reports a hit that is none for a
+        # ray that misses)
+        ahead = [hit[1] for hit in igl.ray_mesh_intersect(p[k], d[k], v, t, False) or ()
+                 if hit[1] >= -1e-9]
+        if ahead:
+            out[k] = min(ahead)
     return out
 
 
