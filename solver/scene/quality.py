@@ -36,8 +36,6 @@ SEATED_CALVES_MAX = 0.1  # share of m g on the calves
 SEATED_POSTURES = ("seated",)
 NO_SEAT_POSTURES = ("standing",)  # no flat-seat baseline
 CUT_TOLERANCE_M = 1e-3  # a cut deeper than the margin by more than this misses the bar
-PEAK_OF_FLAT_MAX = PEAK_OF_FLAT_BAR  # the peak pressure over the flat seat's at the same load
-# (its home, with how its ratios read, is `solver.contact.ratios`)
 
 
 def person_loads(person: dict) -> dict:
@@ -132,16 +130,16 @@ def person_miss_kinds(person: dict, margin: float | None = None) -> list[tuple[s
         misses.append(("peak_region", f"{name}: peak pressure {loads['peak_kpa']:.1f} kPa on "
                        f"the {loads['peak_region']}, which are not to be supported"))
     ratio = person.get("peak_of_flat")
-    if ratio is not None and ratio > PEAK_OF_FLAT_MAX and \
+    if ratio is not None and ratio > PEAK_OF_FLAT_BAR and \
             person.get("posture") not in NO_SEAT_POSTURES:
         from solver.contact.evaluate import seated_skin
 
         same = person["flat"]["same_load"]
         misses.append(("flat_seat", f"{name}: peak pressure on the {seated_skin(same)} "
                        f"{same['fitted_peak_kpa']:.1f} kPa, "
-                       f"{ratio_text(ratio, PEAK_OF_FLAT_MAX)} of a flat seat's at "
+                       f"{ratio_text(ratio, PEAK_OF_FLAT_BAR)} of a flat seat's at "
                        f"the same load ({same['peak_pressure_kpa']:.1f} kPa; bar "
-                       f"{PEAK_OF_FLAT_MAX})"))
+                       f"{PEAK_OF_FLAT_BAR})"))
     if person.get("posture") in SEATED_POSTURES:
         if loads["pelvis_thighs_share"] < SEATED_LOAD_MIN:
             misses.append(("pelvis_thighs", f"{name}: "

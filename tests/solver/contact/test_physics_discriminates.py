@@ -21,6 +21,7 @@ from solver.contact.programme import contact_programme
 from solver.contact.rigid_mould import rigid_mould_contact
 from solver.contact.settle import G, Foam, Support, settle
 from solver.mesh import SurfaceMesh, triangle_mesh
+from tests.solver.contact.test_settle import _box, _plane
 
 K = 100e3  # Pa/m, a soft foam: the 20 kg plate below sinks 16 mm into it
 MASS = 20.0
@@ -54,23 +55,6 @@ def _turn_z(degrees):
     return np.array([[np.cos(r), -np.sin(r), 0], [np.sin(r), np.cos(r), 0], [0, 0, 1]])
 
 
-def _box(size, centre, pitch):
-    """A closed box mesh with edges about `pitch` long: vertices, normals, areas, triangles."""
-    mesh = trimesh.creation.box(extents=size)
-    v, f = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, pitch)
-    m = trimesh.Trimesh(v, f, process=True)
-    v = np.asarray(m.vertices) + centre
-    t = np.asarray(m.faces)
-    areas, normals = triangle_mesh(t, len(v)).measures(v)
-    return v, normals, areas, t
-
-
-def _slope(degrees, half=2.0):
-    """A square plane through the origin facing up, turned `degrees` about z."""
-    v = np.array([[-half, 0, -half], [-half, 0, half], [half, 0, half], [half, 0, -half]], float)
-    return SurfaceMesh.from_quads(v @ _turn_z(degrees).T, np.array([[0, 1, 2, 3]]))
-
-
 def _box_on_slope(degrees, mu, lift=1e-3, pitch=0.025):
     """The 0.4 x 0.2 x 0.3 m box of 20 kg on 200 kPa/m foam on a slope, its bottom `lift` above
     the slope (see the strict xfail at the end: placed exactly on it, rounding loses contacts),
@@ -79,7 +63,7 @@ def _box_on_slope(degrees, mu, lift=1e-3, pitch=0.025):
     turn = _turn_z(degrees)
     normal, down = turn @ [0.0, 1.0, 0.0], turn @ [-1.0, 0.0, 0.0]
     v, n = v @ turn.T + lift * normal, n @ turn.T
-    s = settle(v, n, a, t, MASS, [Support("seat", Foam(200e3, friction=mu), _slope(degrees))])
+    s = settle(v, n, a, t, MASS, [Support("seat", Foam(200e3, friction=mu), _plane(0.0, degrees))])
     return s, v, down, normal
 
 
