@@ -87,7 +87,7 @@ from scipy.spatial import cKDTree
 
 from solver.contact.supported import SupportedBody
 from solver.mesh import boundary_edges
-from solver.surface.guarantees import FOLD_LIMIT_DEG, neighbour_faces, quad_normals
+from solver.surface.guarantees import FOLD_LIMIT_DEG, neighbour_faces
 from solver.surface.programme import DeadlinePassed, DenseProgramme, Programme, ProgrammeError
 from solver.surface.subdivision import Subdivision, subdivision
 from solver.threads import overlapped, with_limited_threads
@@ -128,6 +128,7 @@ FREEZES = 2  # times a warm refit's step that folds or ridges too far is retried
              # are not: held vertices next to moving ones leave kinks that a thin solid's
              # offset folds over)
 TREE_LEAF = 32  # points per leaf of the search trees (of the bodies, of the surface)
+FACING_LEAF = 64  # ... and of the bodies' six-dimensional ones (quicker to build and to search)
 RIM_CLEARANCE = 0.03  # metres the surface's rim may come no nearer to the unsupported skin in
                       # its foam (the calves that hang under a seat's front edge, a spread knee
                       # under its side): `rim_rows`
@@ -153,6 +154,8 @@ RIM_SLACK = 0.05  # metres a rim vertex may move before the skin near the rim is
 RIM_SPAN = 0.4  # metres: skin farther from the start's rim is left out (a fit moves the rim less)
 FLOOR_REACH = 2.0  # steps: a surface vertex this near the floor gets a floor row (it moves at
                    # most one step per iteration, so none gets under unseen)
+DEPTH_CHUNK = 1024  # sampled vertices sought at a time while the search may be called off
+                    # (a candidate refused meanwhile: `_body_side`)
 
 
 class FitError(ValueError):
@@ -304,12 +307,12 @@ def _search_trees(points: np.ndarray, normals: np.ndarray) -> tuple:
     (position, EXIT_SCALE x normal), the last the first while the two scales are the same.
     Split at the middle of each box rather than at the median and with larger leaves: quicker
     to build and to query (the same nearest points)."""
-    def tree(data: np.ndarray) -> cKDTree:
-        return cKDTree(data, leafsize=TREE_LEAF, balanced_tree=False)
+    def tree(data: np.ndarray, leaf: int = TREE_LEAF) -> cKDTree:
+        return cKDTree(data, leafsize=leaf, balanced_tree=False)
 
-    facing = tree(np.concatenate([points, FACING_SCALE * normals], axis=1))
+    facing = tree(np.concatenate([points, FACING_SCALE * normals], axis=1), FACING_LEAF)
     return (facing, tree(points), facing if EXIT_SCALE == FACING_SCALE else
-            tree(np.concatenate([points, EXIT_SCALE * normals], axis=1)))
+            tree(np.concatenate([points, EXIT_SCALE * normals], axis=1), FACING_LEAF))
 
 
 def _state_key(n0: int, params: "FitParams") -> tuple:
@@ -640,12 +643,23 @@ class Depths:
     depth: np.ndarray
 
 
-def _depths(fit: _Fit, sv: np.ndarray) -> Depths:
+def _depths(fit: _Fit, sv: np.ndarray, refused: threading.Event | None = None
+            ) -> Depths | None:
     """The `Depths` of sampled surface vertices sv (m, 3): how deep, behind the tangent plane of
     the nearest skin vertex (smooth as the surface slides along the skin, where the distance to
-    the nearest vertex would jump by a facet)."""
+    the nearest vertex would jump by a facet). With `refused`, they are sought DEPTH_CHUNK at a
+    time, and None once it is set (`_body_side`)."""
     points, normals = fit.points, fit.normals
-    gap, nearest = fit.body_tree3.query(sv - fit.tree_offset, distance_upper_bound=INSIDE_REACH)
+    query = sv - fit.tree_offset
+    if refused is None:
+        gap, nearest = fit.body_tree3.query(query, distance_upper_bound=INSIDE_REACH)
+    else:  # (each vertex's search is its own: the same nearest vertices, chunk by chunk)
+        gap, nearest = np.empty(len(sv)), np.empty(len(sv), dtype=np.intp)
+        for at in range(0, len(sv), DEPTH_CHUNK):
+            if refused.is_set():
+                return None
+            gap[at:at + DEPTH_CHUNK], nearest[at:at + DEPTH_CHUNK] = fit.body_tree3.query(
+                query[at:at + DEPTH_CHUNK], distance_upper_bound=INSIDE_REACH)
     outside = nearest == len(points)
     nearest[outside] = 0
     ahead = np.einsum("ij,ij->i", sv - np.take(points, nearest, axis=0),
@@ -673,26 +687,28 @@ def _nearest_skin(fit: _Fit, sv: np.ndarray, sn: np.ndarray, skin: np.ndarray | 
                   depths: Depths | None = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """For sampled surface vertices sv (m, 3) with normals sn: the body vertex each stays in
-    front of, its distance, whether the surface vertex lies inside a body and how deep (behind
-    the tangent plane of its nearest skin vertex, 0 outside). `skin` (m,):
+    front of, its distance (inf for a vertex inside a body, constrained however far it is,
+    and for one far from every body), whether the surface vertex lies inside a body and how
+    deep (behind the tangent plane of its nearest skin vertex, 0 outside). `skin` (m,):
     the body vertices the rows held the vertices to before (-1 for none), kept for the
     vertices now inside a body (so the demand on them does not jump as the surface moves).
     `depths`: the vertices' `Depths` when already known."""
     if depths is None:
         depths = _depths(fit, sv)
-    # closest body vertex facing the surface, sought only where a skin vertex lies within
-    # CONSTRAINT_RADIUS: the one it finds lies no nearer than that, so elsewhere (or where the
-    # search finds nothing within reach) the surface vertex is far from every body: no row
-    near_s = np.zeros(len(sv), dtype=np.int64)
-    dist = np.full(len(sv), np.inf)
-    reach = np.flatnonzero(depths.gap <= CONSTRAINT_RADIUS)
-    near_s[reach], dist[reach] = _facing(fit, sv[reach], sn[reach])
     # a surface vertex inside a body (behind its nearest skin vertex) is always constrained,
     # however far the skin it faces: it must get out (no body part is so thick that a point
     # inside it lies farther than INSIDE_REACH from its skin); it leaves through the skin it
     # was held to before it went in or, new to the rows, through the skin facing against the
     # surface's normal
     inside = depths.inside
+    # for the others, the closest body vertex facing the surface, sought only where a skin
+    # vertex lies within CONSTRAINT_RADIUS: the one it finds lies no nearer than that, so
+    # elsewhere (or where the search finds nothing within reach) the surface vertex is far
+    # from every body: no row
+    near_s = np.zeros(len(sv), dtype=np.int64)
+    dist = np.full(len(sv), np.inf)
+    reach = np.flatnonzero((depths.gap <= CONSTRAINT_RADIUS) & ~inside)
+    near_s[reach], dist[reach] = _facing(fit, sv[reach], sn[reach])
     kept = np.zeros(len(sv), dtype=bool) if skin is None else inside & (skin >= 0)
     if kept.any():
         near_s[kept] = skin[kept]
@@ -765,11 +781,20 @@ def floor_rows(fit: _Fit, surf: np.ndarray, member: np.ndarray) -> Rows:
     points are convex combinations of level-s vertices, so the limit surface stays above the
     floor too."""
     floor = float(fit.params.floor)
-    member |= surf[:, 1] < floor + FLOOR_REACH * fit.params.step
+    rows, under = _floor_members(fit, surf, member)
+    normals = np.zeros((len(rows), 3))
+    normals[:, 1] = 1.0
+    return _rows(rows, normals, np.full(len(rows), floor), surf, beyond_m2=under)
+
+
+def _floor_members(fit: _Fit, surf: np.ndarray, member: np.ndarray) -> tuple[np.ndarray, float]:
+    """`floor_rows`' rows (the vertices near the floor join `member`, in place) and how far
+    the surface is under the floor (its `Rows.beyond_m2`), without the rows themselves."""
+    floor = float(fit.params.floor)
+    height = surf[:, 1]
+    member |= height < floor + FLOOR_REACH * fit.params.step
     rows = np.flatnonzero(member)
-    normals = np.tile([0.0, 1.0, 0.0], (len(rows), 1))
-    return _rows(rows, normals, np.full(len(rows), floor), surf,
-                 beyond_m2=float(np.sum(np.maximum(0.0, floor - surf[rows, 1]) ** 2)))
+    return rows, float(np.sum(np.maximum(0.0, floor - np.take(height, rows)) ** 2))
 
 
 @dataclass(eq=False)
@@ -793,27 +818,65 @@ class _Rim:
     member: np.ndarray
     near: np.ndarray | None = None  # the points within RIM_REACH + RIM_SLACK of the rim ...
     where: np.ndarray | None = None  # ... where it lay when they were found (k, 3)
+    near_at: np.ndarray | None = None  # ... their positions (len(near), 3) ...
+    near_gap: np.ndarray | None = None  # ... and their distances to it there (len(near),)
 
-    def candidates(self, p: np.ndarray) -> np.ndarray:
-        """The indices of `points` that may lie within RIM_REACH of the rim at p (k, 3): those
-        within RIM_REACH + RIM_SLACK of where it lay when last sought, sought again once a rim
-        vertex has moved farther than RIM_SLACK (a point within reach of a vertex now lay
-        within reach + slack of it then)."""
-        if self.where is None or \
-                np.max(np.einsum("ij,ij->i", p - self.where, p - self.where)) > RIM_SLACK ** 2:
-            self.near, self.where = within(self.points, p, RIM_REACH + RIM_SLACK), p.copy()
-        return self.near
+    def candidates(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The indices of `points` that may lie within RIM_REACH of the rim at p (k, 3), and
+        their positions: of those within RIM_REACH + RIM_SLACK of where it lay when last
+        sought (sought again once a rim vertex has moved farther than RIM_SLACK), the ones
+        that lay within RIM_REACH plus the farthest any rim vertex has moved since (a point
+        within reach of a vertex now lay within reach + that move of it then; right after a
+        search, that leaves out more than half of them)."""
+        moved = 0.0
+        if self.where is not None:
+            moved = np.max(np.einsum("ij,ij->i", p - self.where, p - self.where))
+        if self.where is None or moved > RIM_SLACK ** 2:
+            self.near, self.near_gap = within(self.points, p, RIM_REACH + RIM_SLACK,
+                                              distances=True)
+            self.near_at = np.take(self.points, self.near, axis=0)
+            self.where, moved = p.copy(), 0.0
+        # (a hair more, for the rounding of the distances; all of them if a move is no number)
+        keep = np.flatnonzero(~(self.near_gap >= RIM_REACH + np.sqrt(moved) + 1e-9))
+        return np.take(self.near, keep), np.take(self.near_at, keep, axis=0)
 
 
-def within(points: np.ndarray, others: np.ndarray, reach: float) -> np.ndarray:
+def within(points: np.ndarray, others: np.ndarray, reach: float, distances: bool = False
+           ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """The indices (ascending) of `points` (P, 3) nearer than `reach` to one of `others`
     (k, 3): sought only among those within the others' box grown by `reach` (the others are a
     rim, the points the bodies' free skin: on six_overlapping's bench 41 % of it, the heads
-    and shoulders, lies outside that box)."""
-    box = np.flatnonzero(np.all((points > others.min(axis=0) - reach) &
-                                (points < others.max(axis=0) + reach), axis=1))
-    dist, _ = cKDTree(others).query(points[box], distance_upper_bound=reach)
-    return box[np.isfinite(dist)]
+    and shoulders, lies outside that box). With `distances`, also the distance of each of
+    those points to the nearest of the others."""
+    low, high = others.min(axis=0) - reach, others.max(axis=0) + reach
+    box = np.flatnonzero((points[:, 0] > low[0]) & (points[:, 0] < high[0]) &
+                         (points[:, 1] > low[1]) & (points[:, 1] < high[1]) &
+                         (points[:, 2] > low[2]) & (points[:, 2] < high[2]))
+    dist, _ = cKDTree(others).query(np.take(points, box, axis=0), distance_upper_bound=reach)
+    near = np.flatnonzero(np.isfinite(dist))
+    return (np.take(box, near), np.take(dist, near)) if distances else np.take(box, near)
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(k, 3) the cross products of the rows of a and b (k, 3): `np.cross`'s arithmetic, the
+    same to the bit, a third of its time (it is general: axes, broadcasting, two-vectors)."""
+    out = np.empty_like(a)
+    np.subtract(a[:, 1] * b[:, 2], a[:, 2] * b[:, 1], out=out[:, 0])
+    np.subtract(a[:, 2] * b[:, 0], a[:, 0] * b[:, 2], out=out[:, 1])
+    np.subtract(a[:, 0] * b[:, 1], a[:, 1] * b[:, 0], out=out[:, 2])
+    return out
+
+
+def _first_largest(group: np.ndarray, value: np.ndarray, count: int) -> np.ndarray:
+    """The index of the largest `value` (n,) of each of the groups 0..count - 1 that `group`
+    (n,) names (the first of equal ones), ascending by group, for the groups that have one:
+    what a stable sort by group and then by value, descending, puts first in each."""
+    best = np.full(count, -np.inf)
+    np.maximum.at(best, group, value)
+    hit = np.flatnonzero(value == np.take(best, group))
+    first = np.full(count, len(value))
+    np.minimum.at(first, np.take(group, hit), hit)
+    return first[first < len(value)]
 
 
 def _rim_topology(faces: np.ndarray, sampled: np.ndarray) -> tuple:
@@ -878,51 +941,52 @@ def rim_rows(fit: _Fit, surf: np.ndarray, surf_n: np.ndarray) -> Rows:
     `fit.rim.member` and stay (inactive when not wanted), as the body's rows do."""
     rim = fit.rim
     p, n = np.take(surf, rim.ids, axis=0), np.take(surf_n, rim.ids, axis=0)
-    e = np.cross(np.take(surf, rim.after, axis=0) - np.take(surf, rim.before, axis=0),
-                 n)  # outwards (`_rim_topology`)
+    e = _cross(np.take(surf, rim.after, axis=0) - np.take(surf, rim.before, axis=0),
+               n)  # outwards (`_rim_topology`)
     e /= np.maximum(np.linalg.norm(e, axis=1, keepdims=True), 1e-300)
     # each skin point to its nearest rim vertex within reach
-    near = rim.candidates(p)
-    dist, owner = cKDTree(p).query(np.take(rim.points, near, axis=0),
-                                   distance_upper_bound=RIM_REACH)
-    point, owner = near[np.isfinite(dist)], owner[np.isfinite(dist)]
+    near, near_at = rim.candidates(p)
+    dist, owner = cKDTree(p).query(near_at, distance_upper_bound=RIM_REACH)
+    found = np.flatnonzero(np.isfinite(dist))
+    point, owner = np.take(near, found), np.take(owner, found)
     k = len(rim.ids)
     demanded, lid = np.full(k, -np.inf), np.full(k, -np.inf)
     scale = np.ones(k)
     if len(point):
-        d = np.take(rim.points, point, axis=0) - np.take(p, owner, axis=0)
-        behind = -np.einsum("ij,ij->i", d, n[owner])
-        out = np.einsum("ij,ij->i", d, e[owner])
-        over = rim.unnamed[point] & (behind < 0) & (behind > -LID_FRONT) & \
-            (out > -RIM_INNER) & (out < LID_OUT)
-        if over.any():  # the row -n . v >= -n . b + LID_CLEAR of the point nearest in front
-            np.maximum.at(lid, owner[over], LID_CLEAR - np.einsum(
-                "ij,ij->i", n[owner[over]], rim.points[point[over]]))
+        b = np.take(near_at, found, axis=0)  # those skin points (m, 3)
+        d = b - np.take(p, owner, axis=0)
+        n_o = np.take(n, owner, axis=0)
+        behind = -np.einsum("ij,ij->i", d, n_o)
+        out = np.einsum("ij,ij->i", d, np.take(e, owner, axis=0))
+        over = np.flatnonzero(np.take(rim.unnamed, point) & (behind < 0) &
+                              (behind > -LID_FRONT) & (out > -RIM_INNER) & (out < LID_OUT))
+        if len(over):  # the row -n . v >= -n . b + LID_CLEAR of the point nearest in front
+            np.maximum.at(lid, np.take(owner, over), LID_CLEAR - np.einsum(
+                "ij,ij->i", np.take(n_o, over, axis=0), np.take(b, over, axis=0)))
         # how much each point counts, fading to nothing at the edges of the region the rim
         # answers for (so that its row does not jump as the surface moves)
         weight = np.clip((behind + RIM_FRONT) / RIM_FRONT, 0.0, 1.0) * \
             np.clip((RIM_SLAB - behind) / RIM_FADE, 0.0, 1.0) * \
             np.clip((out + RIM_INNER) / (RIM_INNER / 2), 0.0, 1.0)
-        clear = RIM_CLEARANCE + RIM_SLANT * np.maximum(behind, 0.0)
-        short = weight * (clear - out)
-        wanted = weight > 0
-        if wanted.any():
+        wanted = np.flatnonzero(weight > 0)
+        if len(wanted):
             # per rim vertex its point of largest weighted shortfall: the row
             # w (-e . v) >= w (clearance - e . b)
-            owner, short, weight, point, clear = owner[wanted], short[wanted], weight[wanted], \
-                point[wanted], clear[wanted]
-            order = np.lexsort((-short, owner))
-            top = order[np.r_[True, owner[order][1:] != owner[order][:-1]]]
-            scale[owner[top]] = weight[top]
-            demanded[owner[top]] = weight[top] * (
-                clear[top] - np.einsum("ij,ij->i", e[owner[top]], rim.points[point[top]]))
+            owner, behind, out, weight = (np.take(x, wanted)
+                                          for x in (owner, behind, out, weight))
+            clear = RIM_CLEARANCE + RIM_SLANT * np.maximum(behind, 0.0)
+            top = _first_largest(owner, weight * (clear - out), k)
+            owner, weight = np.take(owner, top), np.take(weight, top)
+            scale[owner] = weight
+            demanded[owner] = weight * (np.take(clear, top) - np.einsum(
+                "ij,ij->i", np.take(e, owner, axis=0), np.take(b, wanted[top], axis=0)))
     demanded = np.concatenate([demanded, lid])
     rim.member |= np.isfinite(demanded)
     normals = np.concatenate([-scale[:, None] * e, -n])
     now = np.einsum("ij,ij->i", normals, np.concatenate([p, p]))
-    keep = rim.member
-    return Rows(np.tile(rim.ids, 2)[keep], normals[keep], np.minimum(demanded, now)[keep],
-                now[keep])
+    keep = np.flatnonzero(rim.member)
+    return Rows(np.take(rim.ids, keep % k), np.take(normals, keep, axis=0),
+                np.take(np.minimum(demanded, now), keep), np.take(now, keep))
 
 
 @dataclass(frozen=True, eq=False)
@@ -1081,7 +1145,7 @@ def _beyond(fit: _Fit, v: np.ndarray, surf: np.ndarray, depths: Depths,
     `floor_member` (in place)."""
     beyond = _beyond_margin(fit, depths.depth)
     if floor_member is not None and fit.params.floor is not None:
-        beyond = beyond + floor_rows(fit, surf, floor_member).beyond_m2
+        beyond = beyond + _floor_members(fit, surf, floor_member)[1]
     if fit.extra is not None:
         beyond = beyond + _extra_now(fit, v)[1]
     return beyond
@@ -1194,12 +1258,19 @@ def assess(fit: _Fit, v: np.ndarray, member: np.ndarray,
 
 def _body_side(fit: _Fit, v: np.ndarray, surf: np.ndarray, surf_n: np.ndarray,
                member: np.ndarray, floor_member: np.ndarray | None, skin: np.ndarray | None,
-               refused: threading.Event) -> tuple[Depths, float, Rows | None]:
+               refused: threading.Event) -> tuple[Depths | None, float, Rows | None]:
     """What `assess` makes on the pool's thread: the sampled vertices' `Depths`, how far the
     surface is out of bounds (`_beyond`) and its rows (`with_rows`, whose members include
     those `_out_of_bounds` adds), these last unless `refused` is set once the depths are known
-    (None then)."""
-    depths = _depths(fit, np.take(surf, fit.sampled_ids, axis=0))
+    (None then). Refused while the depths are sought, it leaves them (None, and inf for how
+    far out of bounds) and only the vertices near the floor join `floor_member`: `assess`
+    waits for no more (on six_overlapping's bench it waited 1-6 ms for the rest of each
+    refused candidate's depths, now under one)."""
+    depths = _depths(fit, np.take(surf, fit.sampled_ids, axis=0), refused)
+    if depths is None:
+        if floor_member is not None and fit.params.floor is not None:
+            _floor_members(fit, surf, floor_member)
+        return None, np.inf, None
     unmet = _beyond(fit, v, surf, depths, floor_member)
     if refused.is_set():
         return depths, unmet, None

@@ -309,6 +309,14 @@ def _normals_dot(normals: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", normals, points)
 
 
+@functools.lru_cache(maxsize=4)
+def _strictly_lower(n: int) -> np.ndarray:
+    """Where an n x n matrix's entries below its diagonal are (shared, so read-only)."""
+    below = np.tri(n, k=-1, dtype=bool)
+    below.flags.writeable = False
+    return below
+
+
 def _coo_of(m: sp.csc_matrix) -> tuple[np.ndarray, np.ndarray]:
     """Row and column of each stored entry, in the matrix's own data order (CSC)."""
     cols = np.repeat(np.arange(m.shape[1]), np.diff(m.indptr))
@@ -342,6 +350,7 @@ class DenseProgramme(_Claimed):
         self.fallbacks = 0
         self._fallback: Programme | None = None
         self._ahead: tuple | None = None  # (P, Hessian, its factor) made by `prepare`
+        self._identity = np.eye(3 * n0)  # the Hessian in z, for DAQP (which only reads it)
 
     def solve(self, p_x: np.ndarray | sp.csr_matrix, q: np.ndarray, rows: np.ndarray,
               normals: np.ndarray, lower: np.ndarray, x0: np.ndarray, step: float
@@ -382,8 +391,9 @@ class DenseProgramme(_Claimed):
     def _mirrored(self, p_x: np.ndarray) -> np.ndarray:
         """The symmetric Hessian whose upper triangle `p_x`'s is (the caller fills the upper
         blocks), checked for values that are not numbers."""
-        hessian = np.triu(p_x)
-        hessian += np.triu(p_x, 1).T  # (onto zeros: the entries themselves)
+        hessian = p_x.copy()
+        np.copyto(hessian, p_x.T, where=_strictly_lower(len(p_x)))
+        hessian += 0.0  # (as when the two triangles were summed: a -0.0 becomes 0.0)
         if not np.all(np.isfinite(hessian)):
             raise ProgrammeError(NOT_A_NUMBER)
         return hessian
@@ -431,7 +441,7 @@ class DenseProgramme(_Claimed):
         metre) in x, with the trust region as DAQP's simple bounds."""
         import scipy.linalg as sl
 
-        n0, n = self.n0, 3 * self.n0
+        n = 3 * self.n0
         p_x = p_x.toarray() if sp.issparse(p_x) else np.asarray(p_x)
         if not np.all(np.isfinite(q)):
             raise ProgrammeError(NOT_A_NUMBER)
@@ -450,7 +460,7 @@ class DenseProgramme(_Claimed):
         taking = bounds > plane(x0) - NEAR_ROW
         boxed = np.zeros(n, dtype=bool)  # the coordinates whose trust-region rows are taken
         weight = 1.0 / (2.0 * self.slack_weight)  # DAQP's soft rows cost s^2 / (2 rho)
-        identity = np.eye(n)
+        identity = self._identity
         while True:
             take, box = np.flatnonzero(taking), np.flatnonzero(boxed)
             dense = self._dense[points[take]]
