@@ -522,15 +522,20 @@ def flat_at_same_load(person: SupportedBody, settled: Settled, foam: Foam) -> di
     same foam in place of the surface's seat (its part within 45 degrees of level,
     `surface_parts`), pressed up under the body, held as it rests on the fitted surface (no
     turn, no slide: a seated body tips back off a flat seat, which a person prevents with their
-    muscles), until it carries the vertical load the seat carries. Only the supported skin that
-    faces down presses it (the plane ends where the supported parts do: calves hanging or tucked
-    under a seat do not reach it). Pressure is the settle's law: stiffness times depth,
-    `bottom_factor` times stiffer past the foam's thickness, over each vertex's Voronoi area
-    projected on the plane. A back or a leg rest keeps its load: the flat seat takes the seat's
-    place only. What it is compared with (`fitted_peak_kpa`) is the fitted surface's peak on the
-    body regions the flat seat presses (pelvis and thighs on a seat), whichever of its parts
-    presses them: a seat's front or sides rising steeper than 45 degrees against the thighs
-    count, a back or an arm rest pressing other regions does not.
+    muscles), until it carries the vertical load the seat carries, and the vertical load the
+    surface's steeper parts put on the body regions of the skin that presses the plane (a seat's
+    front or sides rising against the thighs). Only the supported skin that faces down presses
+    it (the plane ends where the supported parts do: calves hanging or tucked under a seat do
+    not reach it). Pressure is the settle's law: stiffness times depth, `bottom_factor` times
+    stiffer past the foam's thickness, over each vertex's Voronoi area projected on the plane.
+    A back or a leg rest keeps its load on other regions (the lower back, the calves): the
+    flat seat takes the place of the surface where it presses the regions the plane stands in
+    for. What it is compared with (`fitted_peak_kpa`) is the fitted surface's peak on the body
+    regions the flat seat presses (pelvis and thighs on a seat), whichever of its parts presses
+    them: a seat's front or sides rising steeper than 45 degrees against the thighs count, a
+    back or an arm rest pressing other regions does not. (Until 2026-12-07 the plane carried
+    the seat part's load alone while the peak counted the steeper parts': it was compared at a
+    lighter load than the regions carried.)
 
     Parameters
     ----------
@@ -564,6 +569,15 @@ def flat_at_same_load(person: SupportedBody, settled: Settled, foam: Foam) -> di
     index = np.flatnonzero(pressing)
     if load <= 0 or not index.size:
         return None
+    if person.regions is not None:
+        # the surface's steeper parts (a seat's sides or front edge rising against the thighs)
+        # give their load on the regions the plane stands in for to the plane as well: the
+        # fitted peak it is compared with is taken on those regions whichever part presses them
+        held = np.isin(person.regions, np.unique(person.regions[index]))
+        for c in settled.contacts:
+            if c.name != "seat" and c.name in SURFACE_PARTS:
+                up = c.normal_force * c.normals[:, 1] + c.tangential_force[:, 1]
+                load += max(float(up[held[c.vertices]].sum()), 0.0)
     y, footprint = settled.vertices[index, 1], footprint[index]
     extra = (foam.bottom_factor - 1.0) * foam.stiffness
 

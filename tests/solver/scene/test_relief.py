@@ -231,7 +231,7 @@ def test_relief_lowers_the_seated_peak_and_keeps_every_bar_the_fit_met(tmp_path)
     relieved = run_fit(scenario, tmp_path / "relieved", pictures=False, formats=("obj",))
     assert plain["relief"] is None
     rounds = relieved["relief"]["rounds"]
-    assert 1 <= len(rounds) <= 2 and rounds[0]["kept"], rounds
+    assert any(r["kept"] for r in rounds), rounds
     before, after = plain["persons"][0], relieved["persons"][0]
     assert after["peak_of_flat"] < before["peak_of_flat"] - 0.02, (before["peak_of_flat"],
                                                                      after["peak_of_flat"])
