@@ -143,6 +143,37 @@ def test_the_flat_seat_takes_the_seat_s_load_and_leaves_the_back_its_own():
     assert flat["regions"] is None
 
 
+@pytest.mark.parametrize("steep, counted", [("leg rest", True), ("back", False)])
+def test_the_flat_seat_takes_the_load_steeper_parts_put_on_the_regions_it_stands_in_for(
+        steep, counted):
+    """The same plank on a seat pad and a second pad, its skin the thighs over the seat and the
+    lower back over the second, only the thighs supported: a steeper part of the surface (a
+    seat's rising front or sides, `leg rest`) under the thighs gives its half of the weight to
+    the flat seat too, since the peak compared counts it; a back under the lower back, which
+    the flat seat does not stand in for, keeps its half."""
+    from solver.body.model import BODY_REGIONS
+    from solver.mesh import SurfaceMesh
+
+    plank = _box((0.8, 0.1, 0.2), [0.0, 0.05, 0.0])
+    right = plank.vertices[:, 0] > 0
+    regions = np.where(right | (steep == "leg rest"), BODY_REGIONS.index("thighs"),
+                       BODY_REGIONS.index("lower_back"))
+    plank = replace(plank, regions=regions, supported=regions == BODY_REGIONS.index("thighs"))
+    foam = Foam(200e3, thickness=0.1)
+
+    def pad(x0: float, x1: float) -> SurfaceMesh:
+        v = np.array([[x0, 0, -0.3], [x0, 0, 0.3], [x1, 0, 0.3], [x1, 0, -0.3]], float)
+        return SurfaceMesh.from_quads(v, np.array([[0, 1, 2, 3]]))
+
+    s = settle(plank.vertices, plank.normals, plank.areas, plank.triangles, 20.0,
+               [Support("seat", foam, pad(0.2, 0.45)), Support(steep, foam, pad(-0.45, -0.2))])
+    assert s.stable, s.reason
+    flat = flat_at_same_load(plank, s, foam)
+    weight = 20.0 * G
+    assert flat["load_n"] == pytest.approx(weight if counted else weight / 2, rel=0.02)
+    assert flat["regions"] == ["thighs"]
+
+
 def test_the_skin_that_presses_is_the_skin_that_faces_down_as_the_body_rests():
     """A box turned a quarter about z by its settle (made here): the face whose normal was +x
     now faces down and alone presses the flat seat, uniformly, at the load over its area."""
