@@ -54,6 +54,7 @@ class PressureMap:
 LEG_REGIONS = ("thighs", "calves", "feet")
 SURFACE_PARTS = ("seat", "back", "leg rest")  # the names `surface_parts` gives contacts
 STEEP = np.cos(np.radians(45.0))  # a support steeper than 45 degrees is no seat
+MAX_REGION_ROUNDS = 5  # times the flat seat's regions are sought again (`flat_at_same_load`)
 
 
 def surface_parts(regions: np.ndarray | None):
@@ -569,15 +570,6 @@ def flat_at_same_load(person: SupportedBody, settled: Settled, foam: Foam) -> di
     index = np.flatnonzero(pressing)
     if load <= 0 or not index.size:
         return None
-    if person.regions is not None:
-        # the surface's steeper parts (a seat's sides or front edge rising against the thighs)
-        # give their load on the regions the plane stands in for to the plane as well: the
-        # fitted peak it is compared with is taken on those regions whichever part presses them
-        held = np.isin(person.regions, np.unique(person.regions[index]))
-        for c in settled.contacts:
-            if c.name != "seat" and c.name in SURFACE_PARTS:
-                up = c.normal_force * c.normals[:, 1] + c.tangential_force[:, 1]
-                load += max(float(up[held[c.vertices]].sum()), 0.0)
     y, footprint = settled.vertices[index, 1], footprint[index]
     extra = (foam.bottom_factor - 1.0) * foam.stiffness
 
@@ -585,15 +577,37 @@ def flat_at_same_load(person: SupportedBody, settled: Settled, foam: Foam) -> di
         depth = np.maximum(height - y, 0.0)
         return foam.stiffness * depth + extra * np.maximum(depth - foam.thickness, 0.0)
 
-    def short(height: float) -> float:  # N the plane at `height` carries less than `load`
-        return load - float(footprint @ pressure(height))
+    def plane(load: float) -> float:  # the height at which the plane carries `load`
+        from scipy.optimize import brentq
 
-    low, high = float(y.min()), float(y.min()) + 0.01
-    while short(high) > 0:  # (the load grows without bound as the plane rises)
-        high += high - low
-    from scipy.optimize import brentq
+        def short(height: float) -> float:  # N the plane at `height` carries less than load
+            return load - float(footprint @ pressure(height))
 
-    height = brentq(short, low, high, xtol=1e-9)
+        low, high = float(y.min()), float(y.min()) + 0.01
+        while short(high) > 0:  # (the load grows without bound as the plane rises)
+            high += high - low
+        return brentq(short, low, high, xtol=1e-9)
+
+    seat_load = load
+    height = plane(load)
+    if person.regions is not None:
+        # the surface's steeper parts (a seat's sides or front edge rising against the thighs)
+        # give the load they put on the regions the plane presses to the plane as well: the
+        # fitted peak it is compared with is taken on those regions whichever part presses
+        # them. Those regions depend on how high the plane carries its load: sought until they
+        # stay the same (a back's or an arm rest's load on regions the plane does not reach,
+        # the lower back, the forearms, stays theirs)
+        steep = [(c.vertices, c.normal_force * c.normals[:, 1] + c.tangential_force[:, 1])
+                 for c in settled.contacts if c.name != "seat" and c.name in SURFACE_PARTS]
+        seen: list = []
+        for _ in range(MAX_REGION_ROUNDS):
+            held = np.unique(person.regions[index[pressure(height) > 0]])
+            if any(np.array_equal(held, before) for before in seen):
+                break  # (the same regions again: a cycle ends on the last)
+            seen.append(held)
+            within = np.isin(person.regions, held)
+            load = seat_load + sum(max(float(up[within[v]].sum()), 0.0) for v, up in steep)
+            height = plane(load)
     p = pressure(height)
     on = p > 0
     k = int(on.sum())

@@ -35,11 +35,13 @@ RISE = 0.05  # the most a person's peak over the flat seat's may come to over it
 class Relief:
     """The fits tried (`rounds`: per fit its round, share of the step, peaks over the flat
     seat's, whether it was kept and why not, the skin moved out at most (m), seconds and
-    iterations), the kept round's skin offsets per person, and whether a cancel stopped them."""
+    iterations), the kept round's skin offsets per person, whether a cancel stopped them and
+    whether they stopped with every person at the target."""
 
     rounds: list = field(default_factory=list)
     offsets: list = field(default_factory=list)  # per person (V,) metres, of the kept round
     stopped: bool = False  # cut short by the caller's cancel
+    at_target: bool = False  # every person's peak at or under the target when they stopped
 
     @property
     def kept(self) -> int:
@@ -47,16 +49,21 @@ class Relief:
         return sum(r["kept"] for r in self.rounds)
 
     def record(self) -> dict:
-        """The report's "relief": the rounds, how many were kept, and whether the caller's
-        cancel stopped them."""
-        return {"rounds": self.rounds, "kept": self.kept, "stopped": self.stopped}
+        """The report's "relief": the rounds, how many were kept, whether the caller's
+        cancel stopped them and whether every person was at the target when they stopped."""
+        return {"rounds": self.rounds, "kept": self.kept, "stopped": self.stopped,
+                "at_target": self.at_target}
 
 
 def relief_text(record: dict | None) -> str | None:
     """One line on a report's "relief" (`Relief.record`) for the sheet and the command line,
-    None without rounds."""
-    if not record or not record["rounds"]:
+    None without rounds (but for rounds asked for and not needed: every person at the target
+    from the start)."""
+    if not record:
         return None
+    if not record["rounds"]:
+        return "pressure relief: no round needed (every peak at the target already)" \
+            if record.get("at_target") else None
     tried = record["rounds"]
     rounds = max((r["round"] for r in tried if r["kept"]), default=0)
     seconds = sum(r["fit_s"] or 0.0 for r in tried)  # (None: a fit that failed)
@@ -185,6 +192,7 @@ def relieve(scenario, people: Sequence, result, persons: list[dict], maps: list,
     for k in range(1, rounds + 1):
         ratios = _ratios(persons)
         if all(r is None or r <= target for r in ratios):
+            relief.at_target = True
             break
         steps = _steps(people, persons, maps, target, stiffness, ratios)
         widened, last, made = False, None, 0  # (steps widened where a refused fit pressed

@@ -135,7 +135,8 @@ def test_a_cancel_stops_the_rounds_with_what_was_kept_and_says_so():
                                          evaluate=never, rounds=3, target=0.5,
                                          cancel=lambda: True)
     assert (result, kept, maps) == ("fit", persons, [None])
-    assert relief.record() == {"rounds": [], "kept": 0, "stopped": True}
+    assert relief.record() == {"rounds": [], "kept": 0, "stopped": True,
+                               "at_target": False}
     assert relief_text(relief.record()) is None  # (nothing tried: no line)
     tried = {"rounds": [{"round": 1, "kept": True, "fit_s": 0.5},
                         {"round": 2, "kept": False, "fit_s": 0.25}], "stopped": True}
@@ -184,7 +185,8 @@ def test_a_cancel_after_a_fit_keeps_what_was_kept_before_it():
                                       evaluate=lambda r: pytest.fail("not evaluated"),
                                       rounds=3, target=0.5, cancel=cancel)
     assert len(fits) == 1 and result == "fit" and kept is persons
-    assert relief.record() == {"rounds": [], "kept": 0, "stopped": True}
+    assert relief.record() == {"rounds": [], "kept": 0, "stopped": True,
+                               "at_target": False}
     # the first fit's aim: the skin out along its normal by (8 - 5) kPa / 200 kPa/m = 15 mm,
     # at most STEP a round
     np.testing.assert_allclose(fits[0][0].vertices, [[0.0, -0.005, 0.0]] * 3)
@@ -316,3 +318,29 @@ def test_a_failed_fit_is_not_tried_again_as_it_was():
             say=said.append)
     assert fits == pytest.approx([0.005, 0.0025, 0.00125])  # 1, then 0.5 and 0.25 of the step
     assert said[1].startswith("relief round 1, try 2 (0.5 of the step): refused"), said
+
+
+def test_relief_asked_for_and_not_needed_says_so():
+    """Every person already at the target: no fit is tried, and the report and its line say
+    that none was needed (a line for rounds that were asked for), not nothing."""
+    from solver.surface.fit import FitError
+
+    scenario, people, persons, maps = _stub_scene([0.45])
+
+    def fit(targets):
+        raise AssertionError("no fit is needed")
+
+    result, kept, _, relief = relieve(scenario, people, "fit", persons, maps, fit=fit,
+                                      evaluate=None, rounds=6, target=0.5)
+    record = relief.record()
+    assert result == "fit" and record["rounds"] == [] and record["at_target"]
+    assert relief_text(record) == "pressure relief: no round needed (every peak at the target " \
+                                  "already)"
+    def failing(targets):
+        raise FitError("no fit")
+
+    over = _stub_scene([0.55])  # over the target: a round is tried, and at_target stays False
+    _, _, _, relief = relieve(*over[:2], "fit", *over[2:], fit=failing, evaluate=None,
+                              rounds=1, target=0.5)
+    assert not relief.record()["at_target"] and relief.rounds[0]["refused"].startswith(
+        "the fit failed")

@@ -487,10 +487,16 @@ def test_example_people_rest_on_their_surfaces(name, index, tmp_path_factory):
         assert flat["peak_pressure_kpa"] is None and flat["equilibrium"]["reason"], person
     same = flat["same_load"]  # the flat seat at the seat's load, held as the body rests
     assert 0.3 < same["load_share"] <= 1.01 and same["peak_pressure_kpa"] > 0, same
-    seat = person["mat"]["supports"]["seat"]  # the seat's figures by the mat's own path
-    assert same["load_n"] == pytest.approx(seat["vertical_load_n"], rel=1e-9)
     # the surface's peak on the regions the flat seat carries, whichever part presses them
     assert same["regions"] and set(same["regions"]) <= {"pelvis", "thighs"}, same
+    # its load: the seat's, and what the steeper parts put on those regions, by the mat's own
+    # path (the seat part's figures, and the other parts' by region)
+    supports = person["mat"]["supports"]
+    steeper = sum(max(sum(f["vertical_load_n"] for region, f in figures["regions"].items()
+                          if region in same["regions"]), 0.0)
+                  for part, figures in supports.items() if part not in ("seat", "floor"))
+    assert same["load_n"] == pytest.approx(supports["seat"]["vertical_load_n"] + steeper,
+                                           rel=1e-6, abs=1e-6)
     held = [f["peak_kpa"] for part, figures in person["mat"]["supports"].items()
             if part != "floor" for region, f in figures["regions"].items()
             if region in same["regions"]]
