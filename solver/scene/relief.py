@@ -42,6 +42,7 @@ class Relief:
     offsets: list = field(default_factory=list)  # per person (V,) metres, of the kept round
     stopped: bool = False  # cut short by the caller's cancel
     at_target: bool = False  # every person's peak at or under the target when they stopped
+    # (and one at least to judge)
 
     @property
     def kept(self) -> int:
@@ -192,7 +193,8 @@ def relieve(scenario, people: Sequence, result, persons: list[dict], maps: list,
     for k in range(1, rounds + 1):
         ratios = _ratios(persons)
         if all(r is None or r <= target for r in ratios):
-            relief.at_target = True
+            # (with a peak to judge: none for people who do not rest or sit on no seat)
+            relief.at_target = any(r is not None for r in ratios)
             break
         steps = _steps(people, persons, maps, target, stiffness, ratios)
         widened, last, made = False, None, 0  # (steps widened where a refused fit pressed

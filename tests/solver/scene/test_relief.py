@@ -344,3 +344,13 @@ def test_relief_asked_for_and_not_needed_says_so():
                               rounds=1, target=0.5)
     assert not relief.record()["at_target"] and relief.rounds[0]["refused"].startswith(
         "the fit failed")
+
+
+def test_relief_with_no_peak_to_judge_is_not_at_its_target():
+    """No person with a peak over a flat seat's (none rests, or none sits): nothing is tried and
+    nothing is said to be at the target."""
+    scenario, people, persons, maps = _stub_scene([None])
+    _, _, _, relief = relieve(scenario, people, "fit", persons, maps, fit=None, evaluate=None,
+                              rounds=6, target=0.5)
+    assert relief.record()["rounds"] == [] and not relief.record()["at_target"]
+    assert relief_text(relief.record()) is None
