@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from solver.contact.mat import G
 from solver.contact.pressure import GRAVITY
 from solver.mesh import volume_centroid
 
@@ -88,7 +89,7 @@ def least_peak(vertices: np.ndarray, normals: np.ndarray, areas: np.ndarray,
     if not len(skin):
         raise BoundError("No supported skin faces down or sideways: nothing can carry the body")
     centre = volume_centroid(x, np.asarray(triangles, dtype=np.int64))
-    weight = mass_kg * 9.81
+    weight = mass_kg * G
     # columns: pressure per skin vertex (Pa), floor forces (N), tangential tractions (Pa), peak
     push = -(a[skin, None] * n[skin])  # force per unit pressure (into the body)
     columns = [push]

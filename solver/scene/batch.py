@@ -940,8 +940,8 @@ def summary_figures(persons: Sequence[dict]) -> dict:
     """A job's figures in the summary, from its report's `persons`: the smallest coverage, the
     deepest cut, the highest peak (None when someone finds no rest), and over the people a seat
     carries at rest (a stander leaning on a wall has no flat seat to be judged against; None
-    when there is none) the highest same-load flat seat's peak and the highest ratio of a surface's peak on the
-    regions that flat seat presses to it (`peak_of_flat`)."""
+    when there is none) the highest same-load flat seat's peak and the highest ratio of a
+    surface's peak on the regions that flat seat presses to it (`peak_of_flat`)."""
     return {"coverage_min": min(p["coverage"] for p in persons),
             "max_penetration_m": max(p["max_penetration_m"] for p in persons),
             "peak_pressure_kpa_max": _max_or_none(p["peak_pressure_kpa"] for p in persons),

@@ -58,9 +58,10 @@ def evaluate_scene(scenario: Scenario, people: list[PlacedPerson], surface: np.n
                    faces: np.ndarray) -> tuple[list[dict], list[np.ndarray]]:
     """Per person: the fitted surface's figures (with `flat`, the flat-seat baseline and under
     its `same_load` that seat at the fitted seat's load (`flat_at_same_load`), `peak_of_flat`,
-    the fitted surface's peak on the regions that flat seat presses over its peak, and `support_inside_others`, the
-    share of the person's importance inside other people's bodies) and the settle's
-    `PressureMap` (the pressure in kPa per body vertex, the contacts)."""
+    the fitted surface's peak on the regions that flat seat presses over its peak, and
+    `support_inside_others`, the share of the person's importance inside other people's
+    bodies) and the settle's `PressureMap` (the pressure in kPa per body vertex, the
+    contacts)."""
     mesh = SurfaceMesh.from_quads(surface, faces)
     margin, (foam, floor) = scenario.surface.params.margin, foams(scenario.evaluation)
     rows, maps = [], []

@@ -152,9 +152,10 @@ def test_a_rerun_refits_after_the_obj_changed_and_distrusts_a_broken_record(tmp_
 def test_ctrl_c_stops_the_running_jobs_and_the_summary_matches_the_disk(tmp_path):
     """A batch of eight jobs on two workers, in a process group of its own, sent SIGINT (as a
     terminal's Ctrl-C) once its first job has finished (eight, not four: in a whole slow run on
-    two busy cores the four had all ended, exit 0, before the Ctrl-C reached the batch): it ends with status 130, its processes
-    end, and afterwards summary.json says `ok` for exactly the jobs with an `ok` result.json;
-    the others are `interrupted` and no result of theirs appears later."""
+    two busy cores the four had all ended, exit 0, before the Ctrl-C reached the batch): it ends
+    with status 130, its processes end, and afterwards summary.json says `ok` for exactly the
+    jobs with an `ok` result.json; the others are `interrupted` and no result of theirs appears
+    later."""
     import os
     import signal
     import subprocess
@@ -166,7 +167,8 @@ def test_ctrl_c_stops_the_running_jobs_and_the_summary_matches_the_disk(tmp_path
     env = dict(os.environ, PYTHONPATH=str(root), OPENBLAS_NUM_THREADS="1")
     proc = subprocess.Popen(
         [sys.executable, "-m", "studio.cli", "batch", str(EXAMPLES / "single_seated.toml"),
-         "--grid", "sigma=0.002,0.003,0.004,0.005,0.006,0.008,0.01,0.012", "--workers", "2", "--out", str(out)],
+         "--grid", "sigma=0.002,0.003,0.004,0.005,0.006,0.008,0.01,0.012",
+         "--workers", "2", "--out", str(out)],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env,
         start_new_session=True)
     try:
