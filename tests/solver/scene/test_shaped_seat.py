@@ -1,6 +1,6 @@
 """The flat-seat bar is within reach of the evaluation for `single_seated`'s high sitter: a
-control mesh whose heights were searched directly against the evaluation
-(fixtures/studies/single_seated_shaped.obj) meets every bar, the peak on the pelvis and thighs
+control mesh whose heights (and one border vertex) were searched directly against the
+evaluation (fixtures/studies/single_seated_shaped.obj) meets every bar, the peak on the pelvis and thighs
 at most 0.6 of the flat seat's at the same load, where the fit's own surface does not yet. The
 surface is evaluated as `sitrelax fit` evaluates a fitted one."""
 
